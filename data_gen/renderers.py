@@ -1,0 +1,144 @@
+"""Renderer selection: ``make_renderer(scene, renderer_cfg)`` for the ``renderer`` config group.
+
+One renderer (``renderer=vtk`` or ``renderer=numba``) serves both the cache and the selective
+rendering of a run. Every renderer has ``render(view, resolution) -> (m, m, 3) uint8``,
+``render_pixels(view, resolution, pixels) -> (K, 3) uint8`` and ``last_render_seconds``.
+
+The ``renderer`` node:
+
+* ``name``: ``vtk`` | ``numba``.
+* ``mapper`` (vtk): ``fixed_point`` (CPU, default) | ``gpu``.
+* ``threads``: CPU threads of one renderer; ``0`` = automatic (the cache divides the machine's
+  cores among its worker processes).
+
+Keys that cannot change pixels (``threads``) are left out of :func:`renderer_pixel_settings`, the
+part of the renderer config that is hashed into cache keys.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Callable
+
+from .errors import InputError
+from .scene import Scene
+
+# keys of the renderer node that never change the pixels (how fast, not what)
+NON_PIXEL_KEYS = frozenset({"threads"})
+
+
+def _plain(cfg) -> dict[str, Any]:
+    if cfg is None:
+        return {"name": "vtk"}
+    try:
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(cfg, DictConfig):
+            return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    except ImportError:  # pragma: no cover
+        pass
+    if not isinstance(cfg, Mapping):
+        raise InputError(f"renderer: expected a mapping of renderer settings, got {type(cfg).__name__}")
+    return dict(cfg)
+
+
+def _threads(cfg: Mapping[str, Any], threads: int | None) -> int:
+    t = cfg.get("threads", 0) if threads is None else threads
+    try:
+        t = int(t or 0)
+    except (TypeError, ValueError):
+        raise InputError(f"renderer.threads={t}: expected an integer >= 0 (0 = automatic)") from None
+    if t < 0:
+        raise InputError(f"renderer.threads={t}: expected an integer >= 0 (0 = automatic)")
+    return t
+
+
+def _make_vtk(scene: Scene, cfg: Mapping[str, Any], threads: int):
+    from .render_vtk import VTKRenderer
+
+    mapper = cfg.get("mapper", "fixed_point")
+    if mapper not in ("fixed_point", "gpu"):
+        raise InputError(f"renderer.mapper={mapper!r}: expected 'fixed_point' or 'gpu'")
+    return VTKRenderer(scene, mapper=mapper, threads=threads)
+
+
+def _make_numba(scene: Scene, cfg: Mapping[str, Any], threads: int):
+    # the project's own compiled ray caster (VTK's scene model; casts any pixel subset)
+    from .render_numba import NumbaRenderer
+
+    return NumbaRenderer(scene, threads=threads)
+
+
+# name -> factory(scene, renderer_cfg, threads); a new renderer only needs an entry here
+RENDERERS: dict[str, Callable[[Scene, Mapping[str, Any], int], Any]] = {
+    "vtk": _make_vtk,
+    "numba": _make_numba,
+}
+
+
+def make_renderer(scene: Scene, renderer_cfg=None, *, threads: int | None = None):
+    """Build the renderer named by ``renderer_cfg.name`` for ``scene``.
+
+    Args:
+        scene: what to render.
+        renderer_cfg: the ``renderer`` config node (mapping or DictConfig); ``None`` = VTK defaults.
+        threads: overrides ``renderer_cfg.threads`` (the cache sets it per worker process).
+
+    Returns:
+        A renderer with ``render(view, resolution) -> (m, m, 3) uint8`` and ``last_render_seconds``.
+
+    Example:
+        >>> r = make_renderer(scene, {"name": "vtk", "mapper": "fixed_point"})   # doctest: +SKIP
+        >>> r.render([0, 0, 3, 0, 0, 0, 0, 1, 0], 64).shape
+        (64, 64, 3)
+    """
+    cfg = _plain(renderer_cfg)
+    name = cfg.get("name", "vtk")
+    if name not in RENDERERS:
+        raise InputError(f"renderer.name={name!r}: expected one of {sorted(RENDERERS)}")
+    return RENDERERS[name](scene, cfg, _threads(cfg, threads))
+
+
+# revision 2 of vtk: explicit white-ambient headlight, single-threaded normals, exact mapper image
+RENDERER_REVISION = {"vtk": 2, "numba": 1}
+
+
+def renderer_pixel_settings(renderer_cfg=None) -> dict[str, Any]:
+    """The part of the renderer config that can change pixels (hashed into cache keys).
+
+    Defaults are filled in so that ``{"name": "vtk"}`` and ``{"name": "vtk", "mapper":
+    "fixed_point"}`` give the same key.
+    """
+    cfg = _plain(renderer_cfg)
+    name = cfg.get("name", "vtk")
+    if name not in RENDERERS:
+        raise InputError(f"renderer.name={name!r}: expected one of {sorted(RENDERERS)}")
+    _threads(cfg, None)  # checked here so that bad settings fail before any file is written
+    out = {k: v for k, v in sorted(cfg.items()) if k not in NON_PIXEL_KEYS}
+    out["name"] = name
+    # bumped whenever a renderer's pixels change for the same settings, so old caches are not reused
+    out["revision"] = RENDERER_REVISION.get(name, 1)
+    if name == "vtk":
+        out.setdefault("mapper", "fixed_point")
+        if out["mapper"] not in ("fixed_point", "gpu"):
+            raise InputError(f"renderer.mapper={out['mapper']!r}: expected 'fixed_point' or 'gpu'")
+    return out
+
+
+def renderer_version(renderer_cfg=None) -> str:
+    """Version string of the rendering library (recorded in cache manifests, not hashed)."""
+    name = _plain(renderer_cfg).get("name", "vtk")
+    try:
+        if name == "vtk":
+            import vtk
+
+            return f"vtk {vtk.vtkVersion.GetVTKVersion()}"
+        if name == "numba":
+            import numba
+
+            return f"numba {numba.__version__}"
+    except Exception:  # the version is informative only
+        pass
+    return "unknown"
+
+
+__all__ = ["make_renderer", "renderer_pixel_settings", "renderer_version", "RENDERERS", "NON_PIXEL_KEYS"]

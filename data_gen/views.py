@@ -1,0 +1,215 @@
+"""View sets: random training views on a spherical shell and the 120-view test trajectory.
+
+Every view is 9 floats ``(eye_xyz, lookAt_xyz, up_xyz)`` in the normalized space (the volume is
+centred at the origin, longest axis spanning [-1, 1]); see :mod:`data_gen.camera`.
+
+* Training views (paper: 2000 per volume, split 9:1 into train/val): eyes uniformly distributed
+  over directions, radius uniform in ``camera_distance = (r_min, r_max)``; the look-at point is
+  jittered inside a small ball around the centre; the up vector is random and made orthogonal to
+  the view direction.
+* Test trajectory (paper: 120 views "forming an exploratory trajectory to simulate real user
+  exploration"): a smooth orbit around the volume whose radius zooms in and out inside the same
+  shell, whose elevation swings up and down, whose focus wanders smoothly inside the same look-at
+  ball, with a gentle camera roll. Consecutive views differ by a bounded step.
+
+Everything is deterministic from a seed (``numpy.random.SeedSequence`` streams, so the training
+views, the split and the trajectory do not share random numbers).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import validate_view
+from .errors import InputError
+
+# Independent random streams derived from the one user seed.
+_STREAM_TRAIN, _STREAM_SPLIT, _STREAM_TEST = 0, 1, 2
+
+
+def _rng(seed: int, stream: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(seed), stream]))
+
+
+def _check_distance(camera_distance) -> tuple[float, float]:
+    lo, hi = (float(c) for c in camera_distance)
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= hi):
+        raise InputError(f"scene.camera_distance={list(camera_distance)}: expected [min, max] with 0 < min <= max")
+    return lo, hi
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _orthogonal_up(direction: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Gram-Schmidt: remove from ``up`` its component along ``direction`` (both ``(N, 3)``)."""
+    d = _unit(direction)
+    u = up - np.sum(up * d, axis=-1, keepdims=True) * d
+    return _unit(u)
+
+
+def sample_training_views(
+    num_views: int, camera_distance, *, seed: int = 0, lookat_jitter: float = 0.1
+) -> np.ndarray:
+    """Random views around the volume.
+
+    Args:
+        num_views: number of views ``N`` (>= 1).
+        camera_distance: ``(r_min, r_max)``: eyes lie on the shell ``r_min <= |eye| <= r_max``.
+        seed: random seed.
+        lookat_jitter: radius of the ball around the origin the look-at point is drawn from
+            (uniformly, normalized units).
+
+    Returns:
+        ``(N, 9)`` float64 views; each passes :func:`data_gen.camera.validate_view`, and the up
+        vector is a unit vector orthogonal to ``lookAt - eye``.
+
+    Example:
+        >>> v = sample_training_views(4, (2.5, 4.0), seed=0)
+        >>> v.shape, bool(np.all((np.linalg.norm(v[:, :3], axis=1) >= 2.5)))
+        ((4, 9), True)
+    """
+    n = _check_count("data.num_views", num_views, minimum=1)
+    lo, hi = _check_distance(camera_distance)
+    jitter = _check_jitter(lookat_jitter)
+    rng = _rng(seed, _STREAM_TRAIN)
+    direction = _unit(rng.normal(size=(n, 3)))
+    radius = rng.uniform(lo, hi, size=(n, 1))
+    eye = direction * radius
+    # uniform in the ball: direction uniform, radius ~ r^(1/3)
+    look = _unit(rng.normal(size=(n, 3))) * (jitter * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3))
+    up = rng.normal(size=(n, 3))
+    fwd = look - eye
+    # a random up almost parallel to the view direction is redrawn (probability ~1e-6 per view)
+    bad = np.linalg.norm(np.cross(_unit(fwd), _unit(up)), axis=1) < 1e-3
+    while np.any(bad):
+        up[bad] = rng.normal(size=(int(bad.sum()), 3))
+        bad = np.linalg.norm(np.cross(_unit(fwd), _unit(up)), axis=1) < 1e-3
+    up = _orthogonal_up(fwd, up)
+    views = np.concatenate([eye, look, up], axis=1)
+    return validate_views(views, name="training view")
+
+
+def split_train_val(num_views: int, *, val_fraction: float = 0.1, seed: int = 0) -> dict[str, np.ndarray]:
+    """Seeded random split of ``range(num_views)`` into disjoint, covering train/val index sets.
+
+    ``round(N * val_fraction)`` views go to validation (at least one when ``N >= 2`` and the
+    fraction is positive; the paper's ratio is 9:1). Both arrays are sorted ascending, int64.
+
+    Example:
+        >>> s = split_train_val(20, seed=0)
+        >>> len(s["train"]), len(s["val"])
+        (18, 2)
+    """
+    n = _check_count("data.num_views", num_views, minimum=1)
+    f = float(val_fraction)
+    if not (0.0 <= f < 1.0):
+        raise InputError(f"data.val_fraction={val_fraction}: expected a number in [0, 1)")
+    n_val = int(round(n * f))
+    if f > 0 and n >= 2:
+        n_val = max(n_val, 1)
+    n_val = min(n_val, n - 1)
+    perm = _rng(seed, _STREAM_SPLIT).permutation(n)
+    return {"train": np.sort(perm[n_val:]).astype(np.int64), "val": np.sort(perm[:n_val]).astype(np.int64)}
+
+
+def exploration_trajectory(
+    num_views: int = 120, camera_distance=(2.5, 4.0), *, seed: int = 0, lookat_jitter: float = 0.1
+) -> np.ndarray:
+    """A smooth exploratory camera path (the paper's 120-view test set).
+
+    The camera orbits once and a quarter around the polar (z) axis; its elevation swings between
+    about -45 and +45 degrees; its distance zooms in and out across ``camera_distance`` one and a
+    half times; its focus drifts smoothly inside the look-at ball (radius ``lookat_jitter``); the up
+    vector follows +z with a gentle roll of up to 20 degrees. Phases come from ``seed``.
+
+    Args:
+        num_views: number of views ``T`` (the paper uses 120).
+        camera_distance: ``(r_min, r_max)``; every eye lies in this shell.
+        seed: random seed for the phases.
+        lookat_jitter: radius of the ball the focus moves in.
+
+    Returns:
+        ``(T, 9)`` float64 views in path order.
+
+    Example:
+        >>> p = exploration_trajectory(120, (2.5, 4.0), seed=0)
+        >>> p.shape, float(np.abs(np.diff(p[:, :3], axis=0)).max()) < 0.3
+        ((120, 9), True)
+    """
+    t_n = _check_count("data.test_views", num_views, minimum=1)
+    lo, hi = _check_distance(camera_distance)
+    jitter = _check_jitter(lookat_jitter)
+    rng = _rng(seed, _STREAM_TEST)
+    ph = rng.uniform(0, 2 * np.pi, size=8)
+    s = np.linspace(0.0, 1.0, t_n)  # path parameter
+    azimuth = ph[0] + 2.5 * np.pi * s  # 1.25 turns
+    elevation = np.deg2rad(45.0) * np.sin(2 * np.pi * 1.0 * s + ph[1])
+    # zoom in/out inside the shell, kept a little off its limits
+    mid, amp = (lo + hi) / 2, (hi - lo) / 2 * 0.95
+    radius = mid + amp * np.sin(2 * np.pi * 1.5 * s + ph[2])
+    ce = np.cos(elevation)
+    eye = radius[:, None] * np.stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)], axis=1)
+    # changes of focus: a smooth Lissajous-like drift of the look-at point inside the jitter ball
+    look = np.stack(
+        [np.sin(2 * np.pi * 1.0 * s + ph[3]), np.sin(2 * np.pi * 1.5 * s + ph[4]), np.sin(2 * np.pi * 0.75 * s + ph[5])],
+        axis=1,
+    ) * (jitter / np.sqrt(3.0))
+    fwd = _unit(look - eye)
+    up0 = _orthogonal_up(fwd, np.broadcast_to(np.array([0.0, 0.0, 1.0]), fwd.shape))
+    right = np.cross(fwd, up0)
+    roll = np.deg2rad(20.0) * np.sin(2 * np.pi * 0.5 * s + ph[6])
+    up = np.cos(roll)[:, None] * up0 + np.sin(roll)[:, None] * right
+    views = np.concatenate([eye, look, up], axis=1)
+    return validate_views(views, name="test trajectory view")
+
+
+def load_views_file(path) -> np.ndarray:
+    """Read a user's own view list: ``.npy`` array ``(T, 9)`` or a text file with 9 numbers per
+    line (whitespace or comma separated, ``#`` comments). Every view is validated."""
+    from pathlib import Path
+
+    p = Path(str(path)).expanduser()
+    if not p.is_file():
+        raise InputError(f"data.test_trajectory={path}: file not found")
+    try:
+        if p.suffix == ".npy":
+            a = np.load(p, allow_pickle=False)
+        else:
+            a = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=2, comments="#")
+    except Exception as err:  # unreadable content: name the file, keep it to one line
+        raise InputError(f"data.test_trajectory={path}: cannot read views ({type(err).__name__}: {err})") from None
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 9 or len(a) == 0:
+        raise InputError(f"data.test_trajectory={path}: expected rows of 9 numbers (eye, lookAt, up), got shape {a.shape}")
+    return validate_views(a, name=f"data.test_trajectory={path}: view")
+
+
+def validate_views(views: np.ndarray, *, name: str = "view") -> np.ndarray:
+    """Validate every row of ``(N, 9)`` views; the error names the first bad row."""
+    v = np.asarray(views, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 9:
+        raise InputError(f"{name}s: expected an (N, 9) array, got shape {v.shape}")
+    for i in range(len(v)):
+        validate_view(v[i], name=f"{name} {i}")
+    return v
+
+
+def _check_count(name: str, value, minimum: int) -> int:
+    try:
+        n = int(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}={value}: expected an integer >= {minimum}") from None
+    if n != value or n < minimum:
+        raise InputError(f"{name}={value}: expected an integer >= {minimum}")
+    return n
+
+
+def _check_jitter(value) -> float:
+    j = float(value)
+    if not (np.isfinite(j) and j >= 0):
+        raise InputError(f"data.lookat_jitter={value}: expected a number >= 0 (normalized units)")
+    return j
+
+
+__all__ = ["sample_training_views", "split_train_val", "exploration_trajectory", "load_views_file", "validate_views"]

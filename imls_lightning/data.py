@@ -1,0 +1,202 @@
+"""The one LightningDataModule of the project.
+
+It renders the (view, image) cache first if it is missing, reads it memory-mapped, and yields per
+view what every model here needs:
+
+============  =================  ==========================================================
+key           shape              meaning
+============  =================  ==========================================================
+``index``     ()                 row of the cache
+``view``      (9,) float32       eye, lookAt, up
+``fr``        (3, m, m) float32  FR-Image in [0, 1]
+``pr``        (3, m, m) float32  PR-Image: FR-Image on the pattern, 0 elsewhere
+``c``         (3, n, n) float32  C-Image (pattern pixels in raster order, zero padded)
+``low``       (3, l, l) float32  a low-resolution render of the same view (LAS), if asked
+``im``        (1, n, n) float32  IM label {0, 1} made by a trained IML encoder, if asked
+``pim``       (1, n, n) float32  the continuous PIM' behind that label, if asked
+============  =================  ==========================================================
+
+The pattern mask itself is constant and lives on :attr:`ImlsDataModule.pattern` (and in every
+task), not in the batches. Splits: ``train``/``val`` are the 9:1 split of the random views, ``test``
+is the 120-view exploration trajectory.
+"""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from data_gen.errors import InputError
+
+from .compaction import compact
+from .config import to_plain
+from .patterns import SamplingPattern, build_pattern
+
+ALL_FIELDS = ("view", "fr", "pr", "c")
+
+
+class ViewImageDataset(Dataset):
+    """Rows of a view/image cache, opened lazily (memory-mapped) in each loader process."""
+
+    def __init__(
+        self,
+        cache_path: str | Path,
+        rows: np.ndarray,
+        pattern: SamplingPattern,
+        fields: Iterable[str] = ALL_FIELDS,
+        low_res_path: str | Path | None = None,
+        labels_path: str | Path | None = None,
+    ):
+        self.cache_path = Path(cache_path)
+        self.rows = np.asarray(rows, dtype=np.int64)
+        self.pattern = pattern
+        self.fields = tuple(fields)
+        self.low_res_path = Path(low_res_path) if low_res_path else None
+        self.labels_path = Path(labels_path) if labels_path else None
+        self._cache = self._low = self._labels = None
+
+    def _open(self):
+        from data_gen.cache import ViewImageCache
+
+        if self._cache is None:
+            self._cache = ViewImageCache.open(self.cache_path)
+            if self.low_res_path is not None:
+                self._low = ViewImageCache.open(self.low_res_path)
+            if self.labels_path is not None:
+                from .labels import ImportanceLabels
+
+                self._labels = ImportanceLabels.open(self.labels_path)
+        return self._cache
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        cache = self._open()
+        row = int(self.rows[i])
+        out: dict[str, Any] = {"index": row, "view": torch.from_numpy(np.asarray(cache.views[row], np.float32))}
+        img = torch.from_numpy(np.array(cache.images[row])).permute(2, 0, 1).float().div_(255.0)
+        if "fr" in self.fields:
+            out["fr"] = img
+        if "pr" in self.fields:
+            out["pr"] = img * self.pattern.mask.to(img.dtype)
+        if "c" in self.fields:
+            out["c"] = compact(img[None], self.pattern.indices, self.pattern.c_size)[0]
+        if self._low is not None:
+            out["low"] = torch.from_numpy(np.array(self._low.images[row])).permute(2, 0, 1).float().div_(255.0)
+        if self._labels is not None:
+            out["im"] = torch.from_numpy(self._labels.im(row)).float()[None]
+            out["pim"] = torch.from_numpy(self._labels.pim(row)).float()[None]
+        return out
+
+
+class ImlsDataModule(L.LightningDataModule):
+    """Cache-backed data for every model (RecNN, IML, IMS, LAS).
+
+    Args:
+        scene: the ``scene`` config node.
+        data: the ``data`` config node (cache settings + ``batch_size`` + ``loader_workers``).
+        renderer: the ``renderer`` config node.
+        pattern: the ``pattern`` config node (or a built :class:`SamplingPattern`).
+        fields: which of ``view, fr, pr, c`` to yield.
+        low_res: also yield ``low``, a render of the same views at this resolution (LAS).
+        labels: a directory of IML labels (``im``, ``pim``) made by :mod:`imls_lightning.labels`.
+    """
+
+    def __init__(
+        self,
+        scene: Mapping,
+        data: Mapping,
+        renderer: Mapping,
+        pattern: Mapping | SamplingPattern,
+        fields: Iterable[str] = ALL_FIELDS,
+        low_res: int | None = None,
+        labels: str | Path | None = None,
+        progress: bool = True,
+    ):
+        super().__init__()
+        self.scene_cfg = to_plain(scene)
+        self.data_cfg = to_plain(data)
+        self.renderer_cfg = to_plain(renderer)
+        bad = set(fields) - set(ALL_FIELDS)
+        if bad:
+            raise InputError(f"data fields {sorted(bad)}: expected some of {list(ALL_FIELDS)}")
+        self.fields = tuple(fields)
+        self.low_res = int(low_res) if low_res else None
+        self.labels = Path(labels) if labels else None
+        self.progress = progress
+        self.batch_size = int(self.data_cfg.get("batch_size", 8))
+        self.loader_workers = int(self.data_cfg.get("loader_workers", 0))
+        if self.batch_size <= 0:
+            raise InputError(f"data.batch_size={self.batch_size}: expected a positive integer")
+        self.fr_size = int(self.data_cfg["resolution"])
+        self.pattern = pattern if isinstance(pattern, SamplingPattern) else build_pattern(to_plain(pattern), self.fr_size)
+        self.cache_path: Path | None = None
+        self.low_res_path: Path | None = None
+        self._datasets: dict[str, ViewImageDataset] = {}
+
+    # -- cache --------------------------------------------------------------------------------
+    def _low_res_data_cfg(self) -> dict:
+        d = copy.deepcopy(self.data_cfg)
+        d["resolution"] = self.low_res
+        return d
+
+    def _ensure(self) -> None:
+        from data_gen.cache import ensure_cache
+        from data_gen.scene import build_scene
+
+        scene = build_scene(self.scene_cfg)
+        self.cache_path = Path(ensure_cache(scene, self.data_cfg, self.renderer_cfg, progress=self.progress))
+        if self.low_res:
+            self.low_res_path = Path(ensure_cache(scene, self._low_res_data_cfg(), self.renderer_cfg, progress=self.progress))
+
+    def prepare_data(self) -> None:
+        # rank 0 only under DDP: render whatever is missing
+        self._ensure()
+
+    def setup(self, stage: str | None = None) -> None:
+        from data_gen.cache import ViewImageCache
+
+        if self.cache_path is None:
+            self._ensure()  # complete caches are found, not re-rendered
+        cache = ViewImageCache.open(self.cache_path)
+        if cache.images.shape[1] != self.fr_size:
+            raise InputError(f"cache {self.cache_path}: images are {cache.images.shape[1]}^2, expected data.resolution={self.fr_size}")
+        for split in ("train", "val", "test"):
+            self._datasets[split] = ViewImageDataset(
+                self.cache_path, cache.splits[split], self.pattern, self.fields, self.low_res_path, self.labels
+            )
+
+    def dataset(self, split: str) -> ViewImageDataset:
+        if not self._datasets:
+            self.setup()
+        return self._datasets[split]
+
+    # -- loaders ------------------------------------------------------------------------------
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        ds = self.dataset(split)
+        return DataLoader(
+            ds,
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.loader_workers,
+            persistent_workers=self.loader_workers > 0,
+            pin_memory=torch.cuda.is_available(),
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)

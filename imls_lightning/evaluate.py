@@ -1,0 +1,481 @@
+"""Speed/accuracy evaluation of IML/S + RecNN against every baseline, on the same views in one run.
+
+``python -m imls_lightning.evaluate scene=NAME checkpoints.ims=<IMS .ckpt> [checkpoints.las=<LAS .ckpt>]``
+
+For each view of the cache's test trajectory (``views=test``; rendered if missing, with the
+scene/data/renderer groups the networks were trained with) and each method - full ray cast, RecNN
+alone, LAS (with a LAS checkpoint), IML + RecNN, IML/S + RecNN - every stage is timed (median of
+``repeats`` runs after ``warmup``; see :func:`imls_lightning.pipeline.time_method`) and the image is
+scored against the cache's ground truth (PSNR, SSIM). Selective rendering is real: the renderer
+ray-casts only the chosen pixels.
+
+Two sweeps on ``sweep_views`` views feed the latency/PSNR plot:
+
+* IML + RecNN at each inference mean ``u`` in ``mean_values`` (the IML normalization target set at
+  inference), and "IML IM, selectively rendered": the IML/S pipeline run with the IML's mask of
+  that view in place of the IMS output (the IMS network still runs and is timed). It is the latency
+  an IML/S would have if its IMS reproduced the IML's mask at that ``u``; its image equals
+  IML + RecNN's (the numba renderer's selective render is exact).
+* LAS at each IPR of ``las_iprs``.
+
+With ``options_sweep=true`` the IML/S network stages are also timed with each inference option
+alone (``options_sweep_options``: half, channels_last, compile) on ``options_sweep_views`` views.
+
+Output (``output_dir``): ``metrics.csv`` (view x method), ``sweep.csv``, ``options.csv``,
+``config.yaml``, PNG plots, ``image_grid.png`` and ``report.md`` (written last, atomically; a run
+deletes a previous report.md first, so a directory without one holds no finished evaluation). The
+report's path is the last line of stdout.
+
+Python:
+    >>> from hydra import compose, initialize_config_dir          # doctest: +SKIP
+    >>> with initialize_config_dir("/path/to/conf", version_base="1.3"):
+    ...     cfg = compose("evaluate", overrides=["scene=tiny", "data=tiny", "checkpoints.ims=ims.ckpt"])
+    >>> report = evaluate(cfg)                                      # doctest: +SKIP
+    >>> summary(report.parent / "metrics.csv")["imls"]["latency_ms"]["total"]   # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import hydra
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+import data_gen  # noqa: F401  (registers the scene config resolvers)
+from data_gen.errors import InputError, cli_errors
+
+from . import report as rep
+from .config import file_hash, register_resolvers, settings_hash, to_plain
+from .pipeline import (
+    STAGES,
+    FullRayCast,
+    IMLPlusRecNN,
+    IMLSRenderer,
+    LASMethod,
+    Method,
+    NetOptions,
+    RecNNAlone,
+    pick_device,
+    time_method,
+)
+from .report import summary  # noqa: F401  (public: summary(metrics_csv) -> dict)
+
+register_resolvers()
+
+MIN_REPEATS = 10
+OPTION_NAMES = ("half", "channels_last", "compile")
+
+
+# ------------------------------------------------------------------------------------------------
+# settings
+
+
+def _int(cfg, key: str, minimum: int, allow_none: bool = False) -> int | None:
+    v = OmegaConf.select(cfg, key)
+    if v is None and allow_none:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v or int(v) < minimum:
+        what = f"an integer >= {minimum}" + (" or null" if allow_none else "")
+        raise InputError(f"{key}={v}: expected {what}")
+    return int(v)
+
+
+def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
+    v = to_plain(OmegaConf.select(cfg, key))
+    if v is None:
+        return []
+    if not isinstance(v, (list, tuple)):
+        v = [v]
+    out = []
+    for x in v:
+        try:
+            f = float(x)
+        except (TypeError, ValueError):
+            raise InputError(f"{key}={v}: expected a list of numbers in {'(' if lo_open else '['}{lo}, {hi}]") from None
+        if not (math.isfinite(f) and (f > lo if lo_open else f >= lo) and f <= hi):
+            raise InputError(f"{key}={v}: expected numbers in {'(' if lo_open else '['}{lo}, {hi}]")
+        out.append(f)
+    return out
+
+
+@dataclass
+class Settings:
+    """The evaluation's validated settings (see ``conf/evaluate.yaml``)."""
+
+    ims: str
+    las: str | None
+    recnn: str | None
+    iml: str | None
+    views: str
+    max_views: int | None
+    repeats: int
+    warmup: int
+    options: NetOptions
+    options_sweep: bool
+    options_sweep_options: list[str]
+    options_sweep_views: int
+    las_ipr: float | None
+    las_iprs: list[float]
+    mean_values: list[float]
+    sweep_views: int | None
+    grid_views: int
+    output_dir: str | None
+    reuse: bool
+    progress: bool
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def hashed(self) -> dict[str, Any]:
+        """Settings that change the results (enter the output directory's hash)."""
+        return {
+            "views": self.views, "max_views": self.max_views, "repeats": self.repeats, "warmup": self.warmup,
+            "options": vars(self.options), "options_sweep": self.options_sweep,
+            "options_sweep_options": self.options_sweep_options, "options_sweep_views": self.options_sweep_views,
+            "las_ipr": self.las_ipr, "las_iprs": self.las_iprs, "mean_values": self.mean_values,
+            "sweep_views": self.sweep_views, "grid_views": self.grid_views,
+        }
+
+
+def parse_settings(cfg: DictConfig) -> Settings:
+    """Validate the evaluation keys of ``cfg``; bad values raise a one-line :class:`InputError`."""
+    ck = cfg.get("checkpoints")
+    if ck is None or OmegaConf.is_missing(ck, "ims") or not ck.get("ims"):
+        raise InputError("checkpoints.ims: required, the IMS checkpoint to evaluate (python -m imls_lightning.train model=ims ...)")
+    repeats = OmegaConf.select(cfg, "repeats")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < MIN_REPEATS:
+        raise InputError(f"repeats={repeats}: expected an integer >= {MIN_REPEATS} (stage times are medians of at least {MIN_REPEATS} runs per view)")
+    views = str(cfg.get("views", "test"))
+    if views not in ("test", "val"):
+        raise InputError(f"views={views}: expected 'test' (the trajectory) or 'val'")
+    opt = to_plain(cfg.get("options")) or {}
+    unknown = set(opt) - {"device", "half", "channels_last", "compile"}
+    if unknown:
+        raise InputError(f"options.{sorted(unknown)[0]}: unknown option; expected device, half, channels_last, compile")
+    for k in OPTION_NAMES:
+        if not isinstance(opt.get(k, False), bool):
+            raise InputError(f"options.{k}={opt.get(k)}: expected true or false")
+    options = NetOptions(device=str(opt.get("device", "auto")), half=bool(opt.get("half", False)),
+                         channels_last=bool(opt.get("channels_last", False)), compile=bool(opt.get("compile", False)))
+    pick_device(options.device)  # fails early on a missing CUDA device
+    sweep_opts = [str(o) for o in (to_plain(cfg.get("options_sweep_options")) or [])]
+    bad = [o for o in sweep_opts if o not in OPTION_NAMES]
+    if bad:
+        raise InputError(f"options_sweep_options={sweep_opts}: unknown option {bad[0]!r}; expected some of {list(OPTION_NAMES)}")
+    las_ipr = cfg.get("las_ipr")
+    if las_ipr is not None:
+        las_ipr = _floats(cfg, "las_ipr", 0.0, 1.0, lo_open=True)[0]
+    return Settings(
+        ims=str(ck.ims), las=ck.get("las") or None, recnn=ck.get("recnn") or None, iml=ck.get("iml") or None,
+        views=views, max_views=_int(cfg, "max_views", 1, allow_none=True), repeats=int(repeats),
+        warmup=_int(cfg, "warmup", 0), options=options, options_sweep=bool(cfg.get("options_sweep", False)),
+        options_sweep_options=sweep_opts, options_sweep_views=_int(cfg, "options_sweep_views", 1),
+        las_ipr=las_ipr, las_iprs=_floats(cfg, "las_iprs", 0.0, 1.0, lo_open=True),
+        mean_values=_floats(cfg, "mean_values", 0.01, 1.0), sweep_views=_int(cfg, "sweep_views", 1, allow_none=True),
+        grid_views=_int(cfg, "grid_views", 0), output_dir=cfg.get("output_dir") or None,
+        reuse=bool(cfg.get("reuse", False)), progress=bool(cfg.get("progress", True)),
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# networks
+
+
+@dataclass
+class Networks:
+    """What the checkpoints provide."""
+
+    ims_task: Any
+    recnn: torch.nn.Module
+    iml: torch.nn.Module
+    las_task: Any | None
+    recnn_name: str
+    recnn_source: str
+    iml_source: str
+
+
+def load_networks(s: Settings, resolution: int) -> Networks:
+    """Load and cross-check the checkpoints (pattern, resolution) before anything is rendered."""
+    from .tasks.base import load_task
+
+    ims = load_task(s.ims, expect="IMSTask", what="checkpoints.ims")
+    fr = int(ims.hparams["fr_size"])
+    if fr != resolution:
+        raise InputError(f"checkpoints.ims={s.ims}: trained at data.resolution={fr}, this evaluation uses data.resolution={resolution}; pass data.resolution={fr} (and the data group it was trained with)")
+    fp = ims.pattern.fingerprint()
+    if s.recnn:
+        rt = load_task(s.recnn, expect="RecNNTask", what="checkpoints.recnn")
+        if int(rt.hparams["fr_size"]) != fr or rt.pattern.fingerprint() != fp:
+            raise InputError(f"checkpoints.recnn={s.recnn}: trained on pattern {rt.pattern.summary()} at {rt.hparams['fr_size']}^2, the IMS on {ims.pattern.summary()} at {fr}^2")
+        recnn, recnn_source, recnn_name = rt.net, s.recnn, rt.hparams.get("recnn_name", "recnn")
+    elif ims.recnn is not None:
+        recnn, recnn_source = ims.recnn, f"{s.ims} ({ims.hparams.get('recnn_source') or 'stored'})"
+        recnn_name = (ims.hparams.get("recnn_hparams") or {}).get("recnn_name", "recnn")
+    else:
+        raise InputError(f"checkpoints.ims={s.ims}: carries no RecNN (its IML was trained standalone); pass checkpoints.recnn=<RecNN .ckpt>")
+    if s.iml:
+        it = load_task(s.iml, expect="IMLTask", what="checkpoints.iml")
+        if int(it.hparams["fr_size"]) != fr or it.pattern.fingerprint() != fp:
+            raise InputError(f"checkpoints.iml={s.iml}: trained on pattern {it.pattern.summary()} at {it.hparams['fr_size']}^2, the IMS on {ims.pattern.summary()} at {fr}^2")
+        iml, iml_source = it.iml, s.iml
+    else:
+        iml, iml_source = ims.iml, f"{s.ims} (the IML its labels came from)"
+    las = None
+    if s.las:
+        las = load_task(s.las, expect="LASTask", what="checkpoints.las")
+        if int(las.hparams["fr_size"]) != fr:
+            raise InputError(f"checkpoints.las={s.las}: trained at data.resolution={las.hparams['fr_size']}, the IMS at {fr}")
+    return Networks(ims, recnn, iml, las, str(recnn_name), str(recnn_source), str(iml_source))
+
+
+# ------------------------------------------------------------------------------------------------
+# measuring
+
+
+def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """PSNR (dB, 100 for identical images) and SSIM of two ``(m, m, 3)`` uint8 images."""
+    from .losses import psnr, ssim
+
+    p = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float().div(255.0)
+    t = torch.from_numpy(np.ascontiguousarray(truth)).permute(2, 0, 1)[None].float().div(255.0)
+    return float(psnr(p, t)), float(ssim(p, t))
+
+
+def measure(method: Method, view: np.ndarray, truth: np.ndarray, repeats: int, warmup: int) -> tuple[dict[str, Any], np.ndarray, dict[str, Any]]:
+    """Time one method on one view and score it: ``(metric row fields, image, info)``."""
+    image, med, info = time_method(method, view, repeats=repeats, warmup=warmup)
+    q_psnr, q_ssim = image_quality(image, truth)
+    row: dict[str, Any] = {f"{k}_ms": 1e3 * v for k, v in med.items() if k != "total"}
+    row["total_ms"] = 1e3 * med["total"]
+    row.update(ipr=info.get("ipr"), c_share=info.get("c_share"), rendered_pixels=info.get("rendered_pixels"),
+               psnr=q_psnr, ssim=q_ssim)
+    return row, image, info
+
+
+def spaced(n: int, k: int | None) -> np.ndarray:
+    """``k`` indices evenly spaced over ``range(n)`` (all when ``k`` is None or >= n)."""
+    if k is None or k >= n:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, k).round().astype(np.int64))
+
+
+class _OracleIM:
+    """``predict_im`` for "IML IM, selectively rendered": runs the IMS network (timed, as in IML/S)
+    but returns the IML's mask of the current view, set in :attr:`im` before each view."""
+
+    def __init__(self, predict_im):
+        self.predict_im = predict_im
+        self.im: torch.Tensor | None = None
+
+    def __call__(self, view: torch.Tensor) -> torch.Tensor:
+        self.predict_im(view)
+        return self.im.to(view.device)[None, None]
+
+
+def _bar(iterable, total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(iterable, total=total, desc=desc, unit="view", file=sys.stderr, disable=not enabled, dynamic_ncols=True)
+
+
+def _command() -> str:
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        if HydraConfig.initialized():
+            args = list(HydraConfig.get().overrides.task)
+            return "python -m imls_lightning.evaluate " + " ".join(args)
+    except Exception:  # informative only
+        pass
+    return "evaluate(cfg) through the Python API (settings: config.yaml)"
+
+
+# ------------------------------------------------------------------------------------------------
+# the evaluation
+
+
+def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
+    """Run the evaluation described by ``cfg`` (``conf/evaluate.yaml``); returns ``report.md``'s path."""
+    from data_gen.cache import ViewImageCache, ensure_cache
+    from data_gen.renderers import make_renderer, renderer_pixel_settings
+    from data_gen.scene import build_scene
+
+    s = parse_settings(cfg)
+    resolution = int(cfg.data.resolution)
+    nets = load_networks(s, resolution)
+    ims = nets.ims_task
+    scene = build_scene(cfg.scene)
+    rcfg = to_plain(cfg.renderer)
+
+    ck_hashes = {k: file_hash(p) for k, p in (("ims", s.ims), ("las", s.las), ("recnn", s.recnn), ("iml", s.iml)) if p}
+    run_hash = settings_hash(ck_hashes, cfg.scene, cfg.data, renderer_pixel_settings(rcfg), s.hashed())
+    out = Path(s.output_dir) if s.output_dir else Path(str(cfg.paths.runs_dir)) / "eval" / f"{scene.name}-{nets.recnn_name}-{run_hash}"
+    report_path = out / "report.md"
+    if s.reuse and report_path.is_file():
+        print(f"[evaluate] {out} already has a report of these settings; reusing it (reuse=false re-measures)", file=sys.stderr, flush=True)
+        return report_path
+    out.mkdir(parents=True, exist_ok=True)
+    report_path.unlink(missing_ok=True)  # no report.md = no finished evaluation in this folder
+
+    cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
+    if cache.resolution != resolution:
+        raise InputError(f"data.resolution={resolution}: the cache {cache.path} holds {cache.resolution}^2 images")
+    rows_all = cache.splits[s.views]
+    if len(rows_all) == 0:
+        raise InputError(f"views={s.views}: the cache {cache.path} has no {s.views} views")
+    positions = spaced(len(rows_all), s.max_views)
+    renderer = make_renderer(scene, rcfg)
+    opts = s.options
+    device = pick_device(opts.device)
+    pattern = ims.pattern
+    m = resolution
+
+    # -- methods (the networks are shared between methods with the same options) -----------------
+    imls = IMLSRenderer.from_task(ims, renderer, nets.recnn, opts)
+    methods: dict[str, Method] = {
+        "full": FullRayCast(renderer, m, opts),
+        "recnn": RecNNAlone(renderer, pattern, nets.recnn, opts),
+        "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts),
+        "imls": imls,
+    }
+    notes: list[str] = []
+    las_ipr_used = None
+    if nets.las_task is not None:
+        if s.las_ipr is not None:
+            las_ipr_used, how = s.las_ipr, "fixed (las_ipr)"
+        else:
+            # IML/S's mean IPR on these views: the IMS network alone (no rendering) decides it
+            with torch.inference_mode():
+                counts = [int(imls.predict_im(torch.as_tensor(np.asarray(cache.views[rows_all[p]], np.float32))[None].to(device)).sum())
+                          for p in positions]
+            mean_ipr = float(np.mean(counts)) / m**2
+            las_ipr_used, how = max(mean_ipr, 1.0 / m**2), "matched to IML/S's mean IPR on these views"
+            if mean_ipr < 1.0 / m**2:
+                notes.append(f"IML/S selects no pixel on these views (IPR 0): LAS runs at the smallest IPR, 1 pixel ({las_ipr_used:.2e}).")
+        methods["las"] = LASMethod(renderer, nets.las_task.net, m, int(nets.las_task.hparams["low_res"]), ipr=las_ipr_used, opts=opts)
+        notes.append(f"LAS at IPR {las_ipr_used:.4f}, {how}; its mean u is bisected per view outside the timed stages (LAS's evaluation protocol).")
+    else:
+        notes.append("LAS skipped: no LAS checkpoint (checkpoints.las=<LAS .ckpt>, trained with python -m imls_lightning.train model=las).")
+    order = [k for k in rep.METHOD_ORDER if k in methods]
+
+    # -- main loop -----------------------------------------------------------------------------
+    grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()
+    sweep_pos = [int(positions[i]) for i in spaced(len(positions), s.sweep_views)]
+    rows: list[dict[str, Any]] = []
+    grid: dict[int, dict[str, Any]] = {}
+    for p in _bar(positions, len(positions), f"evaluate {scene.name}", s.progress):
+        p = int(p)
+        r = int(rows_all[p])
+        view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
+        if p in grid_pos:
+            grid[p] = {"truth": truth}
+        for name in order:
+            fields, image, info = measure(methods[name], view, truth, s.repeats, s.warmup)
+            rows.append({"view": p, "row": r, "method": name, **fields})
+            if p in grid_pos:
+                grid[p][name] = image
+                if name == "imls":
+                    grid[p]["imls_im"] = info.get("im")
+    rep.write_metrics_csv(rows, out / "metrics.csv")
+
+    # -- sweeps for the latency / PSNR plot ------------------------------------------------------
+    sweep_rows = _sweeps(s, methods, nets, renderer, cache, rows_all, sweep_pos, opts, m)
+    rep.write_metrics_csv(sweep_rows, out / "sweep.csv", rep.SWEEP_COLUMNS)
+
+    # -- options -----------------------------------------------------------------------------------
+    option_rows: list[dict[str, Any]] = []
+    if s.options_sweep:
+        opt_pos = [int(positions[i]) for i in spaced(len(positions), s.options_sweep_views)]
+        option_rows = _options_sweep(s, renderer, cache, rows_all, opt_pos)
+        rep.write_metrics_csv(option_rows, out / "options.csv", rep.OPTION_COLUMNS)
+
+    # -- report ------------------------------------------------------------------------------------
+    plain = {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
+    plain.update(checkpoints=to_plain(cfg.checkpoints), settings=s.hashed(), output_dir=str(out))
+    rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)))
+    ctx = rep.ReportContext(
+        out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,
+        pattern=pattern.summary(), renderer=str(rcfg.get("name")), views=s.views, positions=[int(p) for p in positions],
+        trajectory_len=len(rows_all), repeats=s.repeats, warmup=s.warmup, options=vars(opts), device=str(device),
+        checkpoints={"IMS": s.ims, "RecNN": nets.recnn_source, "IML (IML + RecNN)": nets.iml_source, "LAS": s.las or "–"},
+        iml_mean=float(nets.iml.mean), rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, order=order,
+        sweep_positions=sweep_pos, grid=grid, pattern_obj=pattern, notes=notes, las_ipr=las_ipr_used,
+        machine=rep.machine_info(str(device)), command=command or _command(), cache=str(cache.path),
+    )
+    return rep.write_report(ctx)
+
+
+def _sweeps(s: Settings, methods, nets: Networks, renderer, cache, rows_all, sweep_pos, opts, m) -> list[dict[str, Any]]:
+    """IML + RecNN and "IML IM, selectively rendered" at each mean; LAS at each IPR."""
+    out: list[dict[str, Any]] = []
+    if not sweep_pos:
+        return out
+    imls: IMLSRenderer = methods["imls"]  # type: ignore[assignment]
+    oracle = _OracleIM(imls.predict_im)
+    selective = IMLSRenderer(renderer, imls.pattern, oracle, nets.ims_task.decoder, nets.recnn, opts)
+    jobs: list[tuple[str, str, float, Method | None]] = []
+    for u in s.mean_values:
+        jobs.append(("iml", "mean", u, IMLPlusRecNN(renderer, imls.pattern, nets.iml, nets.recnn, opts, mean=u)))
+        jobs.append(("iml_selective", "mean", u, None))  # runs right after iml, with its masks
+    if nets.las_task is not None:
+        for ipr in s.las_iprs:
+            jobs.append(("las", "ipr", ipr, LASMethod(renderer, nets.las_task.net, m, int(nets.las_task.hparams["low_res"]), ipr=ipr, opts=opts)))
+    masks: dict[int, torch.Tensor] = {}
+    for name, setting, value, method in _bar(jobs, len(jobs), "sweeps", s.progress):
+        for p in sweep_pos:
+            r = int(rows_all[p])
+            view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
+            if name == "iml_selective":
+                oracle.im = masks[p]
+                fields, _, _ = measure(selective, view, truth, s.repeats, s.warmup)
+            else:
+                fields, _, info = measure(method, view, truth, s.repeats, s.warmup)
+                if name == "iml":
+                    masks[p] = info["im"]
+            out.append({"view": p, "row": r, "method": name, "setting": setting, "value": value, **fields})
+    return out
+
+
+def _options_sweep(s: Settings, renderer, cache, rows_all, positions) -> list[dict[str, Any]]:
+    """IML/S with each inference option alone (fresh networks per option); failures are reported."""
+    import time
+
+    out = []
+    configs = [("baseline", {})] + [(o, {o: True}) for o in s.options_sweep_options]
+    for name, kw in configs:
+        opts = NetOptions(device=s.options.device, **kw)
+        row: dict[str, Any] = {"option": name}
+        try:
+            method = IMLSRenderer.from_checkpoints(s.ims, renderer=renderer, recnn_checkpoint=s.recnn, opts=opts)
+            first = int(rows_all[positions[0]])
+            t0 = time.perf_counter()
+            method.render(cache.views[first])  # first call: pays torch.compile's compilation
+            row["first_call_s"] = time.perf_counter() - t0
+            fields = []
+            for p in positions:
+                r = int(rows_all[p])
+                f, _, _ = measure(method, np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r]), s.repeats, max(s.warmup, 1))
+                fields.append(f)
+            for k in ("importance_ms", "selective_render_ms", "decoder_ms", "recnn_ms", "total_ms", "psnr"):
+                row[k] = float(np.mean([f.get(k, math.nan) for f in fields]))
+            row["networks_ms"] = row["importance_ms"] + row["decoder_ms"] + row["recnn_ms"]
+        except InputError:
+            raise
+        except Exception as err:  # e.g. torch.compile without a working C++ toolchain: report it
+            row["error"] = f"{type(err).__name__}: {str(err).splitlines()[0][:160] if str(err) else ''}"
+        out.append(row)
+    return out
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+@cli_errors
+def main(cfg: DictConfig) -> None:
+    path = evaluate(cfg)
+    print(path, flush=True)
+
+
+if __name__ == "__main__":
+    main()

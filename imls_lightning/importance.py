@@ -1,0 +1,251 @@
+"""Importance normalization and rejection sampling of the IML network (paper, "Importance Mask
+Learning Network": Normalization, Rejection Sampling).
+
+The encoder's preliminary importance mask PIM (``>= 0``, from a softplus) is rescaled per image so
+that its mean is the prescribed *mean value* ``u``:
+
+    PIM'_ij = l + PIM_ij (u - l) / (mean(PIM) + delta)
+
+and thresholded against the fixed plastic rank pattern ``P`` (values in ``(0, 1]``):
+
+    hard (inference):  IM_ij = [PIM'_ij > P_ij]                 one bit per pixel
+    soft (training):   IM_ij = sigmoid(alpha (PIM'_ij - P_ij))   differentiable
+
+Numerics. Both steps run in float32 with autocast disabled, whatever the input dtype (float64 stays
+float64, for ``gradcheck``): under bf16 autocast the 8-bit mantissa would quantize ``P`` and
+``PIM'`` to ~0.4 % and move the mask. ``torch.sigmoid`` saturates to exactly 0/1 without
+overflow, so ``alpha = 1e4`` is safe, and with ``l = 0`` the largest possible ``PIM'`` is
+``u * N`` (all importance on one of ``N`` pixels), so ``alpha (PIM' - P)`` stays far from the
+float32 range. An all-zero PIM has mean 0; ``delta`` then keeps the division finite and gives
+``PIM' = l`` (no important pixels for ``l = 0``), gradients stay finite. Note the same holds,
+smoothly, for any PIM whose mean is comparable to or below ``delta`` (1e-7): such a PIM is treated as
+"no importance" rather than being rescaled to the mean ``u``.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import torch
+from torch import nn
+
+from data_gen.errors import InputError
+
+__all__ = [
+    "check_mean",
+    "check_alpha",
+    "normalize_importance",
+    "soft_rejection_sample",
+    "hard_rejection_sample",
+    "ImportanceNormalization",
+    "RejectionSampling",
+]
+
+MEAN_RANGE = (0.01, 1.0)
+
+
+def check_mean(mean: float, name: str = "mean") -> float:
+    """Validate the prescribed mean value ``u`` (paper: a number in ``[0.01, 1]``)."""
+    try:
+        u = float(mean)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}={mean!r}: expected a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]") from None
+    if not (MEAN_RANGE[0] <= u <= MEAN_RANGE[1]):
+        raise InputError(f"{name}={mean}: expected a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
+    return u
+
+
+def check_alpha(alpha: float, name: str = "alpha") -> float:
+    """Validate the sigmoid steepness ``alpha`` (positive and finite)."""
+    try:
+        a = float(alpha)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}={alpha!r}: expected a positive finite number") from None
+    if not (a > 0 and math.isfinite(a)):
+        raise InputError(f"{name}={alpha}: expected a positive finite number")
+    return a
+
+
+def _check_lower_delta(mean: float, lower: float, delta: float) -> tuple[float, float]:
+    lower, delta = float(lower), float(delta)
+    if not (0.0 <= lower < mean):
+        raise InputError(f"lower={lower}: expected 0 <= lower < mean ({mean})")
+    if not (delta > 0 and math.isfinite(delta)):
+        raise InputError(f"delta={delta}: expected a small positive number (default 1e-7)")
+    return lower, delta
+
+
+def _f32(x: torch.Tensor) -> torch.Tensor:
+    """float32 for reduced precision inputs, float64 kept (gradcheck), other dtypes -> float32."""
+    return x if x.dtype in (torch.float32, torch.float64) else x.float()
+
+
+def normalize_importance(
+    pim: torch.Tensor,
+    mean: float,
+    lower: float = 0.0,
+    delta: float = 1e-7,
+    valid: Optional[torch.Tensor] = None,
+) -> torch.Tensor:
+    """Normalize the preliminary importance mask to the prescribed mean value, per image.
+
+    ``PIM' = l + PIM (u - l) / (mean(PIM) + delta)``, the mean taken per image over all pixels, or
+    over the valid C-Image pixels only when ``valid`` is given (the zero padding past the pattern's
+    ``K`` pixels must not dilute the mean: it is never rendered). ``PIM'`` is computed everywhere;
+    the caller masks the padding out of the IM.
+
+    Args:
+        pim: ``(B, C, H, W)`` non-negative PIM (usually ``C = 1``), any float dtype.
+        mean: the mean value ``u`` in ``[0.01, 1]``.
+        lower: lower bound ``l`` in ``[0, u)`` (paper: 0).
+        delta: ``> 0``, guards the division (paper: 1e-7).
+        valid: optional ``(H, W)``, ``(1, 1, H, W)`` or ``(B, 1, H, W)`` bool/0-1 mask of the pixels
+            that enter the mean.
+
+    Returns:
+        ``(B, C, H, W)`` PIM' in float32 (float64 if ``pim`` is float64), computed with autocast off.
+
+    Example:
+        >>> pim = torch.tensor([[[[1.0, 3.0]]]])
+        >>> normalize_importance(pim, 0.5, delta=1e-12).tolist()
+        [[[[0.25, 0.75]]]]
+    """
+    u = check_mean(mean)
+    lower, delta = _check_lower_delta(u, lower, delta)
+    if pim.dim() != 4:
+        raise ValueError(f"pim: expected a (B, C, H, W) tensor, got shape {tuple(pim.shape)}")
+    with torch.autocast(device_type=pim.device.type, enabled=False):
+        x = _f32(pim)
+        if valid is None:
+            mu = x.mean(dim=(1, 2, 3), keepdim=True)
+        else:
+            v = valid.to(device=x.device, dtype=x.dtype)
+            while v.dim() < 4:
+                v = v.unsqueeze(0)
+            v = v.expand(x.shape[0], 1, x.shape[2], x.shape[3])
+            # count clamped at 1: an all-invalid image has mean 0 -> PIM' = l, not NaN
+            count = v.sum(dim=(1, 2, 3), keepdim=True).clamp_min(1.0) * x.shape[1]
+            mu = (x * v).sum(dim=(1, 2, 3), keepdim=True) / count
+        return lower + x * ((u - lower) / (mu + delta))
+
+
+def _p_like(P: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    P = P.to(device=x.device, dtype=x.dtype)
+    while P.dim() < 4:
+        P = P.unsqueeze(0)
+    return P
+
+
+def soft_rejection_sample(pim_norm: torch.Tensor, P: torch.Tensor, alpha: float) -> torch.Tensor:
+    """Differentiable rejection sampling ``IM = sigmoid(alpha (PIM' - P))`` (training).
+
+    Args:
+        pim_norm: ``(B, 1, H, W)`` normalized importance PIM'.
+        P: ``(H, W)`` (or broadcastable to ``pim_norm``) rank pattern, values in ``(0, 1]``.
+        alpha: steepness, ``> 0`` (LAS uses 50).
+
+    Returns:
+        ``(B, 1, H, W)`` soft mask in ``[0, 1]``, float32 (float64 for float64 input), autocast off.
+
+    Example:
+        >>> soft_rejection_sample(torch.tensor([[[[0.5]]]]), torch.tensor([[0.5]]), 50.0).item()
+        0.5
+    """
+    a = check_alpha(alpha)
+    with torch.autocast(device_type=pim_norm.device.type, enabled=False):
+        x = _f32(pim_norm)
+        # torch.sigmoid is saturating-stable: exp never overflows, the result is exactly 0/1 far out
+        return torch.sigmoid(a * (x - _p_like(P, x)))
+
+
+def hard_rejection_sample(pim_norm: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
+    """Rejection sampling ``IM = [PIM' > P]`` (inference): one bit per pixel.
+
+    Args:
+        pim_norm: ``(B, 1, H, W)`` normalized importance PIM'.
+        P: ``(H, W)`` (or broadcastable) rank pattern.
+
+    Returns:
+        ``(B, 1, H, W)`` bool mask (not differentiable). Ties (``PIM' == P``) are *not* important.
+
+    Example:
+        >>> hard_rejection_sample(torch.tensor([[[[0.2, 0.7]]]]), torch.tensor([[0.5, 0.5]])).tolist()
+        [[[[False, True]]]]
+    """
+    with torch.autocast(device_type=pim_norm.device.type, enabled=False):
+        x = _f32(pim_norm)
+        return x > _p_like(P, x)
+
+
+class ImportanceNormalization(nn.Module):
+    """:func:`normalize_importance` as a layer; ``mean`` can be changed after construction (validated).
+
+    Example:
+        >>> norm = ImportanceNormalization(mean=0.1)
+        >>> [round(v, 4) for v in norm(torch.rand(2, 1, 8, 8)).mean(dim=(1, 2, 3)).tolist()]
+        [0.1, 0.1]
+    """
+
+    def __init__(self, mean: float = 0.1, lower: float = 0.0, delta: float = 1e-7):
+        super().__init__()
+        self._mean = check_mean(mean)
+        self.lower, self.delta = _check_lower_delta(self._mean, lower, delta)
+
+    @property
+    def mean(self) -> float:
+        return self._mean
+
+    @mean.setter
+    def mean(self, value: float) -> None:
+        u = check_mean(value)
+        _check_lower_delta(u, self.lower, self.delta)
+        self._mean = u
+
+    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+        return normalize_importance(pim, self._mean, self.lower, self.delta, valid)
+
+    def extra_repr(self) -> str:
+        return f"mean={self._mean}, lower={self.lower}, delta={self.delta}"
+
+
+class RejectionSampling(nn.Module):
+    """Rejection sampling against a fixed rank pattern ``P`` (stored as a persistent buffer, so a
+    checkpoint carries the ``P`` it was trained with).
+
+    ``forward(pim_norm, hard=None)``: ``hard=None`` means soft in training mode, hard in eval mode;
+    both return a float32 ``(B, 1, H, W)`` mask (hard: exactly 0/1) so it can multiply an image.
+
+    Example:
+        >>> rs = RejectionSampling(torch.full((4, 4), 0.5), alpha=50.0).eval()
+        >>> rs(torch.ones(1, 1, 4, 4)).sum().item()
+        16.0
+    """
+
+    def __init__(self, P: torch.Tensor, alpha: float = 50.0):
+        super().__init__()
+        P = torch.as_tensor(P, dtype=torch.float32)
+        if P.dim() != 2:
+            raise InputError(f"P: expected an (n, n) rank pattern, got shape {tuple(P.shape)}")
+        if not bool(torch.isfinite(P).all()) or float(P.min()) < 0 or float(P.max()) > 1:
+            raise InputError("P: expected finite values in [0, 1] (the plastic rank pattern is in (0, 1])")
+        self.register_buffer("P", P.clone())
+        self._alpha = check_alpha(alpha)
+
+    @property
+    def alpha(self) -> float:
+        return self._alpha
+
+    @alpha.setter
+    def alpha(self, value: float) -> None:
+        self._alpha = check_alpha(value)
+
+    def forward(self, pim_norm: torch.Tensor, hard: Optional[bool] = None) -> torch.Tensor:
+        if hard is None:
+            hard = not self.training
+        if hard:
+            m = hard_rejection_sample(pim_norm, self.P)
+            return m.to(torch.float64 if pim_norm.dtype == torch.float64 else torch.float32)
+        return soft_rejection_sample(pim_norm, self.P, self._alpha)
+
+    def extra_repr(self) -> str:
+        return f"size={tuple(self.P.shape)}, alpha={self._alpha}"

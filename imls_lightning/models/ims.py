@@ -1,0 +1,216 @@
+"""The Importance Mask Synthesis network (paper, "Importance Mask Synthesis Network"): a DCGAN
+generator from the 9 view floats to the ``n x n`` importance mask, and its discriminator.
+
+Generator layout (``layers`` transposed convolutions in all, paper: 8):
+
+1. projection: the (normalized) view as a ``(B, 9, 1, 1)`` map -> ``ConvTranspose2d(kernel=s0)`` ->
+   ``s0 x s0``;
+2. ``k`` stride-2 ``ConvTranspose2d(4, 2, 1)``, each doubling the side: ``s0 * 2**k = c_size``;
+3. the remaining ``layers - 1 - k`` layers are stride-1 ``ConvTranspose2d(3, 1, 1)`` at the final
+   resolution.
+
+BatchNorm + ReLU after every layer but the last, which has 1 channel and ``tanh``. ``s0`` is chosen
+as the smallest side ``>= 4`` with ``c_size = s0 * 2**k`` and ``k <= layers - 1`` (more doublings
+are preferred: fewer, cheaper layers at full size), e.g. 256 @ 8 layers: ``s0 = 4``, 6 doublings,
+1 stride-1 layer; 64 @ 8: ``s0 = 4``, 4 doublings, 3 stride-1 layers; 48: ``s0 = 6``; 7: ``s0 = 7``.
+Channels at side ``s0 * 2**j`` are ``min(base_channels * 2**(k - j), max_channels)`` (DCGAN: halving
+as the side doubles).
+
+View normalization. eye (at camera distance, up to a few units), lookAt (near the origin) and up
+(unit vector) have different scales; the generator standardizes the view with per-component
+``view_mean`` / ``view_std`` buffers (saved in checkpoints). They default to 0 / 1 (no-op); call
+:meth:`IMSGenerator.fit_view_normalization` with the training views (the task does) so every input
+component is ~N(0, 1). Components that never vary (std < 1e-6, e.g. a fixed up vector) keep std 1.
+
+Targets. The IM ``{0, 1}`` is trained as ``{-1, 1}`` (:func:`im_to_target`); the generated IM is
+``output > 0`` (:func:`output_to_im`).
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import torch
+from torch import nn
+
+from data_gen.errors import InputError
+
+__all__ = ["IMSGenerator", "IMSDiscriminator", "im_to_target", "output_to_im", "generator_plan"]
+
+
+def im_to_target(im: torch.Tensor) -> torch.Tensor:
+    """IM ``{0, 1}`` (or soft ``[0, 1]``) -> generator target in ``{-1, 1}``: ``2 im - 1``.
+
+    Example:
+        >>> im_to_target(torch.tensor([0.0, 1.0])).tolist()
+        [-1.0, 1.0]
+    """
+    return im.float() * 2 - 1
+
+
+def output_to_im(g_out: torch.Tensor) -> torch.Tensor:
+    """Generator output in ``(-1, 1)`` -> hard IM ``{0, 1}`` (float32): ``[g_out > 0]``.
+
+    Example:
+        >>> output_to_im(torch.tensor([-0.3, 0.0, 0.2])).tolist()
+        [0.0, 0.0, 1.0]
+    """
+    return (g_out > 0).float()
+
+
+def generator_plan(c_size: int, layers: int, min_start: int = 4) -> tuple[int, int, int]:
+    """``(s0, doublings k, stride-1 layers)`` for an output side ``c_size`` with ``layers`` layers."""
+    n, L = int(c_size), int(layers)
+    if n < 1:
+        raise InputError(f"c_size={c_size}: expected a positive integer")
+    if L < 1:
+        raise InputError(f"layers={layers}: expected an integer >= 1")
+    k = 0
+    while k + 1 <= L - 1 and n % 2 ** (k + 1) == 0 and n // 2 ** (k + 1) >= min_start:
+        k += 1
+    return n // 2**k, k, L - 1 - k
+
+
+class IMSGenerator(nn.Module):
+    """DCGAN generator ``view (B, 9) -> (B, 1, n, n)`` in ``(-1, 1)``.
+
+    Args:
+        c_size: output side ``n`` (the C-Image side).
+        layers: number of transposed convolutions, ``>= 1``. Default 8 (paper).
+        base_channels: channels at full resolution (doubling toward the start). Default 32.
+        max_channels: channel cap. Default 512.
+        view_dim: length of the view vector. Default 9.
+        view_mean, view_std: optional ``(view_dim,)`` input standardization (default 0 / 1).
+
+    Example:
+        >>> g = IMSGenerator(32, layers=5, base_channels=4)
+        >>> g(torch.rand(3, 9)).shape
+        torch.Size([3, 1, 32, 32])
+    """
+
+    def __init__(
+        self,
+        c_size: int,
+        layers: int = 8,
+        base_channels: int = 32,
+        max_channels: int = 512,
+        view_dim: int = 9,
+        view_mean: Optional[torch.Tensor] = None,
+        view_std: Optional[torch.Tensor] = None,
+    ):
+        super().__init__()
+        if int(base_channels) < 1 or int(max_channels) < 1 or int(view_dim) < 1:
+            raise InputError(
+                f"base_channels={base_channels}, max_channels={max_channels}, view_dim={view_dim}: expected positive integers"
+            )
+        self.c_size, self.layers, self.view_dim = int(c_size), int(layers), int(view_dim)
+        s0, k, extra = generator_plan(self.c_size, self.layers)
+        self.start_size, self.doublings, self.extra_layers = s0, k, extra
+
+        def ch(j: int) -> int:
+            return min(int(base_channels) * 2 ** (k - j), int(max_channels))
+
+        # (in, out, kernel, stride, padding) per layer; last layer -> 1 channel
+        specs = [(self.view_dim, ch(0), s0, 1, 0)]
+        specs += [(ch(j - 1), ch(j), 4, 2, 1) for j in range(1, k + 1)]
+        specs += [(ch(k), ch(k), 3, 1, 1) for _ in range(extra)]
+        cin, _, kern, stride, pad = specs[-1]
+        specs[-1] = (cin, 1, kern, stride, pad)
+        mods: list[nn.Module] = []
+        for i, (ci, co, kern, stride, pad) in enumerate(specs):
+            last = i == len(specs) - 1
+            mods.append(nn.ConvTranspose2d(ci, co, kern, stride, pad, bias=last))
+            mods += [nn.Tanh()] if last else [nn.BatchNorm2d(co), nn.ReLU(inplace=True)]
+        self.net = nn.Sequential(*mods)
+        _init_dcgan(self)
+        mean = torch.zeros(self.view_dim) if view_mean is None else torch.as_tensor(view_mean, dtype=torch.float32)
+        std = torch.ones(self.view_dim) if view_std is None else torch.as_tensor(view_std, dtype=torch.float32)
+        if mean.shape != (self.view_dim,) or std.shape != (self.view_dim,) or bool((std <= 0).any()):
+            raise InputError(f"view_mean/view_std: expected ({self.view_dim},) tensors with std > 0")
+        self.register_buffer("view_mean", mean.clone())
+        self.register_buffer("view_std", std.clone())
+
+    @torch.no_grad()
+    def fit_view_normalization(self, views: torch.Tensor) -> None:
+        """Set ``view_mean``/``view_std`` from training views ``(N, view_dim)``."""
+        v = torch.as_tensor(views, dtype=torch.float32)
+        if v.dim() != 2 or v.shape[1] != self.view_dim or v.shape[0] < 1:
+            raise InputError(f"views: expected an (N, {self.view_dim}) array with N >= 1, got shape {tuple(v.shape)}")
+        mean = v.mean(0)
+        std = v.std(0, unbiased=False) if v.shape[0] > 1 else torch.ones(self.view_dim)
+        std = torch.where(std < 1e-6, torch.ones_like(std), std)
+        self.view_mean.copy_(mean)
+        self.view_std.copy_(std)
+
+    def forward(self, view: torch.Tensor, return_pre_tanh: bool = False):
+        """``(B, 1, n, n)`` in ``(-1, 1)``; with ``return_pre_tanh=True`` also the activation before
+        the tanh, ``(out, pre)`` with ``out = tanh(pre)`` (an exact BCE needs it: through a
+        saturated tanh the gradient vanishes)."""
+        if view.dim() != 2 or view.shape[1] != self.view_dim:
+            raise ValueError(f"IMSGenerator: expected views (B, {self.view_dim}), got {tuple(view.shape)}")
+        z = (view.to(self.view_mean.dtype) - self.view_mean) / self.view_std
+        if not return_pre_tanh:
+            return self.net(z[:, :, None, None])
+        pre = self.net[:-1](z[:, :, None, None])  # the last module is the nn.Tanh
+        return self.net[-1](pre), pre
+
+    def extra_repr(self) -> str:
+        return (
+            f"c_size={self.c_size}, layers={self.layers}, start_size={self.start_size}, "
+            f"doublings={self.doublings}, extra_layers={self.extra_layers}"
+        )
+
+
+class IMSDiscriminator(nn.Module):
+    """DCGAN discriminator ``(B, 1, n, n) -> (B,)`` logits (real IM vs generated; no sigmoid: the
+    losses take logits).
+
+    ``Conv2d(4, 2, 1)`` steps halve the side (first without BatchNorm, as in DCGAN; then BatchNorm),
+    each with LeakyReLU(0.2), while the side is ``> 4``; a final conv over the remaining
+    ``s x s`` map gives one logit. Channels ``min(base_channels * 2**i, max_channels)``.
+
+    Args:
+        c_size: input side ``n``.
+        base_channels: channels of the first conv. Default 32.
+        max_channels: cap. Default 256.
+        in_channels: input channels. Default 1.
+
+    Example:
+        >>> IMSDiscriminator(32, base_channels=4)(torch.rand(2, 1, 32, 32)).shape
+        torch.Size([2])
+    """
+
+    def __init__(self, c_size: int, base_channels: int = 32, max_channels: int = 256, in_channels: int = 1):
+        super().__init__()
+        if int(c_size) < 1 or int(base_channels) < 1 or int(max_channels) < 1:
+            raise InputError(f"c_size={c_size}, base_channels={base_channels}: expected positive integers")
+        self.c_size, self.in_channels = int(c_size), int(in_channels)
+        mods: list[nn.Module] = []
+        side, cin, i = self.c_size, self.in_channels, 0
+        while side > 4:
+            co = min(int(base_channels) * 2**i, int(max_channels))
+            mods.append(nn.Conv2d(cin, co, 4, 2, 1, bias=i == 0))
+            if i > 0:
+                mods.append(nn.BatchNorm2d(co))
+            mods.append(nn.LeakyReLU(0.2, inplace=True))
+            side, cin, i = side // 2, co, i + 1
+        mods.append(nn.Conv2d(cin, 1, side))
+        self.net = nn.Sequential(*mods)
+        _init_dcgan(self)
+
+    def forward(self, im: torch.Tensor) -> torch.Tensor:
+        n = self.c_size
+        if im.dim() != 4 or tuple(im.shape[1:]) != (self.in_channels, n, n):
+            raise ValueError(f"IMSDiscriminator: expected (B, {self.in_channels}, {n}, {n}), got {tuple(im.shape)}")
+        return self.net(im).flatten(1).squeeze(1)
+
+
+def _init_dcgan(module: nn.Module) -> None:
+    """DCGAN init: conv weights ~ N(0, 0.02), BatchNorm weights ~ N(1, 0.02), biases 0."""
+    for m in module.modules():
+        if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d)):
+            nn.init.normal_(m.weight, 0.0, 0.02)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+        elif isinstance(m, nn.BatchNorm2d):
+            nn.init.normal_(m.weight, 1.0, 0.02)
+            nn.init.zeros_(m.bias)

@@ -1,0 +1,468 @@
+"""Inference: the IML/S + RecNN renderer users call, and the baselines it is measured against.
+
+Every method renders a view into an ``(m, m, 3)`` uint8 image and reports each stage's wall time
+separately (CUDA-synchronized when the networks run on a GPU):
+
+=====================  =====================================================================
+method                 stages
+=====================  =====================================================================
+``full``               ``render`` (ray cast of the whole FR-Image: the renderer of record)
+``recnn``              ``selective_render`` (the whole sampling pattern), ``recnn``
+``iml``                ``selective_render`` (whole pattern), ``importance`` (IML encoder),
+                       ``decoder``, ``recnn`` - importance from the rendered C-Image: an upper bound
+``imls``               ``importance`` (IMS generator, view only), ``selective_render`` (only the
+                       important pixels), ``decoder``, ``recnn`` - the product
+``las``                ``low_res_render``, ``importance``, ``selective_render`` (at FR), ``recnn``
+=====================  =====================================================================
+
+Selective rendering is real: only the chosen pixels are ray-cast by the scene's renderer
+(``renderer.render_pixels``), so its cost falls with their number. A render stage ends when its
+pixels are on the networks' device (the host-to-device copy is part of delivering the pixels).
+
+``info`` of a run: ``ipr`` (important / FR pixels), ``c_share`` (important / pattern pixels; IML
+methods), ``rendered_pixels`` (rays cast at FR in the render stages), and ``im`` (the ``(n, n)``
+bool IM on the CPU; IML methods).
+
+Options (:class:`NetOptions`) apply to every network's ``forward``: ``torch.compile`` wraps the
+modules called directly (IMS generator, IML decoder, RecNN, LAS nets); the IML encoder path of
+``iml`` (``IMLNet.importance``) and LAS's importance/reconstruction methods run uncompiled.
+
+Example:
+    >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
+    >>> image, timings = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                                       # doctest: +SKIP
+    >>> timings                     # seconds per stage                                                  # doctest: +SKIP
+    {'importance': 0.004, 'selective_render': 0.021, 'decoder': 0.006, 'recnn': 0.011, 'total': 0.042}
+"""
+from __future__ import annotations
+
+import abc
+import contextlib
+import copy
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from data_gen.camera import validate_view
+from data_gen.errors import InputError
+
+from .patterns import SamplingPattern, c_pixels_to_fr
+
+STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
+
+
+def pick_device(device: str | torch.device = "auto") -> torch.device:
+    """``"auto"``: CUDA when present, else the CPU."""
+    if str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    d = torch.device(device)
+    if d.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"device={device}: CUDA is not available on this machine")
+    return d
+
+
+@dataclass
+class NetOptions:
+    """Inference options, each measured rather than assumed (see ``evaluate.options``)."""
+
+    device: str = "auto"
+    half: bool = False            # float16 on CUDA, bfloat16 on the CPU (autocast)
+    channels_last: bool = False
+    compile: bool = False         # torch.compile each network (first call pays the compile)
+
+    def autocast(self, device: torch.device):
+        if not self.half:
+            return contextlib.nullcontext()
+        dtype = torch.float16 if device.type == "cuda" else torch.bfloat16
+        return torch.autocast(device.type, dtype=dtype)
+
+
+class _Timer:
+    """Stage timer: wall time around a block, synchronized on CUDA so GPU work is counted."""
+
+    def __init__(self, device: torch.device):
+        self.device = device
+        self.times: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        t0 = time.perf_counter()
+        yield
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
+
+    def result(self) -> dict[str, float]:
+        out = dict(self.times)
+        out["total"] = float(sum(self.times.values()))
+        return out
+
+
+def _prepare(net: torch.nn.Module | None, device: torch.device, opts: NetOptions):
+    if net is None:
+        return None
+    net = net.to(device).eval()
+    if opts.channels_last:
+        net = net.to(memory_format=torch.channels_last)
+    if opts.compile:
+        net = torch.compile(net)
+    return net
+
+
+def to_uint8_image(x: torch.Tensor) -> np.ndarray:
+    """``(1, 3, m, m)`` float in [0, 1] -> ``(m, m, 3)`` uint8 (NaN -> 0)."""
+    t = torch.nan_to_num(x[0].float(), nan=0.0).clamp(0, 1).mul(255.0).round().to(torch.uint8)
+    return t.permute(1, 2, 0).contiguous().cpu().numpy()
+
+
+@dataclass
+class RenderResult:
+    image: np.ndarray
+    timings: dict[str, float]
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Method(abc.ABC):
+    """Base class of an inference method: ``render(view) -> (image, timings)``."""
+
+    name = "method"
+
+    def __init__(self, renderer, fr_size: int, opts: NetOptions | None = None):
+        self.renderer = renderer
+        self.fr_size = int(fr_size)
+        self.opts = opts or NetOptions()
+        self.device = pick_device(self.opts.device)
+
+    def _tensor(self, x: torch.Tensor) -> torch.Tensor:
+        x = x.to(self.device, non_blocking=True)
+        return x.contiguous(memory_format=torch.channels_last) if self.opts.channels_last else x
+
+    @abc.abstractmethod
+    def run(self, view) -> RenderResult:
+        """Render a validated view, timing each stage."""
+
+    @torch.inference_mode()
+    def render(self, view) -> tuple[np.ndarray, dict[str, float]]:
+        """Render one view: ``(m, m, 3)`` uint8 image and seconds per stage (plus ``total``)."""
+        r = self.run(validate_view(view))
+        return r.image, r.timings
+
+
+class FullRayCast(Method):
+    """Baseline 1: ray-cast every pixel of the FR-Image."""
+
+    name = "full"
+
+    def run(self, view) -> RenderResult:
+        timer = _Timer(torch.device("cpu"))
+        with timer.stage("render"):
+            img = self.renderer.render(view, self.fr_size)
+        return RenderResult(img, timer.result(), {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
+
+
+class _PatternMethod(Method):
+    def __init__(self, renderer, pattern: SamplingPattern, opts: NetOptions | None = None):
+        super().__init__(renderer, pattern.fr_size, opts)
+        self.pattern = pattern
+        self._fr_idx = pattern.indices.numpy()
+
+    def _render_c_pixels(self, view, c_mask: torch.Tensor | None) -> tuple[torch.Tensor, int]:
+        """Ray-cast the C-Image pixels in ``c_mask`` ((n, n) bool; None = the whole pattern).
+
+        Returns the PR-C-Image ``(1, 3, n, n)`` float on the device (0 where not rendered) and the
+        number of pixels ray-cast.
+        """
+        n, k = self.pattern.c_size, self.pattern.count
+        if c_mask is None:
+            c_pos = np.arange(k)
+            fr = self._fr_idx
+        else:
+            c_pos = np.flatnonzero(c_mask.reshape(-1)[:k].cpu().numpy())
+            fr = self._fr_idx[c_pos]
+        colours = self.renderer.render_pixels(view, self.fr_size, fr)  # (K, 3) uint8
+        flat = np.zeros((n * n, 3), np.float32)
+        flat[c_pos] = colours.astype(np.float32) / 255.0
+        c = torch.from_numpy(flat).view(n, n, 3).permute(2, 0, 1)[None]
+        return self._tensor(c), int(len(fr))
+
+
+class RecNNAlone(_PatternMethod):
+    """Baseline 2: render the RecNN's whole sampling pattern, reconstruct with the RecNN."""
+
+    name = "recnn"
+
+    def __init__(self, renderer, pattern, recnn: torch.nn.Module, opts: NetOptions | None = None):
+        super().__init__(renderer, pattern, opts)
+        self.recnn = _prepare(recnn, self.device, self.opts)
+
+    def run(self, view) -> RenderResult:
+        timer = _Timer(self.device)
+        with timer.stage("selective_render"):
+            c, count = self._render_c_pixels(view, None)
+        with timer.stage("recnn"), self.opts.autocast(self.device):
+            fr = self.recnn(c)
+        return RenderResult(to_uint8_image(fr), timer.result(),
+                            {"ipr": count / self.fr_size**2, "c_share": 1.0, "rendered_pixels": count})
+
+
+class IMLPlusRecNN(_PatternMethod):
+    """Baseline 4: IML + RecNN, the importance taken from the rendered C-Image (an upper bound).
+
+    Renders the whole pattern (the IML needs the C-Image), so it is never faster than the RecNN
+    alone: it bounds the quality an IMS that reproduced the IML's mask exactly would reach.
+
+    Args:
+        iml: the :class:`~imls_lightning.models.iml.IMLNet` (encoder + decoder).
+        recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
+        mean: normalization mean ``u`` at inference; ``None`` keeps the trained one. A different
+            value works on a private copy of ``iml`` (modules shared with other methods keep theirs).
+    """
+
+    name = "iml"
+
+    def __init__(self, renderer, pattern, iml: torch.nn.Module, recnn: torch.nn.Module, opts: NetOptions | None = None,
+                 mean: float | None = None):
+        super().__init__(renderer, pattern, opts)
+        if mean is not None and float(mean) != float(iml.mean):
+            iml = copy.deepcopy(iml)
+            iml.mean = mean  # validated by IMLNet (InputError outside [0.01, 1])
+        self.iml = _prepare(iml, self.device, self.opts)
+        self.recnn = _prepare(recnn, self.device, self.opts)
+
+    @property
+    def mean(self) -> float:
+        return float(self.iml.mean)
+
+    def run(self, view) -> RenderResult:
+        timer = _Timer(self.device)
+        with timer.stage("selective_render"):
+            c, _ = self._render_c_pixels(view, None)
+        with timer.stage("importance"), self.opts.autocast(self.device):
+            im = self.iml.importance(c, hard=True)
+        with timer.stage("decoder"), self.opts.autocast(self.device):
+            c_rec = self.iml.decode(im.to(c.dtype) * c)
+        with timer.stage("recnn"), self.opts.autocast(self.device):
+            fr = self.recnn(c_rec)
+        im_cpu = im[0, 0].bool().cpu()
+        count = int(im_cpu.sum())
+        return RenderResult(to_uint8_image(fr), timer.result(),
+                            {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
+                             "rendered_pixels": self.pattern.count, "im": im_cpu})
+
+
+class IMLSRenderer(_PatternMethod):
+    """The product: IML/S + RecNN. View -> IMS -> IM -> ray-cast only those pixels -> decoder -> RecNN.
+
+    Args:
+        renderer: the scene's renderer (``render_pixels`` is used).
+        pattern: the RecNN's sampling pattern.
+        predict_im: view ``(1, 9)`` float32 tensor on the device -> ``(1, 1, n, n)`` bool IM (the
+            IMS generator + thresholding; padding already zero).
+        decoder: the IML decoder ``(1, 3, n, n) -> (1, 3, n, n)``.
+        recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
+        opts: :class:`NetOptions`.
+        generator: the module ``predict_im`` calls, if any; moved to the device here (use
+            :meth:`from_task` / :meth:`from_checkpoints` to have the options applied to it too).
+
+    Example:
+        >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
+        >>> image, timings = r.render(view)          # (m, m, 3) uint8, {stage: seconds, "total": ...}  # doctest: +SKIP
+    """
+
+    name = "imls"
+
+    def __init__(self, renderer, pattern, predict_im: Callable[[torch.Tensor], torch.Tensor],
+                 decoder: torch.nn.Module, recnn: torch.nn.Module, opts: NetOptions | None = None,
+                 generator: torch.nn.Module | None = None):
+        super().__init__(renderer, pattern, opts)
+        if generator is not None:
+            generator.to(self.device).eval()
+        self.predict_im = predict_im
+        self.decoder = _prepare(decoder, self.device, self.opts)
+        self.recnn = _prepare(recnn, self.device, self.opts)
+
+    @classmethod
+    def from_task(cls, task, renderer, recnn: torch.nn.Module | None = None,
+                  opts: NetOptions | None = None) -> "IMLSRenderer":
+        """Build from a loaded ``IMSTask`` (its generator, IML decoder and RecNN, or ``recnn``).
+
+        The task's modules are moved to the options' device and prepared in place (share a task
+        between methods only with the same options).
+        """
+        opts = opts or NetOptions()
+        recnn = task.recnn if recnn is None else recnn
+        if recnn is None:
+            raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
+        device = pick_device(opts.device)
+        task.to(device).eval()  # buffers (valid, P) follow the networks
+        generator = _prepare(task.generator, device, opts)
+
+        def predict_im(view: torch.Tensor) -> torch.Tensor:
+            with opts.autocast(device):
+                g = generator(view)
+            return task.output_to_im(g)  # float32 thresholding (against P for target=pim)
+
+        return cls(renderer, task.pattern, predict_im, task.decoder, recnn, opts)
+
+    @classmethod
+    def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
+                         recnn_checkpoint: str | None = None, opts: NetOptions | None = None) -> "IMLSRenderer":
+        """Build the renderer from an IMS checkpoint (it carries the IML decoder and the RecNN).
+
+        Args:
+            ims_checkpoint: a ``.ckpt`` of ``model=ims``.
+            scene / renderer / renderer_cfg: a built renderer, or a scene (+ renderer config) to make one.
+            recnn_checkpoint: use this RecNN instead of the one stored in the IMS checkpoint.
+            opts: :class:`NetOptions` (device, half, channels_last, compile).
+        """
+        from .tasks.base import load_task
+
+        task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
+        recnn = None
+        if recnn_checkpoint:
+            rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
+            if rt.pattern.fingerprint() != task.pattern.fingerprint():
+                raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
+            recnn = rt.net
+        if recnn is None and task.recnn is None:
+            raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
+        if renderer is None:
+            if scene is None:
+                raise InputError("IMLSRenderer.from_checkpoints needs a renderer or a scene")
+            from data_gen.renderers import make_renderer
+
+            renderer = make_renderer(scene, renderer_cfg)
+        return cls.from_task(task, renderer, recnn, opts)
+
+    def run(self, view) -> RenderResult:
+        timer = _Timer(self.device)
+        with timer.stage("importance"):
+            v = torch.as_tensor(np.asarray(view, np.float32))[None].to(self.device)
+            im = self.predict_im(v)[0, 0].bool()
+        with timer.stage("selective_render"):
+            pr_c, count = self._render_c_pixels(view, im)
+        with timer.stage("decoder"), self.opts.autocast(self.device):
+            c_rec = self.decoder(pr_c)
+        with timer.stage("recnn"), self.opts.autocast(self.device):
+            fr = self.recnn(c_rec)
+        return RenderResult(to_uint8_image(fr), timer.result(),
+                            {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
+                             "rendered_pixels": count, "im": im.cpu()})
+
+
+def las_mean_for_ipr(las: torch.nn.Module, raw: torch.Tensor, ipr: float, steps: int = 30) -> torch.Tensor:
+    """Per-image mean ``u`` ``(B, 1, 1, 1)`` at which LAS samples about ``ipr`` of the FR pixels.
+
+    The same bisection as ``LASNet.importance_mask(ipr=...)`` (the normalization is affine in
+    ``u``); :func:`las_mask` with the result gives exactly that method's mask.
+
+    Args:
+        las: a :class:`~imls_lightning.models.las.LASNet`.
+        raw: ``(B, 1, m, m)`` the importance net's output.
+        ipr: target share of sampled FR pixels in ``(0, 1]``.
+    """
+    from .importance import hard_rejection_sample, normalize_importance
+
+    try:
+        target = float(ipr)
+    except (TypeError, ValueError):
+        raise InputError(f"ipr={ipr!r}: expected a number in (0, 1]") from None
+    if not (0.0 < target <= 1.0):
+        raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
+    r = normalize_importance(raw, 1.0, 0.0, las.delta)
+    lo = torch.full((raw.shape[0], 1, 1, 1), max(las.lower, 0.0), device=raw.device, dtype=r.dtype)
+    hi = torch.ones_like(lo)
+    for _ in range(int(steps)):
+        mid = 0.5 * (lo + hi)
+        m = hard_rejection_sample((las.lower + (mid - las.lower) * r).clamp(max=1.0), las.P)
+        below = m.float().mean(dim=(1, 2, 3), keepdim=True) < target
+        lo = torch.where(below, mid, lo)
+        hi = torch.where(below, hi, mid)
+    return hi
+
+
+def las_mask(las: torch.nn.Module, raw: torch.Tensor, mean: torch.Tensor | float) -> torch.Tensor:
+    """LAS's hard sampling mask ``(B, 1, m, m)`` bool at normalization mean ``mean`` (number or ``(B,1,1,1)``)."""
+    from .importance import hard_rejection_sample, normalize_importance
+
+    r = normalize_importance(raw, 1.0, 0.0, las.delta)
+    return hard_rejection_sample((las.lower + (mean - las.lower) * r).clamp(max=1.0), las.P)
+
+
+class LASMethod(Method):
+    """Baseline 3: LAS. Low-res render -> importance net -> normalized importance -> plastic
+    sampling at full resolution -> ray-cast those pixels -> reconstruction with the mask channel.
+
+    Args:
+        las_net: a trained :class:`~imls_lightning.models.las.LASNet` (``LASTask.net``).
+        fr_size, low_res: FR side ``m`` and low-res side ``h`` it was trained with.
+        ipr: sample this share of the FR pixels (LAS's evaluation protocol: the mean ``u`` is
+            bisected per view). The bisection is a calibration, not part of LAS at inference (a
+            deployed LAS uses a fixed ``u``): it runs outside the timed stages; the timed
+            ``importance`` stage is the importance net + one normalization + sampling.
+            ``None``: the trained mean.
+    """
+
+    name = "las"
+
+    def __init__(self, renderer, las_net: torch.nn.Module, fr_size: int, low_res: int,
+                 ipr: float | None = None, opts: NetOptions | None = None):
+        super().__init__(renderer, fr_size, opts)
+        self.las = _prepare(las_net, self.device, self.opts)
+        self.low_res = int(low_res)
+        if ipr is not None and not (0.0 < float(ipr) <= 1.0):
+            raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
+        self.ipr = None if ipr is None else float(ipr)
+
+    def run(self, view) -> RenderResult:
+        timer = _Timer(self.device)
+        m = self.fr_size
+        net = getattr(self.las, "_orig_mod", self.las)  # attributes of a compiled LASNet
+        with timer.stage("low_res_render"):
+            low = self.renderer.render(view, self.low_res)
+            low_t = self._tensor(torch.from_numpy(low).permute(2, 0, 1).float().div(255.0)[None])
+        with timer.stage("importance"), self.opts.autocast(self.device):
+            raw = net.importance_net(low_t)
+        u = net.mean if self.ipr is None else las_mean_for_ipr(net, raw, self.ipr)  # untimed calibration
+        with timer.stage("importance"):
+            mask = las_mask(net, raw, u)[0, 0]
+            idx = np.flatnonzero(mask.cpu().numpy().reshape(-1))
+        with timer.stage("selective_render"):
+            colours = self.renderer.render_pixels(view, m, idx)
+            flat = np.zeros((m * m, 3), np.float32)
+            flat[idx] = colours.astype(np.float32) / 255.0
+            samples = self._tensor(torch.from_numpy(flat).view(m, m, 3).permute(2, 0, 1)[None])
+        with timer.stage("recnn"), self.opts.autocast(self.device):
+            fr = net.reconstruct(samples, mask[None, None].float())
+        return RenderResult(to_uint8_image(fr), timer.result(),
+                            {"ipr": len(idx) / m**2, "rendered_pixels": int(len(idx))})
+
+
+def c_mask_to_fr_pixels(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch.Tensor:
+    """FR raster indices of the set C-Image pixels (re-exported for users)."""
+    return c_pixels_to_fr(pattern, c_mask)
+
+
+def time_method(method: Method, view, repeats: int = 10, warmup: int = 1) -> tuple[np.ndarray, dict[str, float], dict[str, Any]]:
+    """Render a view ``warmup + repeats`` times; per-stage medians over the repeats.
+
+    Returns the last image, ``{stage: median seconds}`` (``total`` is the median of the totals),
+    and the method's info of the last run.
+    """
+    if repeats < 1:
+        raise InputError(f"repeats={repeats}: expected at least 1")
+    v = validate_view(view)
+    runs: list[dict[str, float]] = []
+    last = None
+    with torch.inference_mode():
+        for i in range(warmup + repeats):
+            last = method.run(v)
+            if i >= warmup:
+                runs.append(last.timings)
+    keys = runs[0].keys()
+    med = {k: float(np.median([r[k] for r in runs])) for k in keys}
+    return last.image, med, last.info

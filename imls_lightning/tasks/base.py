@@ -1,0 +1,106 @@
+"""Shared pieces of every LightningModule ("task") of the project.
+
+A task owns one or more ``nn.Module`` networks (from ``imls_lightning.models``), its losses, its
+metrics and its optimizer. Hyperparameters are saved as plain data, so that checkpoints load with
+``torch.load(weights_only=True)`` through :func:`load_task`.
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from torchmetrics.functional.image import peak_signal_noise_ratio, structural_similarity_index_measure
+
+from data_gen.errors import InputError
+
+from ..config import load_checkpoint
+
+# tasks that checkpoints may name (never import an arbitrary class from a file)
+_TASKS = {
+    "RecNNTask": "imls_lightning.tasks.recnn",
+    "IMLTask": "imls_lightning.tasks.iml",
+    "IMSTask": "imls_lightning.tasks.ims",
+    "LASTask": "imls_lightning.tasks.las",
+}
+
+
+def psnr_per_image(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """PSNR in dB of each image of a batch ``(B, C, H, W)`` in [0, 1] -> ``(B,)``.
+
+    Identical images would give +inf; the MSE is floored at 1e-10 (100 dB) to keep logs finite.
+    """
+    p = pred.detach().float().clamp(0, 1)
+    t = target.detach().float()
+    mse = (p - t).pow(2).flatten(1).mean(1).clamp_min(1e-10)
+    return 10.0 * torch.log10(1.0 / mse)
+
+
+def psnr_torchmetrics(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean per-image PSNR from torchmetrics (same numbers as :func:`psnr_per_image` away from 100 dB)."""
+    return peak_signal_noise_ratio(pred.detach().float().clamp(0, 1), target.detach().float(), data_range=1.0, dim=(1, 2, 3))
+
+
+def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean SSIM (torchmetrics, Gaussian window 11, data range 1) of a batch."""
+    p = pred.detach().float().clamp(0, 1)
+    t = target.detach().float()
+    k = 11 if min(p.shape[-2:]) >= 11 else (min(p.shape[-2:]) // 2) * 2 - 1
+    return structural_similarity_index_measure(p, t, data_range=1.0, kernel_size=max(k, 3))
+
+
+class ImlsTask(L.LightningModule):
+    """Base class: checkpoint identity, image-grid hook and metric helpers."""
+
+    @classmethod
+    def optional_state_prefixes(cls) -> tuple[str, ...]:
+        """State-dict prefixes a checkpoint may lack (e.g. frozen pretrained backbones)."""
+        return ()
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["imls_task"] = type(self).__name__
+
+    def visuals(self, batch: dict[str, torch.Tensor]) -> tuple[list[str], list[torch.Tensor]]:
+        """Column titles and ``(B, C, H, W)`` tensors for the image-grid callback."""
+        return [], []
+
+    def log_image_metrics(self, prefix: str, pred: torch.Tensor, target: torch.Tensor, **kw) -> torch.Tensor:
+        """Log mean per-image PSNR and SSIM under ``prefix``; returns the per-image PSNR."""
+        psnr = psnr_per_image(pred, target)
+        bs = pred.shape[0]
+        self.log(f"{prefix}_psnr", psnr.mean(), batch_size=bs, **kw)
+        self.log(f"{prefix}_ssim", ssim(pred, target), batch_size=bs, **kw)
+        return psnr
+
+
+def task_class(name: str) -> type[ImlsTask]:
+    if name not in _TASKS:
+        raise InputError(f"checkpoint names task {name!r}: expected one of {sorted(_TASKS)}")
+    return getattr(importlib.import_module(_TASKS[name]), name)
+
+
+def load_task(path: str | Path, *, expect: str | None = None, what: str = "checkpoint") -> ImlsTask:
+    """Rebuild a task from its checkpoint (``weights_only=True``), in eval mode on the CPU.
+
+    Args:
+        path: a ``.ckpt`` written by this project's training.
+        expect: the task class name it must be (e.g. ``"RecNNTask"``).
+        what: the config key the path came from, for error messages.
+    """
+    ckpt = load_checkpoint(path, what=what)
+    name = ckpt.get("imls_task")
+    if name is None:
+        raise InputError(f"{what}={path}: not a checkpoint of this project (no task name)")
+    if expect is not None and name != expect:
+        raise InputError(f"{what}={path}: is a {name} checkpoint, expected a {expect} checkpoint")
+    cls = task_class(name)
+    task = cls(**ckpt["hyper_parameters"])
+    missing, unexpected = task.load_state_dict(ckpt["state_dict"], strict=False)
+    if unexpected or [k for k in missing if not k.startswith(task.optional_state_prefixes())]:
+        raise InputError(f"{what}={path}: weights do not fit the network it describes (missing {missing[:3]}, unexpected {unexpected[:3]})")
+    task.eval()
+    task.checkpoint_path = str(path)
+    return task
+

@@ -1,0 +1,565 @@
+"""Training the Importance Mask Synthesis network (paper, "Importance Mask Synthesis Network").
+
+The IMS generator maps the 9 view floats to the ``n x n`` importance mask; it is trained by
+supervised learning on the labels of a trained IML encoder (:mod:`imls_lightning.labels`) as a GAN:
+generator losses BCE / MSE / perceptual (each selectable and weightable) plus the non-saturating
+adversarial loss; the discriminator is trained with the cross-entropy loss. Paper default:
+perceptual 1 + adversarial 0.01, Adam lr 1e-3.
+
+Targets (``target``):
+
+* ``"im"`` (paper): the dithered binary IM, ``{0, 1} -> {-1, 1}``; at inference ``IM = g > 0``.
+* ``"pim"`` (beyond the paper): the continuous PIM' behind the IM, ``2 clamp(PIM', 0, 1) - 1``
+  (-1 on C-Image padding); at inference it is dithered exactly as the IML does, against the same
+  fixed plastic pattern ``P``: ``IM = (g + 1) / 2 > P``. Clamping at 1 loses nothing: ``P <= 1``
+  (``g = 1``, the target of every ``PIM' >= 1``, counts as important also on the one pixel where
+  ``P = 1``).
+
+Either way :meth:`IMSTask.predict_im` gives the boolean IM, 0 on the C-Image padding.
+
+Optimization. Lightning manual optimization, one Adam per network, lr 1e-3 (paper), betas
+``(0.5, 0.999)`` by default: DCGAN's choice (Radford et al. 2015) - the default ``beta1 = 0.9``
+makes the two-player updates oscillate; the paper gives only the learning rate. Per batch: one
+generator forward; a discriminator step on ``(real labels, generated.detach())`` (skipped when the
+adversarial weight is 0); then a generator step on the weighted image losses +
+``adversarial * -log D(G(view))`` through the just-updated discriminator (the PyTorch DCGAN order).
+
+Frozen passengers. The IML network (encoder + decoder) and the RecNN that the final image metric
+needs are built from plain hyperparameters (``iml_hparams``, ``recnn_hparams``) and their weights
+are stored in the IMS checkpoint, frozen (``requires_grad=False``, always in eval mode, in no
+optimizer), so that an IMS checkpoint alone builds the IML/S renderer: view -> IMS IM -> selective
+rendering of those C-Image pixels -> IML decoder -> RecNN. The RecNN comes from the IML checkpoint
+when the IML was trained end-to-end, otherwise from ``recnn.checkpoint`` (the off-the-shelf case);
+without either the FR metrics are skipped with a one-time warning.
+
+Logged under ``{prefix}`` = ``train`` | ``val`` | ``test``:
+
+* train: ``loss_g`` (weighted generator loss), the active unweighted terms ``bce``, ``mse``,
+  ``perceptual``, ``adversarial``, and (adversarial on) ``loss_d``, ``d_real``, ``d_fake`` (mean
+  discriminator probabilities).
+* val/test: ``loss`` (weighted image-loss terms, no adversarial term: the discriminator moves) and
+  its terms; ``im_accuracy`` (over the valid C-Image pixels) and ``im_iou`` vs the IML label;
+  ``im_error = 1 - im_iou`` (the monitor: lower is better, independent of the loss choice, so runs
+  of a loss ablation are selected the same way); ``ipr`` (predicted), ``label_ipr``,
+  ``ipr_error = |ipr - label_ipr|``; ``c_psnr`` (IML decoder's C-Image from the IMS mask vs the
+  C-Image); with a RecNN ``fr_psnr``/``fr_ssim`` of the IML/S path and ``label_fr_psnr``/
+  ``label_fr_ssim`` of the same path driven by the label IM (the IML + RecNN upper bound).
+
+The C-Image of the cache is exactly what selective rendering of the pattern's pixels returns, so
+``IM * C-Image`` is the selectively rendered PR-C-Image.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import torch
+from lightning.pytorch.utilities import rank_zero_warn
+
+from data_gen.errors import InputError
+
+from ..config import to_plain
+from ..backbones import BACKBONES, VGG16_LAYERS
+from ..losses import IMLoss, discriminator_loss, generator_loss
+from ..models.iml import IMLNet
+from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
+from ..patterns import build_pattern, plastic_rank_pattern
+from .base import ImlsTask, load_task, psnr_per_image
+from .recnn import RecNNTask
+
+__all__ = ["IMSTask", "TARGETS", "loss_config", "build_criterion", "pim_to_target", "build_iml_net"]
+
+TARGETS = ("im", "pim")
+LOSS_TERMS = ("bce", "mse", "perceptual", "adversarial")
+PERCEPTUAL_DEFAULTS = {
+    "weight": 1.0,
+    "backbone": "vgg16_hed",
+    "weights": None,
+    "layers": ["relu1_2", "relu2_2", "relu3_3", "relu4_3"],
+    "layer_weights": None,
+    "criterion": "mse",
+    "normalize": True,
+}
+
+
+def _nonneg(value: Any, key: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{key}={value!r}: expected a finite number >= 0") from None
+    if not (v >= 0 and math.isfinite(v)):
+        raise InputError(f"{key}={value}: expected a finite number >= 0")
+    return v
+
+
+def loss_config(loss: Optional[Mapping]) -> dict:
+    """Normalize the ``model.loss`` node: ``{bce, mse, adversarial: float, perceptual: {weight, ...}}``.
+
+    ``perceptual`` may be a number (its weight) or a node with ``weight`` and the options of
+    :class:`~imls_lightning.losses.PerceptualLoss` (``backbone``, ``weights`` = a weight *file*,
+    ``layers``, ``layer_weights``, ``criterion``, ``normalize``). Missing keys take the paper
+    default: perceptual 1 + adversarial 0.01.
+
+    Example:
+        >>> loss_config({"bce": 1, "perceptual": 0})["perceptual"]["weight"]
+        0.0
+    """
+    raw = dict(to_plain(loss) or {})
+    unknown = set(raw) - set(LOSS_TERMS)
+    if unknown:
+        raise InputError(f"model.loss.{sorted(unknown)[0]}: unknown loss term; expected some of {list(LOSS_TERMS)}")
+    per = raw.get("perceptual", PERCEPTUAL_DEFAULTS["weight"])
+    per = {"weight": per} if not isinstance(per, Mapping) else dict(per)
+    bad = set(per) - set(PERCEPTUAL_DEFAULTS)
+    if bad:
+        raise InputError(f"model.loss.perceptual.{sorted(bad)[0]}: unknown option; expected some of {list(PERCEPTUAL_DEFAULTS)}")
+    per = {**PERCEPTUAL_DEFAULTS, **per}
+    per["weight"] = _nonneg(per["weight"], "model.loss.perceptual.weight")
+    per["layers"] = [str(x) for x in per["layers"]]
+    # names are checked here (cheap); the weight file is read, and checked, when the loss is built
+    if per["backbone"] not in BACKBONES:
+        raise InputError(f"model.loss.perceptual.backbone={per['backbone']}: expected one of {list(BACKBONES)}")
+    bad_layers = [x for x in per["layers"] if x not in VGG16_LAYERS]
+    if not per["layers"] or bad_layers:
+        raise InputError(f"model.loss.perceptual.layers: unknown layer {bad_layers[:1] or '(none)'}; expected VGG16 names like relu1_2, relu2_2, relu3_3, relu4_3")
+    out = {
+        "bce": _nonneg(raw.get("bce", 0.0), "model.loss.bce"),
+        "mse": _nonneg(raw.get("mse", 0.0), "model.loss.mse"),
+        "perceptual": per,
+        "adversarial": _nonneg(raw.get("adversarial", 0.01), "model.loss.adversarial"),
+    }
+    if out["bce"] == 0 and out["mse"] == 0 and per["weight"] == 0:
+        raise InputError("model.loss: bce, mse and perceptual.weight are all 0; the generator needs at least one image loss > 0")
+    return out
+
+
+def build_criterion(loss: Mapping) -> IMLoss:
+    """:class:`~imls_lightning.losses.IMLoss` of a (normalized) ``model.loss`` node; loads the
+    perceptual backbone when its weight is > 0 (InputError when its weights are missing)."""
+    lc = loss_config(loss)
+    per = lc["perceptual"]
+    return IMLoss(
+        bce=lc["bce"], mse=lc["mse"], perceptual=per["weight"],
+        perceptual_kwargs={k: per[k] for k in ("backbone", "weights", "layers", "layer_weights", "criterion", "normalize")},
+    )
+
+
+def pim_to_target(pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """PIM' (``>= 0``) -> generator target ``2 clamp(PIM', 0, 1) - 1`` in ``[-1, 1]``; -1 where not ``valid``.
+
+    Args:
+        pim: ``(B, 1, n, n)`` PIM'.
+        valid: optional ``(n, n)`` / ``(1, 1, n, n)`` bool, the pattern's C-Image pixels.
+
+    Example:
+        >>> pim_to_target(torch.tensor([0.0, 0.25, 3.0])).tolist()
+        [-1.0, -0.5, 1.0]
+    """
+    t = pim.float().clamp(0.0, 1.0) * 2.0 - 1.0
+    if valid is not None:
+        t = torch.where(valid.to(device=t.device, dtype=torch.bool), t, torch.full_like(t, -1.0))
+    return t
+
+
+def _plain_json(obj: Any) -> Any:
+    """Plain JSON data (checkpoint hyperparameters must load with ``weights_only=True``)."""
+    return json.loads(json.dumps(to_plain(obj), default=str))
+
+
+def build_iml_net(iml_hparams: Mapping, pattern) -> IMLNet:
+    """The :class:`IMLNet` an ``IMLTask`` with these hyperparameters builds (same arguments, same
+    defaults as :class:`~imls_lightning.tasks.iml.IMLTask`; loading its weights strictly checks it)."""
+    h = dict(iml_hparams)
+    n = pattern.c_size
+    return IMLNet(
+        n, plastic_rank_pattern(n), mean=h.get("mean", 0.1), alpha=h.get("alpha", 50.0), depth=h.get("depth", 5),
+        base_channels=h.get("base_channels", 32), lower=h.get("lower", 0.0), delta=h.get("delta", 1e-7),
+        valid=pattern.valid,
+    )
+
+
+def _same_pattern(hp: Mapping, pattern, fr_size: int) -> bool:
+    try:
+        return int(hp.get("fr_size", -1)) == int(fr_size) and build_pattern(hp["pattern"], int(fr_size)).fingerprint() == pattern.fingerprint()
+    except (KeyError, InputError):
+        return False
+
+
+# labels made in from_config, found again by datamodule_kwargs without hashing the checkpoint twice
+_LABELS_MEMO: dict[str, Path] = {}
+
+
+class IMSTask(ImlsTask):
+    """LightningModule of the IMS GAN (generator + discriminator) with the frozen IML decoder and
+    RecNN for the final-image metrics.
+
+    Args:
+        pattern: the ``pattern`` config node; ``fr_size``: FR-Image side ``m``.
+        iml_hparams: the IML task's hyperparameters (plain data, from its checkpoint).
+        target: ``"im"`` (paper) or ``"pim"`` (regress PIM', dither against P at inference).
+        layers, base_channels, max_channels: generator size (paper: 8 layers).
+        disc_base_channels, disc_max_channels: discriminator size.
+        loss: the ``model.loss`` node (see :func:`loss_config`).
+        lr: Adam learning rate of both networks (paper 1e-3); ``betas``: Adam betas.
+        recnn_hparams: the RecNN task's hyperparameters (plain), or None (no FR metrics).
+        recnn_source: ``"iml.checkpoint"``, ``"recnn.checkpoint"`` or None (provenance).
+        iml_checkpoint, iml_checkpoint_sha256, labels: provenance only.
+
+    Attributes:
+        generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
+        (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern.
+
+    Example:
+        >>> task = IMSTask.from_config(cfg)                      # doctest: +SKIP
+        >>> task.predict_im(torch.tensor([[0, 0, 3, 0, 0, 0, 0, 1, 0.]])).shape  # doctest: +SKIP
+        torch.Size([1, 1, 128, 128])
+    """
+
+    def __init__(
+        self,
+        pattern: Mapping,
+        fr_size: int,
+        iml_hparams: Mapping,
+        target: str = "im",
+        layers: int = 8,
+        base_channels: int = 32,
+        max_channels: int = 512,
+        disc_base_channels: int = 32,
+        disc_max_channels: int = 256,
+        loss: Optional[Mapping] = None,
+        lr: float = 1e-3,
+        betas: tuple = (0.5, 0.999),
+        recnn_hparams: Optional[Mapping] = None,
+        recnn_source: Optional[str] = None,
+        iml_checkpoint: Optional[str] = None,
+        iml_checkpoint_sha256: Optional[str] = None,
+        labels: Optional[str] = None,
+        **_: Any,
+    ):
+        super().__init__()
+        if target not in TARGETS:
+            raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
+        if not (isinstance(lr, (int, float)) and lr > 0 and math.isfinite(lr)):
+            raise InputError(f"model.lr={lr}: expected a positive number")
+        betas = tuple(float(b) for b in to_plain(betas))
+        if len(betas) != 2 or not all(0.0 <= b < 1.0 for b in betas):
+            raise InputError(f"model.betas={list(betas)}: expected two numbers in [0, 1)")
+        lc = loss_config(loss)
+        if not iml_hparams:
+            raise InputError("model=ims needs the IML's hyperparameters (iml_hparams); build the task with IMSTask.from_config and iml.checkpoint=<IML .ckpt>")
+        self.automatic_optimization = False
+        self.save_hyperparameters({
+            "pattern": _plain_json(pattern), "fr_size": int(fr_size), "iml_hparams": _plain_json(iml_hparams),
+            "target": target, "layers": int(layers), "base_channels": int(base_channels),
+            "max_channels": int(max_channels), "disc_base_channels": int(disc_base_channels),
+            "disc_max_channels": int(disc_max_channels), "loss": lc, "lr": float(lr), "betas": list(betas),
+            "recnn_hparams": _plain_json(recnn_hparams) if recnn_hparams else None, "recnn_source": recnn_source,
+            "iml_checkpoint": None if iml_checkpoint is None else str(iml_checkpoint),
+            "iml_checkpoint_sha256": iml_checkpoint_sha256, "labels": None if labels is None else str(labels),
+        })
+        self.pattern = build_pattern(to_plain(pattern), int(fr_size))
+        n = self.pattern.c_size
+        if not _same_pattern(iml_hparams, self.pattern, int(fr_size)):
+            raise InputError(
+                f"iml.checkpoint: the IML was trained on another sampling pattern or resolution (its fr_size={iml_hparams.get('fr_size')}, "
+                f"pattern={iml_hparams.get('pattern')}); use the recnn/pattern and data.resolution it was trained with"
+            )
+        self.generator = IMSGenerator(n, layers=layers, base_channels=base_channels, max_channels=max_channels)
+        self.discriminator = IMSDiscriminator(n, base_channels=disc_base_channels, max_channels=disc_max_channels)
+        self.iml = build_iml_net(iml_hparams, self.pattern).requires_grad_(False)
+        self.recnn = None
+        if recnn_hparams:
+            if not _same_pattern(recnn_hparams, self.pattern, int(fr_size)):
+                raise InputError(
+                    "recnn.checkpoint: the RecNN was trained on another sampling pattern or resolution "
+                    f"(its fr_size={recnn_hparams.get('fr_size')}, pattern={recnn_hparams.get('pattern')}) than the IML"
+                )
+            self.recnn = RecNNTask(**dict(recnn_hparams)).net.requires_grad_(False)
+        self.register_buffer("valid", self.pattern.valid.view(1, 1, n, n).clone(), persistent=False)
+        # set once the generator's view normalization was fitted on the training views (checkpointed)
+        self.register_buffer("view_norm_fitted", torch.zeros((), dtype=torch.bool))
+        self._warned_no_recnn = False
+
+    # -- accessors ----------------------------------------------------------------------------
+    @property
+    def decoder(self) -> torch.nn.Module:
+        """The IML decoder (PR-C-Image -> C-Image), frozen."""
+        return self.iml.decoder
+
+    @property
+    def P(self) -> torch.Tensor:
+        """``(n, n)`` the plastic rank pattern the IML labels were dithered with."""
+        return self.iml.sampling.P
+
+    @property
+    def target(self) -> str:
+        return self.hparams.target
+
+    @property
+    def im_loss(self) -> IMLoss:
+        """The generator's image losses (:class:`~imls_lightning.losses.IMLoss`), built on first use.
+
+        Lazy on purpose: loading an IMS checkpoint for inference (the IML/S renderer) must not need
+        the perceptual backbone's weight file; training builds it in :meth:`from_config`, before any
+        label is made, so a missing backbone fails early there.
+        """
+        crit = self._modules.get("_im_loss")
+        if crit is None:
+            crit = build_criterion(self.hparams.loss).to(self.device)
+            self.add_module("_im_loss", crit)
+        return crit
+
+    @property
+    def loss_weights(self) -> dict[str, float]:
+        lc = self.hparams.loss
+        return {"bce": lc["bce"], "mse": lc["mse"], "perceptual": lc["perceptual"]["weight"], "adversarial": lc["adversarial"]}
+
+    # -- construction from the training config ------------------------------------------------
+    @classmethod
+    def labels_for_config(cls, cfg, progress: bool = True) -> Path:
+        """Render the cache if missing, then make the IML labels if missing; returns the label dir."""
+        from data_gen.cache import ensure_cache
+        from data_gen.scene import build_scene
+
+        from ..labels import ensure_labels
+
+        ck = cfg.iml.get("checkpoint") if cfg.get("iml") is not None else None
+        if not ck:
+            raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
+        key = json.dumps([to_plain(cfg.scene), to_plain(cfg.data), to_plain(cfg.renderer), str(ck)], sort_keys=True, default=str)
+        if key in _LABELS_MEMO and _LABELS_MEMO[key].is_dir():
+            return _LABELS_MEMO[key]
+        cache = ensure_cache(build_scene(cfg.scene), cfg.data, cfg.renderer, progress=progress)
+        m = cfg.model
+        out = ensure_labels(cache, ck, batch_size=int(m.get("labels_batch_size", 16)), device=m.get("labels_device", "auto"), progress=progress)
+        _LABELS_MEMO[key] = out
+        return out
+
+    @classmethod
+    def from_config(cls, cfg) -> "IMSTask":
+        if cfg.get("iml") is None or not cfg.iml.get("checkpoint"):
+            raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
+        ck = str(cfg.iml.checkpoint)
+        iml_task = load_task(ck, expect="IMLTask", what="iml.checkpoint")
+        res = int(cfg.data.resolution)
+        pattern = build_pattern(to_plain(cfg.pattern), res)
+        if not _same_pattern(iml_task.hparams, pattern, res):
+            raise InputError(
+                f"iml.checkpoint={ck}: the IML was trained with pattern {iml_task.pattern.summary()} at data.resolution={iml_task.hparams['fr_size']}, "
+                f"this run uses {pattern.summary()}; choose the recnn/pattern and data.resolution it was trained with"
+            )
+        recnn_hparams, recnn_state, source = None, None, None
+        if iml_task.recnn is not None:
+            # end-to-end IML: its (possibly fine-tuned) RecNN is the one its decoder was trained for
+            recnn_hparams, recnn_state, source = iml_task.hparams["recnn_hparams"], iml_task.recnn.state_dict(), "iml.checkpoint"
+            if cfg.recnn.get("checkpoint"):
+                print("[ims] using the RecNN inside the end-to-end IML checkpoint; recnn.checkpoint is ignored", flush=True)
+        elif cfg.recnn.get("checkpoint"):
+            rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
+            if not _same_pattern(rt.hparams, pattern, res):
+                raise InputError(
+                    f"recnn.checkpoint={cfg.recnn.checkpoint}: the RecNN was trained with pattern {rt.pattern.summary()}, "
+                    f"the IML with {pattern.summary()}; use a RecNN trained on the IML's pattern and resolution"
+                )
+            recnn_hparams, recnn_state, source = dict(rt.hparams), rt.net.state_dict(), "recnn.checkpoint"
+        else:
+            print("[ims] no RecNN (standalone IML and no recnn.checkpoint): the final FR PSNR/SSIM metrics are skipped", flush=True)
+        m = cfg.model
+        criterion = build_criterion(m.get("loss"))  # a missing perceptual backbone fails before any labelling
+        labels = cls.labels_for_config(cfg)
+        task = cls(
+            pattern=cfg.pattern, fr_size=res, iml_hparams=dict(iml_task.hparams), target=m.get("target", "im"),
+            layers=m.get("layers", 8), base_channels=m.get("base_channels", 32), max_channels=m.get("max_channels", 512),
+            disc_base_channels=m.get("disc_base_channels", 32), disc_max_channels=m.get("disc_max_channels", 256),
+            loss=m.get("loss"), lr=m.get("lr", 1e-3), betas=m.get("betas", (0.5, 0.999)),
+            recnn_hparams=recnn_hparams, recnn_source=source, iml_checkpoint=str(Path(ck).expanduser().resolve()),
+            iml_checkpoint_sha256=labels.name[len("iml-"):], labels=str(labels),
+        )
+        task.add_module("_im_loss", criterion)
+        task.iml.load_state_dict(iml_task.iml.state_dict())
+        if recnn_state is not None:
+            task.recnn.load_state_dict(recnn_state)
+        return task
+
+    @classmethod
+    def datamodule_kwargs(cls, cfg) -> dict:
+        return {"fields": ("view", "fr", "c"), "labels": str(cls.labels_for_config(cfg))}
+
+    # -- the mask -------------------------------------------------------------------------------
+    def make_target(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The generator's target ``(B, 1, n, n)`` in [-1, 1] from the batch's ``im`` / ``pim`` labels."""
+        if self.target == "im":
+            return im_to_target(batch["im"])
+        return pim_to_target(batch["pim"], self.valid)
+
+    def output_to_im(self, g: torch.Tensor) -> torch.Tensor:
+        """Generator output ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool, False on C-Image padding.
+
+        ``target="im"``: ``g > 0``; ``target="pim"``: ``(g + 1) / 2 > P`` (the IML's dithering).
+        """
+        g = g.float()
+        if self.target == "im":
+            im = g > 0
+        else:
+            # g = 1 is the target of every PIM' >= 1, which the IML always keeps, also where P = 1
+            im = ((g + 1.0) * 0.5 > self.P.to(g.device)) | (g >= 1.0)
+        return im & self.valid.to(g.device)
+
+    @torch.no_grad()
+    def predict_im(self, view: torch.Tensor) -> torch.Tensor:
+        """Importance mask of views ``(B, 9)`` -> ``(B, 1, n, n)`` bool (the IMS product).
+
+        Uses the generator in whatever mode the task is in (``eval()`` for inference).
+        """
+        view = torch.as_tensor(view, dtype=torch.float32, device=self.valid.device)
+        return self.output_to_im(self.generator(view))
+
+    def reconstruct(self, im: torch.Tensor, c_image: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+        """IML/S path from an IM and the C-Image: ``(decoder C-Image (B, 3, n, n), FR (B, 3, m, m) or None)``."""
+        c_rec = self.decoder(im.to(c_image.dtype) * c_image)
+        return c_rec, (self.recnn(c_rec) if self.recnn is not None else None)
+
+    # -- training ------------------------------------------------------------------------------
+    def train(self, mode: bool = True):
+        super().train(mode)
+        # frozen passengers: keep their normalization layers in inference mode
+        self.iml.eval()
+        if self.recnn is not None:
+            self.recnn.eval()
+        return self
+
+    def _fit_view_normalization(self, views: torch.Tensor) -> None:
+        self.generator.fit_view_normalization(views.to(self.generator.view_mean.device))
+        self.view_norm_fitted.fill_(True)
+
+    def on_fit_start(self) -> None:
+        if bool(self.view_norm_fitted):
+            return  # resumed (or fine-tuned): keep the normalization the weights were trained with
+        dm = getattr(self.trainer, "datamodule", None)
+        ds = dm.dataset("train") if dm is not None and hasattr(dm, "dataset") else None
+        if ds is not None and hasattr(ds, "cache_path"):
+            import numpy as np
+
+            from data_gen.cache import ViewImageCache
+
+            views = ViewImageCache.open(ds.cache_path).views[np.asarray(ds.rows)]
+            self._fit_view_normalization(torch.from_numpy(np.asarray(views, np.float32)))
+
+    def on_train_start(self) -> None:
+        if bool(self.view_norm_fitted):
+            return
+        # plain DataLoaders (no ImlsDataModule): one pass over the training views
+        loader = self.trainer.train_dataloader
+        views = [b["view"] for b in loader] if loader is not None else []
+        if views:
+            self._fit_view_normalization(torch.cat(views).float())
+
+    def configure_optimizers(self):
+        lr, betas = self.hparams.lr, tuple(self.hparams.betas)
+        opt_g = torch.optim.Adam(self.generator.parameters(), lr=lr, betas=betas)
+        opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=lr, betas=betas)
+        return [opt_g, opt_d]
+
+    def training_step(self, batch, batch_idx):
+        opt_g, opt_d = self.optimizers()
+        view = batch["view"]
+        target = self.make_target(batch).to(view.device)
+        bs = view.shape[0]
+        w_adv = self.loss_weights["adversarial"]
+        fake, pre = self.generator(view, return_pre_tanh=True)
+        log = dict(batch_size=bs, on_step=True, on_epoch=True)
+
+        if w_adv > 0:
+            self.toggle_optimizer(opt_d)
+            real_logits = self.discriminator(target)
+            fake_logits = self.discriminator(fake.detach())
+            loss_d = discriminator_loss(real_logits, fake_logits)
+            opt_d.zero_grad(set_to_none=True)
+            self.manual_backward(loss_d)
+            opt_d.step()
+            self.untoggle_optimizer(opt_d)
+            self.log("train/loss_d", loss_d.detach(), **log)
+            self.log("train/d_real", torch.sigmoid(real_logits.detach().float()).mean(), **log)
+            self.log("train/d_fake", torch.sigmoid(fake_logits.detach().float()).mean(), **log)
+
+        self.toggle_optimizer(opt_g)
+        terms = self.im_loss(fake, target, pre_tanh=pre)
+        loss_g = terms.pop("total")
+        if w_adv > 0:
+            terms["adversarial"] = generator_loss(self.discriminator(fake))
+            loss_g = loss_g + w_adv * terms["adversarial"]
+        opt_g.zero_grad(set_to_none=True)
+        self.manual_backward(loss_g)
+        opt_g.step()
+        self.untoggle_optimizer(opt_g)
+
+        self.log("train/loss_g", loss_g.detach(), prog_bar=True, **log)
+        for k, v in terms.items():
+            self.log(f"train/{k}", v.detach(), **log)
+        return loss_g.detach()
+
+    # -- evaluation ----------------------------------------------------------------------------
+    def _eval_step(self, batch: Mapping[str, torch.Tensor], prefix: str) -> None:
+        view = batch["view"]
+        bs = view.shape[0]
+        g, pre = self.generator(view, return_pre_tanh=True)
+        terms = self.im_loss(g, self.make_target(batch), pre_tanh=pre)
+        log = dict(batch_size=bs, on_step=False, on_epoch=True)
+        self.log(f"{prefix}/loss", terms.pop("total"), prog_bar=True, **log)
+        for k, v in terms.items():
+            self.log(f"{prefix}/{k}", v, **log)
+
+        pred = self.output_to_im(g)
+        label = (batch["im"] > 0.5) & self.valid
+        valid = self.valid.expand_as(pred)
+        k = float(self.pattern.count)
+        m2 = float(self.pattern.fr_size) ** 2
+        acc = ((pred == label) & valid).flatten(1).sum(1).float() / k
+        inter = (pred & label).flatten(1).sum(1).float()
+        union = (pred | label).flatten(1).sum(1).float()
+        iou = torch.where(union > 0, inter / union.clamp_min(1.0), torch.ones_like(union))  # both empty: a match
+        ipr = pred.flatten(1).sum(1).float() / m2
+        label_ipr = label.flatten(1).sum(1).float() / m2
+        self.log(f"{prefix}/im_accuracy", acc.mean(), **log)
+        self.log(f"{prefix}/im_iou", iou.mean(), **log)
+        self.log(f"{prefix}/im_error", 1.0 - iou.mean(), **log)
+        self.log(f"{prefix}/ipr", ipr.mean(), prog_bar=True, **log)
+        self.log(f"{prefix}/label_ipr", label_ipr.mean(), **log)
+        self.log(f"{prefix}/ipr_error", (ipr - label_ipr).abs().mean(), **log)
+
+        if "c" not in batch:
+            return
+        c = batch["c"]
+        c_rec, fr_pred = self.reconstruct(pred, c)
+        self.log(f"{prefix}/c_psnr", psnr_per_image(c_rec, c).mean(), **log)
+        if fr_pred is None or "fr" not in batch:
+            if not self._warned_no_recnn:
+                rank_zero_warn("IMSTask: no RecNN (standalone IML checkpoint and no recnn.checkpoint): final FR PSNR/SSIM not computed")
+                self._warned_no_recnn = True
+            return
+        fr = batch["fr"]
+        self.log_image_metrics(f"{prefix}/fr", fr_pred, fr, on_step=False, on_epoch=True)
+        _, fr_label = self.reconstruct(label, c)
+        self.log_image_metrics(f"{prefix}/label_fr", fr_label, fr, on_step=False, on_epoch=True)
+
+    def validation_step(self, batch, batch_idx):
+        self._eval_step(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        self._eval_step(batch, "test")
+
+    def visuals(self, batch):
+        c = batch["c"]
+        pred = self.predict_im(batch["view"]).float()
+        c_rec, fr_pred = self.reconstruct(pred, c)
+        titles = ["label IM", "IMS IM", "C-Image", "PR-C-Image (IMS)"]
+        tensors = [batch["im"], pred, c, pred * c]
+        if fr_pred is not None:
+            titles += ["IML/S", "truth"]
+            tensors += [fr_pred.clamp(0, 1), batch["fr"]]
+        else:
+            titles += ["decoder C-Image"]
+            tensors += [c_rec.clamp(0, 1)]
+        return titles, tensors

@@ -1,0 +1,115 @@
+"""Training a reconstruction network (EnhanceNet or FoVolNet) on its sampling pattern."""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import torch
+from hydra.utils import instantiate
+
+from data_gen.errors import InputError
+
+from ..compaction import decompact
+from ..config import to_plain
+from ..patterns import build_pattern
+from .base import ImlsTask
+
+
+def build_recnn(net: Mapping, pattern) -> torch.nn.Module:
+    """Instantiate a RecNN ``nn.Module`` from its config (``_target_`` + arguments) and the pattern."""
+    cfg = dict(to_plain(net))
+    if "_target_" not in cfg:
+        raise InputError("recnn.net: expected a config with a _target_ (e.g. imls_lightning.models.enhancenet.EnhanceNet)")
+    # the pattern is passed at call time: as an instantiate() kwarg the SamplingPattern dataclass
+    # would be converted into a config dict by _convert_="all"
+    return instantiate(cfg, _partial_=True, _convert_="all")(pattern=pattern)
+
+
+def reconstruction_loss(pred: torch.Tensor, target: torch.Tensor, kind: str, ssim_weight: float) -> torch.Tensor:
+    """L1 or MSE, plus ``ssim_weight * (1 - SSIM)`` when asked."""
+    if kind == "l1":
+        loss = (pred - target).abs().mean()
+    elif kind == "mse":
+        loss = (pred - target).pow(2).mean()
+    else:
+        raise InputError(f"model.loss={kind!r}: expected 'l1' or 'mse'")
+    if ssim_weight:
+        from torchmetrics.functional.image import structural_similarity_index_measure as ssim_fn
+
+        k = 11 if min(pred.shape[-2:]) >= 11 else 3
+        loss = loss + ssim_weight * (1.0 - ssim_fn(pred.float(), target.float(), data_range=1.0, kernel_size=k))
+    return loss
+
+
+class RecNNTask(ImlsTask):
+    """LightningModule that trains a RecNN: C-Image -> FR-Image.
+
+    Args:
+        net: the ``recnn.net`` config (``_target_`` + hyperparameters of the ``nn.Module``).
+        pattern: the ``pattern`` config node.
+        fr_size: FR-Image side ``m`` (``data.resolution``).
+        loss: ``"l1"`` or ``"mse"``; ``ssim_weight`` adds ``w * (1 - SSIM)``.
+        lr: Adam learning rate.
+    """
+
+    def __init__(
+        self,
+        net: Mapping,
+        pattern: Mapping,
+        fr_size: int,
+        loss: str = "l1",
+        ssim_weight: float = 0.0,
+        lr: float = 1e-3,
+        recnn_name: str = "recnn",
+        **_: Any,
+    ):
+        super().__init__()
+        if loss not in ("l1", "mse"):
+            raise InputError(f"model.loss={loss!r}: expected 'l1' or 'mse'")
+        if not lr > 0:
+            raise InputError(f"model.lr={lr}: expected a positive number")
+        self.save_hyperparameters({"net": to_plain(net), "pattern": to_plain(pattern), "fr_size": int(fr_size),
+                                   "loss": loss, "ssim_weight": float(ssim_weight), "lr": float(lr),
+                                   "recnn_name": recnn_name})
+        self.pattern = build_pattern(to_plain(pattern), int(fr_size))
+        self.net = build_recnn(net, self.pattern)
+
+    @classmethod
+    def from_config(cls, cfg) -> "RecNNTask":
+        m = cfg.model
+        return cls(net=cfg.recnn.net, pattern=cfg.pattern, fr_size=cfg.data.resolution, loss=m.loss,
+                   ssim_weight=m.ssim_weight, lr=m.lr, recnn_name=cfg.recnn.name)
+
+    @classmethod
+    def datamodule_kwargs(cls, cfg) -> dict:
+        return {"fields": ("view", "fr", "c")}
+
+    def forward(self, c_image: torch.Tensor) -> torch.Tensor:
+        return self.net(c_image)
+
+    def _step(self, batch: dict[str, torch.Tensor], prefix: str) -> torch.Tensor:
+        pred = self(batch["c"])
+        target = batch["fr"]
+        loss = reconstruction_loss(pred, target, self.hparams.loss, self.hparams.ssim_weight)
+        bs = target.shape[0]
+        on_step = prefix == "train"
+        self.log(f"{prefix}/loss", loss, batch_size=bs, prog_bar=True, on_step=on_step, on_epoch=True)
+        if prefix != "train":
+            self.log_image_metrics(f"{prefix}/fr", pred, target)
+        return loss
+
+    def training_step(self, batch, batch_idx):
+        return self._step(batch, "train")
+
+    def validation_step(self, batch, batch_idx):
+        self._step(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        self._step(batch, "test")
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+
+    def visuals(self, batch):
+        pred = self(batch["c"]).clamp(0, 1)
+        pr = decompact(batch["c"], self.pattern.indices.to(batch["c"].device), self.pattern.fr_size)
+        return ["C-Image", "PR-Image", "RecNN", "truth"], [batch["c"], pr, pred, batch["fr"]]

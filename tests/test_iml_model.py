@@ -1,0 +1,229 @@
+"""IMLNet: the composed formulas, padding, stability grid (float32 and bf16 autocast), empty/full
+masks through decoder and RecNNs, hard/soft agreement, off-the-shelf decoder attachment, errors."""
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from data_gen.errors import InputError
+from imls_lightning.importance import normalize_importance
+from imls_lightning.models.enhancenet import EnhanceNet
+from imls_lightning.models.fovolnet import FoVolNet
+from imls_lightning.models.iml import IMLNet, IMLRecNN, c_share, ipr
+from imls_lightning.patterns import SamplingPattern
+
+N = 16
+
+
+def rank_pattern(n: int, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return ((torch.randperm(n * n, generator=g) + 1).float() / (n * n)).view(n, n)
+
+
+def small_iml(n: int = N, **kw) -> IMLNet:
+    torch.manual_seed(0)
+    args = dict(depth=3, base_channels=4)
+    args.update(kw)
+    return IMLNet(n, rank_pattern(n), **args)
+
+
+def grid_pattern(n: int, factor: int) -> SamplingPattern:
+    m = n * factor
+    ii = torch.arange(n)
+    return SamplingPattern("downsample", m, n, ((factor * ii)[:, None] * m + (factor * ii)[None, :]).reshape(-1))
+
+
+def foveal_pattern(m: int, n: int, k: int) -> SamplingPattern:
+    g = torch.Generator().manual_seed(1)
+    return SamplingPattern("foveal", m, n, torch.randperm(m * m, generator=g)[:k].sort().values)
+
+
+# ---------------------------------------------------------------- formulas, composed
+
+
+def test_forward_against_direct_composition():
+    net = small_iml(mean=0.2, alpha=30.0).train()
+    c = torch.rand(2, 3, N, N)
+    out = net(c)
+    pim = F.softplus(net.encoder(c))
+    torch.testing.assert_close(out.pim, pim)
+    mu = pim.mean(dim=(1, 2, 3), keepdim=True)
+    torch.testing.assert_close(out.pim_norm, pim * 0.2 / (mu + 1e-7))
+    torch.testing.assert_close(out.im, torch.sigmoid(30.0 * (out.pim_norm - net.sampling.P)))
+    torch.testing.assert_close(out.pr_c_image, out.im * c)
+    torch.testing.assert_close(out.c_recon, net.decoder(out.im * c))
+    assert out.pim.shape == out.im.shape == (2, 1, N, N) and out.c_recon.shape == (2, 3, N, N)
+
+
+def test_hard_at_inference_soft_in_training_and_override():
+    net = small_iml()
+    c = torch.rand(2, 3, N, N)
+    hard = net.eval()(c).im
+    assert set(hard.unique().tolist()) <= {0.0, 1.0}
+    torch.testing.assert_close(hard, (net(c).pim_norm > net.sampling.P).float())
+    soft = net.train()(c).im
+    assert ((soft > 0) & (soft < 1)).any()
+    assert torch.equal(net.train()(c, hard=True).im, hard)
+    assert torch.equal(net.importance(c), hard)
+    torch.testing.assert_close(net.decode(hard * c), net.eval()(c).c_recon)
+
+
+def test_padding_is_never_important_and_excluded_from_the_mean():
+    valid = torch.arange(N * N).view(N, N) < 200  # K = 200 of 256, as SamplingPattern.valid
+    net = small_iml(valid=valid, mean=1.0).eval()
+    c = torch.rand(2, 3, N, N)
+    out = net(c)
+    assert not out.im[:, :, ~valid].any()
+    assert not out.pr_c_image[:, :, ~valid].any()
+    torch.testing.assert_close(out.pim_norm, normalize_importance(out.pim, 1.0, valid=valid))
+    assert (c_share(out.im, valid) > 0).all()
+
+
+def test_ipr_and_c_share_against_direct_count():
+    im = (torch.rand(3, 1, 8, 8) > 0.6).float()
+    valid = torch.arange(64).view(8, 8) < 50
+    for b in range(3):
+        count = int(im[b].sum())
+        assert abs(float(ipr(im, 16)[b]) - count / 256) < 1e-7
+        assert abs(float(c_share(im, valid)[b]) - int(im[b, 0][valid].sum()) / 50) < 1e-6
+        assert abs(float(c_share(im)[b]) - count / 64) < 1e-6
+
+
+# ---------------------------------------------------------------- stability grid
+
+
+def _inputs(kind: str) -> torch.Tensor:
+    return {
+        "zero": torch.zeros(2, 3, N, N),
+        "constant": torch.full((2, 3, N, N), 0.6),
+        "random": torch.rand(2, 3, N, N, generator=torch.Generator().manual_seed(3)),
+    }[kind]
+
+
+@pytest.mark.parametrize("mean", [0.01, 1.0])
+@pytest.mark.parametrize("alpha", [1.0, 50.0, 1e4])
+@pytest.mark.parametrize("kind", ["zero", "constant", "random"])
+@pytest.mark.parametrize("autocast", [False, True], ids=["fp32", "bf16"])
+def test_stability_grid_outputs_and_gradients_finite(mean, alpha, kind, autocast):
+    net = small_iml(mean=mean, alpha=alpha).train()
+    c = _inputs(kind)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        out = net(c)
+        loss = F.mse_loss(out.c_recon.float(), c) + out.im.mean()
+    loss.backward()
+    for name, t in out._asdict().items():
+        assert torch.isfinite(t).all(), name
+    assert out.im.dtype == torch.float32 and out.pim_norm.dtype == torch.float32
+    grads = [p.grad for p in net.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+    assert any(float(p.grad.abs().sum()) > 0 for p in net.encoder.parameters())  # gradient reaches the encoder
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        hard = net.eval()(c)
+    assert all(torch.isfinite(t).all() for t in hard)
+
+
+@pytest.mark.parametrize("autocast", [False, True], ids=["fp32", "bf16"])
+def test_all_zero_pim_gives_empty_mask_and_finite_gradients(autocast):
+    net = small_iml(mean=0.5, alpha=1e4).train()
+    with torch.no_grad():  # softplus(-200) underflows to exactly 0 in float32
+        net.encoder.head.weight.zero_()
+        net.encoder.head.bias.fill_(-200.0)
+    c = torch.rand(1, 3, N, N)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        out = net(c)
+        loss = F.mse_loss(out.c_recon.float(), c)
+    loss.backward()
+    assert float(out.pim.detach().max()) == 0.0 and float(out.pim_norm.detach().max()) == 0.0
+    assert float(ipr(net.eval()(c).im, 2 * N).max()) == 0.0
+    assert all(torch.isfinite(p.grad).all() for p in net.parameters() if p.grad is not None)
+
+
+def test_soft_and_hard_masks_agree_for_large_alpha():
+    net = small_iml(alpha=1e5).eval()
+    c = torch.rand(2, 3, N, N)
+    soft, hard = net(c, hard=False), net(c, hard=True)
+    away = (soft.pim_norm - net.sampling.P).abs() > 1e-3
+    assert away.float().mean() > 0.9
+    assert torch.equal(soft.im[away], hard.im[away])  # sigmoid(+-100) is exactly 0/1 in float32
+    net.alpha = 1.0
+    assert not torch.equal(net(c, hard=False).im[away], hard.im[away])
+
+
+# ---------------------------------------------------------------- decoder + RecNN
+
+
+def _recnns(n: int):
+    return {
+        "enhancenet": EnhanceNet(grid_pattern(n, 2), channels=4, blocks=1),
+        "fovolnet": FoVolNet(foveal_pattern(2 * n, n, n * n - 10), features=4, depth=2, base_channels=4, filter_channels=4),
+    }
+
+
+@pytest.mark.parametrize("recnn_name", ["enhancenet", "fovolnet"])
+@pytest.mark.parametrize("mask", ["empty", "full"])
+@pytest.mark.parametrize("autocast", [False, True], ids=["fp32", "bf16"])
+def test_empty_and_full_mask_through_decoder_and_recnn_are_finite(recnn_name, mask, autocast):
+    iml = small_iml()
+    model = IMLRecNN(iml, _recnns(N)[recnn_name])
+    c = torch.rand(2, 3, N, N, requires_grad=True)
+    im = (torch.zeros if mask == "empty" else torch.ones)(2, 1, N, N)
+    assert float(ipr(im, 2 * N).max()) == (0.0 if mask == "empty" else 0.25)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        fr = model.from_im(c, im)
+    fr.float().sum().backward()
+    assert fr.shape == (2, 3, 2 * N, 2 * N)
+    assert torch.isfinite(fr).all() and torch.isfinite(c.grad).all()
+
+
+def test_iml_recnn_paths_agree():
+    iml = small_iml().eval()
+    model = IMLRecNN(iml, _recnns(N)["fovolnet"]).eval()
+    c = torch.rand(1, 3, N, N)
+    im = iml.importance(c)
+    torch.testing.assert_close(model(c), model.from_im(c, im))
+    torch.testing.assert_close(model(c), model.from_pr_c_image(im * c))
+
+
+def test_standalone_decoder_attaches_to_a_separately_built_recnn(tmp_path):
+    # the paper's off-the-shelf case: train IML alone, reload it, put its decoder before any RecNN
+    iml = small_iml(mean=0.3)
+    torch.save(iml.state_dict(), tmp_path / "iml.pt")
+    recnn = _recnns(N)["enhancenet"]
+    torch.save(recnn.state_dict(), tmp_path / "recnn.pt")
+
+    iml2 = IMLNet(N, torch.zeros(N, N), mean=0.3, depth=3, base_channels=4)
+    iml2.load_state_dict(torch.load(tmp_path / "iml.pt"))
+    assert torch.equal(iml2.sampling.P, iml.sampling.P)  # P travels with the checkpoint
+    recnn2 = EnhanceNet(grid_pattern(N, 2), channels=4, blocks=1)
+    recnn2.load_state_dict(torch.load(tmp_path / "recnn.pt"))
+    c = torch.rand(1, 3, N, N)
+    want = recnn(iml.eval().decode(iml.importance(c) * c))
+    got = IMLRecNN(iml2, recnn2).eval()(c)
+    torch.testing.assert_close(got, want)
+
+
+# ---------------------------------------------------------------- errors
+
+
+def test_invalid_hyperparameters_refused():
+    P = rank_pattern(8)
+    for mean in (0.0, 0.005, 1.5):
+        with pytest.raises(InputError, match="mean"):
+            IMLNet(8, P, mean=mean, depth=2, base_channels=2)
+    for alpha in (0.0, -5.0):
+        with pytest.raises(InputError, match="alpha"):
+            IMLNet(8, P, alpha=alpha, depth=2, base_channels=2)
+    with pytest.raises(InputError, match="P"):
+        IMLNet(8, rank_pattern(4), depth=2, base_channels=2)
+    with pytest.raises(InputError, match="valid"):
+        IMLNet(8, P, valid=torch.ones(4, 4, dtype=torch.bool), depth=2, base_channels=2)
+    net = IMLNet(8, P, depth=2, base_channels=2)
+    with pytest.raises(InputError, match="mean"):
+        net.mean = 0.0
+    with pytest.raises(InputError, match="alpha"):
+        net.alpha = -1.0
+    with pytest.raises(InputError, match="c_size"):
+        IMLRecNN(net, EnhanceNet(grid_pattern(4, 2), channels=2, blocks=0))
+    with pytest.raises(ValueError):
+        net(torch.rand(1, 3, 4, 4))

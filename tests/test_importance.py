@@ -1,0 +1,224 @@
+"""PIM normalization and rejection sampling: formulas, gradients, extremes, user errors."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from data_gen.errors import InputError
+from imls_lightning.importance import (
+    ImportanceNormalization,
+    RejectionSampling,
+    hard_rejection_sample,
+    normalize_importance,
+    soft_rejection_sample,
+)
+
+
+def rank_pattern(n: int, seed: int = 0) -> torch.Tensor:
+    """Stand-in for the plastic rank pattern: each of 1/N, 2/N, ..., 1 once, shuffled."""
+    g = torch.Generator().manual_seed(seed)
+    return ((torch.randperm(n * n, generator=g) + 1).float() / (n * n)).view(n, n)
+
+
+# ---------------------------------------------------------------- against a direct reimplementation
+
+
+@pytest.mark.parametrize("lower", [0.0, 0.02])
+def test_normalize_against_direct_formula(lower):
+    pim = torch.rand(3, 1, 5, 6) * torch.tensor([1.0, 10.0, 0.01]).view(3, 1, 1, 1)
+    u, delta = 0.2, 1e-7
+    got = normalize_importance(pim, u, lower=lower, delta=delta)
+    for b in range(3):
+        mu = sum(float(v) for v in pim[b].flatten()) / pim[b].numel()
+        want = lower + pim[b] * (u - lower) / (mu + delta)
+        torch.testing.assert_close(got[b], want, rtol=1e-5, atol=1e-7)
+
+
+def test_normalize_with_valid_uses_only_valid_pixels_for_the_mean():
+    pim = torch.rand(2, 1, 4, 4)
+    valid = torch.zeros(4, 4, dtype=torch.bool)
+    valid.view(-1)[:11] = True  # first K raster pixels, like SamplingPattern.valid
+    got = normalize_importance(pim, 0.3, valid=valid)
+    for b in range(2):
+        mu = pim[b, 0][valid].mean()
+        torch.testing.assert_close(got[b], pim[b] * 0.3 / (mu + 1e-7))
+        # the mean of PIM' over the valid pixels is u (l = 0)
+        assert abs(float(got[b, 0][valid].mean()) - 0.3) < 1e-5
+
+
+def test_soft_and_hard_rejection_against_direct_formula():
+    pim_norm = torch.rand(2, 1, 6, 6) * 2
+    P = rank_pattern(6)
+    alpha = 7.5
+    soft = soft_rejection_sample(pim_norm, P, alpha)
+    hard = hard_rejection_sample(pim_norm, P)
+    for b in range(2):
+        for i in range(6):
+            for j in range(6):
+                d = float(pim_norm[b, 0, i, j]) - float(P[i, j])
+                want = 1.0 / (1.0 + torch.exp(torch.tensor(-alpha * d, dtype=torch.float64)))
+                assert abs(float(soft[b, 0, i, j]) - float(want)) < 1e-6
+                assert bool(hard[b, 0, i, j]) == (d > 0)
+    assert hard.dtype == torch.bool
+
+
+def test_ties_are_not_important():
+    P = torch.full((2, 2), 0.5)
+    assert not hard_rejection_sample(torch.full((1, 1, 2, 2), 0.5), P).any()
+
+
+# ---------------------------------------------------------------- gradcheck (float64)
+
+
+@pytest.mark.parametrize("with_valid", [False, True])
+def test_gradcheck_normalization(with_valid):
+    pim = (torch.rand(2, 1, 4, 4, dtype=torch.float64) + 0.1).requires_grad_()
+    valid = torch.arange(16).view(4, 4) < 13 if with_valid else None
+    assert torch.autograd.gradcheck(lambda x: normalize_importance(x, 0.3, lower=0.05, valid=valid), (pim,))
+
+
+def test_gradcheck_soft_rejection():
+    x = (torch.rand(2, 1, 4, 4, dtype=torch.float64) * 2).requires_grad_()
+    P = rank_pattern(4).double()
+    assert torch.autograd.gradcheck(lambda t: soft_rejection_sample(t, P, 3.0), (x,))
+
+
+def test_gradcheck_normalization_then_soft_rejection():
+    pim = (torch.rand(1, 1, 4, 4, dtype=torch.float64) + 0.05).requires_grad_()
+    P = rank_pattern(4).double()
+    fn = lambda x: soft_rejection_sample(normalize_importance(x, 0.5), P, 2.0)  # noqa: E731
+    assert torch.autograd.gradcheck(fn, (pim,))
+
+
+# ---------------------------------------------------------------- extremes
+
+
+def _finite_grad(fn, x):
+    x = x.clone().requires_grad_()
+    y = fn(x)
+    (y * torch.linspace(0.5, 1.5, y.numel()).view_as(y)).sum().backward()
+    return y, x.grad
+
+
+@pytest.mark.parametrize("mean", [0.01, 1.0])
+@pytest.mark.parametrize("alpha", [1.0, 50.0, 1e4])
+@pytest.mark.parametrize("kind", ["zero", "huge", "tiny", "one_hot_huge", "random"])
+@pytest.mark.parametrize("autocast", [False, True])
+def test_stability_grid_finite_values_and_gradients(mean, alpha, kind, autocast):
+    n = 8
+    pim = {
+        "zero": torch.zeros(2, 1, n, n),
+        "huge": torch.full((2, 1, n, n), 1e30),
+        "tiny": torch.full((2, 1, n, n), 1e-30),
+        "one_hot_huge": torch.zeros(2, 1, n, n).index_fill_(3, torch.tensor([3]), 1e30),
+        "random": torch.rand(2, 1, n, n),
+    }[kind]
+    P = rank_pattern(n)
+
+    def fn(x):
+        return soft_rejection_sample(normalize_importance(x, mean), P, alpha)
+
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        y, g = _finite_grad(fn, pim.to(torch.bfloat16) if autocast else pim)
+        hard = hard_rejection_sample(normalize_importance(pim, mean), P)
+    assert y.dtype == torch.float32
+    assert torch.isfinite(y).all() and torch.isfinite(g).all()
+    assert ((y >= 0) & (y <= 1)).all()
+    if kind == "zero":
+        # mean(PIM) = 0: delta keeps it finite, PIM' = l = 0, so nothing is important
+        assert not hard.any()
+        assert torch.equal(normalize_importance(pim, mean), torch.zeros_like(pim))
+
+
+def test_constant_pim_is_normalized_to_the_mean():
+    for c in (1e-3, 1.0, 1e6):
+        out = normalize_importance(torch.full((1, 1, 4, 4), c), 0.25)
+        # exactly u up to the delta bias c / (c + delta)
+        torch.testing.assert_close(out, torch.full_like(out, 0.25 * c / (c + 1e-7)), rtol=1e-6, atol=0)
+
+
+def test_all_invalid_image_gives_lower_not_nan():
+    out = normalize_importance(torch.rand(1, 1, 3, 3), 0.5, lower=0.1, valid=torch.zeros(3, 3, dtype=torch.bool))
+    assert torch.isfinite(out).all()
+
+
+def test_bf16_autocast_matches_float32_computation():
+    pim = torch.rand(2, 1, 8, 8).to(torch.bfloat16).float()  # bf16-representable values
+    P = rank_pattern(8)
+    ref = soft_rejection_sample(normalize_importance(pim, 0.1), P, 50.0)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = soft_rejection_sample(normalize_importance(pim.to(torch.bfloat16), 0.1), P, 50.0)
+    assert got.dtype == torch.float32
+    torch.testing.assert_close(got, ref)
+
+
+@pytest.mark.parametrize("alpha", [1e3, 1e5])
+def test_soft_mask_tends_to_hard_mask_for_large_alpha(alpha):
+    pim_norm = torch.rand(4, 1, 16, 16) * 1.5
+    P = rank_pattern(16)
+    soft = soft_rejection_sample(pim_norm, P, alpha)
+    hard = hard_rejection_sample(pim_norm, P).float()
+    eps = 1e-2
+    away = (pim_norm - P).abs() > eps
+    bound = torch.sigmoid(torch.tensor(-alpha * eps)).item()
+    assert ((soft - hard).abs()[away] <= bound + 1e-7).all()
+
+
+# ---------------------------------------------------------------- modules
+
+
+def test_rejection_sampling_module_soft_in_training_hard_in_eval():
+    P = rank_pattern(6)
+    rs = RejectionSampling(P, alpha=5.0)
+    x = torch.rand(2, 1, 6, 6)
+    soft = rs.train()(x)
+    torch.testing.assert_close(soft, soft_rejection_sample(x, P, 5.0))
+    hard = rs.eval()(x)
+    assert hard.dtype == torch.float32
+    assert torch.equal(hard, hard_rejection_sample(x, P).float())
+    assert torch.equal(rs.eval()(x, hard=False), soft)  # override
+    assert torch.equal(rs.train()(x, hard=True), hard)
+    assert torch.equal(rs.state_dict()["P"], P)  # the checkpoint carries P
+
+
+def test_importance_normalization_module():
+    norm = ImportanceNormalization(mean=0.1)
+    x = torch.rand(3, 1, 5, 5)
+    torch.testing.assert_close(norm(x), normalize_importance(x, 0.1))
+    norm.mean = 0.5
+    torch.testing.assert_close(norm(x), normalize_importance(x, 0.5))
+    with pytest.raises(InputError):
+        norm.mean = 2.0
+    assert norm.mean == 0.5
+
+
+# ---------------------------------------------------------------- exceptions
+
+
+@pytest.mark.parametrize("mean", [0.0, 0.009, 1.01, -1.0, float("nan"), "abc"])
+def test_invalid_mean_is_refused(mean):
+    with pytest.raises(InputError, match="mean") as err:
+        normalize_importance(torch.rand(1, 1, 2, 2), mean)
+    assert "\n" not in str(err.value)
+    with pytest.raises(InputError, match="mean"):
+        ImportanceNormalization(mean)
+
+
+@pytest.mark.parametrize("alpha", [0.0, -1.0, float("inf"), float("nan")])
+def test_invalid_alpha_is_refused(alpha):
+    with pytest.raises(InputError, match="alpha") as err:
+        soft_rejection_sample(torch.rand(1, 1, 2, 2), torch.rand(2, 2), alpha)
+    assert "\n" not in str(err.value)
+    with pytest.raises(InputError, match="alpha"):
+        RejectionSampling(torch.rand(2, 2), alpha)
+
+
+def test_invalid_lower_delta_and_P_are_refused():
+    with pytest.raises(InputError, match="lower"):
+        normalize_importance(torch.rand(1, 1, 2, 2), 0.1, lower=0.1)
+    with pytest.raises(InputError, match="delta"):
+        normalize_importance(torch.rand(1, 1, 2, 2), 0.1, delta=0.0)
+    with pytest.raises(InputError, match="P"):
+        RejectionSampling(torch.rand(2, 2, 2))
+    with pytest.raises(InputError, match="P"):
+        RejectionSampling(torch.full((2, 2), 2.0))

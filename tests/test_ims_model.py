@@ -1,0 +1,117 @@
+"""IMS generator / discriminator: shapes over C-Image sizes and layer counts, layer plan, view
+normalization, target conventions, stability, user errors."""
+from __future__ import annotations
+
+import pytest
+import torch
+from torch import nn
+
+from data_gen.errors import InputError
+from imls_lightning.models.ims import IMSDiscriminator, IMSGenerator, generator_plan, im_to_target, output_to_im
+
+
+def views(b: int, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    eye = torch.randn(b, 3, generator=g)
+    eye = 3.0 * eye / eye.norm(dim=1, keepdim=True)
+    look = 0.1 * torch.randn(b, 3, generator=g)
+    up = torch.tensor([0.0, 1.0, 0.0]).expand(b, 3)
+    return torch.cat([eye, look, up], dim=1)
+
+
+@pytest.mark.parametrize("c_size", [8, 32, 48, 64])
+@pytest.mark.parametrize("layers", [1, 4, 8])
+def test_generator_output_shape_range_and_layer_count(c_size, layers):
+    g = IMSGenerator(c_size, layers=layers, base_channels=2, max_channels=16)
+    out = g(views(2))
+    assert out.shape == (2, 1, c_size, c_size)
+    assert (out.abs() < 1).all()
+    assert sum(isinstance(m, nn.ConvTranspose2d) for m in g.modules()) == layers
+    assert sum(isinstance(m, nn.BatchNorm2d) for m in g.modules()) == layers - 1
+
+
+def test_generator_256_at_8_layers():
+    g = IMSGenerator(256, layers=8, base_channels=2, max_channels=16).eval()
+    with torch.no_grad():
+        assert g(views(1)).shape == (1, 1, 256, 256)
+    assert (g.start_size, g.doublings, g.extra_layers) == (4, 6, 1)
+
+
+@pytest.mark.parametrize(
+    "c_size,layers,plan",
+    [(256, 8, (4, 6, 1)), (64, 8, (4, 4, 3)), (32, 8, (4, 3, 4)), (48, 8, (6, 3, 4)), (7, 8, (7, 0, 7)), (256, 3, (64, 2, 0)), (256, 1, (256, 0, 0))],
+)
+def test_generator_plan(c_size, layers, plan):
+    s0, k, extra = generator_plan(c_size, layers)
+    assert (s0, k, extra) == plan and s0 * 2**k == c_size and 1 + k + extra == layers
+
+
+def test_generator_channels_halve_as_the_side_doubles():
+    g = IMSGenerator(64, layers=6, base_channels=4, max_channels=32)
+    convs = [m for m in g.modules() if isinstance(m, nn.ConvTranspose2d)]
+    assert [c.out_channels for c in convs] == [32, 32, 16, 8, 4, 1]  # 4x4 (capped), 8, 16, 32, 64, extra->1
+    assert [c.stride[0] for c in convs] == [1, 2, 2, 2, 2, 1]
+
+
+def test_view_normalization_is_fitted_and_saved():
+    v = views(64)
+    g = IMSGenerator(16, layers=3, base_channels=2)
+    g.fit_view_normalization(v)
+    z = (v - g.view_mean) / g.view_std
+    torch.testing.assert_close(z[:, :6].mean(0), torch.zeros(6), atol=1e-5, rtol=0)
+    torch.testing.assert_close(z[:, :6].std(0, unbiased=False), torch.ones(6), atol=1e-4, rtol=0)
+    assert torch.equal(g.view_std[6:], torch.ones(3))  # constant up vector: std kept at 1
+    sd = g.state_dict()
+    assert "view_mean" in sd and "view_std" in sd
+    g2 = IMSGenerator(16, layers=3, base_channels=2)
+    g2.load_state_dict(sd)
+    g.eval(), g2.eval()
+    torch.testing.assert_close(g2(v[:2]), g(v[:2]))
+
+
+@pytest.mark.parametrize("c_size", [4, 7, 32, 48, 64])
+def test_discriminator_one_logit_per_image(c_size):
+    d = IMSDiscriminator(c_size, base_channels=2, max_channels=8)
+    out = d(torch.rand(3, 1, c_size, c_size) * 2 - 1)
+    assert out.shape == (3,)
+    assert isinstance(d.net[-1], nn.Conv2d)  # raw logits: no sigmoid in the module
+    assert any(isinstance(m, nn.LeakyReLU) and m.negative_slope == 0.2 for m in d.modules()) or c_size <= 4
+
+
+def test_target_conventions():
+    im = (torch.rand(2, 1, 8, 8) > 0.5).float()
+    t = im_to_target(im)
+    assert set(t.unique().tolist()) <= {-1.0, 1.0}
+    assert torch.equal(output_to_im(t), im)
+    assert torch.equal(output_to_im(torch.tanh(5 * t)), im)
+
+
+@pytest.mark.parametrize("autocast", [False, True], ids=["fp32", "bf16"])
+def test_gan_step_gradients_finite(autocast):
+    g = IMSGenerator(32, layers=5, base_channels=2, max_channels=16).train()
+    d = IMSDiscriminator(32, base_channels=2, max_channels=16).train()
+    real = im_to_target((torch.rand(2, 1, 32, 32) > 0.7).float())
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        fake = g(views(2))
+        logits_fake, logits_real = d(fake), d(real)
+        bce = nn.functional.binary_cross_entropy_with_logits
+        loss = bce(logits_fake.float(), torch.ones(2)) + bce(logits_real.float(), torch.ones(2))
+    loss.backward()
+    assert torch.isfinite(fake).all() and torch.isfinite(loss)
+    for p in list(g.parameters()) + list(d.parameters()):
+        assert p.grad is not None and torch.isfinite(p.grad).all()
+
+
+def test_invalid_parameters_refused():
+    with pytest.raises(InputError, match="layers"):
+        IMSGenerator(32, layers=0)
+    with pytest.raises(InputError, match="c_size"):
+        IMSGenerator(0)
+    with pytest.raises(InputError, match="view_mean"):
+        IMSGenerator(8, view_std=torch.zeros(9))
+    with pytest.raises(InputError, match="views"):
+        IMSGenerator(8, layers=2).fit_view_normalization(torch.rand(4, 6))
+    with pytest.raises(ValueError):
+        IMSGenerator(8, layers=2)(torch.rand(2, 6))
+    with pytest.raises(ValueError):
+        IMSDiscriminator(8)(torch.rand(2, 1, 16, 16))

@@ -1,0 +1,284 @@
+"""Sampling patterns, blue noise, the plastic rank pattern P, the config builder and helpers."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from data_gen.errors import InputError
+from imls_lightning import patterns as pat
+from imls_lightning.compaction import compact, decompact
+from imls_lightning.patterns import (
+    SamplingPattern,
+    blue_noise,
+    build_pattern,
+    c_pixels_to_fr,
+    downsample_pattern,
+    foveal_pattern,
+    foveal_surface,
+    full_pattern,
+    plastic_rank_pattern,
+)
+
+CONF = Path(__file__).resolve().parents[1] / "conf" / "pattern"
+
+
+# --- downsample / full ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("m, f", [(12, 1), (12, 2), (12, 3), (12, 4), (15, 5), (8, 8)])
+def test_downsample_compaction_equals_strided_slicing(m, f):
+    p = downsample_pattern(m, f)
+    o = (f - 1) // 2
+    x = torch.rand(2, 3, m, m)
+    assert p.c_size == m // f and p.count == (m // f) ** 2 and p.fill_ratio == 1.0
+    assert torch.equal(compact(x, p.indices, p.c_size), x[..., o::f, o::f])
+
+
+def test_downsample_picks_block_centre_for_odd_and_factor2_is_plain_stride():
+    assert downsample_pattern(9, 3).indices.tolist()[:3] == [1 * 9 + 1, 1 * 9 + 4, 1 * 9 + 7]
+    assert downsample_pattern(4, 2).indices.tolist() == [0, 2, 8, 10]
+
+
+def test_paper_4x_super_resolution_is_factor_2():
+    p = downsample_pattern(512, 2)
+    assert (p.c_size, p.count, p.sampling_ratio) == (256, 256 * 256, 0.25)
+
+
+@pytest.mark.parametrize("m, f, match", [(10, 3, "not divisible"), (8, 0, "pattern.factor"), (8, 2.0, "pattern.factor")])
+def test_downsample_rejects_bad_factors(m, f, match):
+    with pytest.raises(InputError, match=match):
+        downsample_pattern(m, f)
+
+
+def test_full_pattern_compaction_is_identity():
+    p = full_pattern(6)
+    x = torch.rand(1, 3, 6, 6)
+    assert p.c_size == 6 and torch.equal(compact(x, p.indices, 6), x)
+
+
+# --- foveal ----------------------------------------------------------------------------------------
+
+
+def _ring_density(mask: torch.Tensor, edges) -> list[float]:
+    m = mask.shape[0]
+    c = (torch.arange(m, dtype=torch.float64) + 0.5) / m - 0.5
+    r = torch.sqrt(c[None, :] ** 2 + c[:, None] ** 2)
+    return [float(mask[(r >= a) & (r < b)].double().mean()) for a, b in zip(edges[:-1], edges[1:])]
+
+
+@pytest.mark.parametrize("formulation, sigma", [("fovolnet", 0.12), ("paper", 60.0)])
+def test_foveal_density_falls_with_distance_and_follows_the_surface(formulation, sigma):
+    p = foveal_pattern(128, 64, sigma, formulation=formulation)
+    edges = [0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.72]
+    dens = _ring_density(p.mask, edges)
+    assert all(a > b for a, b in zip(dens, dens[1:])), dens
+    assert dens[0] > 0.9  # dense fovea: the paper's printed "P > E" would make this ~0
+    expected = _ring_density(foveal_surface(128, sigma, formulation=formulation), edges)
+    assert np.allclose(dens, expected, atol=0.03), (dens, expected)  # blue noise is uniform
+
+
+def test_foveal_count_is_reported_and_matches_the_mask():
+    p = foveal_pattern(64, 32, 0.1)
+    assert p.count == int(p.mask.sum()) == int(p.valid.sum())
+    assert p.fill_ratio == p.count / 32**2 and p.count < 32**2  # zero padded C-Image
+    assert f"K={p.count}" in p.summary()
+
+
+@pytest.mark.parametrize("formulation, denser", [("fovolnet", 1.01), ("paper", 0.99)])
+def test_foveal_solved_sigma_is_the_densest_that_fits(formulation, denser):
+    p = foveal_pattern(64, 32, formulation=formulation)
+    sigma = p.param_dict["sigma"]
+    assert p.count <= 32 * 32 and p.fill_ratio > 0.99
+    again = foveal_pattern(64, 32, sigma, formulation=formulation)  # the printed sigma reproduces it
+    assert torch.equal(again.indices, p.indices) and again.fingerprint() == p.fingerprint()
+    with pytest.raises(InputError, match="pattern.sigma="):
+        foveal_pattern(64, 32, sigma * denser, formulation=formulation)
+
+
+def test_foveal_too_large_sigma_or_base_are_refused_with_the_fitting_value():
+    with pytest.raises(InputError, match=r"more than the C-Image holds \(24x24=576\); use sigma <= 0\.\d+"):
+        foveal_pattern(64, 24, 0.5)
+    with pytest.raises(InputError, match="pattern.base=0.3: the base level alone"):
+        foveal_pattern(64, 16, base=0.3)
+
+
+def test_foveal_large_c_image_takes_every_pixel():
+    p = foveal_pattern(16, 16)
+    assert p.count == 256 and torch.equal(p.indices, torch.arange(256))
+
+
+def test_foveal_base_defaults_per_formulation_and_centre_moves_the_fovea():
+    assert foveal_pattern(32, 16).param_dict["base"] == pat.FOVOLNET_DEFAULT_BASE
+    assert foveal_pattern(32, 16, formulation="paper").param_dict["base"] == 0.0
+    p = foveal_pattern(96, 32, 0.05, base=0.0, center=(0.25, 0.75))
+    rows, cols = np.nonzero(p.mask.numpy())
+    assert abs((cols.mean() + 0.5) / 96 - 0.25) < 0.02 and abs((rows.mean() + 0.5) / 96 - 0.75) < 0.02
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(formulation="gauss"), "pattern.formulation"),
+        (dict(base=1.5), "pattern.base"),
+        (dict(center=(0.5,)), "pattern.center"),
+        (dict(center=(0.5, float("nan"))), r"pattern.center\[1\]"),
+        (dict(sigma=-1.0), "pattern.sigma"),
+        (dict(seed=-2), "pattern.seed"),
+    ],
+)
+def test_foveal_bad_parameters_raise_one_line_input_errors(kwargs, match):
+    with pytest.raises(InputError, match=match) as err:
+        foveal_pattern(32, 16, **kwargs)
+    assert "\n" not in str(err.value)
+
+
+# --- blue noise --------------------------------------------------------------------------------------
+
+
+def _low_freq_power_ratio(binary: np.ndarray) -> float:
+    """Mean power below 1/8 cycles/pixel relative to white noise of the same density."""
+    n = binary.shape[0]
+    d = binary.mean()
+    power = np.abs(np.fft.fft2(binary - d)) ** 2
+    f = np.fft.fftfreq(n)
+    r = np.hypot(f[None, :], f[:, None])
+    return float(power[(r > 0) & (r < 0.125)].mean() / (n * n * d * (1 - d)))
+
+
+def test_blue_noise_is_deterministic_and_a_permutation_of_ranks():
+    a, b = blue_noise(32, seed=5), blue_noise(32, seed=5)
+    assert torch.equal(a, b)
+    pat._blue_noise_ranks.cache_clear()  # recomputed, not just the cached array
+    assert torch.equal(blue_noise(32, seed=5), a)
+    assert not torch.equal(blue_noise(32, seed=6), a)
+    assert torch.equal(torch.sort((a * 1024).round().long().flatten()).values, torch.arange(1024))
+    assert float(a.min()) == 0.0 and float(a.max()) < 1.0
+
+
+@pytest.mark.parametrize("density", [0.1, 0.25, 0.5])
+def test_blue_noise_has_little_low_frequency_energy(density):
+    bn = blue_noise(64, seed=0).numpy()
+    white = np.random.default_rng(0).permutation(64 * 64).reshape(64, 64) / (64 * 64)
+    assert _low_freq_power_ratio((bn < density).astype(float)) < 0.2
+    assert _low_freq_power_ratio((white < density).astype(float)) > 0.6  # the measure can tell
+
+
+def test_blue_noise_non_square_and_evenly_spread():
+    bn = blue_noise((24, 40), seed=1)
+    assert bn.shape == (24, 40)
+    # every 8x8 block of a 25% threshold holds close to 16 points (white noise: 9..24 on 64x64)
+    counts = (bn < 0.25).reshape(3, 8, 5, 8).sum(dim=(1, 3))
+    assert int(counts.min()) >= 14 and int(counts.max()) <= 18
+
+
+# --- plastic rank pattern P --------------------------------------------------------------------------
+
+
+def _plastic_reference(h: int, w: int) -> np.ndarray:
+    """The definition, one point at a time: rank of first visit of k = 1, 2, ..."""
+    g = pat.PLASTIC_G
+    a1, a2 = 1.0 / g, math.pow(1.0 / g, 2)
+    rank = np.zeros((h, w), np.int64)
+    filled, k = 0, 0
+    while filled < h * w:
+        k += 1
+        x, y = (0.5 + a1 * k) % 1.0, (0.5 + a2 * k) % 1.0
+        row, col = int(math.floor(h * y)), int(math.floor(w * x))
+        if rank[row, col] == 0:
+            filled += 1
+            rank[row, col] = filled
+    return rank
+
+
+@pytest.mark.parametrize("size", [16, (8, 12), (13, 7)])
+def test_plastic_matches_a_point_by_point_reimplementation(size):
+    h, w = (size, size) if isinstance(size, int) else size
+    got = (plastic_rank_pattern(size).double() * (h * w)).round().long().numpy()
+    assert np.array_equal(got, _plastic_reference(h, w))
+
+
+@pytest.mark.parametrize("n", [16, 64, 256])
+def test_plastic_values_are_each_rank_once_in_0_1(n):
+    p = plastic_rank_pattern(n)
+    assert p.shape == (n, n) and p.dtype == torch.float32
+    assert float(p.min()) > 0.0 and float(p.max()) == 1.0
+    assert torch.equal(torch.sort((p.double() * n * n).round().long().flatten()).values, torch.arange(1, n * n + 1))
+
+
+def test_plastic_is_deterministic_and_oriented_x_along_columns():
+    a = plastic_rank_pattern(16)
+    pat._plastic_ranks.cache_clear()
+    assert torch.equal(plastic_rank_pattern(16), a)
+    # k = 1: x = frac(0.5 + 1/g) = 0.2549 -> col 4, y = frac(0.5 + 1/g^2) = 0.0698 -> row 1
+    assert float(a[1, 4]) == 1.0 / 256
+
+
+def test_plastic_thresholds_are_spread_evenly():
+    p = plastic_rank_pattern(64)
+    counts = (p <= 0.25).reshape(8, 8, 8, 8).sum(dim=(1, 3))  # 8x8 blocks, 16 expected each
+    assert int(counts.min()) >= 13 and int(counts.max()) <= 19  # white noise: 9..24
+
+
+# --- config and helpers ------------------------------------------------------------------------------
+
+
+def test_build_pattern_from_the_hydra_group_files():
+    down = build_pattern(OmegaConf.load(CONF / "downsample.yaml"), 32)
+    assert (down.kind, down.c_size, down.count) == ("downsample", 16, 256)
+    fov_cfg = OmegaConf.load(CONF / "foveal.yaml")
+    OmegaConf.set_struct(fov_cfg, True)
+    fov = build_pattern(fov_cfg, 32)
+    assert (fov.kind, fov.c_size) == ("foveal", 16) and fov.count <= 256 and fov.fill_ratio > 0.99
+    assert fov.param_dict["formulation"] == "fovolnet"
+    fov_cfg.c_size = 12
+    fov_cfg.sigma = 0.08
+    fixed = build_pattern(fov_cfg, 32)
+    assert fixed.c_size == 12 and fixed.param_dict["sigma"] == 0.08
+    assert build_pattern({"kind": "full"}, 8).count == 64
+
+
+def test_build_pattern_rejects_an_unknown_kind():
+    with pytest.raises(InputError, match="pattern.kind='stripes': expected one of downsample, foveal, full"):
+        build_pattern({"kind": "stripes"}, 16)
+
+
+def test_c_pixels_to_fr_maps_mask_pixels_and_ignores_padding():
+    p = foveal_pattern(16, 8, 0.1)  # padded: K < 64
+    assert p.count < 64
+    g = torch.Generator().manual_seed(0)
+    im = torch.rand(8, 8, generator=g) < 0.5
+    got = c_pixels_to_fr(p, im)
+    want = torch.nonzero(decompact(im[None, None].float(), p.indices, 16)[0, 0].flatten()).flatten()
+    assert torch.equal(got, want)
+    assert torch.equal(c_pixels_to_fr(p, torch.ones(8, 8, dtype=torch.bool)), p.indices)
+    assert torch.equal(c_pixels_to_fr(p, im.to(torch.uint8)), got)  # 0/1 numbers work too
+    with pytest.raises(ValueError, match=r"expected a tensor of shape \(8, 8\)"):
+        c_pixels_to_fr(p, torch.ones(16, 16, dtype=torch.bool))
+
+
+def test_fingerprints_are_stable_and_distinguish_patterns():
+    # pinned: a change here invalidates manifests and checkpoints that record the pattern
+    assert downsample_pattern(16, 2).fingerprint() == downsample_pattern(16, 2).fingerprint()
+    assert full_pattern(8).fingerprint() == full_pattern(8).fingerprint()
+    assert downsample_pattern(16, 2).fingerprint() == PINNED["downsample16x2"]
+    assert full_pattern(8).fingerprint() == PINNED["full8"]
+    a = foveal_pattern(32, 16)
+    pat._blue_noise_ranks.cache_clear()
+    assert foveal_pattern(32, 16).fingerprint() == a.fingerprint()
+    prints = {a.fingerprint(), foveal_pattern(32, 16, seed=1).fingerprint(), foveal_pattern(32, 16, 0.1).fingerprint()}
+    assert len(prints) == 3
+
+
+PINNED = {"downsample16x2": "9976aa49fe1ec37a", "full8": "19ecad6366186e4c"}
+
+
+def test_sampling_pattern_contract_checks():
+    with pytest.raises(ValueError, match="ascending"):
+        SamplingPattern("x", 4, 2, torch.tensor([3, 1]))
+    with pytest.raises(ValueError, match="out of range"):
+        SamplingPattern("x", 4, 2, torch.tensor([0, 16]))

@@ -1,0 +1,194 @@
+"""Procedural volumes: determinism, seeds, character, slab streaming, regeneration, errors."""
+from __future__ import annotations
+
+import time
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from data_gen.errors import InputError
+from data_gen.procedural import (
+    PROCEDURAL_GENERATORS,
+    from_source,
+    grid_axes,
+    make_procedural,
+    parse_procedural_source,
+    write_procedural_raw,
+)
+from data_gen.volumes import load_volume
+
+GENERATORS = list(PROCEDURAL_GENERATORS)
+SMALL = 24  # keeps every test well under a second
+
+
+@pytest.mark.parametrize("gen", GENERATORS)
+def test_smoke_deterministic_finite_nonconstant(gen):
+    a = make_procedural(gen, SMALL, seed=5)
+    b = make_procedural(gen, SMALL, seed=5)
+    assert a.data.dtype == np.float32 and a.data.shape == (SMALL,) * 3
+    np.testing.assert_array_equal(a.data, b.data)
+    assert np.isfinite(a.data).all()
+    assert a.value_range[1] > a.value_range[0] and a.data.std() > 0.05 * (a.value_range[1] - a.value_range[0])
+    assert a.source == f"procedural:{gen}?size={SMALL},{SMALL},{SMALL}&seed=5"
+
+
+@pytest.mark.parametrize("gen", GENERATORS)
+def test_seeds_give_distinct_volumes(gen):
+    a, b = make_procedural(gen, SMALL, 0).data, make_procedural(gen, SMALL, 1).data
+    assert np.abs(a - b).mean() > 0.01 * (a.max() - a.min())
+
+
+@pytest.mark.parametrize("gen", GENERATORS)
+def test_default_size_and_speed(gen):
+    v = make_procedural(gen)
+    assert v.dims == PROCEDURAL_GENERATORS[gen].default_size
+    if gen == "tiny":
+        assert v.dims == (32, 32, 32)
+    else:
+        assert all(64 <= d <= 96 for d in v.dims)
+    t = time.perf_counter()
+    make_procedural(gen, 64, seed=1)
+    assert time.perf_counter() - t < 1.0  # the brief: < 1 s for 64^3 on one core
+
+
+@pytest.mark.parametrize("gen", GENERATORS)
+def test_slabs_match_whole_volume(gen):
+    """A z-slab is bit-identical to the same rows of the whole volume (what streaming relies on)."""
+    dims = (20, 16, 23)
+    g = PROCEDURAL_GENERATORS[gen].fn
+    whole = g(dims, 3, 0, dims[2])
+    assert whole.shape == (23, 16, 20)
+    parts = np.concatenate([g(dims, 3, z0, min(23, z0 + 7)) for z0 in range(0, 23, 7)])
+    np.testing.assert_array_equal(parts, whole)
+
+
+def test_marschner_lobb_against_direct_formula():
+    v = make_procedural("marschner_lobb", 41, seed=0)
+    x, y, z, _ = grid_axes((41, 41, 41))
+    assert x[0] == -1.0 and x[-1] == 1.0  # the classic domain [-1, 1]^3
+    fm, alpha = 6.0, 0.25
+    for (i, j, k) in [(0, 0, 0), (20, 20, 20), (3, 37, 11), (40, 5, 29)]:
+        r = np.hypot(x[i], y[j])
+        rho_r = np.cos(2 * np.pi * fm * np.cos(np.pi * r / 2))
+        ref = (1 - np.sin(np.pi * z[k] / 2) + alpha * (1 + rho_r)) / (2 * (1 + alpha))
+        assert v.data[k, j, i] == pytest.approx(ref, abs=2e-5)
+    assert 0.0 <= v.data.min() and v.data.max() <= 1.0
+
+
+def test_mixing_layer_heavy_over_light_and_fills_box():
+    d = make_procedural("mixing_layer", 48, seed=0).data
+    assert d[-5:].mean() > 2.6 and d[:5].mean() < 1.4  # heavy (3) on top (+z) of light (1)
+    mid = d[d.shape[0] // 2]
+    assert (mid > 2.5).mean() > 0.1 and (mid < 1.5).mean() > 0.1  # both fluids interpenetrate mid-box
+    # structure across the whole box: each xy quadrant varies (not a flat layer in one corner)
+    for qy in (slice(0, 24), slice(24, 48)):
+        for qx in (slice(0, 24), slice(24, 48)):
+            assert d[:, qy, qx].std() > 0.5
+
+
+def test_flame_is_compact_with_empty_surroundings():
+    v = make_procedural("flame")
+    d = v.data
+    vmax = d.max()
+    border = np.concatenate([d[:, :, :4].ravel(), d[:, :, -4:].ravel(), d[:, :4].ravel(), d[:, -4:].ravel(), d[-3:].ravel()])
+    assert border.max() < 0.05 * vmax
+    assert (d > 0.1 * vmax).mean() < 0.25  # most of the box is empty
+    Z = d.shape[0]
+    assert d[Z // 3, d.shape[1] // 2 - 3: d.shape[1] // 2 + 3, d.shape[2] // 2 - 3: d.shape[2] // 2 + 3].mean() > 0.3 * vmax
+
+
+def test_tiny_has_visible_structure():
+    d = make_procedural("tiny").data
+    frac = (d > 0.5 * d.max()).mean()
+    assert 0.005 < frac < 0.5
+
+
+def test_generators_have_distinct_character():
+    """Share of near-empty voxels and of voxels near the top of the range differ by generator."""
+    stats = {}
+    for gen in GENERATORS:
+        d = make_procedural(gen, 32, 0).data
+        n = (d - d.min()) / (d.max() - d.min())
+        stats[gen] = ((n < 0.05).mean(), (n > 0.5).mean())
+    assert stats["flame"][0] > 0.6  # compact: mostly empty
+    assert stats["mixing_layer"][0] < 0.1 and stats["mixing_layer"][1] > 0.3  # fills the box
+    assert stats["tiny"][1] < 0.1
+    assert 0.3 < stats["marschner_lobb"][1] < 0.7
+
+
+def test_source_round_trip():
+    v = make_procedural("flame", [24, 20, 32], seed=7)
+    assert parse_procedural_source(v.source) == ("flame", (24, 20, 32), 7)
+    np.testing.assert_array_equal(from_source(v.source).data, v.data)
+
+
+def test_write_procedural_raw_streams_and_matches(tmp_path):
+    p = write_procedural_raw("mixing_layer", (24, 20, 30), tmp_path, seed=4, chunk_z=7)
+    assert p.name == "mixing_layer_24x20x30_float32.raw" and p.parent == tmp_path
+    assert [f.name for f in tmp_path.iterdir()] == [p.name]  # no temporary file left behind
+    vol = load_volume({"kind": "file", "path": str(p)})
+    assert isinstance(vol.data, np.memmap)
+    np.testing.assert_array_equal(vol.data, make_procedural("mixing_layer", (24, 20, 30), 4).data)
+    # an existing complete file is kept; overwrite rewrites it
+    mtime = p.stat().st_mtime_ns
+    assert write_procedural_raw("mixing_layer", (24, 20, 30), p, seed=4) == p and p.stat().st_mtime_ns == mtime
+
+
+def test_write_procedural_raw_memory_is_bounded(tmp_path):
+    dims = (64, 64, 512)  # 8 MiB of float32
+    tracemalloc.start()
+    p = write_procedural_raw("flame", dims, tmp_path, seed=0, chunk_z=8)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    full = 64 * 64 * 512 * 4
+    assert p.stat().st_size == full
+    assert peak < 0.25 * full, f"peak {peak} bytes for a {full}-byte volume"
+
+
+def test_write_procedural_raw_is_atomic_on_failure(tmp_path, monkeypatch):
+    """A generator failing mid-stream leaves neither the final file nor a temporary one."""
+    from data_gen import procedural
+
+    g = procedural.PROCEDURAL_GENERATORS["tiny"]
+    calls = []
+
+    def failing(dims, seed, z0, z1):
+        calls.append(z0)
+        if len(calls) == 2:
+            raise RuntimeError("killed")
+        return g.fn(dims, seed, z0, z1)
+
+    monkeypatch.setitem(procedural.PROCEDURAL_GENERATORS, "tiny", procedural.ProceduralGenerator("tiny", failing, g.default_size, ""))
+    with pytest.raises(RuntimeError):
+        write_procedural_raw("tiny", 16, tmp_path, chunk_z=4)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_exception_unknown_generator():
+    with pytest.raises(InputError) as e:
+        make_procedural("smoke")
+    msg = str(e.value)
+    assert "\n" not in msg and "smoke" in msg and all(g in msg for g in GENERATORS)
+    with pytest.raises(InputError):
+        load_volume({"kind": "procedural", "generator": "smoke"})
+
+
+@pytest.mark.parametrize("size", [1, [4, 4], [4, 4, 0], "big", 3.5])
+def test_exception_bad_size(size):
+    with pytest.raises(InputError) as e:
+        make_procedural("tiny", size)
+    assert "scene.volume.size" in str(e.value)
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "x"])
+def test_exception_bad_seed(seed):
+    with pytest.raises(InputError) as e:
+        make_procedural("tiny", 8, seed)
+    assert "scene.volume.seed" in str(e.value)
+
+
+def test_exception_write_raw_bad_name(tmp_path):
+    with pytest.raises(InputError) as e:
+        write_procedural_raw("tiny", 8, tmp_path / "tiny_9x9x9_float32.raw")
+    assert "tiny_8x8x8_float32.raw" in str(e.value)

@@ -1,0 +1,202 @@
+"""End-to-end training through Hydra: the DataModule, RecNN and IML tasks, resume/reuse, errors."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+
+
+def _run(args, tmp, check=True, timeout=300):
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    cmd = [PY, "-m", "imls_lightning.train", *args, "scene=tiny", "data=tiny", "renderer=numba",
+           f"paths.runs_dir={tmp}/runs", f"data.cache_dir={tmp}/cache", "trainer.enable_progress_bar=false"]
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    if check and p.returncode != 0:
+        raise AssertionError(f"exit {p.returncode}\nSTDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-3000:]}")
+    return p
+
+
+def _last_line(p) -> str:
+    return p.stdout.strip().splitlines()[-1]
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("train")
+
+
+@pytest.fixture(scope="module")
+def recnn_ckpt(work):
+    """A real (2-epoch) EnhanceNet run on the tiny scene."""
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], work)
+    ckpt = Path(_last_line(p))
+    assert ckpt.is_file() and ckpt.suffix == ".ckpt"
+    return ckpt
+
+
+# ---- DataModule -------------------------------------------------------------------------------
+def test_smoke_datamodule_yields_every_field(tmp_path):
+    from omegaconf import OmegaConf
+
+    from imls_lightning.compaction import compact
+    from imls_lightning.data import ImlsDataModule
+
+    conf = ROOT / "conf"
+    scene = OmegaConf.load(conf / "scene" / "tiny.yaml")
+    data = OmegaConf.merge(OmegaConf.load(conf / "data" / "default.yaml"), OmegaConf.load(conf / "data" / "tiny.yaml"))
+    data.pop("defaults", None)
+    data.cache_dir = str(tmp_path)
+    pattern = OmegaConf.load(conf / "pattern" / "foveal.yaml")
+    dm = ImlsDataModule(scene, data, {"name": "numba"}, pattern, progress=False, low_res=16)
+    dm.prepare_data()
+    dm.setup()
+    n, m = dm.pattern.c_size, dm.pattern.fr_size
+    batch = next(iter(dm.train_dataloader()))
+    b = batch["fr"].shape[0]
+    assert batch["view"].shape == (b, 9) and batch["fr"].shape == (b, 3, m, m)
+    assert batch["c"].shape == (b, 3, n, n) and batch["pr"].shape == (b, 3, m, m) and batch["low"].shape == (b, 3, 16, 16)
+    torch.testing.assert_close(batch["c"], compact(batch["fr"], dm.pattern.indices, n))
+    off = ~dm.pattern.mask
+    assert float(batch["pr"][..., off].abs().max()) == 0.0
+    assert 0.0 <= float(batch["fr"].min()) and float(batch["fr"].max()) <= 1.0 and float(batch["fr"].max()) > 0.1
+    sizes = {k: len(dm.dataset(k)) for k in ("train", "val", "test")}
+    assert sizes == {"train": int(data.num_views) - int(round(data.num_views * data.val_fraction)),
+                     "val": int(round(data.num_views * data.val_fraction)), "test": int(data.test_views)}
+
+
+def test_exception_datamodule_bad_fields_and_batch_size(tmp_path):
+    from data_gen.errors import InputError
+    from imls_lightning.data import ImlsDataModule
+
+    with pytest.raises(InputError, match="data fields"):
+        ImlsDataModule({}, {"resolution": 32, "batch_size": 2}, {}, {"kind": "full"}, fields=("fr", "nope"))
+    with pytest.raises(InputError, match="data.batch_size"):
+        ImlsDataModule({}, {"resolution": 32, "batch_size": 0}, {}, {"kind": "full"})
+
+
+# ---- RecNN ------------------------------------------------------------------------------------
+def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
+    from imls_lightning.tasks.base import load_task
+
+    task = load_task(recnn_ckpt, expect="RecNNTask")
+    again = load_task(recnn_ckpt, expect="RecNNTask")
+    c = torch.rand(2, 3, task.pattern.c_size, task.pattern.c_size)
+    with torch.no_grad():
+        torch.testing.assert_close(task(c), again(c), rtol=0, atol=0)
+    # training changed the weights away from a fresh init
+    fresh = type(task)(**task.hparams)
+    assert any(not torch.equal(a, b) for a, b in zip(task.state_dict().values(), fresh.state_dict().values()))
+    result = json.loads((recnn_ckpt.parent.parent / "result.json").read_text())
+    assert result["epochs"] >= 1 and np.isfinite(result["test"]["test/fr_psnr"])
+
+
+def test_smoke_rerun_reuses_finished_run(work, recnn_ckpt):
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], work)
+    assert Path(_last_line(p)) == recnn_ckpt.resolve()
+    assert "already finished" in p.stdout
+
+
+def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt):
+    # more epochs = same settings hash (trainer limits do not change the run's identity): resumes
+    run_dir = recnn_ckpt.parent.parent
+    (run_dir / "result.json").unlink()
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], work)
+    assert "resuming from" in p.stdout and str(run_dir / "checkpoints" / "last.ckpt") in p.stdout
+    assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+
+
+def test_smoke_fovolnet_fast_dev_run(work):
+    p = _run(["model=recnn", "recnn=fovolnet", "trainer.fast_dev_run=true"], work)
+    ckpt = Path(_last_line(p))
+    assert ckpt.name == "fast_dev_run.ckpt" and ckpt.is_file()
+    from imls_lightning.tasks.base import load_task
+
+    task = load_task(ckpt, expect="RecNNTask")
+    assert task.pattern.kind == "foveal"
+
+
+# ---- IML --------------------------------------------------------------------------------------
+def test_smoke_iml_standalone_and_end_to_end(work, recnn_ckpt):
+    from imls_lightning.tasks.base import load_task
+
+    p = _run(["model=iml", "recnn=enhancenet", "model.mode=standalone", "model.depth=3", "model.base_channels=8",
+              "trainer.max_epochs=1"], work)
+    sa = load_task(Path(_last_line(p)), expect="IMLTask")
+    assert sa.recnn is None  # standalone never builds the RecNN
+    p = _run(["model=iml", "recnn=enhancenet", "model.mode=end_to_end", f"recnn.checkpoint={recnn_ckpt}",
+              "model.depth=3", "model.base_channels=8", "trainer.max_epochs=1"], work)
+    e2e = load_task(Path(_last_line(p)), expect="IMLTask")
+    assert e2e.recnn is not None
+    # frozen by default: the RecNN inside equals the checkpoint it started from
+    rec = load_task(recnn_ckpt, expect="RecNNTask")
+    for (k, a), b in zip(e2e.recnn.state_dict().items(), rec.net.state_dict().values()):
+        torch.testing.assert_close(a, b, msg=k)
+    res = json.loads((Path(_last_line(p)).parent.parent / "result.json").read_text())
+    for key in ("test/ipr", "test/c_share", "test/c_psnr", "test/fr_psnr"):
+        assert np.isfinite(res["test"][key]), key
+
+
+def test_smoke_standalone_decoder_attaches_to_off_the_shelf_recnn(work, recnn_ckpt):
+    """The paper's off-the-shelf case: a decoder trained without the RecNN feeds a separately trained one."""
+    from imls_lightning.models.iml import IMLRecNN
+    from imls_lightning.tasks.base import load_task
+
+    p = _run(["model=iml", "recnn=enhancenet", "model.mode=standalone", "model.depth=3", "model.base_channels=8",
+              "trainer.max_epochs=1"], work)
+    iml = load_task(Path(_last_line(p)), expect="IMLTask")
+    rec = load_task(recnn_ckpt, expect="RecNNTask")
+    assert iml.pattern.fingerprint() == rec.pattern.fingerprint()
+    net = IMLRecNN(iml.iml, rec.net).eval()
+    c = torch.rand(2, 3, iml.pattern.c_size, iml.pattern.c_size)
+    with torch.no_grad():
+        out = net(c, hard=True)
+        direct = rec.net(iml.iml.decode(iml.iml.importance(c, hard=True) * c))
+    assert out.shape == (2, 3, iml.pattern.fr_size, iml.pattern.fr_size) and torch.isfinite(out).all()
+    torch.testing.assert_close(out, direct)
+
+
+# ---- errors -----------------------------------------------------------------------------------
+def _one_line_error(p, *needles):
+    assert p.returncode == 2, (p.returncode, p.stderr[-2000:])
+    assert "Traceback" not in p.stderr
+    err = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
+    assert len(err) == 1, p.stderr[-2000:]
+    for n in needles:
+        assert n in err[0], err[0]
+
+
+def test_exception_end_to_end_without_recnn_checkpoint(work):
+    p = _run(["model=iml", "model.mode=end_to_end", "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, "recnn.checkpoint")
+
+
+def test_exception_recnn_checkpoint_of_other_pattern(work, recnn_ckpt):
+    p = _run(["model=iml", "recnn=fovolnet", "model.mode=end_to_end", f"recnn.checkpoint={recnn_ckpt}",
+              "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, "recnn.checkpoint", "pattern")
+
+
+def test_exception_missing_checkpoint_file(work):
+    p = _run(["model=iml", "model.mode=end_to_end", "recnn.checkpoint=/nonexistent/x.ckpt", "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, "recnn.checkpoint=/nonexistent/x.ckpt", "not found")
+
+
+@pytest.mark.parametrize("override,needle", [
+    ("model.mean=0.001", "mean"),
+    ("model.mean=2", "mean"),
+    ("model.alpha=0", "alpha"),
+    ("model.mode=both", "model.mode"),
+    ("model.lr=-1", "model.lr"),
+])
+def test_exception_bad_iml_settings(work, override, needle):
+    p = _run(["model=iml", override, "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, needle)
