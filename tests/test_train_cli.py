@@ -105,11 +105,16 @@ def test_smoke_rerun_reuses_finished_run(work, recnn_ckpt):
     assert "already finished" in p.stdout
 
 
-def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt):
-    # more epochs = same settings hash (trainer limits do not change the run's identity): resumes
-    run_dir = recnn_ckpt.parent.parent
+def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
+    # more epochs = same settings hash (trainer limits do not change the run's identity): resumes.
+    # On a copy of the shared runs, so that the other tests keep their checkpoint.
+    import shutil
+
+    for sub in ("runs", "cache"):
+        shutil.copytree(work / sub, tmp_path / sub)
+    run_dir = tmp_path / "runs" / recnn_ckpt.parent.parent.name
     (run_dir / "result.json").unlink()
-    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], work)
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
     assert "resuming from" in p.stdout and str(run_dir / "checkpoints" / "last.ckpt") in p.stdout
     assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
 
