@@ -14,6 +14,9 @@ decreases as ``u`` grows. This module holds
 * the work of one sweep job, :func:`orp_job`: train the IML at one ``u`` (reusing a finished run),
   evaluate IML + RecNN (and IML/S + RecNN) against the RecNN alone on the validation views, time
   the stages, and return the record (also written as ``orp_job.json`` in the job directory);
+  :func:`orp_recnn_job`, the sweep's preparatory job when ``recnn.checkpoint`` is not set: train
+  (or reuse) the RecNN of the same scene/data; :func:`orp_main` dispatches between them (called
+  by ``imls_lightning.train`` when the config has an ``orp_job`` node);
 * the report: :func:`orp_report` (the ``orp.yaml`` data) and :func:`format_table`.
 
 The Hydra side (``hydra/sweeper=orp``) is ``hydra_plugins/orp_sweeper``; see ``docs/ORP.md``.
@@ -60,7 +63,9 @@ __all__ = [
     "round_mean",
     "quote_override_value",
     "ORPJobError",
+    "orp_main",
     "orp_job",
+    "orp_recnn_job",
     "orp_report",
     "format_table",
     "JOB_FILE",
@@ -94,7 +99,9 @@ DEFAULTS: dict[str, Any] = {
     "device": "auto",           # evaluation device: auto | cpu | cuda
 }
 
-# Plain-data keys of the job flag (``++orp_job={...}``) the sweeper passes to each job.
+# Plain-data keys of the job flag (``++orp_job={...}``) the sweeper passes to each IML job (the
+# preparatory RecNN job gets ``++orp_job={stage:recnn}``).
+STAGES = ("iml", "recnn")
 JOB_KEYS = ("epsilon_db", "with_ims", "gap_of", "latency_views", "latency_repeats", "latency_renderer",
             "ims_overrides", "device", "param")
 
@@ -525,6 +532,71 @@ def _hydra_job() -> tuple[Path | None, list[str] | None]:
         return None, None
 
 
+def orp_main(cfg) -> dict[str, Any]:
+    """Run the sweep job that ``cfg.orp_job`` asks for: ``stage: iml`` (default) or ``stage: recnn``.
+
+    Raises:
+        ORPJobError: the job failed (its ``orp_job.json`` says why).
+    """
+    flag = _plain(cfg.get("orp_job"))
+    stage = str(flag.get("stage", "iml")) if isinstance(flag, Mapping) else "iml"
+    if stage == "recnn":
+        return orp_recnn_job(cfg)
+    if stage != "iml":
+        return _run_job(lambda job_dir, overrides: _bad_stage(stage), cfg)
+    return orp_job(cfg)
+
+
+def _bad_stage(stage: str) -> dict[str, Any]:
+    raise InputError(f"orp_job.stage={stage!r}: expected one of {list(STAGES)}")
+
+
+def _run_job(work: Callable[[Path, list[str]], dict[str, Any]], cfg, task_overrides: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run ``work(job_dir, overrides)``; write its record (or the error) as ``orp_job.json``."""
+    job_dir, hydra_overrides = _hydra_job()
+    if task_overrides is None:
+        task_overrides = hydra_overrides
+    if job_dir is None:
+        job_dir = Path(str(cfg.paths.get("runs_dir", "runs"))) / "orp_job"
+    t0 = time.perf_counter()
+    try:
+        record = work(job_dir, list(task_overrides or []))
+    except Exception as err:
+        msg = _describe(err)
+        _write_json(job_dir / JOB_FILE, {"status": "failed", "error": msg, "job_dir": str(job_dir),
+                                          "minutes": round((time.perf_counter() - t0) / 60, 3)})
+        raise ORPJobError(msg) from (None if isinstance(err, InputError) else err)
+    record["minutes"] = round((time.perf_counter() - t0) / 60, 3)
+    _write_json(job_dir / JOB_FILE, record)
+    return record
+
+
+def orp_recnn_job(cfg) -> dict[str, Any]:
+    """The sweep's preparatory job: train (or reuse) the RecNN the IML jobs are compared with.
+
+    ``cfg`` is the ``train`` config composed with ``model=recnn`` and the sweep's other overrides.
+    The run goes to the settings-hashed ``<paths.runs_dir>/<run_name>-<run_hash>``, the directory a
+    plain ``python -m imls_lightning.train model=recnn ...`` with the same settings uses, so an
+    earlier RecNN run is reused and a later sweep reuses this one.
+
+    Returns:
+        ``{"status": "ok", "stage": "recnn", "recnn_checkpoint", "run_dir", "train_minutes", ...}``.
+    """
+
+    def work(job_dir: Path, overrides: list[str]) -> dict[str, Any]:
+        from .train import train
+
+        if not str(cfg.model.get("_target_", "")).endswith("RecNNTask"):
+            raise InputError(f"model={cfg.model.get('name')}: the ORP's RecNN stage trains model=recnn")
+        run_cfg = _with_run_dir(cfg)
+        result = train(run_cfg)
+        return {"status": "ok", "stage": "recnn", "recnn_checkpoint": result["best_checkpoint"],
+                "run_dir": str(run_cfg.paths.output_dir), "train_minutes": result.get("train_minutes"),
+                "best_score": result.get("best_score"), "job_dir": str(job_dir)}
+
+    return _run_job(work, cfg)
+
+
 def orp_job(cfg, task_overrides: Sequence[str] | None = None) -> dict[str, Any]:
     """One ORP sweep job: train the IML at the configured mean value and evaluate it.
 
@@ -551,22 +623,7 @@ def orp_job(cfg, task_overrides: Sequence[str] | None = None) -> dict[str, Any]:
     Raises:
         ORPJobError: anything that makes the job fail (after writing ``orp_job.json`` with the error).
     """
-    job_dir, hydra_overrides = _hydra_job()
-    if task_overrides is None:
-        task_overrides = hydra_overrides
-    if job_dir is None:
-        job_dir = Path(str(cfg.paths.get("runs_dir", "runs"))) / "orp_job"
-    t0 = time.perf_counter()
-    try:
-        record = _orp_job(cfg, list(task_overrides or []), job_dir)
-    except Exception as err:
-        msg = _describe(err)
-        _write_json(job_dir / JOB_FILE, {"status": "failed", "error": msg, "job_dir": str(job_dir),
-                                          "minutes": round((time.perf_counter() - t0) / 60, 3)})
-        raise ORPJobError(msg) from (None if isinstance(err, InputError) else err)
-    record["minutes"] = round((time.perf_counter() - t0) / 60, 3)
-    _write_json(job_dir / JOB_FILE, record)
-    return record
+    return _run_job(lambda job_dir, overrides: _orp_job(cfg, overrides, job_dir), cfg, task_overrides)
 
 
 def _plain(node) -> Any:
@@ -600,19 +657,24 @@ def _compose_train(overrides: list[str]):
         return compose(config_name="train", overrides=overrides)
 
 
-def ims_overrides_for(task_overrides: Sequence[str], iml_checkpoint: str, extra: Sequence[str] = ()) -> list[str]:
+def ims_overrides_for(task_overrides: Sequence[str], iml_checkpoint: str, extra: Sequence[str] = (),
+                      recnn_checkpoint: str | None = None) -> list[str]:
     """Overrides that train IMS on ``iml_checkpoint`` with the job's scene/data/RecNN/trainer settings.
 
     Drops the IML's own ``model`` settings and the ORP flag; keeps everything else (scene, data,
-    recnn.checkpoint, trainer limits, paths, ...), then adds ``extra``.
+    recnn.checkpoint, trainer limits, paths, ...), sets ``recnn.checkpoint=recnn_checkpoint`` when
+    given (the RecNN an IMS checkpoint carries when the IML was standalone), then adds ``extra``.
 
     Example:
         >>> ims_overrides_for(["model=iml", "model.mean=0.1", "scene=tiny", "++orp_job={k:1}"], "/r/a.ckpt")
         ['scene=tiny', 'model=ims', "iml.checkpoint='/r/a.ckpt'"]
     """
-    drop = ("model", "orp_job", "iml.checkpoint")
+    drop = ("model", "orp_job", "iml.checkpoint") + (("recnn.checkpoint",) if recnn_checkpoint else ())
     keep = [o for o in task_overrides if not any(override_key(o) == d or override_key(o).startswith(d + ".") for d in drop)]
-    return keep + ["model=ims", f"iml.checkpoint={quote_override_value(str(iml_checkpoint))}"] + list(extra)
+    out = keep + ["model=ims", f"iml.checkpoint={quote_override_value(str(iml_checkpoint))}"]
+    if recnn_checkpoint:
+        out.append(f"recnn.checkpoint={quote_override_value(str(recnn_checkpoint))}")
+    return out + list(extra)
 
 
 def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
@@ -630,7 +692,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     recnn_ckpt = cfg.recnn.get("checkpoint")
     if not recnn_ckpt:
         raise InputError("recnn.checkpoint: the ORP compares IML + RecNN with the RecNN alone; set recnn.checkpoint=<RecNN .ckpt> "
-                         "(python -m imls_lightning.train model=recnn ...)")
+                         "(the ORP sweeper trains or reuses one by itself when it is not set)")
     u = float(_select_number(cfg, s.param))
     device = pick_device(s.device)
     recnn_alone_task = load_task(recnn_ckpt, expect="RecNNTask", what="recnn.checkpoint")
@@ -648,7 +710,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     # 3. (before evaluating, so one pass covers both) IMS on this IML
     ims_task, ims_ckpt, ims_minutes = None, None, None
     if s.with_ims:
-        ims_cfg = _compose_train(ims_overrides_for(task_overrides, iml_ckpt, s.ims_overrides))
+        ims_cfg = _compose_train(ims_overrides_for(task_overrides, iml_ckpt, s.ims_overrides, recnn_checkpoint=str(recnn_ckpt)))
         ims_result = train(_with_run_dir(ims_cfg))
         ims_ckpt = ims_result["best_checkpoint"]
         ims_minutes = ims_result.get("train_minutes")
@@ -674,7 +736,8 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     # 4. latencies
     latency = None
     if s.latency_views > 0:
-        latency = _latencies(cfg, s, val, iml_task, recnn_iml, recnn_alone_task.net, ims_ckpt, device)
+        latency = _latencies(cfg, s, val, iml_task, recnn_iml, recnn_alone_task.net, ims_ckpt, device,
+                             recnn_checkpoint=None if iml_task.recnn is not None else str(recnn_ckpt))
     for net in nets:
         net.to("cpu")
     if device.type == "cuda":
@@ -754,7 +817,8 @@ def _evaluate(dataset, batch_size: int, iml_task, recnn_iml, recnn_alone, ims_ta
     return {k: float(torch.cat(v).mean()) for k, v in acc.items()}
 
 
-def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, ims_ckpt, device) -> dict[str, Any]:
+def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, ims_ckpt, device,
+               recnn_checkpoint: str | None = None) -> dict[str, Any]:
     """Per-stage latency (ms; mean over views of the per-view median of ``latency_repeats`` runs).
 
     ``recnn``: RecNN alone (selective render of the whole pattern + RecNN). ``iml``: IML + RecNN
@@ -779,7 +843,8 @@ def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, i
     methods = {"recnn": RecNNAlone(renderer, pattern, recnn_alone, opts),
                "iml": IMLPlusRecNN(renderer, pattern, iml_task.iml, recnn_iml, opts)}
     if ims_ckpt:
-        methods["imls"] = IMLSRenderer.from_checkpoints(ims_ckpt, renderer=renderer, opts=opts)
+        # a standalone IML's IMS uses the off-the-shelf RecNN, the one IML + RecNN is timed with
+        methods["imls"] = IMLSRenderer.from_checkpoints(ims_ckpt, renderer=renderer, opts=opts, recnn_checkpoint=recnn_checkpoint)
     rows = np.linspace(0, len(dataset) - 1, num=min(s.latency_views, len(dataset))).round().astype(int)
     per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
     important: list[float] = []

@@ -113,7 +113,12 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @cli_errors
-def main(cfg: DictConfig) -> float | None:
+def main(cfg: DictConfig) -> float | dict | None:
+    if cfg.get("orp_job") is not None:
+        # a job of the ORP sweeper (hydra/sweeper=orp, docs/ORP.md): its record goes back to the sweeper
+        from .orp import orp_main
+
+        return orp_main(cfg)
     result = train(cfg)
     print(result["best_checkpoint"], flush=True)
     return result.get("best_score")
