@@ -11,7 +11,10 @@ One directory per hash of everything that changes the pixels, ``<data.cache_dir>
     done.log             append-only completion log, one line per finished view:
                          ``<index> <crc32 of its pixels> <render seconds> <crc32 of the line>``
     render_seconds.npy   (N,) float32 copy of the log's render seconds (NaN: not rendered yet)
-    .lock                file lock: one rendering run per cache at a time
+    .lock                file lock: one rendering run per cache at a time (sharded runs hold it only
+                         while they create/check the files and update the manifest)
+    done-shard-I-of-N.log, .lock-shard-I-of-N
+                         a sharded run's own completion log and lock (``data.shard=I/N``, below)
 
 Crash safety. A view counts as done only when its log line is intact. The line is appended (and
 fsync'd) by the parent process only after the worker has written the view's pixels and flushed
@@ -19,6 +22,17 @@ them to disk (``fdatasync``), so after a crash or ``kill -9`` at any moment ever
 pixels, and a view whose pixels were half-written has no (intact) line and is rendered again. The
 metadata files are written to a temporary name and renamed (atomic), the manifest last: a
 directory without a manifest is an unfinished initialisation and is redone from scratch.
+
+Sharding (``data.shard=I/N``, not part of the hash). N processes, on one machine or on N nodes that
+share the cache directory, each render the disjoint subset ``{views j : j mod N == I}`` (interleaved,
+so near and far views spread evenly) concurrently. The first to arrive creates the files under
+``.lock``; rendering then runs outside it, each shard under its own ``.lock-shard-I-of-N`` (a second
+process given the same shard waits instead of duplicating work), pixels written in place into
+disjoint rows of ``images.npy``, completions logged to the shard's own append-only log (one
+writer per file, so no interleaved lines even on network filesystems). Every reader merges
+``done.log`` with the shard logs. Each shard takes ``.lock`` again only to refresh the manifest.
+The cache is complete when every shard has finished; a run without ``data.shard`` completes
+whatever is still missing.
 
 Example:
     >>> path = ensure_cache(scene, {"num_views": 24, "resolution": 32, "test_views": 12,
@@ -64,8 +78,18 @@ FORMAT_VERSION = 1
 MANIFEST, VIEWS, SPLITS, IMAGES, LOG, SECONDS, LOCK = (
     "manifest.json", "views.npy", "splits.json", "images.npy", "done.log", "render_seconds.npy", ".lock",
 )
-# every file a cache directory may hold (temporary files are these names + ".tmp")
+# every file a cache directory may hold (temporary files are these names + ".tmp"), besides the
+# per-shard logs and locks (_SHARD_FILE)
 _OWN_FILES = (MANIFEST, VIEWS, SPLITS, IMAGES, LOG, SECONDS, LOCK, "contact_sheet.png")
+_SHARD_FILE = re.compile(r"^(done-shard-\d+-of-\d+\.log|\.lock-shard-\d+-of-\d+)$")
+
+
+def _shard_log_name(shard: tuple[int, int]) -> str:
+    return f"done-shard-{shard[0]}-of-{shard[1]}.log"
+
+
+def _is_own(name: str) -> bool:
+    return name in _OWN_FILES or _SHARD_FILE.match(name) is not None
 
 #: the ``data`` node's keys this module reads, with their defaults (paper scale); other keys
 #: (``batch_size``, ``loader_workers``, ...) belong to the DataModule and are ignored here
@@ -81,6 +105,7 @@ DATA_DEFAULTS: dict[str, Any] = {
     "cache_dir": "cache",
     "cache_path": None,       # exact directory instead of <cache_dir>/<scene>-<hash>
     "fsync": True,            # flush every view to disk before logging it (power-loss safety)
+    "shard": None,            # "I/N": render only views j with j mod N == I (not part of the hash)
 }
 
 
@@ -137,7 +162,27 @@ def data_settings(data_cfg) -> dict[str, Any]:
     if not str(d["cache_dir"]).strip():
         raise InputError("data.cache_dir: empty (expected a directory)")
     d["fsync"] = bool(d["fsync"])
+    d["shard"] = parse_shard(d["shard"])
     return d
+
+
+def parse_shard(value) -> tuple[int, int] | None:
+    """``data.shard``: ``None`` (everything), ``"I/N"`` or ``[I, N]`` with ``0 <= I < N`` -> ``(I, N)``.
+
+    Example:
+        >>> parse_shard("1/4"), parse_shard(None)
+        ((1, 4), None)
+    """
+    if value is None or (isinstance(value, str) and value.strip().lower() in ("", "null", "none")):
+        return None
+    parts = value.split("/") if isinstance(value, str) else value
+    try:
+        i, k = (int(str(p).strip()) for p in parts)
+    except (TypeError, ValueError):
+        raise InputError(f"data.shard={value!r}: expected I/N, e.g. data.shard=0/4 (shard I of N, 0 <= I < N)") from None
+    if not (k >= 1 and 0 <= i < k):
+        raise InputError(f"data.shard={value!r}: expected I/N with 0 <= I < N")
+    return i, k
 
 
 def plan_views(scene: Scene, d: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -302,6 +347,15 @@ def read_log(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return done, crc, sec
 
 
+def read_logs(cache_dir: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`read_log` of ``done.log`` merged with every shard's ``done-shard-I-of-N.log``."""
+    done, crc, sec = read_log(cache_dir / LOG, n)
+    for p in sorted(cache_dir.glob("done-shard-*-of-*.log")):
+        d2, c2, s2 = read_log(p, n)
+        done[d2], crc[d2], sec[d2] = True, c2[d2], s2[d2]
+    return done, crc, sec
+
+
 class _Log:
     """Append-only completion log (parent process only)."""
 
@@ -436,6 +490,7 @@ class CacheReport:
     wall_seconds: float = 0.0
     render_seconds: float = 0.0  # sum of the renderer's own render-call times in this run
     startup_seconds: float = 0.0  # until the last worker had built its renderer (process start, imports, scene)
+    shard: tuple[int, int] | None = None  # (I, N) of a sharded run
 
     @property
     def outside_render_share(self) -> float:
@@ -445,9 +500,15 @@ class CacheReport:
         return max(0.0, 1.0 - self.render_seconds / (max(1, self.workers) * self.wall_seconds))
 
     def summary(self) -> str:
-        if self.rendered == 0:
-            return f"cache complete ({self.total} views), nothing to render: {self.path}"
-        return (
+        if self.shard is not None:
+            head = f"shard {self.shard[0]}/{self.shard[1]}: "
+            if self.rendered == 0:
+                return f"{head}nothing left to render in this shard: {self.path}"
+        else:
+            head = ""
+            if self.rendered == 0:
+                return f"cache complete ({self.total} views), nothing to render: {self.path}"
+        return head + (
             f"rendered {self.rendered} views ({self.already_done} were done) with {self.workers or 1} process(es) "
             f"x {self.threads} thread(s) in {self.wall_seconds:.1f} s: {self.render_seconds / self.rendered:.4f} s "
             f"render call per view, {self.wall_seconds / self.rendered:.4f} s wall per view, "
@@ -501,11 +562,13 @@ def _remove_own_files(path: Path) -> None:
                 p.unlink()
             except FileNotFoundError:
                 pass
+    for p in path.glob("done-shard-*-of-*.log"):  # logs of a cache that no longer exists
+        p.unlink(missing_ok=True)
 
 
 def _initialise(path: Path, settings, manifest, views, splits, m: int, user_dir: bool) -> None:
     """Write a fresh cache's files, the manifest last (the directory is locked)."""
-    foreign = [p.name for p in path.iterdir() if p.name not in _OWN_FILES and not p.name.endswith(".tmp")
+    foreign = [p.name for p in path.iterdir() if not _is_own(p.name) and not p.name.endswith(".tmp")
                and not p.name.startswith(".write-test-")]
     if foreign:
         what = f"data.cache_path={path}" if user_dir else f"cache directory {path}"
@@ -551,7 +614,7 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
         InputError: bad settings, degenerate views, an unwritable cache directory, a directory whose
             manifest belongs to other settings, too little free disk space.
     """
-    from filelock import FileLock, Timeout
+    from filelock import FileLock
 
     d = data_settings(data_cfg)
     rcfg = _plain(renderer_cfg, "renderer") if renderer_cfg is not None else {"name": "vtk"}
@@ -566,14 +629,7 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
     n = len(views)
     created = _prepare_dir(path, user_dir)
     lock = FileLock(str(path / LOCK))
-    try:
-        try:
-            lock.acquire(timeout=0)
-        except Timeout:
-            print(f"waiting for another run that is rendering {path} ...", file=sys.stderr, flush=True)
-            lock.acquire()
-    except OSError as err:
-        raise InputError(f"data.cache_dir={path.parent}: cannot lock {path / LOCK} ({err.strerror or err})") from None
+    _acquire(lock, path, f"waiting for another run that is rendering {path} ...")
     try:
         try:
             mpath = path / MANIFEST
@@ -615,21 +671,57 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
                 lock.release()
                 shutil.rmtree(path, ignore_errors=True)
             raise
-        return _render_missing(scene, d, rcfg, path, manifest, views, progress)
+        if d["shard"] is None:
+            return _render_missing(scene, d, rcfg, path, manifest, views, progress)
     finally:
         if lock.is_locked:
             lock.release()
+    # sharded: render outside the cache lock, under the shard's own lock
+    i, k = d["shard"]
+    shard_lock = FileLock(str(path / f".lock-shard-{i}-of-{k}"))
+    _acquire(shard_lock, path, f"waiting for another run that is rendering shard {i}/{k} of {path} ...")
+    try:
+        return _render_missing(scene, d, rcfg, path, None, views, progress, cache_lock=lock)
+    finally:
+        shard_lock.release()
 
 
-def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress) -> CacheReport:
+def _acquire(lock, path: Path, waiting: str) -> None:
+    """Take a FileLock, saying once on stderr when it has to wait; one-line error if it cannot."""
+    from filelock import Timeout
+
+    try:
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            print(waiting, file=sys.stderr, flush=True)
+            lock.acquire()
+    except OSError as err:
+        raise InputError(f"data.cache_dir={path.parent}: cannot lock {lock.lock_file} ({err.strerror or err})") from None
+
+
+def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress, cache_lock=None) -> CacheReport:
+    """Render the views not logged yet (of ``d["shard"]`` only, when set: then ``manifest`` is None
+    and ``cache_lock`` is the cache's lock, taken again to update the manifest)."""
     n, m = len(views), d["resolution"]
-    done, _, _ = read_log(path / LOG, n)
+    shard = d.get("shard")
+    done, _, _ = read_logs(path, n)
     todo = np.flatnonzero(~done)
+    if shard is not None:
+        todo = todo[todo % shard[1] == shard[0]]
     workers = min(d["workers"], len(todo)) if d["workers"] > 0 else 0
     threads = int(rcfg.get("threads") or 0) or max(1, _cores() // max(1, workers))
-    report = CacheReport(path, n, int(done.sum()), 0, workers, threads)
+    report = CacheReport(path, n, int(done.sum()), 0, workers, threads, shard=shard)
+
+    def finish(run):
+        if shard is None:
+            _finish(path, manifest, n, run)
+            return
+        with cache_lock:  # other shards update the manifest too: read it afresh under the lock
+            _finish(path, json.loads((path / MANIFEST).read_text()), n, None if run is None else {**run, "shard": f"{shard[0]}/{shard[1]}"})
+
     if len(todo) == 0:
-        _finish(path, manifest, n, None)
+        finish(None)
         return report
     need = len(todo) * m * m * 3
     free = shutil.disk_usage(path).free
@@ -638,9 +730,11 @@ def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress) -> Ca
 
     from tqdm import tqdm
 
-    bar = tqdm(total=n, initial=int(done.sum()), desc=f"render {scene.name} {m}x{m}", unit="view",
-               disable=not progress, file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
-    log = _Log(path / LOG, d["fsync"])
+    own = np.arange(n) if shard is None else np.arange(shard[0], n, shard[1])
+    bar = tqdm(total=len(own), initial=int(done[own].sum()), unit="view", disable=not progress, file=sys.stderr,
+               desc=f"render {scene.name} {m}x{m}" + (f" shard {shard[0]}/{shard[1]}" if shard else ""),
+               dynamic_ncols=True, smoothing=0.05)
+    log = _Log(path / (LOG if shard is None else _shard_log_name(shard)), d["fsync"])
     offset = _npy_data_offset(path / IMAGES)
     t0 = time.perf_counter()
     started = _now()
@@ -667,7 +761,7 @@ def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress) -> Ca
         report.wall_seconds = time.perf_counter() - t0
         log.close()
         bar.close()
-        _finish(path, manifest, n, {
+        finish({
             "started": started, "finished": _now(), "rendered": report.rendered, "workers": workers,
             "threads": threads, "wall_seconds": round(report.wall_seconds, 4),
             "render_seconds": round(report.render_seconds, 4),
@@ -744,7 +838,7 @@ def _run_workers(scene, rcfg, threads, images_path, offset, m, views, todo, work
 
 def _finish(path: Path, manifest: dict, n: int, run: dict | None) -> None:
     """Refresh render_seconds.npy and the manifest's progress from the log (atomically)."""
-    done, _, sec = read_log(path / LOG, n)
+    done, _, sec = read_logs(path, n)
     k = int(done.sum())
     if run is None and manifest.get("complete") == k and (path / SECONDS).is_file():
         return  # nothing changed: leave the files alone
@@ -805,7 +899,7 @@ class ViewImageCache:
             images = np.load(p / IMAGES, mmap_mode="r", allow_pickle=False)
         except (OSError, ValueError) as err:
             raise InputError(f"cache {p}: unreadable ({type(err).__name__}: {err})") from None
-        done, crc, sec = read_log(p / LOG, len(views))
+        done, crc, sec = read_logs(p, len(views))
         if require_complete and not done.all():
             raise InputError(f"cache {p}: only {int(done.sum())} of {len(views)} views are rendered; run python -m data_gen with the same settings to finish it")
         return cls(p, manifest, views, images, splits, done, sec, crc)
@@ -856,5 +950,5 @@ class ViewImageCache:
 
 __all__ = [
     "ensure_cache", "render_cache", "ViewImageCache", "CacheReport", "cache_path_for", "cache_settings",
-    "data_settings", "plan_views", "read_log", "DATA_DEFAULTS", "FORMAT_VERSION",
+    "data_settings", "parse_shard", "plan_views", "read_log", "read_logs", "DATA_DEFAULTS", "FORMAT_VERSION",
 ]

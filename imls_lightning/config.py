@@ -13,7 +13,7 @@ from data_gen.errors import InputError
 
 # Keys that never change a trained result (where things go, how many loader processes, ...):
 # left out of run hashes so that e.g. more render workers still find the same run.
-NON_RESULT_KEYS = frozenset({"cache_dir", "cache_path", "fsync", "workers", "loader_workers", "progress", "runs_dir"})
+NON_RESULT_KEYS = frozenset({"cache_dir", "cache_path", "fsync", "workers", "loader_workers", "progress", "runs_dir", "shard"})
 
 
 def to_plain(obj: Any) -> Any:

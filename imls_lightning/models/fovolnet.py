@@ -63,7 +63,7 @@ def apply_pixel_kernels(image: torch.Tensor, kernels: torch.Tensor) -> torch.Ten
     """
     b, c, h, w = image.shape
     kk = kernels.shape[1]
-    k = int(round(kk**0.5))
+    k = int(round(float(kk) ** 0.5))  # float(): under torch.jit.trace shapes are tensors
     if k * k != kk or k % 2 == 0 or tuple(kernels.shape[-2:]) != (h, w) or kernels.shape[0] != b:
         raise ValueError(
             f"kernels: expected (B, k*k, H, W) with odd k matching image {tuple(image.shape)}, got {tuple(kernels.shape)}"

@@ -62,6 +62,14 @@ class ImlsTask(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["imls_task"] = type(self).__name__
 
+    def log(self, name: str, value: Any, *args, **kwargs) -> None:
+        """``LightningModule.log``; validation/test values default to ``sync_dist=True``: under DDP
+        each process evaluates only its share of the views, and the monitors (early stopping, best
+        checkpoint) must see the mean over all of them. No effect in a single process."""
+        if not self.training and "sync_dist" not in kwargs:
+            kwargs["sync_dist"] = True
+        super().log(name, value, *args, **kwargs)
+
     def visuals(self, batch: dict[str, torch.Tensor]) -> tuple[list[str], list[torch.Tensor]]:
         """Column titles and ``(B, C, H, W)`` tensors for the image-grid callback."""
         return [], []

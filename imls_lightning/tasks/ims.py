@@ -434,6 +434,14 @@ class IMSTask(ImlsTask):
         self.generator.fit_view_normalization(views.to(self.generator.view_mean.device))
         self.view_norm_fitted.fill_(True)
 
+    def setup(self, stage: str) -> None:
+        # DDP: the discriminator and generator steps are separate backward passes, each leaving the
+        # other network without gradients; DDP has to expect that (Lightning's advice for GANs
+        # under manual optimization). Runs before the strategy wraps the module in DDP.
+        ddp_kwargs = getattr(self.trainer.strategy, "_ddp_kwargs", None)
+        if stage == "fit" and isinstance(ddp_kwargs, dict):
+            ddp_kwargs.setdefault("find_unused_parameters", True)
+
     def on_fit_start(self) -> None:
         if bool(self.view_norm_fitted):
             return  # resumed (or fine-tuned): keep the normalization the weights were trained with

@@ -1,0 +1,392 @@
+"""Export the networks of the IML/S + RecNN renderer to TorchScript or ONNX, and render with them.
+
+``python -m imls_lightning.export ims_checkpoint=ims.ckpt format=torchscript|onnx out=DIR
+[recnn_checkpoint=recnn.ckpt] [overwrite=true]``
+
+An IMS checkpoint carries every network the product runs (see :mod:`imls_lightning.tasks.ims`);
+the export writes the three that run per view, each on its own so that a deployment can time and
+place them like :class:`~imls_lightning.pipeline.IMLSRenderer` does:
+
+================  ===========================================  ===============================
+file              input -> output                               what
+================  ===========================================  ===============================
+``im.*``          view ``(1, 9)`` float32 -> ``(1, 1, n, n)``   IMS generator + thresholding
+                  bool                                          (``IMSTask.output_to_im``): the IM
+``decoder.*``     PR-C-Image ``(1, 3, n, n)`` -> ``(1, 3, n,    the IML decoder
+                  n)`` float32
+``recnn.*``       C-Image ``(1, 3, n, n)`` -> ``(1, 3, m, m)``  the RecNN (not clamped)
+================  ===========================================  ===============================
+
+plus ``export.json`` (format, sizes, pattern, provenance) and ``pattern_indices.npy`` (the ``(K,)``
+FR raster indices of the sampling pattern: the loader needs no pattern code that could drift).
+``.pt`` files are ``torch.jit.trace`` modules (``torch.jit.load``, also from C++ libtorch); ``.onnx``
+files need the optional package ``onnx`` to write and ``onnxruntime`` to run (``pip install
+imls-lightning[export]``; opset 17, written by torch's TorchScript-based exporter). The directory is written under a temporary name and
+renamed when complete.
+
+The selective ray cast between the networks is not a network: :class:`ExportedIMLSRenderer` takes
+the scene's renderer for it, exactly as :class:`~imls_lightning.pipeline.IMLSRenderer` (whose
+``render(view) -> (image, timings)`` it inherits), so an exported renderer gives the same images.
+
+Example:
+    >>> out = export_renderer("ims.ckpt", "exported/", format="torchscript")        # doctest: +SKIP
+    >>> r = ExportedIMLSRenderer.load(out, scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
+    >>> image, timings = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                     # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from data_gen.errors import InputError, cli_errors
+
+from .patterns import SamplingPattern
+from .pipeline import IMLSRenderer, NetOptions
+
+__all__ = ["FORMATS", "IMPredictor", "ExportedIMLSRenderer", "export_renderer", "onnx_available", "main"]
+
+FORMATS = ("torchscript", "onnx")
+EXPORT_VERSION = 1
+META = "export.json"
+INDICES = "pattern_indices.npy"
+PARTS = ("im", "decoder", "recnn")
+_SUFFIX = {"torchscript": ".pt", "onnx": ".onnx"}
+ONNX_OPSET = 17
+
+
+def onnx_available() -> bool:
+    """Whether the ``onnx`` package is importable (ONNX exports are offered only then)."""
+    try:
+        import onnx  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _onnxruntime():
+    try:
+        import onnxruntime
+    except ImportError:
+        raise InputError("format=onnx: running an ONNX export needs onnxruntime (pip install imls-lightning[export])") from None
+    return onnxruntime
+
+
+class IMPredictor(nn.Module):
+    """IMS generator + thresholding: view ``(B, 9)`` float32 -> IM ``(B, 1, n, n)`` bool.
+
+    The same arithmetic as :meth:`IMSTask.output_to_im` applied to ``generator(view)``:
+    ``target="im"``: ``g > 0``; ``target="pim"``: ``(g + 1) / 2 > P  or  g >= 1``; False on the
+    C-Image padding (``valid``). ``target`` is fixed at construction, so tracing sees one branch.
+
+    Args:
+        generator: the :class:`~imls_lightning.models.ims.IMSGenerator` (eval mode).
+        target: ``"im"`` or ``"pim"``.
+        P: ``(n, n)`` plastic rank pattern (used by ``target="pim"``).
+        valid: ``(n, n)`` bool, the pattern's C-Image pixels.
+    """
+
+    def __init__(self, generator: nn.Module, target: str, P: torch.Tensor, valid: torch.Tensor):
+        super().__init__()
+        if target not in ("im", "pim"):
+            raise InputError(f"model.target={target!r}: expected 'im' or 'pim'")
+        self.generator = generator
+        self.target = target
+        n = valid.shape[-1]
+        self.register_buffer("P", P.detach().float().reshape(1, 1, n, n).clone())
+        self.register_buffer("valid", valid.detach().bool().reshape(1, 1, n, n).clone())
+
+    def forward(self, view: torch.Tensor) -> torch.Tensor:
+        g = self.generator(view).float()
+        if self.target == "im":
+            im = g > 0
+        else:
+            im = ((g + 1.0) * 0.5 > self.P) | (g >= 1.0)
+        return im & self.valid
+
+
+class _OnnxModule(nn.Module):
+    """An ONNX Runtime session behind the ``nn.Module`` call interface (CPU tensors in and out;
+    the result is moved to the input's device)."""
+
+    def __init__(self, path: Path, providers: Sequence[str] | None = None):
+        super().__init__()
+        ort = _onnxruntime()
+        so = ort.SessionOptions()
+        so.log_severity_level = 3
+        self.path = str(path)
+        self.session = ort.InferenceSession(self.path, so, providers=list(providers or ["CPUExecutionProvider"]))
+        self.input_name = self.session.get_inputs()[0].name
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = self.session.run(None, {self.input_name: x.detach().cpu().contiguous().numpy()})[0]
+        return torch.from_numpy(np.ascontiguousarray(out)).to(x.device)
+
+    def extra_repr(self) -> str:
+        return self.path
+
+
+# ---------------------------------------------------------------------------------------------
+# export
+# ---------------------------------------------------------------------------------------------
+def _parts_from_task(task, recnn: nn.Module | None) -> dict[str, nn.Module]:
+    recnn = task.recnn if recnn is None else recnn
+    if recnn is None:
+        raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
+    task.eval()
+    im = IMPredictor(task.generator, task.target, task.P, task.pattern.valid).eval()
+    return {"im": im, "decoder": task.decoder.eval(), "recnn": recnn.eval()}
+
+
+def _example_inputs(pattern: SamplingPattern) -> dict[str, torch.Tensor]:
+    n = pattern.c_size
+    g = torch.Generator().manual_seed(0)
+    view = torch.tensor([[0.0, 0.0, 3.5, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+    return {"im": view, "decoder": torch.rand(1, 3, n, n, generator=g), "recnn": torch.rand(1, 3, n, n, generator=g)}
+
+
+def _export_torchscript(module: nn.Module, example: torch.Tensor, path: Path) -> None:
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # shape checks in forward are constants at a fixed size
+        traced = torch.jit.trace(module, (example,), check_trace=False)
+    torch.jit.save(traced, str(path))
+
+
+def _export_onnx(module: nn.Module, example: torch.Tensor, path: Path, name: str) -> None:
+    """The TorchScript-based exporter (``dynamo=False``): it exports what ``torch.jit.trace``
+    records, so the networks' data-dependent input checks (e.g. ``int(indices[-1])`` in
+    :func:`~imls_lightning.compaction.decompact`) become constants at the fixed export size. The
+    ``torch.export`` route (``dynamo=True``) refuses them (GuardOnDataDependentSymNode)."""
+    import onnx
+
+    try:
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(module, (example,), str(path), dynamo=False, opset_version=ONNX_OPSET,
+                              input_names=[f"{name}_in"], output_names=[f"{name}_out"], do_constant_folding=True)
+        onnx.checker.check_model(onnx.load(str(path)))
+    except Exception as err:  # an operator the exporter cannot translate: say which network
+        first = str(err).splitlines()[0] if str(err) else ""
+        raise RuntimeError(f"ONNX export of the {name} network failed: {type(err).__name__}: {first}") from err
+
+
+def _sha256(path: Path, length: int = 16) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()[:length]
+
+
+def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, format: str = "torchscript",
+                    recnn_checkpoint: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
+    """Export the per-view networks of an IMS checkpoint (see the module doc); returns ``out``.
+
+    Args:
+        ims_checkpoint: a ``.ckpt`` of ``model=ims`` (it carries the IML decoder and the RecNN).
+        out: the directory to create (must not exist unless ``overwrite``).
+        format: ``"torchscript"`` or ``"onnx"`` (needs the ``onnx`` package).
+        recnn_checkpoint: a RecNN checkpoint to use instead of the one in the IMS checkpoint
+            (needed when the IML was standalone and no RecNN was stored).
+        overwrite: replace an existing export directory.
+
+    Raises:
+        InputError: a bad format, a missing/wrong checkpoint, ``out`` exists, ONNX not installed.
+    """
+    from .tasks.base import load_task
+
+    fmt = str(format).lower()
+    if fmt not in FORMATS:
+        raise InputError(f"format={format}: expected one of {', '.join(FORMATS)}")
+    if fmt == "onnx" and not onnx_available():
+        raise InputError("format=onnx: needs the onnx package (pip install imls-lightning[export])")
+    out = Path(out).expanduser()
+    if out.exists() and not overwrite:
+        raise InputError(f"out={out}: already exists; choose a new directory or pass overwrite=true")
+    if out.exists() and not (out / META).is_file():
+        raise InputError(f"out={out}: exists and is not an export directory (no {META}); refusing to replace it")
+    if not out.parent.is_dir():
+        raise InputError(f"out={out}: directory {out.parent} does not exist")
+
+    task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
+    recnn = None
+    if recnn_checkpoint:
+        rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
+        if rt.pattern.fingerprint() != task.pattern.fingerprint():
+            raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
+        recnn = rt.net
+    parts = _parts_from_task(task, recnn)
+    pattern = task.pattern
+    examples = _example_inputs(pattern)
+
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        files = {}
+        for name in PARTS:
+            fname = name + _SUFFIX[fmt]
+            if fmt == "torchscript":
+                _export_torchscript(parts[name], examples[name], tmp / fname)
+            else:
+                _export_onnx(parts[name], examples[name], tmp / fname, name)
+            files[name] = fname
+        idx = pattern.indices.numpy().astype(np.int64)
+        np.save(tmp / INDICES, idx, allow_pickle=False)
+        meta = {
+            "export_version": EXPORT_VERSION,
+            "format": fmt,
+            "files": files,
+            "fr_size": int(pattern.fr_size),
+            "c_size": int(pattern.c_size),
+            "pattern": {"kind": pattern.kind, "params": pattern.param_dict, "count": pattern.count,
+                        "fingerprint": pattern.fingerprint(), "indices": INDICES,
+                        "indices_sha256": hashlib.sha256(idx.tobytes()).hexdigest()},
+            "target": task.target,
+            "inputs": {"im": [1, 9], "decoder": [1, 3, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
+            "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
+            "ims_checkpoint_sha256": _sha256(Path(ims_checkpoint).expanduser()),
+            "recnn_checkpoint": None if not recnn_checkpoint else str(Path(recnn_checkpoint).expanduser().resolve()),
+            "recnn_source": "recnn_checkpoint" if recnn_checkpoint else task.hparams.get("recnn_source"),
+            "torch_version": torch.__version__,
+            "onnx_opset": ONNX_OPSET if fmt == "onnx" else None,
+        }
+        with open(tmp / META, "w") as f:
+            json.dump(meta, f, indent=1, default=str)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        old = None
+        if out.exists():  # overwrite: move the old one aside first, so `out` is never half-made
+            old = out.with_name(f".{out.name}.old-{os.getpid()}")
+            os.replace(out, old)
+        os.replace(tmp, out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# loading
+# ---------------------------------------------------------------------------------------------
+def read_export(path: str | os.PathLike) -> tuple[dict[str, Any], SamplingPattern]:
+    """``(export.json as a dict, the SamplingPattern)`` of an export directory (checked)."""
+    p = Path(path).expanduser()
+    if not (p / META).is_file():
+        raise InputError(f"exported={p}: not an export directory (no {META}); make one with python -m imls_lightning.export")
+    try:
+        meta = json.loads((p / META).read_text())
+        idx = np.load(p / meta["pattern"]["indices"], allow_pickle=False)
+    except (OSError, ValueError, KeyError) as err:
+        raise InputError(f"exported={p}: unreadable ({type(err).__name__}: {err})") from None
+    if meta.get("export_version") != EXPORT_VERSION or meta.get("format") not in FORMATS:
+        raise InputError(f"exported={p}: export version {meta.get('export_version')} / format {meta.get('format')} not understood")
+    if hashlib.sha256(np.ascontiguousarray(idx, np.int64).tobytes()).hexdigest() != meta["pattern"]["indices_sha256"]:
+        raise InputError(f"exported={p}: {meta['pattern']['indices']} does not match {META}")
+    params = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in meta["pattern"]["params"].items())
+    pattern = SamplingPattern(meta["pattern"]["kind"], int(meta["fr_size"]), int(meta["c_size"]),
+                              torch.from_numpy(np.asarray(idx, np.int64)), params)
+    return meta, pattern
+
+
+class ExportedIMLSRenderer(IMLSRenderer):
+    """:class:`~imls_lightning.pipeline.IMLSRenderer` running exported networks.
+
+    Same stages, timings and ``render(view) -> ((m, m, 3) uint8, {stage: seconds})``; the IM, the
+    decoder and the RecNN are the TorchScript modules or ONNX Runtime sessions of an export
+    directory, the selective ray cast is the scene's renderer. Build it with :meth:`load`.
+    """
+
+    name = "imls_exported"
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, *, scene=None, renderer=None, renderer_cfg=None,
+             device: str = "auto") -> "ExportedIMLSRenderer":
+        """Load an export directory.
+
+        Args:
+            path: what :func:`export_renderer` wrote.
+            scene / renderer / renderer_cfg: a built renderer, or a scene (+ renderer config).
+            device: ``auto`` | ``cpu`` | ``cuda`` (TorchScript modules move there; ONNX sessions
+                use the CUDA execution provider when the device is CUDA and it is installed).
+        """
+        from .pipeline import pick_device
+
+        p = Path(path).expanduser()
+        meta, pattern = read_export(p)
+        dev = pick_device(device)
+        files = {k: p / v for k, v in meta["files"].items()}
+        missing = [str(f) for f in files.values() if not f.is_file()]
+        if missing:
+            raise InputError(f"exported={p}: missing {missing[0]}")
+        if meta["format"] == "torchscript":
+            mods = {k: torch.jit.load(str(f), map_location=dev).eval() for k, f in files.items()}
+        else:
+            providers = ["CPUExecutionProvider"]
+            if dev.type == "cuda":
+                providers.insert(0, "CUDAExecutionProvider")
+            mods = {k: _OnnxModule(f, providers) for k, f in files.items()}
+        if renderer is None:
+            if scene is None:
+                raise InputError("ExportedIMLSRenderer.load needs a renderer or a scene")
+            from data_gen.renderers import make_renderer
+
+            renderer = make_renderer(scene, renderer_cfg)
+        r = cls(renderer, pattern, mods["im"], mods["decoder"], mods["recnn"], NetOptions(device=str(dev)))
+        r.meta = meta
+        r.export_path = p
+        return r
+
+
+# ---------------------------------------------------------------------------------------------
+# command line
+# ---------------------------------------------------------------------------------------------
+_KEYS = {"ims_checkpoint": None, "format": "torchscript", "out": None, "recnn_checkpoint": None, "overwrite": "false"}
+
+
+def parse_args(argv: Sequence[str]) -> dict[str, Any]:
+    """``key=value`` arguments (Hydra style) -> settings; one-line InputError on anything else."""
+    args = dict(_KEYS)
+    for a in argv:
+        key, sep, value = a.partition("=")
+        key = key.lstrip("+")
+        if not sep or key not in _KEYS:
+            raise InputError(f"argument {a!r}: expected key=value with key one of {', '.join(_KEYS)}")
+        args[key] = value
+    for key in ("ims_checkpoint", "out"):
+        if not args[key]:
+            raise InputError(f"{key}: missing (usage: python -m imls_lightning.export ims_checkpoint=<IMS .ckpt> format=torchscript|onnx out=<dir>)")
+    ov = str(args["overwrite"]).lower()
+    if ov not in ("true", "false"):
+        raise InputError(f"overwrite={args['overwrite']}: expected true or false")
+    args["overwrite"] = ov == "true"
+    if args["recnn_checkpoint"] in ("", "null", "None"):
+        args["recnn_checkpoint"] = None
+    return args
+
+
+@cli_errors
+def main(argv: Sequence[str] | None = None) -> Path:
+    """Export, print a summary line per file on stderr and the export directory as the last stdout line."""
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    out = export_renderer(args["ims_checkpoint"], args["out"], args["format"], args["recnn_checkpoint"], args["overwrite"])
+    meta = json.loads((out / META).read_text())
+    for name, fname in meta["files"].items():
+        print(f"[export] {name}: {out / fname} ({(out / fname).stat().st_size / 1e6:.2f} MB)", file=sys.stderr)
+    print(out, flush=True)
+    return out
+
+
+if __name__ == "__main__":
+    main()

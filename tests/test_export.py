@@ -1,0 +1,248 @@
+"""Export of the IML/S + RecNN networks (imls_lightning.export): TorchScript and ONNX files that
+render the same images as IMLSRenderer, the loader, the CLI and its errors.
+
+Fast tests build IMS checkpoints in-process (real tasks, random weights; the generator's output
+bias is set so that about half of the C-Image is important: an empty or full IM would hide a
+wrong network). The slow test trains the real chain through the train CLI (fast_dev_run)."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from data_gen.errors import InputError
+from data_gen.renderers import make_renderer
+from data_gen.scene import build_scene
+from data_gen.views import sample_training_views
+from imls_lightning.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available, parse_args
+from imls_lightning.pipeline import IMLSRenderer
+from imls_lightning.tasks.base import load_task
+from imls_lightning.tasks.iml import IMLTask
+from imls_lightning.tasks.ims import IMSTask
+from imls_lightning.tasks.recnn import RecNNTask
+
+ROOT = Path(__file__).resolve().parents[1]
+FR = 32
+PATTERNS = {
+    "enhancenet": ({"kind": "downsample", "factor": 2},
+                   {"_target_": "imls_lightning.models.enhancenet.EnhanceNet", "channels": 4, "blocks": 1}),
+    # n = 16, K < 256: a zero-padded C-Image (the IM must stay False on the padding)
+    "fovolnet": ({"kind": "foveal", "c_size": 16, "sigma": 0.1},
+                 {"_target_": "imls_lightning.models.fovolnet.FoVolNet", "features": 4, "depth": 2, "base_channels": 4,
+                  "filter_channels": 4, "levels": 2}),
+}
+LOSS = {"bce": 1.0, "perceptual": 0.0, "adversarial": 0.01}
+
+pytestmark = pytest.mark.filterwarnings("ignore:.*LeafSpec.*", "ignore:.*does not have many workers.*")
+
+
+def _save(task, path: Path) -> str:
+    tr = L.Trainer(accelerator="cpu", logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                   enable_model_summary=False, max_steps=0)
+    tr.strategy.connect(task)
+    tr.save_checkpoint(path)
+    return str(path)
+
+
+def _views(n: int, seed: int) -> np.ndarray:
+    return sample_training_views(n, (3.0, 4.5), seed=seed).astype(np.float32)
+
+
+def make_ims_task(recnn: str, target: str = "im", with_recnn: bool = True) -> tuple[IMSTask, RecNNTask]:
+    pattern, net = PATTERNS[recnn]
+    torch.manual_seed(0)
+    rec = RecNNTask(net, pattern, FR)
+    iml = IMLTask(pattern, FR, mode="end_to_end", depth=2, base_channels=4, recnn_hparams=dict(rec.hparams))
+    ims = IMSTask(pattern, FR, dict(iml.hparams), target=target, layers=5, base_channels=8, disc_base_channels=8,
+                  loss=LOSS, recnn_hparams=dict(rec.hparams) if with_recnn else None)
+    ims.iml.load_state_dict(iml.iml.state_dict())
+    if with_recnn:
+        ims.recnn.load_state_dict(rec.net.state_dict())
+    ims._fit_view_normalization(torch.from_numpy(_views(64, 1)))
+    ims.view_norm_fitted.fill_(True)
+    ims.eval()
+    # centre the generator's output on the decision threshold: a mixed IM on every view
+    last = ims.generator.net[-2]
+    with torch.no_grad():
+        g = ims.generator(torch.from_numpy(_views(16, 2)))
+        thr = 0.0 if target == "im" else 0.5  # pim: (g + 1) / 2 > P, P uniform in (0, 1]
+        last.bias -= torch.atanh(g.clamp(-0.999, 0.999)).median() - float(np.arctanh(thr))
+    return ims, rec
+
+
+@pytest.fixture(scope="module")
+def ckpts(tmp_path_factory):
+    root = tmp_path_factory.mktemp("export_ckpts")
+    out = {}
+    for name in PATTERNS:
+        ims, rec = make_ims_task(name)
+        out[name] = _save(ims, root / f"ims_{name}.ckpt")
+        out[f"{name}_recnn"] = _save(rec, root / f"recnn_{name}.ckpt")
+    ims, _ = make_ims_task("enhancenet", with_recnn=False)
+    out["standalone"] = _save(ims, root / "ims_standalone.ckpt")
+    return out
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    scene = build_scene(OmegaConf.load(ROOT / "conf" / "scene" / "tiny.yaml"))
+    return make_renderer(scene, {"name": "numba", "threads": 1})
+
+
+def _compare(ref: IMLSRenderer, exp: ExportedIMLSRenderer, views, tol: int) -> list[int]:
+    """Render every view both ways; returns the IM sizes (checked equal) and checks the images."""
+    sizes = []
+    for v in views:
+        a, b = ref.run(v), exp.run(v)
+        assert torch.equal(a.info["im"], b.info["im"])
+        diff = np.abs(a.image.astype(np.int16) - b.image.astype(np.int16)).max()
+        assert diff <= tol, diff
+        assert a.info["rendered_pixels"] == b.info["rendered_pixels"]
+        img, timings = exp.render(v)
+        assert img.shape == (FR, FR, 3) and img.dtype == np.uint8
+        assert set(timings) == {"importance", "selective_render", "decoder", "recnn", "total"}
+        sizes.append(int(b.info["im"].sum()))
+    return sizes
+
+
+@pytest.mark.parametrize("recnn", list(PATTERNS))
+def test_torchscript_export_renders_bitwise_the_same_images(ckpts, renderer, tmp_path, recnn):
+    out = export_renderer(ckpts[recnn], tmp_path / "ts", format="torchscript")
+    meta = json.loads((out / "export.json").read_text())
+    assert meta["format"] == "torchscript" and sorted(meta["files"]) == ["decoder", "im", "recnn"]
+    assert all((out / f).is_file() for f in meta["files"].values())
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary left behind
+    ref = IMLSRenderer.from_checkpoints(ckpts[recnn], renderer=renderer, opts=None)
+    exp = ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu")
+    assert exp.pattern.fingerprint() == ref.pattern.fingerprint()
+    assert isinstance(exp.decoder, torch.jit.ScriptModule)
+    sizes = _compare(ref, exp, _views(4, 7), tol=0)
+    valid = ref.pattern.count
+    assert all(0 < s < valid for s in sizes), (sizes, valid)  # a mixed IM: the networks really ran
+
+
+@pytest.mark.parametrize("recnn", list(PATTERNS))
+def test_onnx_export_renders_the_same_images_within_one_level(ckpts, renderer, tmp_path, recnn):
+    if not onnx_available():
+        pytest.skip("onnx not installed (pip install imls-lightning[export])")
+    pytest.importorskip("onnxruntime")
+    import onnx
+
+    out = export_renderer(ckpts[recnn], tmp_path / "onnx", format="onnx")
+    for f in ("im.onnx", "decoder.onnx", "recnn.onnx"):
+        onnx.checker.check_model(onnx.load(str(out / f)))
+    ref = IMLSRenderer.from_checkpoints(ckpts[recnn], renderer=renderer)
+    exp = ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu")
+    sizes = _compare(ref, exp, _views(4, 7), tol=1)
+    assert all(0 < s < ref.pattern.count for s in sizes)
+
+
+@pytest.mark.parametrize("target", ["im", "pim"])
+def test_im_predictor_is_the_tasks_thresholding(target):
+    ims, _ = make_ims_task("fovolnet", target=target)
+    pred = IMPredictor(ims.generator, ims.target, ims.P, ims.pattern.valid).eval()
+    views = torch.from_numpy(_views(8, 3))
+    with torch.no_grad():
+        want = ims.predict_im(views)
+        got = pred(views)
+        traced = torch.jit.trace(pred, (views[:1],), check_trace=False)
+        again = traced(views)
+    assert got.dtype == torch.bool and torch.equal(got, want) and torch.equal(again, want)
+    assert not got[:, :, ~ims.pattern.valid].any()  # padding is never important
+    assert 0 < int(want.sum()) < want[:, :, ims.pattern.valid].numel()
+
+
+def test_standalone_ims_needs_recnn_checkpoint(ckpts, renderer, tmp_path):
+    with pytest.raises(InputError, match="recnn_checkpoint=<RecNN .ckpt>"):
+        export_renderer(ckpts["standalone"], tmp_path / "a")
+    assert not (tmp_path / "a").exists()
+    out = export_renderer(ckpts["standalone"], tmp_path / "b", recnn_checkpoint=ckpts["enhancenet_recnn"])
+    assert json.loads((out / "export.json").read_text())["recnn_source"] == "recnn_checkpoint"
+    ref = IMLSRenderer.from_checkpoints(ckpts["standalone"], renderer=renderer, recnn_checkpoint=ckpts["enhancenet_recnn"])
+    _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(2, 5), tol=0)
+    with pytest.raises(InputError, match="another sampling pattern"):
+        export_renderer(ckpts["standalone"], tmp_path / "c", recnn_checkpoint=ckpts["fovolnet_recnn"])
+
+
+def test_exceptions(ckpts, tmp_path):
+    with pytest.raises(InputError, match="format=tflite: expected one of torchscript, onnx"):
+        export_renderer(ckpts["enhancenet"], tmp_path / "x", format="tflite")
+    with pytest.raises(InputError, match="ims_checkpoint=.*not found"):
+        export_renderer(tmp_path / "nope.ckpt", tmp_path / "x")
+    with pytest.raises(InputError, match="is a RecNNTask checkpoint, expected a IMSTask"):
+        export_renderer(ckpts["enhancenet_recnn"], tmp_path / "x")
+    out = export_renderer(ckpts["enhancenet"], tmp_path / "ok")
+    with pytest.raises(InputError, match="already exists"):
+        export_renderer(ckpts["enhancenet"], out)
+    (tmp_path / "notexport").mkdir()
+    with pytest.raises(InputError, match="not an export directory"):
+        export_renderer(ckpts["enhancenet"], tmp_path / "notexport", overwrite=True)
+    with pytest.raises(InputError, match="not an export directory"):
+        ExportedIMLSRenderer.load(tmp_path / "notexport", renderer=object())
+    # overwrite replaces a previous export whole (here: with the other RecNN's)
+    export_renderer(ckpts["fovolnet"], out, overwrite=True)
+    assert json.loads((out / "export.json").read_text())["pattern"]["kind"] == "foveal"
+    np.save(out / "pattern_indices.npy", np.arange(5, dtype=np.int64))
+    with pytest.raises(InputError, match="does not match export.json"):
+        ExportedIMLSRenderer.load(out, renderer=object())
+    for argv, needle in ((["out=x"], "ims_checkpoint: missing"), (["ims_checkpoint=a", "out=b", "fmt=onnx"], "argument 'fmt=onnx'"),
+                         (["ims_checkpoint=a", "out=b", "overwrite=maybe"], "overwrite=maybe")):
+        with pytest.raises(InputError, match=needle):
+            parse_args(argv)
+    assert parse_args(["ims_checkpoint=a", "out=b", "format=onnx"])["format"] == "onnx"
+
+
+def test_cli_exports_and_errors_in_one_line(ckpts, tmp_path, capsys):
+    from imls_lightning.export import main
+
+    cmd = [sys.executable, "-m", "imls_lightning.export", f"ims_checkpoint={ckpts['enhancenet']}", f"out={tmp_path / 'e'}"]
+    p = subprocess.run(cmd, cwd=ROOT, env=dict(os.environ, PYTHONUNBUFFERED="1"), capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert p.stdout.strip().splitlines()[-1] == str(tmp_path / "e") and "[export] recnn:" in p.stderr
+    # the same entry point in-process (a second interpreter start costs ~10 s here)
+    with pytest.raises(SystemExit) as exc:
+        main([f"ims_checkpoint={ckpts['enhancenet']}", f"out={tmp_path / 'f'}", "format=jpeg"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert [ln for ln in err.splitlines() if ln.startswith("error:")] == ["error: format=jpeg: expected one of torchscript, onnx"]
+    assert not (tmp_path / "f").exists()
+
+
+# ------------------------------------------------------------------------------------------
+# the real chain: RecNN -> IML end-to-end -> IMS through the train CLI, then the export CLI
+# ------------------------------------------------------------------------------------------
+def _train(args: list[str], tmp: Path) -> str:
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    cmd = [sys.executable, "-m", "imls_lightning.train", "scene=tiny", "data=tiny", "renderer=numba", "logger=none",
+           "++trainer.fast_dev_run=true", "trainer.enable_progress_bar=false", f"paths.runs_dir={tmp / 'runs'}",
+           f"data.cache_dir={tmp / 'cache'}", "recnn=enhancenet", "recnn.net.channels=8", "recnn.net.blocks=2", *args]
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-3000:]
+    return p.stdout.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+def test_cli_chain_train_then_export_both_formats(tmp_path, renderer):
+    rec = _train(["model=recnn"], tmp_path)
+    iml = _train(["model=iml", "model.mode=end_to_end", f"recnn.checkpoint={rec}", "model.depth=2", "model.base_channels=8"], tmp_path)
+    ims = _train(["model=ims", f"iml.checkpoint={iml}", "model.layers=5", "model.base_channels=8",
+                  "model.loss.perceptual.weight=0", "model.loss.bce=1"], tmp_path)
+    assert load_task(ims, expect="IMSTask").recnn is not None
+    formats = ["torchscript"] + (["onnx"] if onnx_available() else [])
+    ref = IMLSRenderer.from_checkpoints(ims, renderer=renderer)
+    for fmt in formats:
+        out = tmp_path / f"export_{fmt}"
+        p = subprocess.run([sys.executable, "-m", "imls_lightning.export", f"ims_checkpoint={ims}", f"format={fmt}", f"out={out}"],
+                           cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr[-3000:]
+        if fmt == "onnx":
+            pytest.importorskip("onnxruntime")
+        _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(4, 9), tol=0 if fmt == "torchscript" else 1)
