@@ -231,6 +231,17 @@ def load_networks(s: Settings, resolution: int) -> Networks:
     return Networks(ims, recnn, iml, las, str(recnn_name), str(recnn_source), str(iml_source))
 
 
+def _recnn_name(s: Settings) -> str:
+    """The RecNN's config name (``enhancenet``, ``fovolnet``) from the checkpoints' hyper-parameters
+    alone, as :func:`load_networks` finds it (no network is built)."""
+    from .config import load_checkpoint
+
+    if s.recnn:
+        return str(load_checkpoint(s.recnn, what="checkpoints.recnn")["hyper_parameters"].get("recnn_name", "recnn"))
+    hp = load_checkpoint(s.ims, what="checkpoints.ims")["hyper_parameters"]
+    return str((hp.get("recnn_hparams") or {}).get("recnn_name", "recnn"))
+
+
 # ------------------------------------------------------------------------------------------------
 # measuring
 
@@ -239,8 +250,9 @@ def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """PSNR (dB, 100 for identical images) and SSIM of two ``(m, m, 3)`` uint8 images."""
     from .losses import psnr, ssim
 
-    p = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float().div(255.0)
-    t = torch.from_numpy(np.ascontiguousarray(truth)).permute(2, 0, 1)[None].float().div(255.0)
+    # np.array copies: the cache's images are read-only memory maps (torch warns on those)
+    p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float().div(255.0)
+    t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float().div(255.0)
     return float(psnr(p, t)), float(ssim(p, t))
 
 
@@ -305,18 +317,24 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
 
     s = parse_settings(cfg)
     resolution = int(cfg.data.resolution)
-    nets = load_networks(s, resolution)
-    ims = nets.ims_task
+    paths = {k: p for k, p in (("ims", s.ims), ("las", s.las), ("recnn", s.recnn), ("iml", s.iml)) if p}
+    for k, p in paths.items():
+        if not Path(str(p)).expanduser().is_file():
+            raise InputError(f"checkpoints.{k}={p}: file not found")
     scene = build_scene(cfg.scene)
     rcfg = to_plain(cfg.renderer)
 
-    ck_hashes = {k: file_hash(p) for k, p in (("ims", s.ims), ("las", s.las), ("recnn", s.recnn), ("iml", s.iml)) if p}
+    # the output directory and the reuse check need only the checkpoints' bytes and hyper-parameters:
+    # a reused run returns before any network is built (or Lightning imported)
+    ck_hashes = {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}
     run_hash = settings_hash(ck_hashes, cfg.scene, cfg.data, renderer_pixel_settings(rcfg), s.hashed())
-    out = Path(s.output_dir) if s.output_dir else Path(str(cfg.paths.runs_dir)) / "eval" / f"{scene.name}-{nets.recnn_name}-{run_hash}"
+    out = Path(s.output_dir) if s.output_dir else Path(str(cfg.paths.runs_dir)) / "eval" / f"{scene.name}-{_recnn_name(s)}-{run_hash}"
     report_path = out / "report.md"
     if s.reuse and report_path.is_file():
         print(f"[evaluate] {out} already has a report of these settings; reusing it (reuse=false re-measures)", file=sys.stderr, flush=True)
         return report_path
+    nets = load_networks(s, resolution)
+    ims = nets.ims_task
     out.mkdir(parents=True, exist_ok=True)
     report_path.unlink(missing_ok=True)  # no report.md = no finished evaluation in this folder
 
@@ -349,7 +367,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         else:
             # IML/S's mean IPR on these views: the IMS network alone (no rendering) decides it
             with torch.inference_mode():
-                counts = [int(imls.predict_im(torch.as_tensor(np.asarray(cache.views[rows_all[p]], np.float32))[None].to(device)).sum())
+                counts = [int(imls.predict_im(torch.from_numpy(np.array(cache.views[rows_all[p]], np.float32))[None].to(device)).sum())
                           for p in positions]
             mean_ipr = float(np.mean(counts)) / m**2
             las_ipr_used, how = max(mean_ipr, 1.0 / m**2), "matched to IML/S's mean IPR on these views"

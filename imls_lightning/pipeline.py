@@ -414,9 +414,14 @@ class LASMethod(Method):
         super().__init__(renderer, fr_size, opts)
         self.las = _prepare(las_net, self.device, self.opts)
         self.low_res = int(low_res)
-        if ipr is not None and not (0.0 < float(ipr) <= 1.0):
-            raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
-        self.ipr = None if ipr is None else float(ipr)
+        if ipr is not None:
+            try:
+                ipr = float(ipr)
+            except (TypeError, ValueError):
+                raise InputError(f"ipr={ipr!r}: expected a number in (0, 1]") from None
+            if not (0.0 < ipr <= 1.0):
+                raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
+        self.ipr = ipr
 
     def run(self, view) -> RenderResult:
         timer = _Timer(self.device)
@@ -450,11 +455,16 @@ def c_mask_to_fr_pixels(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch
 def time_method(method: Method, view, repeats: int = 10, warmup: int = 1) -> tuple[np.ndarray, dict[str, float], dict[str, Any]]:
     """Render a view ``warmup + repeats`` times; per-stage medians over the repeats.
 
-    Returns the last image, ``{stage: median seconds}`` (``total`` is the median of the totals),
-    and the method's info of the last run.
+    Returns the last image ``(m, m, 3)`` uint8, ``{stage: median seconds}`` (``total`` is the median
+    of the per-run totals, not the sum of the stage medians), and the method's info of the last run.
+
+    Raises:
+        InputError: ``repeats`` < 1, ``warmup`` < 0, or a bad view.
     """
-    if repeats < 1:
-        raise InputError(f"repeats={repeats}: expected at least 1")
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise InputError(f"repeats={repeats}: expected an integer >= 1")
+    if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
+        raise InputError(f"warmup={warmup}: expected an integer >= 0")
     v = validate_view(view)
     runs: list[dict[str, float]] = []
     last = None

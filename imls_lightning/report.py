@@ -21,6 +21,7 @@ import math
 import os
 import platform
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -65,6 +66,9 @@ METRIC_COLUMNS = (
     + ["total_ms", "ipr", "c_share", "rendered_pixels", "psnr", "ssim"]
 )
 SWEEP_COLUMNS = ["view", "row", "method", "setting", "value"] + METRIC_COLUMNS[3:]
+#: columns of options.csv (IML/S network stages under each inference option, mean over views)
+OPTION_COLUMNS = ["option", "first_call_s", "importance_ms", "selective_render_ms", "decoder_ms", "recnn_ms",
+                  "networks_ms", "total_ms", "psnr", "error"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -398,9 +402,382 @@ def plot_options(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     return save_figure(fig, path)
 
 
+def error_map(image: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``|image - truth|`` of two ``(m, m, 3)`` uint8 images, averaged over channels: ``(m, m)`` in [0, 1]."""
+    a = np.asarray(image, np.float32) / 255.0
+    b = np.asarray(truth, np.float32) / 255.0
+    if a.shape != b.shape:
+        raise ValueError(f"error_map: image {a.shape} and truth {b.shape} differ in shape")
+    return np.abs(a - b).mean(axis=-1)
+
+
+def im_to_fr_mask(im: Any, pattern: Any, fr_size: int) -> np.ndarray:
+    """The IM ``(n, n)`` bool (C-Image) shown at FR: ``(m, m)`` uint8, 2 = important pixel, 1 = pattern
+    pixel left out, 0 = not in the pattern. Without a pattern, the IM itself (0/2)."""
+    a = np.asarray(im.cpu().numpy() if hasattr(im, "cpu") else im).astype(bool)
+    if pattern is None:
+        return a.astype(np.uint8) * 2
+    idx = np.asarray(pattern.indices.cpu().numpy() if hasattr(pattern.indices, "cpu") else pattern.indices, np.int64)
+    k = len(idx)
+    flat = np.zeros(int(fr_size) ** 2, np.uint8)
+    flat[idx] = 1
+    flat[idx[a.reshape(-1)[:k]]] = 2
+    return flat.reshape(fr_size, fr_size)
+
+
+def plot_image_grid(grid: Mapping[int, Mapping[str, Any]], methods: Sequence[str], path: str | Path,
+                    pattern: Any = None, fr_size: int | None = None) -> Path:
+    """The image grid: one row per view; columns: ground truth, each method's image, each method's error
+    map ``|method - truth|`` (magma, one scale for the whole grid, colour bar on the right), and the
+    IML/S importance mask at FR when the row has one (``imls_im``).
+
+    Args:
+        grid: ``{view position: {"truth": (m, m, 3) uint8, method: (m, m, 3) uint8, ..., "imls_im": (n, n) bool}}``.
+        methods: the method columns, in order (missing entries are left blank).
+    """
+    from matplotlib import colormaps
+
+    views = sorted(grid)
+    if not views:
+        raise ValueError("plot_image_grid: no views")
+    with_im = any(grid[v].get("imls_im") is not None for v in views)
+    cols = ["truth"] + [m for m in methods] + [f"err:{m}" for m in methods] + (["imls_im"] if with_im else [])
+    errs = {(v, m): error_map(grid[v][m], grid[v]["truth"]) for v in views for m in methods if grid[v].get(m) is not None}
+    # one colour scale for every error map: the 99th percentile of all errors (at least one grey level)
+    vmax = max([float(np.percentile(e, 99)) for e in errs.values()] + [1.0 / 255.0])
+    size = 1.45
+    fig = _figure(size * len(cols) + 0.8, size * len(views) + 0.5)
+    axes = fig.subplots(len(views), len(cols), squeeze=False)
+    cmap = colormaps["magma"]
+    im_handle = None
+    for r, v in enumerate(views):
+        g = grid[v]
+        truth = g["truth"]
+        m = truth.shape[0]
+        for c, col in enumerate(cols):
+            ax = axes[r][c]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            title = ""
+            if col == "truth":
+                ax.imshow(truth, interpolation="nearest")
+                title = "ground truth"
+            elif col == "imls_im":
+                if g.get("imls_im") is not None:
+                    mask = im_to_fr_mask(g["imls_im"], pattern, fr_size or m)
+                    ax.imshow(mask, cmap="gray", vmin=0, vmax=2, interpolation="nearest")
+                    ax.set_xlabel(f"IPR {float((mask == 2).mean()):.1%}", fontsize=6)
+                title = "IML/S IM (white; grey: rest of pattern)"
+            elif col.startswith("err:"):
+                name = col[4:]
+                e = errs.get((v, name))
+                if e is not None:
+                    im_handle = ax.imshow(e, cmap=cmap, vmin=0.0, vmax=vmax, interpolation="nearest")
+                    ax.set_xlabel(f"mean {e.mean():.3f}", fontsize=6)
+                title = f"|{METHOD_LABELS.get(name, name)} − truth|"
+            else:
+                img = g.get(col)
+                if img is not None:
+                    ax.imshow(img, interpolation="nearest")
+                    mse = float(((np.asarray(img, np.float64) - truth) / 255.0).__pow__(2).mean())
+                    ax.set_xlabel("exact" if mse == 0 else f"{10 * math.log10(1.0 / max(mse, 1e-10)):.1f} dB", fontsize=6)
+                title = METHOD_LABELS.get(col, col)
+            if r == 0:
+                ax.set_title(title, fontsize=6)
+            if c == 0:
+                ax.set_ylabel(f"view {v}", fontsize=7)
+    if im_handle is not None:
+        cb = fig.colorbar(im_handle, ax=[axes[r][c] for r in range(len(views)) for c in range(len(cols))],
+                          fraction=0.015, pad=0.01)
+        cb.ax.tick_params(labelsize=6)
+        cb.set_label("|error| (mean over RGB)", fontsize=6)
+    return save_figure(fig, path)
+
+
+# ------------------------------------------------------------------------------------------------
+# the report
+
+
+@dataclass
+class ReportContext:
+    """Everything :func:`write_report` formats (filled by :func:`imls_lightning.evaluate.evaluate`).
+
+    ``rows`` / ``sweep_rows`` / ``option_rows`` are the rows of metrics.csv / sweep.csv / options.csv;
+    ``grid`` is :func:`plot_image_grid`'s input; ``order`` the evaluated methods in table order.
+    """
+
+    out: Path
+    scene: str
+    recnn_name: str
+    resolution: int
+    c_size: int
+    pattern: str
+    renderer: str
+    views: str
+    positions: list[int]
+    trajectory_len: int
+    repeats: int
+    warmup: int
+    options: dict[str, Any]
+    device: str
+    checkpoints: dict[str, str]
+    iml_mean: float
+    rows: list[dict[str, Any]]
+    sweep_rows: list[dict[str, Any]] = field(default_factory=list)
+    option_rows: list[dict[str, Any]] = field(default_factory=list)
+    order: list[str] = field(default_factory=lambda: list(METHOD_ORDER))
+    sweep_positions: list[int] = field(default_factory=list)
+    grid: dict[int, dict[str, Any]] = field(default_factory=dict)
+    pattern_obj: Any = None
+    notes: list[str] = field(default_factory=list)
+    las_ipr: float | None = None
+    machine: dict[str, str] = field(default_factory=dict)
+    command: str = ""
+    cache: str = ""
+
+
+def sweep_points(sweep_rows: Sequence[Mapping[str, Any]]) -> dict[tuple[str, float], dict[str, Any]]:
+    """Mean over views of each (method, setting value) of sweep.csv: ``{(method, value): summary}``
+    (the :func:`summarize_rows` fields plus ``setting`` and ``value``), in first-seen order."""
+    groups: dict[tuple[str, float], list[Mapping[str, Any]]] = {}
+    for r in sweep_rows:
+        groups.setdefault((str(r["method"]), float(r["value"])), []).append(r)
+    out = {}
+    for key, rs in groups.items():
+        s = summarize_rows(rs)[key[0]]
+        s.update(setting=str(rs[0].get("setting", "")), value=key[1])
+        out[key] = s
+    return out
+
+
+def _sweep_label(method: str, setting: str, value: float) -> str:
+    return f"u={value:g}" if setting == "mean" else f"IPR={value:g}"
+
+
+def sweep_table(points: Mapping[tuple[str, float], Mapping[str, Any]]) -> str:
+    """The latency/PSNR sweep: one line per (method, setting value)."""
+    rank = {"iml": 0, "iml_selective": 1, "las": 2}
+    rows = []
+    for (method, value), s in sorted(points.items(), key=lambda kv: (rank.get(kv[0][0], 9), kv[0][1])):
+        rows.append([METHOD_LABELS.get(method, method), _sweep_label(method, s["setting"], value),
+                     fmt(s["latency_ms"].get("total"), 2), fmt_pct(s["ipr"]), fmt_pct(s["c_share"]),
+                     fmt(s["psnr"], 2), fmt(s["ssim"], 4), s["views"]])
+    return md_table(["Method", "setting", "latency (ms)", "IPR", "C-Image share", "PSNR (dB)", "SSIM", "views"], rows)
+
+
+def speedup_table(summ: Mapping[str, Mapping[str, Any]], target: str = "imls",
+                  over: Sequence[str] = ("recnn", "las", "full", "iml")) -> str:
+    """Speed-up of ``target`` (IML/S + RecNN) over each baseline: ``their total / its total`` and the PSNR change."""
+    t = summ[target]
+    t_ms = t["latency_ms"].get("total", math.nan)
+    rows = []
+    for o in over:
+        if o not in summ:
+            continue
+        s = summ[o]
+        o_ms = s["latency_ms"].get("total", math.nan)
+        dp = (t["psnr"] - s["psnr"]) if o != "full" else math.nan
+        rows.append([f"over {s['label']}", fmt(o_ms, 2), fmt(t_ms, 2), f"**{speedup(o_ms, t_ms)}**",
+                     fmt(dp, 2, " dB") if o != "full" else "– (exact reference)"])
+    return md_table([f"{t['label']}", "their latency (ms)", "IML/S latency (ms)", "speed-up", "PSNR change"], rows)
+
+
+def quality_table(rows: Sequence[Mapping[str, Any]], summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str]) -> str:
+    """Average PSNR / SSIM per method over the views (with their spread)."""
+    out = []
+    for m in methods:
+        ps = np.array([_num(r.get("psnr")) for r in rows if r["method"] == m])
+        ss = np.array([_num(r.get("ssim")) for r in rows if r["method"] == m])
+        ps, ss = ps[np.isfinite(ps)], ss[np.isfinite(ss)]
+        out.append([summ[m]["label"], fmt(summ[m]["psnr"], 2), fmt(ps.std() if ps.size else math.nan, 2),
+                    fmt(ps.min() if ps.size else math.nan, 2), fmt(summ[m]["ssim"], 4),
+                    fmt(ss.min() if ss.size else math.nan, 4), summ[m]["views"]])
+    return md_table(["Method", "PSNR (dB)", "PSNR std", "PSNR min", "SSIM", "SSIM min", "views"], out)
+
+
+def options_table(option_rows: Sequence[Mapping[str, Any]]) -> str:
+    """IML/S network stages under each inference option (mean over views of per-view medians)."""
+    rows = []
+    for r in option_rows:
+        if r.get("error"):
+            rows.append([r["option"], "–", "–", "–", "–", "–", "–", "–", f"failed: {r['error']}"])
+            continue
+        rows.append([r["option"], fmt(r.get("importance_ms")), fmt(r.get("decoder_ms")), fmt(r.get("recnn_ms")),
+                     f"**{fmt(r.get('networks_ms'))}**", fmt(r.get("total_ms")), fmt(r.get("first_call_s"), 2),
+                     fmt(r.get("psnr"), 2), ""])
+    return md_table(["option", "importance (ms)", "decoder (ms)", "RecNN (ms)", "networks (ms)", "total (ms)",
+                     "first call (s)", "PSNR (dB)", "note"], rows)
+
+
+def _latency_points(ctx: ReportContext, summ, points) -> tuple[dict, dict, float | None]:
+    curves: dict[str, list[tuple[float, float, str]]] = {}
+    for (method, value), s in sorted(points.items(), key=lambda kv: kv[0][1]):
+        label = METHOD_LABELS.get(method, method) + (" (sweep)" if method == "las" else "")
+        note = _sweep_label(method, s["setting"], value)
+        if method == "iml_selective":
+            note = f"{note}, IPR {fmt_pct(s['ipr'])}"
+        curves.setdefault(label, []).append((s["latency_ms"].get("total", math.nan), s["psnr"], note))
+    pts = {}
+    for m in ctx.order:
+        if m == "full":
+            continue
+        s = summ[m]
+        extra = f" (u={ctx.iml_mean:g})" if m == "iml" else (f" (IPR {fmt_pct(s['ipr'])})" if m in ("imls", "las") else "")
+        pts[f"{s['label']}{extra}"] = (s["latency_ms"].get("total", math.nan), s["psnr"])
+    full = summ["full"]["latency_ms"].get("total") if "full" in summ else None
+    return curves, pts, full
+
+
+def _md_image(name: str, alt: str) -> str:
+    return f"![{alt}]({name})"
+
+
+def write_report(ctx: ReportContext) -> Path:
+    """Write the plots, the image grid and (last, atomically) ``report.md`` into ``ctx.out``.
+
+    Files: ``stage_breakdown.png``, ``psnr_per_view.png``, ``latency_vs_psnr.png`` (with sweep rows),
+    ``options.png`` (with option rows), ``image_grid.png`` (with grid views), ``report.md``.
+    Returns the path of ``report.md``.
+    """
+    out = Path(ctx.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not ctx.rows:
+        raise ValueError("write_report: no metric rows")
+    summ = summarize_rows(ctx.rows)
+    order = [m for m in ctx.order if m in summ]
+    figures: list[tuple[str, str]] = []
+
+    plot_stage_breakdown(summ, order, out / "stage_breakdown.png")
+    figures.append(("stage_breakdown.png", "Time breakdown per method"))
+    approx = [m for m in order if m != "full"]  # the full ray cast is the ground truth
+    plot_psnr_per_view(ctx.rows, approx, out / "psnr_per_view.png")
+    figures.append(("psnr_per_view.png", "PSNR per view"))
+    points = sweep_points(ctx.sweep_rows) if ctx.sweep_rows else {}
+    curves, pts, full_ms = _latency_points(ctx, summ, points)
+    plot_latency_vs_psnr(curves, pts, full_ms, out / "latency_vs_psnr.png")
+    figures.append(("latency_vs_psnr.png", "Latency vs PSNR"))
+    if ctx.option_rows:
+        ok = [r for r in ctx.option_rows if not r.get("error")]
+        if ok:
+            plot_options(ok, out / "options.png")
+            figures.append(("options.png", "IML/S network stages per inference option"))
+    if ctx.grid:
+        plot_image_grid(ctx.grid, order, out / "image_grid.png", ctx.pattern_obj, ctx.resolution)
+        figures.append(("image_grid.png", "Image grid: ground truth, each method, error maps"))
+
+    text = render_markdown(ctx, summ, order, points, figures)
+    return atomic_write_text(out / "report.md", text)
+
+
+def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figures: Sequence[tuple[str, str]]) -> str:
+    """The text of report.md (paper-style tables; see :func:`write_report`)."""
+    L: list[str] = []
+    L.append(f"# IML/S evaluation: {ctx.scene}, {ctx.recnn_name}")
+    L.append("")
+    n_views = len(ctx.positions)
+    opts = ", ".join(f"{k}={v}" for k, v in ctx.options.items())
+    mach = ctx.machine or {}
+    machine = ", ".join(f"{k} {v}" for k, v in mach.items() if k not in ("device",))
+    header = [
+        ("scene", ctx.scene),
+        ("RecNN", ctx.recnn_name),
+        ("resolution (FR-Image)", f"{ctx.resolution}×{ctx.resolution}"),
+        ("C-Image size", f"{ctx.c_size}×{ctx.c_size}"),
+        ("sampling pattern", ctx.pattern),
+        ("renderer", ctx.renderer),
+        ("views", f"{n_views} of the {ctx.trajectory_len} '{ctx.views}' views"
+                  + (" (the test trajectory)" if ctx.views == "test" else "")),
+        ("timing", f"per view and stage: median of {ctx.repeats} runs after {ctx.warmup} warm-up run(s); tables: mean over views"),
+        ("device (networks)", mach.get("device", ctx.device)),
+        ("inference options", opts),
+        ("machine", machine or "–"),
+        ("command", f"`{ctx.command}`" if ctx.command else "–"),
+        ("cache", f"`{ctx.cache}`" if ctx.cache else "–"),
+    ]
+    header += [(f"checkpoint: {k}", f"`{v}`" if v and v != "–" else "–") for k, v in ctx.checkpoints.items()]
+    header.append(("IML mean u (as trained)", fmt(ctx.iml_mean, 4)))
+    if ctx.las_ipr is not None:
+        header.append(("LAS IPR", fmt_pct(ctx.las_ipr, 2)))
+    L.append(md_table(["", ""], [(k, str(v).replace("|", "\\|")) for k, v in header], "ll"))
+    L.append("")
+
+    L.append("## Average latency per method and stage (ms)")
+    L.append("")
+    L.append(latency_table(summ, order, reference="recnn"))
+    L.append("")
+    L.append("IPR: ray-cast important pixels / FR pixels (the RecNN alone and IML + RecNN ray-cast their whole "
+             "pattern; IML + RecNN's IPR is the IML mask it keeps). C-Image share: important / pattern pixels. "
+             "Total: median of the per-run sums of the stages.")
+    L.append("")
+
+    if "imls" in summ:
+        L.append("## Speed-up of IML/S + RecNN")
+        L.append("")
+        L.append(speedup_table(summ))
+        L.append("")
+
+    L.append("## Average image quality")
+    L.append("")
+    L.append(quality_table(ctx.rows, summ, order))
+    L.append("")
+    if "full" in summ:
+        L.append("Ground truth = the cache's full ray cast by the same renderer, so the full ray cast scores "
+                 "100 dB (identical images; the PSNR is capped there) unless the renderer is not deterministic.")
+        L.append("")
+
+    if points:
+        L.append("## Latency / PSNR sweep")
+        L.append("")
+        L.append(f"On {len(ctx.sweep_positions)} view(s) (positions {_positions(ctx.sweep_positions)}). "
+                 "IML + RecNN at each inference mean u; \"IML IM, selectively rendered\": the IML/S pipeline "
+                 "with the IML's mask of that u in place of the IMS output (the latency IML/S would have if "
+                 "its IMS reproduced that mask)"
+                 + ("; LAS at each IPR." if any(k[0] == "las" for k in points) else "."))
+        L.append("")
+        L.append(sweep_table(points))
+        L.append("")
+
+    if ctx.option_rows:
+        L.append("## Inference options (IML/S network stages)")
+        L.append("")
+        L.append(options_table(ctx.option_rows))
+        L.append("")
+
+    L.append("## Notes")
+    L.append("")
+    for note in ctx.notes:
+        L.append(f"- {note}")
+    L.append("- Selective rendering is real: the renderer ray-casts only the chosen pixels, so its stage time "
+             "falls with the IPR; IML + RecNN renders the whole pattern (its importance comes from the "
+             "rendered C-Image), so it bounds quality, not speed.")
+    L.append(f"- Evaluated view positions: {_positions(ctx.positions)}.")
+    L.append("- Files: `metrics.csv` (view × method), `sweep.csv`"
+             + (", `options.csv`" if ctx.option_rows else "") + ", `config.yaml`.")
+    L.append("")
+
+    L.append("## Figures")
+    L.append("")
+    for name, alt in figures:
+        L.append(f"### {alt}")
+        L.append("")
+        L.append(_md_image(name, alt))
+        L.append("")
+    return "\n".join(L)
+
+
+def _positions(ps: Sequence[int], limit: int = 24) -> str:
+    ps = [int(p) for p in ps]
+    if len(ps) > 1 and ps == list(range(ps[0], ps[-1] + 1)):
+        return f"{ps[0]}–{ps[-1]}"
+    s = ", ".join(str(p) for p in ps[:limit])
+    return s + (f", … ({len(ps)} in all)" if len(ps) > limit else "")
+
+
 __all__ = [
-    "METHOD_LABELS", "METHOD_ORDER", "METRIC_COLUMNS", "SWEEP_COLUMNS", "STAGE_LABELS", "atomic_write_text",
-    "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "md_table", "fmt", "fmt_pct",
-    "speedup", "latency_table", "plot_stage_breakdown", "plot_psnr_per_view", "plot_latency_vs_psnr",
-    "plot_options", "save_figure",
+    "METHOD_LABELS", "METHOD_ORDER", "METRIC_COLUMNS", "SWEEP_COLUMNS", "OPTION_COLUMNS", "STAGE_LABELS",
+    "atomic_write_text", "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "md_table",
+    "fmt", "fmt_pct", "speedup", "latency_table", "speedup_table", "quality_table", "sweep_table", "options_table",
+    "sweep_points", "error_map", "im_to_fr_mask", "plot_stage_breakdown", "plot_psnr_per_view",
+    "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "save_figure", "ReportContext", "write_report",
+    "render_markdown",
 ]

@@ -39,3 +39,42 @@ def blob_scene(blob_volume):
         [[0.0, 0.0], [0.55, 0.0], [0.7, 0.4], [1.0, 0.9]],
     )
     return Scene("blob", blob_volume, tf)
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoints(tmp_path_factory) -> dict:
+    """Real checkpoints on ``scene=tiny data=tiny renderer=numba``, trained once per session in this
+    process through :func:`imls_lightning.train.train` (the train CLI's body) with
+    ``trainer.fast_dev_run=true`` and small networks: RecNN (EnhanceNet) -> IML end to end with it ->
+    IMS on the IML's labels, and LAS. About 20 s on 2 cores.
+
+    Returns ``{"recnn", "iml", "ims", "las": Path of the .ckpt, "cache_dir", "runs_dir": Path}``.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from imls_lightning.train import train
+
+    base = tmp_path_factory.mktemp("tiny_checkpoints")
+    common = ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={base / 'cache'}",
+              f"paths.runs_dir={base / 'runs'}", "logger=none", "test=false", "trainer.fast_dev_run=true",
+              "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
+              "recnn=enhancenet", "recnn.net.channels=4", "recnn.net.blocks=1"]
+
+    def run(name: str, overrides: list[str]) -> Path:
+        GlobalHydra.instance().clear()
+        with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="tiny_checkpoints"):
+            cfg = compose("train", overrides=[*common, f"paths.output_dir={base / 'runs' / name}", *overrides])
+        path = Path(train(cfg)["best_checkpoint"])
+        assert path.is_file(), path
+        return path
+
+    recnn = run("recnn", ["model=recnn"])
+    iml = run("iml", ["model=iml", "model.mode=end_to_end", f"recnn.checkpoint={recnn}", "model.depth=2",
+                      "model.base_channels=4"])
+    # bce instead of the perceptual loss: no VGG16 to load, same networks
+    ims = run("ims", ["model=ims", f"iml.checkpoint={iml}", "model.layers=5", "model.base_channels=8",
+                      "model.disc_base_channels=8", "model.loss.perceptual.weight=0", "model.loss.bce=1"])
+    las = run("las", ["model=las", "model.low_res=16", "model.importance_channels=4", "model.importance_blocks=1",
+                      "model.recon_channels=4", "model.recon_blocks=1"])
+    return {"recnn": recnn, "iml": iml, "ims": ims, "las": las, "cache_dir": base / "cache", "runs_dir": base / "runs"}

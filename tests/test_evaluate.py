@@ -1,0 +1,231 @@
+"""The evaluation CLI (``python -m imls_lightning.evaluate``) end to end on ``scene=tiny data=tiny``.
+
+Real checkpoints (``tiny_checkpoints`` in conftest.py), the real numba renderer and the real cache;
+the evaluation runs once per module through the CLI with few views (the stage-time medians keep the
+minimum of 10 repeats) and the tests read what it wrote.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from data_gen.errors import InputError
+from imls_lightning.pipeline import STAGES
+from imls_lightning.report import METHOD_ORDER, summary
+
+ROOT = Path(__file__).resolve().parents[1]
+MEANS = [0.1, 0.3]
+LAS_IPRS = [0.1]
+# the stages each method reports (pipeline.py's table); every other stage column stays empty
+METHOD_STAGES = {
+    "full": {"render"},
+    "recnn": {"selective_render", "recnn"},
+    "las": {"low_res_render", "importance", "selective_render", "recnn"},
+    "iml": {"selective_render", "importance", "decoder", "recnn"},
+    "imls": {"importance", "selective_render", "decoder", "recnn"},
+}
+PLOTS = ("stage_breakdown.png", "psnr_per_view.png", "latency_vs_psnr.png", "image_grid.png")
+
+
+def _args(ck: dict, *extra: str) -> list[str]:
+    return ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={ck['cache_dir']}",
+            f"paths.runs_dir={ck['runs_dir']}", f"checkpoints.ims={ck['ims']}", f"checkpoints.las={ck['las']}",
+            "progress=false", "max_views=2", "sweep_views=1", f"mean_values=[{','.join(map(str, MEANS))}]",
+            f"las_iprs=[{','.join(map(str, LAS_IPRS))}]", "grid_views=2", "warmup=0", *extra]
+
+
+def _cli(args: list[str], timeout: int = 300) -> subprocess.CompletedProcess:
+    # one torch thread: on a shared 2-core machine two spinning OpenMP threads slow every conv down
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "imls_lightning.evaluate", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    with open(path, newline="") as f:
+        r = csv.DictReader(f)
+        return list(r.fieldnames or []), list(r)
+
+
+@pytest.fixture(scope="module")
+def run(tiny_checkpoints):
+    t0 = time.perf_counter()
+    p = _cli(_args(tiny_checkpoints))
+    took = time.perf_counter() - t0
+    assert p.returncode == 0, f"exit {p.returncode}\nSTDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-5000:]}"
+    report = Path(p.stdout.strip().splitlines()[-1])
+    return {"proc": p, "report": report, "out": report.parent, "ck": tiny_checkpoints, "took": took}
+
+
+# ---- the evaluation's files -------------------------------------------------------------------
+def test_cli_prints_the_report_path_last(run):
+    assert run["report"].name == "report.md" and run["report"].is_file()
+    assert run["out"].parent == run["ck"]["runs_dir"] / "eval" and run["out"].name.startswith("tiny-enhancenet-")
+    assert not list(run["out"].glob(".*.tmp")), "a temporary file was left behind"
+
+
+def test_metrics_csv_has_every_method_and_stage(run):
+    columns, rows = _rows(run["out"] / "metrics.csv")
+    for col in [f"{s}_ms" for s in STAGES] + ["total_ms", "ipr", "psnr", "ssim", "view", "method"]:
+        assert col in columns, col
+    assert [r["method"] for r in rows[:5]] == list(METHOD_ORDER)
+    assert sorted((r["view"], r["method"]) for r in rows) == sorted((v, m) for v in {r["view"] for r in rows} for m in METHOD_ORDER)
+    assert len({r["view"] for r in rows}) == 2
+    for r in rows:
+        stages = METHOD_STAGES[r["method"]]
+        for s in STAGES:
+            cell = r[f"{s}_ms"]
+            if s in stages:
+                assert float(cell) >= 0.0, (r["method"], s)
+            else:
+                assert cell == "", (r["method"], s, cell)
+        assert float(r["total_ms"]) > 0.0
+        assert 0.0 <= float(r["ipr"]) <= 1.0 and math.isfinite(float(r["psnr"])) and -1.0 <= float(r["ssim"]) <= 1.0
+    full = [r for r in rows if r["method"] == "full"]
+    assert all(float(r["psnr"]) == 100.0 and float(r["ipr"]) == 1.0 for r in full)  # the cache's own renderer
+    recnn = [r for r in rows if r["method"] == "recnn"]
+    assert all(float(r["ipr"]) == 0.25 for r in recnn)  # EnhanceNet's downsampling pattern: a quarter of the pixels
+    s = summary(run["out"] / "metrics.csv")
+    assert list(s) == list(METHOD_ORDER) and s["imls"]["views"] == 2
+
+
+def _compose(*overrides: str):
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_evaluate"):
+        return compose("evaluate", overrides=list(overrides))
+
+
+def test_stage_times_are_medians_of_at_least_ten_runs(run):
+    from imls_lightning.evaluate import evaluate
+
+    settings = yaml.safe_load((run["out"] / "config.yaml").read_text())["settings"]
+    assert settings["repeats"] == 10
+    assert "median of 10 runs" in run["report"].read_text()
+    for bad in ("repeats=9", "repeats=0", "repeats=true"):
+        with pytest.raises(InputError, match=r"repeats=.*expected an integer >= 10"):
+            evaluate(_compose(*_args(run["ck"], bad)))
+
+
+def test_sweep_csv_means_and_las_iprs(run):
+    _, rows = _rows(run["out"] / "sweep.csv")
+    got = {(r["method"], float(r["value"])) for r in rows}
+    assert got == {(m, u) for m in ("iml", "iml_selective") for u in MEANS} | {("las", p) for p in LAS_IPRS}
+    by = {(r["method"], float(r["value"]), r["view"]): r for r in rows}
+    for u in MEANS:
+        for (m, v, view), r in by.items():
+            if m == "iml" and v == u:
+                sel = by[("iml_selective", u, view)]
+                # the IML's mask, selectively rendered: the same pixels and (exact selective render) the same image
+                assert sel["ipr"] == r["ipr"] and float(sel["psnr"]) == pytest.approx(float(r["psnr"]), abs=1e-6)
+                assert int(float(sel["rendered_pixels"])) < int(float(r["rendered_pixels"])) or float(r["ipr"]) == 0.25
+    view = rows[0]["view"]
+    assert float(by[("iml", MEANS[1], view)]["ipr"]) > float(by[("iml", MEANS[0], view)]["ipr"])  # higher u, more pixels
+    las = [r for r in rows if r["method"] == "las"]
+    assert all(abs(float(r["ipr"]) - LAS_IPRS[0]) < 0.03 for r in las)
+
+
+def test_report_has_the_paper_tables(run):
+    text = run["report"].read_text()
+    for needle in ("# IML/S evaluation: tiny, enhancenet", "| scene | tiny |", "| RecNN | enhancenet |",
+                   "32×32", "C-Image size | 16×16", "| renderer | numba |", "python -m imls_lightning.evaluate",
+                   "## Average latency per method and stage (ms)", "## Speed-up of IML/S + RecNN", "over RecNN alone",
+                   "over LAS", "over Full ray cast", "## Average image quality", "## Latency / PSNR sweep",
+                   "IML IM, selectively rendered", "IPR=0.1", "u=0.3"):
+        assert needle in text, needle
+    table = text.split("## Average latency per method and stage (ms)")[1].split("\n\n")[1]
+    lines = table.splitlines()
+    assert lines[0].startswith("| Method | IPR |") and "RecNN (ms)" in lines[0] and "decoder (ms)" in lines[0]
+    assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "LAS", "IML + RecNN", "IML/S + RecNN"]
+    # the speed-up over the RecNN alone is its total over IML/S's total
+    s = summary(run["out"] / "metrics.csv")
+    ratio = s["recnn"]["latency_ms"]["total"] / s["imls"]["latency_ms"]["total"]
+    assert f"**{ratio:.2f}×**" in text.split("## Speed-up of IML/S + RecNN")[1].split("##")[0]
+    for name in PLOTS:
+        assert f"]({name})" in text, name
+
+
+def test_plots_and_image_grid_are_pngs(run):
+    from matplotlib.image import imread
+
+    for name in PLOTS:
+        path = run["out"] / name
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+        h, w = imread(path).shape[:2]
+        assert h > 100 and w > 100, (name, h, w)
+    h, w = imread(run["out"] / "image_grid.png").shape[:2]
+    assert w > 3 * h  # 2 view rows x (truth + 5 methods + 5 error maps + IM) columns
+
+
+# ---- reuse and errors -------------------------------------------------------------------------------
+def test_second_run_with_reuse_returns_the_report_at_once(run):
+    before = {p.name: p.stat().st_mtime_ns for p in run["out"].iterdir()}
+    t0 = time.perf_counter()
+    p = _cli(_args(run["ck"], "reuse=true"))
+    took = time.perf_counter() - t0
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert Path(p.stdout.strip().splitlines()[-1]) == run["report"] and "reusing it" in p.stderr
+    assert {q.name: q.stat().st_mtime_ns for q in run["out"].iterdir()} == before  # nothing re-measured
+    assert took < run["took"]  # no network built, nothing rendered (the first run measured 150 renders)
+
+
+def test_python_api_reuses_the_same_directory(run):
+    from imls_lightning.evaluate import evaluate
+
+    assert evaluate(_compose(*_args(run["ck"], "reuse=true"))) == run["report"]
+    with pytest.raises(InputError, match=r"checkpoints.ims=.*RecNNTask checkpoint, expected a IMSTask"):
+        evaluate(_compose(*_args(run["ck"], f"checkpoints.ims={run['ck']['recnn']}")))
+    with pytest.raises(InputError, match=r"checkpoints.las=/nonexistent/las.ckpt: file not found"):
+        evaluate(_compose(*_args(run["ck"], "checkpoints.las=/nonexistent/las.ckpt")))
+
+
+@pytest.mark.parametrize("override,needle", [
+    (None, "error: checkpoints.ims: required"),
+    ("checkpoints.ims=/nonexistent/ims.ckpt", "error: checkpoints.ims=/nonexistent/ims.ckpt: file not found"),
+])
+def test_exception_missing_or_nonexistent_checkpoint(run, override, needle):
+    args = [a for a in _args(run["ck"]) if not a.startswith("checkpoints.ims=")]
+    p = _cli(args + ([override] if override else []))
+    assert p.returncode == 2, (p.returncode, p.stderr[-2000:])
+    assert "Traceback" not in p.stderr
+    errors = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith(needle), p.stderr[-2000:]
+    assert p.stdout.strip() == ""
+
+
+def test_write_report_with_options_and_without_sweeps(run, tmp_path):
+    """The options table and plot (a failed option is reported, not plotted); no sweep rows: no sweep table."""
+    from imls_lightning.report import OPTION_COLUMNS, ReportContext, read_csv, write_metrics_csv, write_report
+
+    rows = read_csv(run["out"] / "metrics.csv")
+    options = [
+        {"option": "baseline", "first_call_s": 0.02, "importance_ms": 1.0, "decoder_ms": 2.0, "recnn_ms": 3.0,
+         "networks_ms": 6.0, "total_ms": 9.0, "psnr": 20.0},
+        {"option": "half", "first_call_s": 0.5, "importance_ms": 0.5, "decoder_ms": 1.0, "recnn_ms": 1.5,
+         "networks_ms": 3.0, "total_ms": 6.0, "psnr": 19.9},
+        {"option": "compile", "error": "RuntimeError: no C++ compiler"},
+    ]
+    write_metrics_csv(options, tmp_path / "options.csv", OPTION_COLUMNS)
+    ctx = ReportContext(out=tmp_path, scene="tiny", recnn_name="enhancenet", resolution=32, c_size=16, pattern="p",
+                        renderer="numba", views="test", positions=[0, 11], trajectory_len=12, repeats=10, warmup=0,
+                        options={"device": "cpu"}, device="cpu", checkpoints={"IMS": "x.ckpt"}, iml_mean=0.1,
+                        rows=rows, option_rows=options, order=list(METHOD_ORDER))
+    report = write_report(ctx)
+    text = report.read_text()
+    assert report == tmp_path / "report.md"
+    assert "## Inference options (IML/S network stages)" in text and "| half | 0.50 | 1.00 | 1.50 | **3.00** |" in text
+    assert "failed: RuntimeError: no C++ compiler" in text
+    assert "## Latency / PSNR sweep" not in text and "image_grid.png" not in text
+    assert (tmp_path / "options.png").is_file() and (tmp_path / "latency_vs_psnr.png").is_file()
+    _, back = _rows(tmp_path / "options.csv")
+    assert [r["option"] for r in back] == ["baseline", "half", "compile"] and back[2]["error"].startswith("RuntimeError")

@@ -1,0 +1,302 @@
+"""Inference methods (imls_lightning.pipeline): the IML/S renderer built from real checkpoints, the
+baselines, selective rendering and stage timing.
+
+The checkpoints are real (``tiny_checkpoints`` in conftest.py: RecNN -> IML -> IMS and LAS trained with
+fast_dev_run on ``scene=tiny data=tiny``); the renderer is the real numba ray caster.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from data_gen.errors import InputError
+from imls_lightning.pipeline import (
+    FullRayCast,
+    IMLPlusRecNN,
+    IMLSRenderer,
+    LASMethod,
+    Method,
+    NetOptions,
+    RecNNAlone,
+    RenderResult,
+    las_mean_for_ipr,
+    pick_device,
+    time_method,
+    to_uint8_image,
+)
+from imls_lightning.tasks.base import load_task
+
+ROOT = Path(__file__).resolve().parents[1]
+CPU = NetOptions(device="cpu")
+IMLS_STAGES = {"importance", "selective_render", "decoder", "recnn", "total"}
+
+
+@pytest.fixture(scope="module")
+def env(tiny_checkpoints):
+    """Scene, numba renderer, the cache's test views and images, and the loaded tasks."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from data_gen.cache import ViewImageCache, ensure_cache
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_pipeline"):
+        cfg = compose("evaluate", overrides=["scene=tiny", "data=tiny", "renderer=numba",
+                                             f"data.cache_dir={tiny_checkpoints['cache_dir']}"])
+    scene = build_scene(cfg.scene)
+    cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=False))
+    rows = cache.splits["test"][:3]
+    return {
+        "scene": scene,
+        "renderer": make_renderer(scene, {"name": "numba"}),
+        "views": [np.asarray(cache.views[r], np.float64) for r in rows],
+        "truth": [np.asarray(cache.images[r]) for r in rows],
+        "ims": load_task(tiny_checkpoints["ims"], expect="IMSTask"),
+        "las": load_task(tiny_checkpoints["las"], expect="LASTask"),
+        "ckpt": tiny_checkpoints,
+    }
+
+
+class RecordingRenderer:
+    """The real renderer, recording which pixels each ``render_pixels`` call ray-casts."""
+
+    def __init__(self, renderer):
+        self.renderer = renderer
+        self.calls: list[np.ndarray] = []
+
+    def render(self, view, resolution):
+        return self.renderer.render(view, resolution)
+
+    def render_pixels(self, view, resolution, pixels):
+        self.calls.append(np.array(pixels, copy=True))
+        return self.renderer.render_pixels(view, resolution, pixels)
+
+
+def _check_timings(timings: dict, stages: set[str]) -> None:
+    assert set(timings) == stages
+    assert all(math.isfinite(v) and v >= 0.0 for v in timings.values()), timings
+    assert timings["total"] == pytest.approx(sum(v for k, v in timings.items() if k != "total"))
+
+
+# ---- IML/S from checkpoints ------------------------------------------------------------------
+def test_imls_renderer_round_trips_from_checkpoints(env):
+    r = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), scene=env["scene"], renderer_cfg={"name": "numba"}, opts=CPU)
+    m = env["ims"].pattern.fr_size
+    view = env["views"][0]
+    image, timings = r.render(view)
+    assert image.shape == (m, m, 3) and image.dtype == np.uint8
+    _check_timings(timings, IMLS_STAGES)
+
+    # the same image as the checkpoint's own modules give, step by step (nothing lost on the way)
+    task = load_task(env["ckpt"]["ims"], expect="IMSTask")
+    pattern, n = task.pattern, task.pattern.c_size
+    with torch.inference_mode():
+        im = task.predict_im(torch.tensor(view, dtype=torch.float32)[None])[0, 0]
+        c_pos = np.flatnonzero(im.reshape(-1)[: pattern.count].numpy())
+        flat = np.zeros((n * n, 3), np.float32)
+        flat[c_pos] = env["renderer"].render_pixels(view, m, pattern.indices.numpy()[c_pos]) / 255.0
+        pr_c = torch.from_numpy(flat).view(n, n, 3).permute(2, 0, 1)[None]
+        direct = to_uint8_image(task.recnn(task.decoder(pr_c)))
+    np.testing.assert_array_equal(image, direct)
+
+    # the stored RecNN is the frozen RecNN checkpoint the IML was trained with: passing it gives the same image
+    again = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), renderer=env["renderer"],
+                                          recnn_checkpoint=str(env["ckpt"]["recnn"]), opts=CPU)
+    np.testing.assert_array_equal(again.render(view)[0], image)
+
+
+def test_imls_info_counts_the_pixels_of_its_mask(env):
+    r = IMLSRenderer.from_task(env["ims"], RecordingRenderer(env["renderer"]), opts=CPU)
+    m = r.fr_size
+    for view in env["views"]:
+        res = r.run(view)
+        assert isinstance(res, RenderResult) and np.isfinite(res.image.astype(float)).all()
+        im = res.info["im"]
+        assert im.shape == (r.pattern.c_size, r.pattern.c_size) and im.dtype == torch.bool
+        count = int(im.sum())
+        assert res.info["rendered_pixels"] == count == len(r.renderer.calls[-1])
+        assert res.info["ipr"] == pytest.approx(count / m**2)
+
+
+def test_selective_render_casts_only_the_masked_pixels(env):
+    """A given IM (not the untrained IMS's): exactly its pixels are ray-cast, at their FR positions, and the
+    decoder sees their colours and zeros elsewhere."""
+    task = env["ims"]
+    pattern, n, m = task.pattern, task.pattern.c_size, task.pattern.fr_size
+    g = torch.Generator().manual_seed(0)
+    mask = (torch.rand(1, 1, n, n, generator=g) < 0.3) & pattern.valid.view(1, 1, n, n)
+    seen: list[torch.Tensor] = []
+
+    class Decoder(torch.nn.Module):  # the real decoder, with its input kept for the check
+        def __init__(self, inner):
+            super().__init__()
+            self.inner = inner
+
+        def forward(self, x):
+            seen.append(x.clone())
+            return self.inner(x)
+
+    rec = RecordingRenderer(env["renderer"])
+    r = IMLSRenderer(rec, pattern, lambda v: mask, Decoder(task.decoder), task.recnn, CPU)
+    view = env["views"][1]
+    res = r.run(view)
+    chosen = np.flatnonzero(mask.reshape(-1)[: pattern.count].numpy())
+    assert len(rec.calls) == 1
+    np.testing.assert_array_equal(rec.calls[0], pattern.indices.numpy()[chosen])
+    assert res.info["rendered_pixels"] == int(mask.sum()) == len(chosen) > 0
+    assert res.info["c_share"] == pytest.approx(len(chosen) / pattern.count)
+    pr_c = seen[0][0].permute(1, 2, 0).reshape(-1, 3)
+    full = env["renderer"].render(view, m).reshape(-1, 3)
+    torch.testing.assert_close(pr_c[chosen], torch.from_numpy(full[pattern.indices.numpy()[chosen]]).float() / 255.0)
+    off = np.setdiff1d(np.arange(n * n), chosen)
+    assert float(pr_c[off].abs().max()) == 0.0
+
+
+# ---- baselines -----------------------------------------------------------------------------------
+def test_full_ray_cast_reproduces_the_cache(env):
+    m = env["ims"].pattern.fr_size
+    image, timings = FullRayCast(env["renderer"], m, CPU).render(env["views"][0])
+    _check_timings(timings, {"render", "total"})
+    np.testing.assert_array_equal(image, env["truth"][0])  # same renderer, deterministic: PSNR 100 in the report
+
+
+def test_recnn_alone_and_iml_plus_recnn_shapes(env):
+    task = env["ims"]
+    pattern, m = task.pattern, task.pattern.fr_size
+    rec = RecordingRenderer(env["renderer"])
+    res = RecNNAlone(rec, pattern, task.recnn, CPU).run(env["views"][0])
+    assert res.image.shape == (m, m, 3) and res.image.dtype == np.uint8
+    _check_timings(res.timings, {"selective_render", "recnn", "total"})
+    assert res.info["rendered_pixels"] == pattern.count == len(rec.calls[-1])
+    assert res.info["ipr"] == pytest.approx(pattern.count / m**2)
+
+    iml = IMLPlusRecNN(env["renderer"], pattern, task.iml, task.recnn, CPU)
+    res = iml.run(env["views"][0])
+    assert res.image.shape == (m, m, 3) and res.image.dtype == np.uint8
+    _check_timings(res.timings, {"selective_render", "importance", "decoder", "recnn", "total"})
+    assert res.info["rendered_pixels"] == pattern.count  # the IML needs the whole C-Image
+    assert res.info["ipr"] == pytest.approx(int(res.info["im"].sum()) / m**2)
+
+    # another inference mean works on a copy: the shared IML keeps its trained mean, the mask grows with u
+    trained = float(task.iml.mean)
+    low = IMLPlusRecNN(env["renderer"], pattern, task.iml, task.recnn, CPU, mean=0.05).run(env["views"][0])
+    high = IMLPlusRecNN(env["renderer"], pattern, task.iml, task.recnn, CPU, mean=0.6).run(env["views"][0])
+    assert float(task.iml.mean) == trained
+    assert int(high.info["im"].sum()) > int(low.info["im"].sum())
+
+
+def test_las_method_samples_its_ipr(env):
+    las = env["las"]
+    m = int(las.hparams["fr_size"])
+    rec = RecordingRenderer(env["renderer"])
+    method = LASMethod(rec, las.net, m, int(las.hparams["low_res"]), ipr=0.25, opts=CPU)
+    image, timings = method.render(env["views"][0])
+    assert image.shape == (m, m, 3) and image.dtype == np.uint8
+    _check_timings(timings, {"low_res_render", "importance", "selective_render", "recnn", "total"})
+    res = method.run(env["views"][0])
+    assert res.info["rendered_pixels"] == len(rec.calls[-1])
+    assert abs(res.info["ipr"] - 0.25) < 0.05  # per-view bisection of u to the requested share
+    # the trained mean when no IPR is given
+    assert LASMethod(env["renderer"], las.net, m, int(las.hparams["low_res"]), opts=CPU).run(env["views"][0]).info["rendered_pixels"] > 0
+
+
+# ---- timing ---------------------------------------------------------------------------------------
+class Scripted(Method):
+    """A method whose stage times are known: run i takes i seconds to "render" (tests the statistics)."""
+
+    name = "scripted"
+
+    def __init__(self):
+        super().__init__(None, 4, CPU)
+        self.calls = 0
+
+    def run(self, view) -> RenderResult:
+        i = self.calls
+        self.calls += 1
+        t = {"render": float(i), "recnn": 100.0 - i}
+        t["total"] = float(sum(t.values())) + (50.0 if i == 7 else 0.0)  # one slow outlier run
+        return RenderResult(np.full((4, 4, 3), i, np.uint8), t, {"run": i})
+
+
+def test_time_method_returns_medians_over_the_repeats():
+    s = Scripted()
+    image, med, info = time_method(s, [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=6, warmup=2)
+    assert s.calls == 8
+    # runs 2..7 are timed: medians of (2..7) and (98..93); the outlier moves the mean, not the median
+    assert med == {"render": 4.5, "recnn": 95.5, "total": 100.0}
+    assert info == {"run": 7} and int(image[0, 0, 0]) == 7
+
+
+def test_time_method_on_a_real_method(env):
+    m = env["ims"].pattern.fr_size
+    image, med, info = time_method(FullRayCast(env["renderer"], m, CPU), env["views"][0], repeats=10, warmup=1)
+    assert set(med) == {"render", "total"} and all(v > 0 for v in med.values())
+    assert image.shape == (m, m, 3) and info["rendered_pixels"] == m * m
+
+
+# ---- errors ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kw,needle", [
+    ({"repeats": 0}, "repeats"),
+    ({"repeats": 2.5}, "repeats"),
+    ({"warmup": -1}, "warmup"),
+])
+def test_exception_time_method_bad_counts(kw, needle):
+    with pytest.raises(InputError, match=needle):
+        time_method(Scripted(), [0, 0, 3, 0, 0, 0, 0, 1, 0], **kw)
+
+
+@pytest.mark.parametrize("view,needle", [
+    ([0, 0, 3, 0, 0, 0, 0, 1], "9 floats"),
+    ([0, 0, 3, 0, 0, 0, 0, 0, 1], "parallel"),
+    ([0, 0, 0, 0, 0, 0, 0, 1, 0], "eye == lookAt"),
+])
+def test_exception_bad_view(env, view, needle):
+    m = env["ims"].pattern.fr_size
+    with pytest.raises(InputError, match=needle):
+        FullRayCast(env["renderer"], m, CPU).render(view)
+    with pytest.raises(InputError, match=needle):
+        time_method(FullRayCast(env["renderer"], m, CPU), view)
+
+
+@pytest.mark.parametrize("ipr", [0, 1.5, -0.1, "many"])
+def test_exception_las_bad_ipr(env, ipr):
+    las = env["las"]
+    with pytest.raises(InputError, match="ipr"):
+        LASMethod(env["renderer"], las.net, 32, int(las.hparams["low_res"]), ipr=ipr, opts=CPU)
+    with pytest.raises(InputError, match="ipr"):
+        las_mean_for_ipr(las.net, torch.zeros(1, 1, 32, 32), ipr)
+
+
+def test_exception_from_checkpoints(env, tmp_path):
+    ck = env["ckpt"]
+    with pytest.raises(InputError, match="needs a renderer or a scene"):
+        IMLSRenderer.from_checkpoints(str(ck["ims"]), opts=CPU)
+    with pytest.raises(InputError, match=r"ims_checkpoint=.*RecNNTask checkpoint, expected a IMSTask"):
+        IMLSRenderer.from_checkpoints(str(ck["recnn"]), renderer=env["renderer"], opts=CPU)
+    with pytest.raises(InputError, match="ims_checkpoint=/nonexistent/ims.ckpt: file not found"):
+        IMLSRenderer.from_checkpoints("/nonexistent/ims.ckpt", renderer=env["renderer"], opts=CPU)
+    with pytest.raises(InputError, match=r"recnn_checkpoint=.*expected a RecNNTask"):
+        IMLSRenderer.from_checkpoints(str(ck["ims"]), renderer=env["renderer"], recnn_checkpoint=str(ck["iml"]), opts=CPU)
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="not a loadable checkpoint"):
+        IMLSRenderer.from_checkpoints(str(junk), renderer=env["renderer"], opts=CPU)
+
+
+def test_exception_iml_mean_out_of_range(env):
+    task = env["ims"]
+    with pytest.raises(InputError, match="mean"):
+        IMLPlusRecNN(env["renderer"], task.pattern, task.iml, task.recnn, CPU, mean=2.0)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA present: the request is valid here")
+def test_exception_cuda_without_cuda():
+    with pytest.raises(InputError, match="CUDA is not available"):
+        pick_device("cuda")
+    assert pick_device("auto") == torch.device("cpu")
