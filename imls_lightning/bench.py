@@ -1,6 +1,6 @@
 """``make bench``: the project's reference benchmark, the paper's ORP and LAS tables on this machine.
 
-For every scene of ``scenes`` and every RecNN of ``recnns`` (``conf/bench.yaml``) it runs the
+For every scene of ``scenes`` and every RecNN of ``recnns`` (``conf/pipelines/bench.yaml``) it runs the
 commands a user would type, through the real CLIs (:func:`imls_lightning.demo.run_stage`):
 
 1. ``python -m imls_lightning.train model=recnn ...``                   the RecNN (renders the cache first)
@@ -505,6 +505,13 @@ def bench(cfg: DictConfig) -> Path:
     from .report import machine_info
 
     scenes, recnns = _names(cfg, "scenes"), _names(cfg, "recnns")
+    for s in scenes:
+        if not (Path(CONF_DIR) / "scene" / f"{s}.yaml").is_file():
+            known = sorted(p.stem for p in (Path(CONF_DIR) / "scene").glob("*.yaml"))
+            raise InputError(f"scenes: unknown scene {s!r}; expected names of conf/scene presets: {', '.join(known)}")
+    for r in [*recnns, str(cfg.las_recnn)]:
+        if r not in KIND:
+            raise InputError(f"recnns/las_recnn: unknown RecNN {r!r}; expected one of {', '.join(KIND)}")
     las_iprs = _floats(cfg, "las_iprs", 0.0, 1.0)
     las_with = set(_list(cfg, "las_with"))
     runs = Path(str(cfg.runs_dir))
@@ -533,7 +540,7 @@ def bench(cfg: DictConfig) -> Path:
     def stage(pair: str, key: str, name: str, args: list[str], result_key=lambda line: line) -> str:
         log(f"\n[bench] {pair}: {name} (elapsed {elapsed()})")
         s0 = time.perf_counter()
-        result = run_stage(f"{pair} {name}", args)
+        result = run_stage(f"{pair} {name}", args, tag="bench")
         pair_times.setdefault(pair, {})[key] = times.record(result_key(result), time.perf_counter() - s0)
         return result
 
@@ -605,7 +612,7 @@ def read_orp_finished(path: Path) -> bool:
     return bool((rep.get("context") or {}).get("finished"))
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="bench")
+@hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="bench")
 @cli_errors
 def main(cfg: DictConfig) -> None:
     t0 = time.perf_counter()

@@ -1,6 +1,6 @@
 """``make demo``: the whole IML/S pipeline on a built-in procedural scene, at a small scale.
 
-Runs, one after the other, the commands a user would type (``conf/demo.yaml`` lists their
+Runs, one after the other, the commands a user would type (``conf/pipelines/demo.yaml`` lists their
 overrides), so the demo exercises exactly the product's CLIs:
 
 1. ``python -m data_gen ... contact_sheet=true``       the (view, image) cache and a contact sheet
@@ -40,10 +40,12 @@ class StageFailed(RuntimeError):
     """A stage's command exited with an error; its own message was already printed."""
 
 
-def run_stage(name: str, args: Sequence[str], log=sys.stderr) -> str:
-    """Run ``python <args>``, echo its stdout, and return its last stdout line (the stage's result)."""
+def run_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo") -> str:
+    """Run ``python <args>``, echo its stdout, and return its last stdout line (the stage's result).
+
+    ``tag`` prefixes the progress lines (``[demo]``, ``[bench]``)."""
     cmd = [sys.executable, *args]
-    print(f"\n[demo] {name}: {' '.join(args)}", file=log, flush=True)
+    print(f"\n[{tag}] {name}: {' '.join(args)}", file=log, flush=True)
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with subprocess.Popen(cmd, cwd=os.getcwd(), env=env, stdout=subprocess.PIPE, text=True, bufsize=1) as proc:
@@ -55,8 +57,8 @@ def run_stage(name: str, args: Sequence[str], log=sys.stderr) -> str:
                 last = line.strip()
         code = proc.wait()
     if code != 0:
-        raise StageFailed(f"demo stage '{name}' failed (exit {code}); its message is above. Command: python {' '.join(args)}")
-    print(f"[demo] {name} done in {time.perf_counter() - t0:.1f} s -> {last}", file=log, flush=True)
+        raise StageFailed(f"{tag} stage '{name}' failed (exit {code}); its message is above. Command: python {' '.join(args)}")
+    print(f"[{tag}] {name} done in {time.perf_counter() - t0:.1f} s -> {last}", file=log, flush=True)
     return last
 
 
@@ -65,7 +67,7 @@ def _list(cfg: DictConfig, key: str) -> list[str]:
     if v is None:
         return []
     if not OmegaConf.is_list(v):
-        raise InputError(f"{key}={v}: expected a list of overrides like [trainer.max_epochs=5]")
+        raise InputError(f"{key}={v}: expected a list of overrides; on the command line quote each one: \"{key}=['trainer.max_epochs=5']\"")
     return [str(x) for x in v]
 
 
@@ -102,7 +104,7 @@ def demo(cfg: DictConfig) -> Path:
     return report
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="demo")
+@hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="demo")
 @cli_errors
 def main(cfg: DictConfig) -> None:
     try:
