@@ -315,7 +315,8 @@ class IMLSRenderer(_PatternMethod):
 
         Args:
             ims_checkpoint: a ``.ckpt`` of ``model=ims``.
-            scene / renderer / renderer_cfg: a built renderer, or a scene (+ renderer config) to make one.
+            scene / renderer / renderer_cfg: a built renderer, or a scene (+ renderer config) to make one;
+                by default the scene and renderer the IMS was trained on (stored in its checkpoint).
             recnn_checkpoint: use this RecNN instead of the one stored in the IMS checkpoint.
             opts: :class:`NetOptions` (device, half, channels_last, compile).
         """
@@ -331,8 +332,14 @@ class IMLSRenderer(_PatternMethod):
         if recnn is None and task.recnn is None:
             raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
         if renderer is None:
+            if scene is None and task.hparams.get("scene"):
+                from data_gen.scene import build_scene
+
+                scene = build_scene(task.hparams["scene"])
+                if renderer_cfg is None:
+                    renderer_cfg = task.hparams.get("renderer")
             if scene is None:
-                raise InputError("IMLSRenderer.from_checkpoints needs a renderer or a scene")
+                raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
             from data_gen.renderers import make_renderer
 
             renderer = make_renderer(scene, renderer_cfg)

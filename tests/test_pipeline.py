@@ -110,6 +110,11 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
                                           recnn_checkpoint=str(env["ckpt"]["recnn"]), opts=CPU)
     np.testing.assert_array_equal(again.render(view)[0], image)
 
+    # the IMS checkpoint records its scene and renderer: the checkpoint alone is enough
+    assert env["ims"].hparams["scene"]["name"] == "tiny" and env["ims"].hparams["renderer"]["name"] == "numba"
+    alone = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), opts=CPU)
+    np.testing.assert_array_equal(alone.render(view)[0], image)
+
 
 def test_imls_info_counts_the_pixels_of_its_mask(env):
     r = IMLSRenderer.from_task(env["ims"], RecordingRenderer(env["renderer"]), opts=CPU)
@@ -275,8 +280,12 @@ def test_exception_las_bad_ipr(env, ipr):
 
 def test_exception_from_checkpoints(env, tmp_path):
     ck = env["ckpt"]
-    with pytest.raises(InputError, match="needs a renderer or a scene"):
-        IMLSRenderer.from_checkpoints(str(ck["ims"]), opts=CPU)
+    old = torch.load(ck["ims"], map_location="cpu", weights_only=False)
+    old["hyper_parameters"]["scene"] = None  # a checkpoint from before scenes were recorded
+    sceneless = tmp_path / "sceneless.ckpt"
+    torch.save(old, sceneless)
+    with pytest.raises(InputError, match="stores no scene .*pass scene= or renderer="):
+        IMLSRenderer.from_checkpoints(str(sceneless), opts=CPU)
     with pytest.raises(InputError, match=r"ims_checkpoint=.*RecNNTask checkpoint, expected a IMSTask"):
         IMLSRenderer.from_checkpoints(str(ck["recnn"]), renderer=env["renderer"], opts=CPU)
     with pytest.raises(InputError, match="ims_checkpoint=/nonexistent/ims.ckpt: file not found"):

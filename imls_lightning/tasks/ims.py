@@ -236,6 +236,8 @@ class IMSTask(ImlsTask):
         iml_checkpoint: Optional[str] = None,
         iml_checkpoint_sha256: Optional[str] = None,
         labels: Optional[str] = None,
+        scene: Optional[Mapping] = None,
+        renderer: Optional[Mapping] = None,
         **_: Any,
     ):
         super().__init__()
@@ -258,6 +260,8 @@ class IMSTask(ImlsTask):
             "recnn_hparams": _plain_json(recnn_hparams) if recnn_hparams else None, "recnn_source": recnn_source,
             "iml_checkpoint": None if iml_checkpoint is None else str(iml_checkpoint),
             "iml_checkpoint_sha256": iml_checkpoint_sha256, "labels": None if labels is None else str(labels),
+            # the scene and renderer the IMS was trained on: IMLSRenderer.from_checkpoints needs nothing else
+            "scene": _plain_json(scene) if scene else None, "renderer": _plain_json(renderer) if renderer else None,
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
@@ -376,6 +380,7 @@ class IMSTask(ImlsTask):
             loss=m.get("loss"), lr=m.get("lr", 1e-3), betas=m.get("betas", (0.5, 0.999)),
             recnn_hparams=recnn_hparams, recnn_source=source, iml_checkpoint=str(Path(ck).expanduser().resolve()),
             iml_checkpoint_sha256=labels.name[len("iml-"):], labels=str(labels),
+            scene=to_plain(cfg.scene), renderer=to_plain(cfg.get("renderer")) if cfg.get("renderer") is not None else None,
         )
         task.add_module("_im_loss", criterion)
         task.iml.load_state_dict(iml_task.iml.state_dict())

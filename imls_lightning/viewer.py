@@ -1,0 +1,588 @@
+"""Interactive viewer: orbit the volume and compare the IML/S + RecNN frame with the ray cast, live.
+
+``python -m imls_lightning.viewer ims_checkpoint=PATH [recnn_checkpoint=PATH] [screenshot=out.png]
+[azimuth=30] [elevation=20] [distance=null] [mask=true]``
+
+A matplotlib window with two image panels side by side, **IML/S + RecNN** (the product:
+:class:`~imls_lightning.pipeline.IMLSRenderer`) and **ray cast (ground truth)** (the same scene
+renderer's full render of every FR pixel), an optional small panel with the importance mask (the FR
+pixels the IML/S frame really ray-cast), and a latency panel: one bar per stage of
+``IMLSRenderer.run(view)`` (``importance``, ``selective_render``, ``decoder``, ``recnn``, ``total``)
+and the full ray cast's time, in milliseconds, with the frame's IPR (rendered / FR pixels), its PSNR
+against the ray cast and the speed-up. Latencies are those of the frame on screen (one run, not a
+median: :mod:`imls_lightning.evaluate` measures medians).
+
+The IMS checkpoint alone is enough: it records the scene and renderer it was trained on (see
+:meth:`IMLSRenderer.from_checkpoints`); ``recnn_checkpoint=`` swaps in another RecNN.
+
+Controls
+    ==================  ==============================================================
+    left-drag           orbit the camera around the volume centre (azimuth/elevation)
+    scroll wheel        zoom (camera distance, clamped to ``scene.camera_distance``)
+    arrow keys          orbit by 10 degrees (like a drag in that direction)
+    ``r``               reset the camera to the start view
+    ``m``               show/hide the importance mask panel
+    ``q``               quit
+    ==================  ==============================================================
+
+Responsiveness: rendering runs in the GUI thread, the IML/S frame first and the ray cast after it.
+While dragging only the IML/S frame is rendered (motion events that arrive during a render are
+coalesced into one render of the latest camera); the ray cast, the PSNR and the speed-up follow on
+mouse release (the ray-cast panel says "release to update" meanwhile). A scroll or a key press
+renders the IML/S frame, shows it, then ray-casts.
+
+Camera: the z axis is the polar axis (as in :func:`data_gen.views.exploration_trajectory`): the eye
+sits at ``distance * (cos(el) cos(az), cos(el) sin(az), sin(el))`` around the look-at point (the
+volume centre, the origin), ``up`` is +z made orthogonal to the view direction; elevation is kept
+within +-89 degrees so that ``up`` never becomes parallel to the view direction.
+
+``screenshot=out.png`` renders headless (Agg backend), writes the PNG atomically (temporary name +
+rename), prints its path as the last stdout line and exits; this is how the tests and the README
+picture are made. Without a display and without ``screenshot=`` the command stops with a one-line
+error.
+
+Example:
+    python -m imls_lightning.viewer ims_checkpoint=runs/ims-.../checkpoints/last.ckpt
+    python -m imls_lightning.viewer ims_checkpoint=ims.ckpt screenshot=docs/viewer.png azimuth=40 elevation=25
+
+    >>> r = IMLSRenderer.from_checkpoints("ims.ckpt")                  # doctest: +SKIP
+    >>> v = Viewer(r, azimuth=30, elevation=20)                          # headless (Agg) figure  # doctest: +SKIP
+    >>> v.orbit(15, 0); v.update()                                       # doctest: +SKIP
+    >>> print(v.latency_text())                                          # doctest: +SKIP
+    >>> v.save_screenshot("viewer.png")                                  # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import hydra
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from data_gen.camera import validate_view
+from data_gen.errors import InputError, cli_errors
+from data_gen.views import _orthogonal_up, _unit
+
+from .pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
+
+__all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer", "viewer", "main"]
+
+#: the stages of ``IMLSRenderer.run`` shown as bars (in pipeline order), then the full ray cast
+IMLS_STAGES = ("importance", "selective_render", "decoder", "recnn", "total")
+RAY_CAST = "ray cast (full)"
+MAX_ELEVATION = 89.0           # degrees; at 90 the +z up vector would be parallel to the view
+ORBIT_STEP = 10.0              # degrees per arrow key
+DRAG_DEGREES_PER_PIXEL = 0.4
+ZOOM_STEP = 0.9                # distance factor per scroll step (in)
+DEFAULT_DISTANCE_RANGE = (2.5, 4.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# camera
+
+
+def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The view of a camera orbiting ``lookat``: 9 floats ``(eye, lookAt, up)``.
+
+    Args:
+        azimuth: degrees around the z axis, from +x towards +y (any finite number).
+        elevation: degrees above the xy plane, in ``[-89, 89]``.
+        distance: eye to ``lookat`` (> 0).
+        lookat: the point looked at (the volume centre is the origin).
+
+    Returns:
+        ``(9,)`` float64, validated; ``up`` is +z made orthogonal to the view direction (unit).
+
+    Raises:
+        InputError: non-finite angles, elevation outside +-89 degrees, or distance <= 0.
+
+    Example:
+        >>> np.round(orbit_view(0, 0, 3.0), 6).tolist()
+        [3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    """
+    az, el, r = _number("azimuth", azimuth), _number("elevation", elevation), _number("distance", distance)
+    if abs(el) > MAX_ELEVATION:
+        raise InputError(f"elevation={elevation}: expected degrees in [-{MAX_ELEVATION:g}, {MAX_ELEVATION:g}] (the up vector is +z)")
+    if r <= 0:
+        raise InputError(f"distance={distance}: expected a positive camera distance")
+    a, e = math.radians(az), math.radians(el)
+    look = np.asarray(lookat, dtype=np.float64).reshape(3)
+    eye = look + r * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+    # the same up convention as the test trajectory (data_gen.views): +z, Gram-Schmidt against the view direction
+    fwd = _unit((look - eye)[None])
+    up = _orthogonal_up(fwd, np.array([[0.0, 0.0, 1.0]]))[0]
+    return validate_view(np.concatenate([eye, look, up]))
+
+
+def _number(name: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}={value!r}: expected a number") from None
+    if isinstance(value, bool) or not math.isfinite(x):
+        raise InputError(f"{name}={value!r}: expected a finite number")
+    return x
+
+
+def frame_psnr(image: np.ndarray, truth: np.ndarray) -> float:
+    """PSNR in dB of two ``(m, m, 3)`` uint8 images (100 dB when identical), as the evaluation scores it."""
+    from .losses import psnr
+
+    p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float()
+    t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float()
+    return float(psnr(p, t, data_range=255.0))
+
+
+# ------------------------------------------------------------------------------------------------
+# the viewer
+
+
+class _Drag:
+    def __init__(self, x: float, y: float):
+        self.x, self.y, self.moved = x, y, False
+
+
+class Viewer:
+    """The viewer window (or a headless Agg figure): IML/S + RecNN beside the ray cast, with latency.
+
+    Args:
+        renderer: an :class:`IMLSRenderer`; its scene renderer also makes the ray cast.
+        azimuth, elevation, distance: start camera (degrees, degrees, normalized units); ``distance``
+            ``None`` = the middle of ``scene.camera_distance``; it must lie in that range.
+        show_mask: show the importance-mask panel.
+        interactive: ``True``: a pyplot window (call :meth:`show`); ``False``: an Agg figure with no
+            window (tests, screenshots); events can still be fed to the handlers.
+        figsize, dpi: figure size in inches and dots per inch (the screenshot is ``figsize * dpi`` pixels).
+        warmup: untimed renders of the start view before the first shown frame (JIT compilation,
+            first-call allocations), so the first latencies on screen are representative.
+
+    Attributes:
+        frames: number of IML/S frames rendered (shown); ``ray_casts``: number of full ray casts.
+        imls, truth: the last :class:`RenderResult` of each (``truth`` may be of an older view while
+            a drag is under way: see :attr:`truth_stale`).
+    """
+
+    def __init__(self, renderer: IMLSRenderer, *, azimuth: float = 30.0, elevation: float = 20.0,
+                 distance: float | None = None, show_mask: bool = True, interactive: bool = False,
+                 figsize: Sequence[float] = (12.0, 6.5), dpi: float = 100.0, warmup: int = 1):
+        self.renderer = renderer
+        self.ray_caster = FullRayCast(renderer.renderer, renderer.fr_size, renderer.opts)
+        scene = getattr(renderer.renderer, "scene", None)
+        lo, hi = (float(c) for c in getattr(scene, "camera_distance", DEFAULT_DISTANCE_RANGE))
+        self.distance_range = (lo, hi)
+        self.scene_name = getattr(scene, "name", "?")
+        dist = 0.5 * (lo + hi) if distance is None else _number("distance", distance)
+        if not (lo - 1e-9 <= dist <= hi + 1e-9):
+            raise InputError(f"distance={distance}: expected a camera distance in scene.camera_distance=[{lo:g}, {hi:g}]")
+        orbit_view(azimuth, elevation, dist)  # validates the angles (one-line InputError)
+        self.home = (_number("azimuth", azimuth), _number("elevation", elevation), dist)
+        self.azimuth, self.elevation, self.distance = self.home
+        if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
+            raise InputError(f"warmup={warmup}: expected an integer >= 0")
+        self.show_mask = bool(show_mask)
+        self.interactive = bool(interactive)
+        self.frames = 0
+        self.ray_casts = 0
+        self.imls: RenderResult | None = None
+        self.truth: RenderResult | None = None
+        self.truth_view: np.ndarray | None = None
+        self.psnr: float | None = None
+        self._drag: _Drag | None = None
+        self._pending_full = False
+        self._timer = None
+        self._build_figure(tuple(float(f) for f in figsize), float(dpi))
+        with torch.inference_mode():
+            for _ in range(int(warmup)):
+                v = self.view()
+                self.renderer.run(v)
+                self.ray_caster.run(v)
+        self.update(full=True)
+
+    # -- camera ----------------------------------------------------------------------------------
+    def view(self) -> np.ndarray:
+        """The current view, 9 floats ``(eye, lookAt, up)``."""
+        return orbit_view(self.azimuth, self.elevation, self.distance)
+
+    def orbit(self, d_azimuth: float, d_elevation: float) -> None:
+        """Turn the camera (degrees); elevation is clamped to +-89, azimuth wrapped to [-180, 180)."""
+        self.azimuth = (self.azimuth + float(d_azimuth) + 180.0) % 360.0 - 180.0
+        self.elevation = float(np.clip(self.elevation + float(d_elevation), -MAX_ELEVATION, MAX_ELEVATION))
+
+    def zoom(self, steps: float) -> None:
+        """Scroll ``steps`` (positive: in): distance times ``0.9 ** steps``, clamped to the scene's range."""
+        lo, hi = self.distance_range
+        self.distance = float(np.clip(self.distance * ZOOM_STEP ** float(steps), lo, hi))
+
+    def reset(self) -> None:
+        """Back to the start camera."""
+        self.azimuth, self.elevation, self.distance = self.home
+
+    def toggle_mask(self) -> None:
+        """Show/hide the importance mask panel."""
+        self.show_mask = not self.show_mask
+        self._layout()
+        self._redraw()
+
+    # -- rendering -------------------------------------------------------------------------------
+    def update(self, full: bool = True) -> None:
+        """Render the IML/S frame of the current view and show it; with ``full`` also the ray cast
+        (after the IML/S frame is on screen), the PSNR and the speed-up."""
+        view = self.view()
+        with torch.inference_mode():
+            self.imls = self.renderer.run(view)
+        self.frames += 1
+        self._show_imls()
+        if full:
+            if self.interactive:  # the IML/S frame appears before the (slower) ray cast starts
+                self._redraw(now=True)
+            with torch.inference_mode():
+                self.truth = self.ray_caster.run(view)
+            self.truth_view = view
+            self.ray_casts += 1
+            self.psnr = frame_psnr(self.imls.image, self.truth.image)
+            self._artists["truth"].set_data(self.truth.image)
+        self._show_stats()
+        self._redraw()
+
+    @property
+    def truth_stale(self) -> bool:
+        """Whether the ray-cast panel shows an older view than the IML/S panel (during a drag)."""
+        return self.truth_view is None or not np.array_equal(self.truth_view, self.view())
+
+    def latency_text(self) -> str:
+        """One line per stage: ``name  12.3 ms`` (IML/S stages, total, the full ray cast), then IPR and PSNR."""
+        t = self.imls.timings if self.imls is not None else {}
+        lines = [f"{k:<17s}{1e3 * t.get(k, math.nan):9.1f} ms" for k in IMLS_STAGES]
+        full = self.truth.timings["total"] if self.truth is not None else math.nan
+        lines.append(f"{RAY_CAST:<17s}{1e3 * full:9.1f} ms" + ("  (previous view)" if self.truth_stale else ""))
+        lines.extend(self._stats_lines())
+        return "\n".join(lines)
+
+    def _stats_lines(self) -> list[str]:
+        info = self.imls.info if self.imls is not None else {}
+        m = self.renderer.fr_size
+        out = [f"IPR {info.get('ipr', math.nan):.3f}  ({info.get('rendered_pixels', 0):,} / {m * m:,} FR pixels ray-cast)"]
+        if self.psnr is None or self.truth_stale:
+            out.append("PSNR vs ray cast  -  (release to update)")
+        else:
+            out.append(f"PSNR vs ray cast  {self.psnr:.2f} dB")
+            total = self.imls.timings.get("total", math.nan)
+            if total > 0:
+                out.append(f"speed-up vs ray cast  x{self.truth.timings['total'] / total:.2f}")
+        out.append(f"camera  az {self.azimuth:.0f} deg  el {self.elevation:.0f} deg  dist {self.distance:.2f}")
+        return out
+
+    # -- events ------------------------------------------------------------------------------------
+    def on_press(self, event) -> None:
+        """Left button down: start an orbit drag."""
+        if getattr(event, "button", None) == 1 and event.x is not None and event.y is not None:
+            self._drag = _Drag(float(event.x), float(event.y))
+
+    def on_motion(self, event) -> None:
+        """Drag: orbit by the mouse motion and render the IML/S frame only."""
+        d = self._drag
+        if d is None or event.x is None or event.y is None:
+            return
+        dx, dy = float(event.x) - d.x, float(event.y) - d.y
+        if dx == 0 and dy == 0:
+            return
+        d.x, d.y, d.moved = float(event.x), float(event.y), True
+        # grab-and-turn: the volume follows the mouse, so the camera moves the other way
+        self.orbit(-DRAG_DEGREES_PER_PIXEL * dx, -DRAG_DEGREES_PER_PIXEL * dy)
+        self._request(full=False)
+
+    def on_release(self, event) -> None:
+        """Left button up: end the drag and ray-cast the view it stopped at."""
+        d, self._drag = self._drag, None
+        if d is not None and (d.moved or self.truth_stale):
+            self._request(full=True)
+
+    def on_scroll(self, event) -> None:
+        """Scroll: zoom in (up) or out (down)."""
+        step = getattr(event, "step", 0) or (1 if getattr(event, "button", None) == "up" else -1)
+        self.zoom(step)
+        self._request(full=True)
+
+    def on_key(self, event) -> None:
+        """``r`` reset, ``m`` mask panel, ``q`` quit, arrows orbit."""
+        key = getattr(event, "key", None)
+        arrows = {"left": (ORBIT_STEP, 0.0), "right": (-ORBIT_STEP, 0.0), "up": (0.0, -ORBIT_STEP), "down": (0.0, ORBIT_STEP)}
+        if key in arrows:
+            self.orbit(*arrows[key])
+            self._request(full=True)
+        elif key == "r":
+            self.reset()
+            self._request(full=True)
+        elif key == "m":
+            self.toggle_mask()
+        elif key == "q":
+            self.close()
+
+    def _request(self, full: bool) -> None:
+        """Render now (headless), or once the queued events are handled (interactive: coalesces a burst
+        of motion events into one render of the latest camera)."""
+        self._pending_full = self._pending_full or full
+        if self._timer is None:
+            self._flush()
+        else:
+            self._timer.start()
+
+    def _flush(self) -> None:
+        full, self._pending_full = self._pending_full, False
+        self.update(full=full)
+
+    # -- figure --------------------------------------------------------------------------------------
+    def _build_figure(self, figsize: tuple[float, ...], dpi: float) -> None:
+        if len(figsize) != 2 or not all(math.isfinite(f) and f > 0 for f in figsize):
+            raise InputError(f"figsize={list(figsize)}: expected [width, height] in inches, both > 0")
+        if not (math.isfinite(dpi) and dpi > 0):
+            raise InputError(f"dpi={dpi}: expected a positive number")
+        if self.interactive:
+            import matplotlib.pyplot as plt
+
+            with plt.rc_context({"toolbar": "None"}):  # no pan/zoom mode stealing the left drag
+                fig = plt.figure(figsize=figsize, dpi=dpi)
+            manager = fig.canvas.manager
+            if manager is not None and getattr(manager, "key_press_handler_id", None) is not None:
+                # matplotlib's default keys (r = home, left/right = back/forward, q = quit) would clash
+                fig.canvas.mpl_disconnect(manager.key_press_handler_id)
+            try:
+                manager.set_window_title(f"IML/S viewer - {self.scene_name}")
+            except Exception:  # window titles are cosmetic
+                pass
+        else:
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure
+
+            fig = Figure(figsize=figsize, dpi=dpi)
+            FigureCanvasAgg(fig)
+        self.fig = fig
+        m = self.renderer.fr_size
+        blank = np.zeros((m, m, 3), np.uint8)
+        self.axes: dict[str, Any] = {}
+        self._artists: dict[str, Any] = {}
+        titles = {"imls": "IML/S + RecNN", "truth": "ray cast (ground truth)", "mask": "importance mask\n(FR pixels ray-cast)"}
+        for name in ("imls", "truth", "mask"):
+            ax = fig.add_axes((0, 0, 1, 1))
+            ax.set_xticks([]), ax.set_yticks([])
+            ax.set_title(titles[name], fontsize=12 if name != "mask" else 9)
+            img = blank[..., 0] if name == "mask" else blank
+            self._artists[name] = ax.imshow(img, interpolation="nearest", cmap="gray" if name == "mask" else None,
+                                            vmin=0, vmax=1 if name == "mask" else None)
+            self.axes[name] = ax
+        lat = fig.add_axes((0, 0, 1, 1))
+        labels = [*IMLS_STAGES, RAY_CAST]
+        colours = ["#4c72b0"] * 4 + ["#1f3b73", "#c44e52"]
+        self._bars = lat.barh(range(len(labels)), [0.0] * len(labels), color=colours)
+        lat.set_yticks(range(len(labels)), labels, fontsize=9)
+        lat.invert_yaxis()
+        lat.set_xlabel("latency of this frame [ms]", fontsize=9)
+        lat.tick_params(axis="x", labelsize=8)
+        lat.grid(axis="x", alpha=0.3)
+        self._bar_labels = [lat.text(0, i, "", va="center", fontsize=8) for i in range(len(labels))]
+        self.axes["latency"] = lat
+        txt = fig.add_axes((0, 0, 1, 1))
+        txt.axis("off")
+        self._stats = txt.text(0.0, 1.0, "", va="top", ha="left", family="monospace", fontsize=9, transform=txt.transAxes)
+        self.axes["stats"] = txt
+        fig.suptitle(f"scene {self.scene_name}  (m = {m})    drag: orbit   scroll: zoom   arrows: orbit   "
+                     "r: reset   m: mask   q: quit", fontsize=10)
+        self._layout()
+        for name, handler in (("button_press_event", self.on_press), ("motion_notify_event", self.on_motion),
+                              ("button_release_event", self.on_release), ("scroll_event", self.on_scroll),
+                              ("key_press_event", self.on_key)):
+            fig.canvas.mpl_connect(name, handler)
+
+    def _layout(self) -> None:
+        top, height = 0.30, 0.60
+        if self.show_mask:
+            self.axes["imls"].set_position((0.01, top, 0.38, height))
+            self.axes["truth"].set_position((0.40, top, 0.38, height))
+            self.axes["mask"].set_position((0.80, top + 0.12, 0.18, height - 0.24))
+        else:
+            self.axes["imls"].set_position((0.05, top, 0.44, height))
+            self.axes["truth"].set_position((0.51, top, 0.44, height))
+        self.axes["mask"].set_visible(self.show_mask)
+        self.axes["latency"].set_position((0.14, 0.07, 0.42, 0.19))
+        self.axes["stats"].set_position((0.62, 0.05, 0.37, 0.21))
+
+    def _show_imls(self) -> None:
+        from .patterns import c_pixels_to_fr
+
+        self._artists["imls"].set_data(self.imls.image)
+        im = self.imls.info.get("im")
+        if im is not None:
+            m = self.renderer.fr_size
+            mask = np.zeros(m * m, np.float32)
+            mask[c_pixels_to_fr(self.renderer.pattern, im).numpy()] = 1.0
+            self._artists["mask"].set_data(mask.reshape(m, m))
+
+    def _show_stats(self) -> None:
+        t = self.imls.timings
+        ms = [1e3 * t.get(k, 0.0) for k in IMLS_STAGES]
+        ms.append(1e3 * self.truth.timings["total"] if self.truth is not None else 0.0)
+        stale = self.truth_stale
+        for i, (bar, label, v) in enumerate(zip(self._bars, self._bar_labels, ms)):
+            bar.set_width(v)
+            last = i == len(ms) - 1
+            bar.set_alpha(0.35 if last and stale else 1.0)
+            label.set_position((v, i))
+            label.set_text(f" {v:.1f} ms" + (" (prev. view)" if last and stale else ""))
+        self.axes["latency"].set_xlim(0, max(max(ms), 1e-3) * 1.45)
+        self.axes["truth"].set_title("ray cast (ground truth)" + ("\n(release to update)" if stale else ""), fontsize=12)
+        self._stats.set_text("\n".join(self._stats_lines()))
+
+    def _redraw(self, now: bool = False) -> None:
+        canvas = self.fig.canvas
+        if self.interactive:
+            if now:
+                canvas.draw()
+                canvas.flush_events()
+            else:
+                canvas.draw_idle()
+
+    # -- output ------------------------------------------------------------------------------------
+    def panel_box(self, name: str) -> tuple[int, int, int, int]:
+        """Pixel box ``(row0, row1, col0, col1)`` of a panel (``imls``, ``truth``, ``mask``) in the
+        saved image (row 0 at the top), the image area only."""
+        if name not in ("imls", "truth", "mask"):
+            raise InputError(f"name={name!r}: expected 'imls', 'truth' or 'mask'")
+        self.fig.canvas.draw()
+        bb = self.axes[name].get_window_extent()
+        h = int(round(self.fig.get_figheight() * self.fig.dpi))
+        return int(math.ceil(h - bb.y1)), int(h - bb.y0), int(math.ceil(bb.x0)), int(bb.x1)
+
+    def save_screenshot(self, path: str | os.PathLike) -> Path:
+        """Write the figure as a PNG (``figsize * dpi`` pixels) atomically; returns the path."""
+        out = Path(str(path)).expanduser()
+        if out.suffix.lower() != ".png":
+            raise InputError(f"screenshot={path}: expected a .png path")
+        if out.is_dir():
+            raise InputError(f"screenshot={path}: is a directory, expected a .png file path")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".png.tmp", dir=out.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                self.fig.savefig(f, format="png", dpi=self.fig.dpi)
+            os.replace(tmp, out)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return out
+
+    def show(self) -> None:
+        """Open the window and run the GUI loop until it is closed (``q``)."""
+        if not self.interactive:
+            raise InputError("interactive=False: this viewer has no window; use save_screenshot(path)")
+        import matplotlib.pyplot as plt
+
+        self._timer = self.fig.canvas.new_timer(interval=1)
+        self._timer.single_shot = True
+        self._timer.add_callback(self._flush)
+        plt.show()
+
+    def close(self) -> None:
+        """Close the window (interactive) or release the figure."""
+        if self.interactive:
+            import matplotlib.pyplot as plt
+
+            plt.close(self.fig)
+
+
+# ------------------------------------------------------------------------------------------------
+# command line
+
+
+def _interactive_backend_error() -> str | None:
+    """Why no window can be opened here (one line), or ``None``."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "no display (DISPLAY is not set)"
+    import matplotlib
+
+    backend = matplotlib.get_backend().lower()
+    try:
+        from matplotlib.backends import BackendFilter, backend_registry
+
+        non_interactive = set(backend_registry.list_builtin(BackendFilter.NON_INTERACTIVE))
+    except ImportError:  # matplotlib < 3.9
+        non_interactive = {"agg", "cairo", "pdf", "pgf", "ps", "svg", "template"}
+    if backend in non_interactive:
+        return f"matplotlib's backend is {backend!r}, which opens no window"
+    return None
+
+
+def _bool(name: str, value) -> bool:
+    if isinstance(value, bool):
+        return value
+    s = str(value).lower()
+    if s not in ("true", "false"):
+        raise InputError(f"{name}={value}: expected true or false")
+    return s == "true"
+
+
+def viewer(cfg: DictConfig) -> Path | None:
+    """The CLI's body: build the renderer from the checkpoint(s), then a screenshot or the window.
+
+    Returns the screenshot's path (``None`` after an interactive session).
+    """
+    if OmegaConf.is_missing(cfg, "ims_checkpoint") or not cfg.get("ims_checkpoint"):
+        raise InputError("ims_checkpoint: required (usage: python -m imls_lightning.viewer ims_checkpoint=<IMS .ckpt> "
+                         "[recnn_checkpoint=<RecNN .ckpt>] [screenshot=out.png])")
+    screenshot = cfg.get("screenshot") or None
+    if screenshot is not None and Path(str(screenshot)).suffix.lower() != ".png":
+        raise InputError(f"screenshot={screenshot}: expected a .png path")
+    for key in ("azimuth", "elevation"):
+        _number(key, cfg.get(key))
+    orbit_view(cfg.azimuth, cfg.elevation, 1.0)  # elevation range, before anything slow
+    show_mask = _bool("mask", cfg.get("mask", True))
+    if screenshot is None:
+        import matplotlib
+
+        why = _interactive_backend_error()
+        if why is not None:
+            raise InputError(f"{why}: pass screenshot=out.png to render the viewer headless into a PNG")
+    else:
+        import matplotlib
+
+        matplotlib.use("Agg")
+    opts = NetOptions(**OmegaConf.to_container(cfg.options, resolve=True)) if cfg.get("options") else NetOptions()
+    t0 = time.perf_counter()
+    renderer = IMLSRenderer.from_checkpoints(str(cfg.ims_checkpoint), recnn_checkpoint=cfg.get("recnn_checkpoint") or None,
+                                             opts=opts)
+    print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (FR {renderer.fr_size}^2, "
+          f"device {renderer.device})", file=sys.stderr, flush=True)
+    try:
+        v = Viewer(renderer, azimuth=cfg.azimuth, elevation=cfg.elevation, distance=cfg.get("distance"),
+                   show_mask=show_mask, interactive=screenshot is None, figsize=tuple(cfg.figsize), dpi=cfg.dpi,
+                   warmup=cfg.warmup)
+    except InputError:
+        raise
+    except Exception as err:  # a GUI toolkit that cannot start (e.g. Tk without a usable display)
+        if screenshot is None and type(err).__name__ in ("TclError", "RuntimeError", "ImportError"):
+            raise InputError(f"cannot open a window ({type(err).__name__}: {err}): pass screenshot=out.png to render headless") from None
+        raise
+    if screenshot is not None:
+        out = v.save_screenshot(screenshot)
+        print(f"[viewer] {v.latency_text().splitlines()[4].strip()}; {v._stats_lines()[1]}", file=sys.stderr, flush=True)
+        return out
+    v.show()
+    return None
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="viewer")
+@cli_errors
+def main(cfg: DictConfig) -> None:
+    out = viewer(cfg)
+    if out is not None:
+        print(out, flush=True)
+
+
+if __name__ == "__main__":
+    main()
