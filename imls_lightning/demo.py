@@ -20,7 +20,9 @@ Example:
 """
 from __future__ import annotations
 
+import codecs
 import os
+import re
 import subprocess
 import sys
 import time
@@ -48,17 +50,37 @@ def run_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo")
     print(f"\n[{tag}] {name}: {' '.join(args)}", file=log, flush=True)
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    with subprocess.Popen(cmd, cwd=os.getcwd(), env=env, stdout=subprocess.PIPE, text=True, bufsize=1) as proc:
-        last = ""
+    with subprocess.Popen(cmd, cwd=os.getcwd(), env=env, stdout=subprocess.PIPE) as proc:
         assert proc.stdout is not None
-        for line in proc.stdout:
-            print(f"  {line.rstrip()}", file=log, flush=True)
-            if line.strip():
-                last = line.strip()
+        last = _echo(proc.stdout, log)
         code = proc.wait()
     if code != 0:
         raise StageFailed(f"{tag} stage '{name}' failed (exit {code}); its message is above. Command: python {' '.join(args)}")
     print(f"[{tag}] {name} done in {time.perf_counter() - t0:.1f} s -> {last}", file=log, flush=True)
+    return last
+
+
+def _echo(stream, log) -> str:
+    """Copy a child's stdout to ``log`` indented, keeping its carriage returns (progress bars redraw
+    in place instead of printing a line per update); returns its last non-empty line."""
+    decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
+    current, last, line_start = "", "", True
+    while chunk := stream.read1(65536):
+        for piece in re.split(r"([\r\n])", decoder.decode(chunk)):
+            if piece in ("\r", "\n"):
+                if piece == "\n" and current.strip():
+                    last = current.strip()
+                current, line_start = "", True
+                log.write(piece)
+            elif piece:
+                if line_start:
+                    log.write("  ")
+                    line_start = False
+                current += piece
+                log.write(piece)
+        log.flush()
+    if current.strip():
+        last = current.strip()
     return last
 
 

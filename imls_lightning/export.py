@@ -51,7 +51,7 @@ from torch import nn
 from data_gen.errors import InputError, cli_errors
 
 from .patterns import SamplingPattern
-from .pipeline import IMLSRenderer, NetOptions
+from .pipeline import IMLSRenderer, NetOptions, load_ims_and_recnn
 
 __all__ = ["FORMATS", "IMPredictor", "ExportedIMLSRenderer", "export_renderer", "onnx_available", "main"]
 
@@ -202,8 +202,6 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
     Raises:
         InputError: a bad format, a missing/wrong checkpoint, ``out`` exists, ONNX not installed.
     """
-    from .tasks.base import load_task
-
     fmt = str(format).lower()
     if fmt not in FORMATS:
         raise InputError(f"format={format}: expected one of {', '.join(FORMATS)}")
@@ -217,13 +215,7 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
     if not out.parent.is_dir():
         raise InputError(f"out={out}: directory {out.parent} does not exist")
 
-    task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
-    recnn = None
-    if recnn_checkpoint:
-        rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
-        if rt.pattern.fingerprint() != task.pattern.fingerprint():
-            raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
-        recnn = rt.net
+    task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
     parts = _parts_from_task(task, recnn)
     pattern = task.pattern
     examples = _example_inputs(pattern)

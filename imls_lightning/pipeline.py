@@ -237,12 +237,17 @@ class IMLPlusRecNN(_PatternMethod):
     def mean(self) -> float:
         return float(self.iml.mean)
 
+    def _importance(self, c: torch.Tensor, view, timer: "_Timer", info: dict) -> torch.Tensor:
+        """The hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
+        with timer.stage("importance"), self.opts.autocast(self.device):
+            return self.iml.importance(c, hard=True)
+
     def run(self, view) -> RenderResult:
         timer = _Timer(self.device)
         with timer.stage("selective_render"):
             c, _ = self._render_c_pixels(view, None)
-        with timer.stage("importance"), self.opts.autocast(self.device):
-            im = self.iml.importance(c, hard=True)
+        info: dict = {}
+        im = self._importance(c, view, timer, info)
         with timer.stage("decoder"), self.opts.autocast(self.device):
             c_rec = self.iml.decode(im.to(c.dtype) * c)
         with timer.stage("recnn"), self.opts.autocast(self.device):
@@ -251,7 +256,25 @@ class IMLPlusRecNN(_PatternMethod):
         count = int(im_cpu.sum())
         return RenderResult(to_uint8_image(fr), timer.result(),
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
-                             "rendered_pixels": self.pattern.count, "im": im_cpu})
+                             "rendered_pixels": self.pattern.count, "im": im_cpu, **info})
+
+
+def load_ims_and_recnn(ims_checkpoint: str, recnn_checkpoint: str | None = None):
+    """``(IMSTask, RecNN module or None)``: the IMS checkpoint and, when given, a RecNN checkpoint
+    that replaces the RecNN stored in it (checked to use the same sampling pattern).
+
+    Raises:
+        InputError: a missing or wrong checkpoint, or a RecNN of another sampling pattern.
+    """
+    from .tasks.base import load_task
+
+    task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
+    if not recnn_checkpoint:
+        return task, None
+    rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
+    if rt.pattern.fingerprint() != task.pattern.fingerprint():
+        raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
+    return task, rt.net
 
 
 class IMLSRenderer(_PatternMethod):
@@ -320,15 +343,7 @@ class IMLSRenderer(_PatternMethod):
             recnn_checkpoint: use this RecNN instead of the one stored in the IMS checkpoint.
             opts: :class:`NetOptions` (device, half, channels_last, compile).
         """
-        from .tasks.base import load_task
-
-        task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
-        recnn = None
-        if recnn_checkpoint:
-            rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
-            if rt.pattern.fingerprint() != task.pattern.fingerprint():
-                raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
-            recnn = rt.net
+        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
         if recnn is None and task.recnn is None:
             raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
         if renderer is None:

@@ -467,7 +467,7 @@ def plot_image_grid(grid: Mapping[int, Mapping[str, Any]], methods: Sequence[str
                     mask = im_to_fr_mask(g["imls_im"], pattern, fr_size or m)
                     ax.imshow(mask, cmap="gray", vmin=0, vmax=2, interpolation="nearest")
                     ax.set_xlabel(f"IPR {float((mask == 2).mean()):.1%}", fontsize=6)
-                title = "IML/S IM (white; grey: rest of pattern)"
+                title = "IML/S IM\n(white; grey: pattern)"
             elif col.startswith("err:"):
                 name = col[4:]
                 e = errs.get((v, name))

@@ -165,8 +165,8 @@ class Viewer:
 
     Attributes:
         frames: number of IML/S frames rendered (shown); ``ray_casts``: number of full ray casts.
-        imls, truth: the last :class:`RenderResult` of each (``truth`` may be of an older view while
-            a drag is under way: see :attr:`truth_stale`).
+        imls, truth: the last :class:`RenderResult` of each; ``imls_view``, ``truth_view``: the views
+            they show (``truth`` may be of an older view while a drag is under way: see :attr:`truth_stale`).
     """
 
     def __init__(self, renderer: IMLSRenderer, *, azimuth: float = 30.0, elevation: float = 20.0,
@@ -192,6 +192,7 @@ class Viewer:
         self.ray_casts = 0
         self.imls: RenderResult | None = None
         self.truth: RenderResult | None = None
+        self.imls_view: np.ndarray | None = None
         self.truth_view: np.ndarray | None = None
         self.psnr: float | None = None
         self._drag: _Drag | None = None
@@ -237,6 +238,7 @@ class Viewer:
         view = self.view()
         with torch.inference_mode():
             self.imls = self.renderer.run(view)
+        self.imls_view = view
         self.frames += 1
         self._show_imls()
         if full:
@@ -268,7 +270,7 @@ class Viewer:
     def _stats_lines(self) -> list[str]:
         info = self.imls.info if self.imls is not None else {}
         m = self.renderer.fr_size
-        out = [f"IPR {info.get('ipr', math.nan):.3f}  ({info.get('rendered_pixels', 0):,} / {m * m:,} FR pixels ray-cast)"]
+        out = [f"IPR {info.get('ipr', math.nan):.3f}  ({info.get('rendered_pixels', 0):,} / {m * m:,} px ray-cast)"]
         if self.psnr is None or self.truth_stale:
             out.append("PSNR vs ray cast  -  (release to update)")
         else:
@@ -393,7 +395,7 @@ class Viewer:
         self._stats = txt.text(0.0, 1.0, "", va="top", ha="left", family="monospace", fontsize=9, transform=txt.transAxes)
         self.axes["stats"] = txt
         fig.suptitle(f"scene {self.scene_name}  (m = {m})    drag: orbit   scroll: zoom   arrows: orbit   "
-                     "r: reset   m: mask   q: quit", fontsize=10)
+                     "r: reset   m: mask   q: quit", fontsize=10, y=0.99)
         self._layout()
         for name, handler in (("button_press_event", self.on_press), ("motion_notify_event", self.on_motion),
                               ("button_release_event", self.on_release), ("scroll_event", self.on_scroll),
@@ -401,7 +403,7 @@ class Viewer:
             fig.canvas.mpl_connect(name, handler)
 
     def _layout(self) -> None:
-        top, height = 0.30, 0.60
+        top, height = 0.31, 0.57
         if self.show_mask:
             self.axes["imls"].set_position((0.01, top, 0.38, height))
             self.axes["truth"].set_position((0.40, top, 0.38, height))
@@ -410,8 +412,8 @@ class Viewer:
             self.axes["imls"].set_position((0.05, top, 0.44, height))
             self.axes["truth"].set_position((0.51, top, 0.44, height))
         self.axes["mask"].set_visible(self.show_mask)
-        self.axes["latency"].set_position((0.14, 0.07, 0.42, 0.19))
-        self.axes["stats"].set_position((0.62, 0.05, 0.37, 0.21))
+        self.axes["latency"].set_position((0.15, 0.11, 0.40, 0.15))
+        self.axes["stats"].set_position((0.60, 0.04, 0.39, 0.22))
 
     def _show_imls(self) -> None:
         from .patterns import c_pixels_to_fr
@@ -542,22 +544,27 @@ def viewer(cfg: DictConfig) -> Path | None:
         _number(key, cfg.get(key))
     orbit_view(cfg.azimuth, cfg.elevation, 1.0)  # elevation range, before anything slow
     show_mask = _bool("mask", cfg.get("mask", True))
-    if screenshot is None:
-        import matplotlib
+    if cfg.get("distance") is not None:
+        _number("distance", cfg.distance)  # its range needs the scene: checked by the Viewer
+    threads = cfg.get("threads")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise InputError(f"threads={threads}: expected an integer >= 1 (torch CPU threads) or null")
+    import matplotlib
 
+    if screenshot is None:
         why = _interactive_backend_error()
         if why is not None:
             raise InputError(f"{why}: pass screenshot=out.png to render the viewer headless into a PNG")
     else:
-        import matplotlib
-
         matplotlib.use("Agg")
+    if threads is not None:
+        torch.set_num_threads(threads)
     opts = NetOptions(**OmegaConf.to_container(cfg.options, resolve=True)) if cfg.get("options") else NetOptions()
     t0 = time.perf_counter()
     renderer = IMLSRenderer.from_checkpoints(str(cfg.ims_checkpoint), recnn_checkpoint=cfg.get("recnn_checkpoint") or None,
                                              opts=opts)
-    print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (FR {renderer.fr_size}^2, "
-          f"device {renderer.device})", file=sys.stderr, flush=True)
+    print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (scene FR {renderer.fr_size}^2, "
+          f"networks on {renderer.device})", file=sys.stderr, flush=True)
     try:
         v = Viewer(renderer, azimuth=cfg.azimuth, elevation=cfg.elevation, distance=cfg.get("distance"),
                    show_mask=show_mask, interactive=screenshot is None, figsize=tuple(cfg.figsize), dpi=cfg.dpi,
@@ -570,7 +577,9 @@ def viewer(cfg: DictConfig) -> Path | None:
         raise
     if screenshot is not None:
         out = v.save_screenshot(screenshot)
-        print(f"[viewer] {v.latency_text().splitlines()[4].strip()}; {v._stats_lines()[1]}", file=sys.stderr, flush=True)
+        t = v.imls.timings
+        print(f"[viewer] IML/S total {1e3 * t['total']:.1f} ms, ray cast {1e3 * v.truth.timings['total']:.1f} ms, "
+              f"IPR {v.imls.info['ipr']:.3f}, PSNR {v.psnr:.2f} dB", file=sys.stderr, flush=True)
         return out
     v.show()
     return None

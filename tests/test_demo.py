@@ -80,3 +80,22 @@ def test_exception_demo_stage_failure_names_the_stage(tmp_path):
     assert p.returncode != 0
     assert "error: demo stage 'cache' failed" in p.stderr and "no_such_scene" in p.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_echo_keeps_carriage_returns_and_returns_the_last_line():
+    import io
+
+    from imls_lightning.demo import _echo
+
+    class Chunked:  # a pipe that hands out 3 bytes at a time (splits the UTF-8 'é' too)
+        def __init__(self, data: bytes):
+            self.buf = io.BytesIO(data)
+
+        def read1(self, n: int) -> bytes:
+            return self.buf.read(3)
+
+    out = io.StringIO()
+    last = _echo(Chunked("epoch\r 50%\r100%\n/run/best é.ckpt\n\n".encode()), out)
+    assert last == "/run/best é.ckpt"
+    assert out.getvalue() == "  epoch\r   50%\r  100%\n  /run/best é.ckpt\n\n"
+    assert _echo(Chunked(b"no newline at the end"), io.StringIO()) == "no newline at the end"
