@@ -95,6 +95,7 @@ __all__ = [
 register_resolvers()
 
 REFERENCES = ("recnn", "iml")
+UNREACHABLE = ("hi", "best")  # the label of a view that no mean in the bracket brings within epsilon
 
 
 # ------------------------------------------------------------------------------------------------
@@ -136,8 +137,10 @@ class BisectResult:
     """Outcome of :func:`bisect_mean` for a batch of views, each ``(B,)``.
 
     Attributes:
-        u: smallest mean value found meeting epsilon (``1.0`` where even ``u = 1`` fails).
-        met: whether ``u`` met epsilon (False: no mean in the bracket did).
+        u: smallest mean value found meeting epsilon; where even the bracket's top fails, the top
+            (``unreachable="hi"``) or the smallest ``u`` within epsilon of the gap at the top
+            (``unreachable="best"``).
+        met: whether ``u`` met epsilon itself (False: no mean in the bracket did).
         gap: the gap (dB) measured at ``u``.
         evaluations: how many times ``gap_fn`` was called (``steps + 2``).
     """
@@ -149,12 +152,15 @@ class BisectResult:
 
 
 def bisect_mean(gap_fn: Callable[[torch.Tensor], torch.Tensor], batch: int, epsilon_db: float = 1.0,
-                steps: int = 8, bracket: Sequence[float] = MEAN_RANGE) -> BisectResult:
+                steps: int = 8, bracket: Sequence[float] = MEAN_RANGE, unreachable: str = "hi") -> BisectResult:
     """Per-view smallest mean value ``u`` with ``gap(u) <= epsilon_db``, by bisection in ``log u``.
 
     Assumes ``gap`` decreases as ``u`` grows (more pixels, closer to the RecNN alone). First the
     bracket's ends are evaluated: a view meeting epsilon at ``lo`` gets ``lo``; one failing at
-    ``hi`` gets ``hi`` with ``met=False``. Then ``steps`` rounds halve ``[lo, hi]`` in ``log u`` for
+    ``hi`` gets ``hi`` with ``met=False`` (``unreachable="hi"``), or (``unreachable="best"``) is
+    bisected like the others against ``gap(hi) + epsilon_db``: the fewest pixels that are within
+    epsilon of the best quality this IML reaches on that view, instead of all of them for nothing
+    (with a monotone gap, ``gap(hi)`` is that best). Then ``steps`` rounds halve ``[lo, hi]`` in ``log u`` for
     every view at once (``hi`` always meets epsilon, ``lo`` never does), and ``hi`` is the answer:
     known to a factor ``(hi0 / lo0) ** (1 / 2 ** steps)`` (8 steps over ``[0.01, 1]``: 1.8 %).
 
@@ -164,6 +170,7 @@ def bisect_mean(gap_fn: Callable[[torch.Tensor], torch.Tensor], batch: int, epsi
         epsilon_db: allowed gap.
         steps: bisection rounds, ``>= 1``.
         bracket: ``(lo, hi)`` with ``0 < lo < hi``.
+        unreachable: ``"hi"`` or ``"best"``, the label of a view that fails at ``hi`` (see above).
 
     Example:
         >>> target = torch.tensor([0.02, 0.3, 2.0])          # 2.0: not reachable in [0.01, 1]
@@ -177,6 +184,8 @@ def bisect_mean(gap_fn: Callable[[torch.Tensor], torch.Tensor], batch: int, epsi
     lo0, hi0 = (_number(x, "bracket", "two numbers 0 < lo < hi") for x in bracket)
     if not 0 < lo0 < hi0:
         raise InputError(f"bracket=[{lo0}, {hi0}]: expected 0 < lo < hi")
+    if unreachable not in UNREACHABLE:
+        raise InputError(f"unreachable={unreachable!r}: expected one of {list(UNREACHABLE)}")
 
     def gap(u: torch.Tensor) -> torch.Tensor:
         g = torch.as_tensor(gap_fn(u), dtype=torch.float64).detach().cpu().reshape(-1)
@@ -188,17 +197,22 @@ def bisect_mean(gap_fn: Callable[[torch.Tensor], torch.Tensor], batch: int, epsi
     hi = torch.full((batch,), hi0, dtype=torch.float64)
     g_hi = gap(hi)
     g_lo = gap(lo)
-    met_hi, met_lo = g_hi <= eps, g_lo <= eps
+    met = (g_hi <= eps) | (g_lo <= eps)
+    # per-view threshold: epsilon, or (unreachable="best", finite gap at hi) epsilon above the gap at hi
+    thr = torch.full_like(g_hi, eps)
+    if unreachable == "best":
+        thr = torch.where((g_hi > eps) & torch.isfinite(g_hi), g_hi + eps, thr)
+    ok_hi, ok_lo = g_hi <= thr, g_lo <= thr
     for _ in range(steps):
         mid = torch.exp(0.5 * (torch.log(lo) + torch.log(hi)))
         g_mid = gap(mid)
-        ok = g_mid <= eps
+        ok = g_mid <= thr
         hi = torch.where(ok, mid, hi)
         g_hi = torch.where(ok, g_mid, g_hi)
         lo = torch.where(ok, lo, mid)
-    u = torch.where(met_lo, torch.full_like(hi, lo0), torch.where(met_hi, hi, torch.full_like(hi, hi0)))
-    g = torch.where(met_lo, g_lo, g_hi)
-    return BisectResult(u=u, met=met_lo | met_hi, gap=g, evaluations=steps + 2)
+    u = torch.where(ok_lo, torch.full_like(hi, lo0), torch.where(ok_hi, hi, torch.full_like(hi, hi0)))
+    g = torch.where(ok_lo, g_lo, g_hi)
+    return BisectResult(u=u, met=met, gap=g, evaluations=steps + 2)
 
 
 def iml_pim(iml: nn.Module, c_image: torch.Tensor) -> torch.Tensor:
@@ -317,7 +331,7 @@ def view_complexity(images: np.ndarray, background: Sequence[float] = (0.0, 0.0,
 def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: nn.Module, recnn_alone: nn.Module,
                    epsilon_db: float = 1.0, steps: int = 8, batch_size: int = 16, device: str | torch.device = "cpu",
                    progress: bool = True, desc: str = "labels", reference: str = "recnn",
-                   bracket: Sequence[float] = MEAN_RANGE) -> MeanLabels:
+                   bracket: Sequence[float] = MEAN_RANGE, unreachable: str = "hi") -> MeanLabels:
     """Per-view smallest mean value meeting epsilon, for the cache ``rows`` (see :func:`bisect_mean`).
 
     For each batch of views: the RecNN alone on the C-Image (once), the IML encoder (once), then per
@@ -334,7 +348,7 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
         pattern: the sampling pattern (C-Images are compacted with it).
         iml: the :class:`~imls_lightning.models.iml.IMLNet`; ``recnn_iml`` behind it; ``recnn_alone``
             the reference RecNN (usually the same network).
-        epsilon_db, steps, bracket: as :func:`bisect_mean` (with ``reference="iml"`` use
+        epsilon_db, steps, bracket, unreachable: as :func:`bisect_mean` (with ``reference="iml"`` use
             ``(0.01, trained mean)``: its upper end meets epsilon by construction).
         batch_size: views per batch (>= 1).
         device: where the networks run.
@@ -372,7 +386,7 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
                 im = im_at_means(iml, pim, u)
                 return psnr_ref - _psnr(recnn_iml(iml.decode(im.to(c.dtype) * c)), fr)
 
-            res = bisect_mean(gap_fn, c.shape[0], eps, steps, bracket)
+            res = bisect_mean(gap_fn, c.shape[0], eps, steps, bracket, unreachable)
             out["u"].append(res.u.numpy())
             out["met"].append(res.met.numpy())
             out["gap"].append(res.gap.numpy())
@@ -385,7 +399,7 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
     return MeanLabels(
         rows=rows, views=np.asarray(cache.views[rows], np.float32).reshape(-1, 9), u=cat("u", np.float64),
         met=cat("met", bool), gap_db=cat("gap", np.float64), psnr_ref=cat("psnr", np.float64), complexity=cplx,
-        meta={"epsilon_db": eps, "reference": reference, "steps": steps, "bracket": [float(x) for x in bracket], "seconds": round(seconds, 3),
+        meta={"epsilon_db": eps, "reference": reference, "steps": steps, "bracket": [float(x) for x in bracket], "unreachable": unreachable, "seconds": round(seconds, 3),
               "views": int(len(rows)), "evaluations_per_view": steps + 2},
     )
 
@@ -817,6 +831,7 @@ class Settings:
     epsilon_db: float
     reference: str
     steps: int
+    unreachable: str
     batch_size: int
     predictor: dict[str, Any]
     views: str
@@ -828,7 +843,8 @@ class Settings:
     progress: bool
 
     def label_key(self) -> dict[str, Any]:
-        return {"epsilon_db": self.epsilon_db, "reference": self.reference, "steps": self.steps}
+        return {"epsilon_db": self.epsilon_db, "reference": self.reference, "steps": self.steps,
+                "unreachable": self.unreachable}
 
     def hashed(self) -> dict[str, Any]:
         return {**self.label_key(), "predictor": self.predictor, "views": self.views, "max_views": self.max_views,
@@ -872,11 +888,14 @@ def parse_settings(cfg) -> Settings:
     reference = str(cfg.get("reference", "recnn"))
     if reference not in REFERENCES:
         raise InputError(f"reference={reference}: expected recnn (within epsilon of the RecNN alone) or iml (of IML + RecNN at the trained mean)")
+    unreachable = str(cfg.get("unreachable", "best"))
+    if unreachable not in UNREACHABLE:
+        raise InputError(f"unreachable={unreachable}: expected best (within epsilon of the view's best gap) or hi (the bracket's top)")
     device = str(cfg.get("device", "auto"))
     pick_device(device)
     return Settings(
         ims=str(ims), recnn=str(recnn) if recnn else None, epsilon_db=check_epsilon(cfg.get("epsilon_db", 1.0)), reference=reference,
-        steps=_integer(cfg.get("steps", 8), "steps", 1, 30), batch_size=_integer(cfg.get("batch_size", 16), "batch_size", 1),
+        steps=_integer(cfg.get("steps", 8), "steps", 1, 30), unreachable=unreachable, batch_size=_integer(cfg.get("batch_size", 16), "batch_size", 1),
         predictor=pred, views=views, max_views=None if mv is None else _integer(mv, "max_views", 1),
         repeats=_integer(cfg.get("repeats", 10), "repeats", 1), timing_views=_integer(cfg.get("timing_views", 20), "timing_views", 0),
         device=device, output_dir=cfg.get("output_dir") or None, progress=bool(cfg.get("progress", True)),
@@ -980,7 +999,8 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
             label_dir / f"{tag}-{label_hash}.npz",
             lambda rows=rows, split=split: compute_labels(cache, rows, pattern, iml, recnn, recnn, s.epsilon_db, s.steps,
                                                          s.batch_size, device, s.progress, desc=f"labels {split}",
-                                                         reference=s.reference, bracket=bracket),
+                                                         reference=s.reference, bracket=bracket,
+                                                         unreachable=s.unreachable),
             split)
         timing[f"labels_{split}_s"] = round(time.perf_counter() - t0, 2)
         timing[f"labels_{split}_reused"] = reused
@@ -1192,10 +1212,12 @@ def _markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels
              f"`{s.recnn or 'the one in the IMS checkpoint'}`; cache `{cache.path}`; device {pick_device(s.device)}.")
     ref_text = "RecNN alone" if s.reference == "recnn" else f"IML + RecNN at the trained u = {u_train:g}"
     L.append(f"- Labels: per view, smallest u in [{bracket[0]:g}, {bracket[1]:g}] with PSNR(IML + RecNN at u) >= PSNR({ref_text}) - {eps:g} dB "
-             f"(reference={s.reference}), {s.steps} bisection steps in log u (+2 end checks).")
+             f"(reference={s.reference}), {s.steps} bisection steps in log u (+2 end checks); views that fail even at "
+             f"u = {bracket[1]:g}: " + ("the smallest u within epsilon of their gap there (unreachable=best)." if s.unreachable == "best"
+                                      else f"u = {bracket[1]:g} (unreachable=hi)."))
     for split, lab in labels.items():
         L.append(f"  - {split}: {len(lab)} views, u median {np.median(lab.u):.4f} (min {lab.u.min():.4f}, max {lab.u.max():.4f}), "
-                 f"{int((~lab.met).sum())} views fail even at u = 1; "
+                 f"{int((~lab.met).sum())} views fail even at u = {bracket[1]:g}; "
                  f"{'reused' if timing.get(f'labels_{split}_reused') else 'computed'} in {timing.get(f'labels_{split}_s', 0):.1f} s"
                  f" (compute time recorded: {lab.meta.get('seconds', 0):.1f} s).")
     L.append(f"- Predictor: MLP {hist['views']} train views, {hist['epochs']} full-batch epochs in {hist['seconds']:.1f} s "

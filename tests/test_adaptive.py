@@ -108,6 +108,29 @@ def test_bisect_mean_treats_nan_as_failing_and_is_vectorized():
     assert torch.all(res.u > 0.2) and torch.all(res.u < 0.2 * 100 ** (1 / 64) + 1e-9) and res.met.all()
 
 
+def test_bisect_mean_unreachable_best_labels_within_epsilon_of_the_best_gap():
+    # gap(u) = max(floor, 20 log10(t / u)): views with floor > eps never meet epsilon; "best" gives the
+    # smallest u with gap <= floor + eps (= t * 10^(-(floor + eps)/20) where that is inside the bracket)
+    t = torch.tensor([0.05, 0.5, 0.5, 0.5], dtype=torch.float64)
+    floor = torch.tensor([0.0, 0.0, 3.0, 50.0], dtype=torch.float64)
+    eps, steps = 1.0, 12
+
+    def gap(u):
+        return torch.maximum(floor, 20 * torch.log10(t / u))
+
+    hi = bisect_mean(gap, 4, eps, steps, unreachable="hi")
+    best = bisect_mean(gap, 4, eps, steps, unreachable="best")
+    assert hi.met.tolist() == best.met.tolist() == [True, True, False, False]
+    assert torch.equal(hi.u[:2], best.u[:2])                  # reachable views: the same labels
+    assert hi.u[2] == hi.u[3] == 1.0
+    tol = math.log(100) / 2**steps + 1e-12
+    answer = 0.5 * 10 ** (-(3.0 + eps) / 20)
+    assert answer <= best.u[2] <= answer * math.exp(tol) and best.gap[2] <= 3.0 + eps
+    assert best.u[3] == 0.01                                   # flat at 50 dB: the bracket's bottom is as good
+    with pytest.raises(InputError, match="unreachable"):
+        bisect_mean(gap, 4, eps, unreachable="nope")
+
+
 @pytest.mark.parametrize("eps", [-1.0, float("nan"), float("inf"), "x", True])
 def test_exception_bad_epsilon(eps):
     with pytest.raises(InputError, match="epsilon_db"):
@@ -321,7 +344,7 @@ def test_cli_end_to_end_on_tiny(tiny_checkpoints, pim_ckpt, tmp_path):
 
 @pytest.mark.parametrize("override, needle", [("epsilon_db=-1", "epsilon_db"), ("steps=0", "steps"),
                                               ("predictor.margin=0", "margin"), ("views=train", "views"),
-                                              ("reference=full", "reference")])
+                                              ("reference=full", "reference"), ("unreachable=all", "unreachable")])
 def test_exception_cli_bad_settings(tiny_checkpoints, pim_ckpt, override, needle):
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
