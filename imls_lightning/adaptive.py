@@ -64,11 +64,11 @@ from .pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
     NetOptions,
-    RenderResult,
     _prepare,
     _Timer,
+    load_ims_and_recnn,
     pick_device,
-    to_uint8_image,
+    renderer_for_task,
 )
 
 __all__ = [
@@ -709,7 +709,6 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
         self.u_train = float(task.iml.mean)
         self.generator = _prepare(task.generator, device, opts)
         self.predictor = predictor.to(device).eval()
-        self._u: torch.Tensor | None = None
         super().__init__(renderer, task.pattern, self._predict_im, task.decoder, recnn, opts)
 
     @classmethod
@@ -721,51 +720,33 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
         Scene and renderer default to those stored in the IMS checkpoint (as
         :meth:`IMLSRenderer.from_checkpoints`); ``margin`` overrides the predictor file's margin.
         """
-        from .tasks.base import load_task
-
-        task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
-        recnn = None
-        if recnn_checkpoint:
-            rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
-            if rt.pattern.fingerprint() != task.pattern.fingerprint():
-                raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
-            recnn = rt.net
+        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
         if not isinstance(predictor, nn.Module):
             predictor = MeanPredictor.load(predictor, margin=margin)
         elif margin is not None:
             predictor.margin = margin
-        if renderer is None:
-            from data_gen.renderers import make_renderer
-            from data_gen.scene import build_scene
+        return cls(renderer_for_task(task, scene, renderer, renderer_cfg), task, predictor, recnn, opts)
 
-            if scene is None:
-                if not task.hparams.get("scene"):
-                    raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
-                scene = build_scene(task.hparams["scene"])
-                renderer_cfg = task.hparams.get("renderer") if renderer_cfg is None else renderer_cfg
-            renderer = make_renderer(scene, renderer_cfg)
-        return cls(renderer, task, predictor, recnn, opts)
-
-    def _predict_im(self, view: torch.Tensor) -> torch.Tensor:
+    def _predict_im(self, view: torch.Tensor, u: torch.Tensor | float | None = None) -> torch.Tensor:
+        """IM ``(B, 1, n, n)`` of views ``(B, 9)`` at mean ``u`` (``None``: the predictor's)."""
+        if u is None:
+            u = _mean_of(self.predictor, view)
         with self.opts.autocast(self.device):
             g = self.generator(view)
-        return scaled_pim_im(self.task, g, self._u, self.u_train)
+        return scaled_pim_im(self.task, g, u, self.u_train)
 
     def mean_for(self, view) -> float:
         """The predictor's ``u_v`` for one view (no rendering)."""
         with torch.inference_mode():
             return float(_mean_of(self.predictor, _view_tensor(view, self.device))[0])
 
-    def run(self, view) -> RenderResult:
-        timer = _Timer(self.device)
+    def _importance(self, view, timer: _Timer, info: dict) -> torch.Tensor:
+        v = _view_tensor(view, self.device)
         with timer.stage("mean"):
-            self._u = _mean_of(self.predictor, _view_tensor(view, self.device))
-        r = super().run(view)
-        timings = {"mean": timer.times["mean"], **{k: v for k, v in r.timings.items() if k != "total"}}
-        timings["total"] = r.timings["total"] + timer.times["mean"]
-        info = dict(r.info)
-        info["mean"] = float(self._u[0])
-        return RenderResult(r.image, timings, info)
+            u = _mean_of(self.predictor, v)
+        info["mean"] = float(u[0])
+        with timer.stage("importance"):
+            return self._predict_im(v, u)[0, 0].bool()
 
 
 class AdaptiveIMLPlusRecNN(IMLPlusRecNN):
@@ -936,11 +917,10 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     from .evaluate import measure, spaced
     from .orp import ORPSearch, _evaluate, batched
     from .pipeline import RecNNAlone
-    from .tasks.base import load_task
 
     s = parse_settings(cfg)
     t_start = time.perf_counter()
-    ims = load_task(s.ims, expect="IMSTask", what="ims_checkpoint")
+    ims, recnn = load_ims_and_recnn(s.ims, s.recnn)
     if ims.target != "pim":
         raise InputError(f"ims_checkpoint={s.ims}: its IMS was trained with model.target={ims.target}; the adaptive mean scales "
                          "the regressed PIM', which needs an IMS trained with model.target=pim")
@@ -951,14 +931,8 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     trained_scene = (ims.hparams.get("scene") or {}).get("name")
     if trained_scene and str(cfg.scene.get("name")) != str(trained_scene):
         raise InputError(f"scene={cfg.scene.get('name')}: the IMS checkpoint was trained on scene {trained_scene}; pass scene={trained_scene}")
-    if s.recnn:
-        rt = load_task(s.recnn, expect="RecNNTask", what="recnn_checkpoint")
-        if rt.pattern.fingerprint() != ims.pattern.fingerprint():
-            raise InputError(f"recnn_checkpoint={s.recnn}: trained on another sampling pattern than the IMS/IML checkpoint")
-        recnn = rt.net
-    elif ims.recnn is not None:
-        recnn = ims.recnn
-    else:
+    recnn = recnn if recnn is not None else ims.recnn
+    if recnn is None:
         raise InputError(f"ims_checkpoint={s.ims}: carries no RecNN (its IML was trained standalone); pass recnn_checkpoint=<RecNN .ckpt>")
     device = pick_device(s.device)
     opts = NetOptions(device=str(device))

@@ -237,7 +237,7 @@ class IMLPlusRecNN(_PatternMethod):
     def mean(self) -> float:
         return float(self.iml.mean)
 
-    def _importance(self, c: torch.Tensor, view, timer: "_Timer", info: dict) -> torch.Tensor:
+    def _importance(self, c: torch.Tensor, view, timer: _Timer, info: dict) -> torch.Tensor:
         """The hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
         with timer.stage("importance"), self.opts.autocast(self.device):
             return self.iml.importance(c, hard=True)
@@ -275,6 +275,28 @@ def load_ims_and_recnn(ims_checkpoint: str, recnn_checkpoint: str | None = None)
     if rt.pattern.fingerprint() != task.pattern.fingerprint():
         raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
     return task, rt.net
+
+
+def renderer_for_task(task, scene=None, renderer=None, renderer_cfg=None):
+    """``renderer`` if given, else one made for ``scene`` (+ ``renderer_cfg``), by default the scene
+    and renderer config the IMS ``task`` was trained on (stored in its checkpoint).
+
+    Raises:
+        InputError: no renderer or scene given and the checkpoint stores no scene.
+    """
+    if renderer is not None:
+        return renderer
+    if scene is None and task.hparams.get("scene"):
+        from data_gen.scene import build_scene
+
+        scene = build_scene(task.hparams["scene"])
+        if renderer_cfg is None:
+            renderer_cfg = task.hparams.get("renderer")
+    if scene is None:
+        raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
+    from data_gen.renderers import make_renderer
+
+    return make_renderer(scene, renderer_cfg)
 
 
 class IMLSRenderer(_PatternMethod):
@@ -346,25 +368,18 @@ class IMLSRenderer(_PatternMethod):
         task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
         if recnn is None and task.recnn is None:
             raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
-        if renderer is None:
-            if scene is None and task.hparams.get("scene"):
-                from data_gen.scene import build_scene
+        return cls.from_task(task, renderer_for_task(task, scene, renderer, renderer_cfg), recnn, opts)
 
-                scene = build_scene(task.hparams["scene"])
-                if renderer_cfg is None:
-                    renderer_cfg = task.hparams.get("renderer")
-            if scene is None:
-                raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
-            from data_gen.renderers import make_renderer
-
-            renderer = make_renderer(scene, renderer_cfg)
-        return cls.from_task(task, renderer, recnn, opts)
+    def _importance(self, view, timer: _Timer, info: dict) -> torch.Tensor:
+        """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
+        with timer.stage("importance"):
+            v = torch.as_tensor(np.asarray(view, np.float32))[None].to(self.device)
+            return self.predict_im(v)[0, 0].bool()
 
     def run(self, view) -> RenderResult:
         timer = _Timer(self.device)
-        with timer.stage("importance"):
-            v = torch.as_tensor(np.asarray(view, np.float32))[None].to(self.device)
-            im = self.predict_im(v)[0, 0].bool()
+        info: dict = {}
+        im = self._importance(view, timer, info)
         with timer.stage("selective_render"):
             pr_c, count = self._render_c_pixels(view, im)
         with timer.stage("decoder"), self.opts.autocast(self.device):
@@ -373,7 +388,7 @@ class IMLSRenderer(_PatternMethod):
             fr = self.recnn(c_rec)
         return RenderResult(to_uint8_image(fr), timer.result(),
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
-                             "rendered_pixels": count, "im": im.cpu()})
+                             "rendered_pixels": count, "im": im.cpu(), **info})
 
 
 def las_mean_for_ipr(las: torch.nn.Module, raw: torch.Tensor, ipr: float, steps: int = 30) -> torch.Tensor:

@@ -70,6 +70,7 @@ from data_gen.camera import validate_view
 from data_gen.errors import InputError, cli_errors
 from data_gen.views import _orthogonal_up, _unit
 
+from .orp import _bool, _num  # the same one-line checks as the ORP settings
 from .pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
 
 __all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer", "viewer", "main"]
@@ -107,7 +108,7 @@ def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0
         >>> np.round(orbit_view(0, 0, 3.0), 6).tolist()
         [3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
     """
-    az, el, r = _number("azimuth", azimuth), _number("elevation", elevation), _number("distance", distance)
+    az, el, r = (_num(v, k, "a finite number") for v, k in ((azimuth, "azimuth"), (elevation, "elevation"), (distance, "distance")))
     if abs(el) > MAX_ELEVATION:
         raise InputError(f"elevation={elevation}: expected degrees in [-{MAX_ELEVATION:g}, {MAX_ELEVATION:g}] (the up vector is +z)")
     if r <= 0:
@@ -119,16 +120,6 @@ def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0
     fwd = _unit((look - eye)[None])
     up = _orthogonal_up(fwd, np.array([[0.0, 0.0, 1.0]]))[0]
     return validate_view(np.concatenate([eye, look, up]))
-
-
-def _number(name: str, value) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}={value!r}: expected a number") from None
-    if isinstance(value, bool) or not math.isfinite(x):
-        raise InputError(f"{name}={value!r}: expected a finite number")
-    return x
 
 
 def frame_psnr(image: np.ndarray, truth: np.ndarray) -> float:
@@ -178,11 +169,11 @@ class Viewer:
         lo, hi = (float(c) for c in getattr(scene, "camera_distance", DEFAULT_DISTANCE_RANGE))
         self.distance_range = (lo, hi)
         self.scene_name = getattr(scene, "name", "?")
-        dist = 0.5 * (lo + hi) if distance is None else _number("distance", distance)
+        dist = 0.5 * (lo + hi) if distance is None else _num(distance, "distance", "a finite number")
         if not (lo - 1e-9 <= dist <= hi + 1e-9):
             raise InputError(f"distance={distance}: expected a camera distance in scene.camera_distance=[{lo:g}, {hi:g}]")
         orbit_view(azimuth, elevation, dist)  # validates the angles (one-line InputError)
-        self.home = (_number("azimuth", azimuth), _number("elevation", elevation), dist)
+        self.home = (_num(azimuth, "azimuth", "a finite number"), _num(elevation, "elevation", "a finite number"), dist)
         self.azimuth, self.elevation, self.distance = self.home
         if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
             raise InputError(f"warmup={warmup}: expected an integer >= 0")
@@ -520,15 +511,6 @@ def _interactive_backend_error() -> str | None:
     return None
 
 
-def _bool(name: str, value) -> bool:
-    if isinstance(value, bool):
-        return value
-    s = str(value).lower()
-    if s not in ("true", "false"):
-        raise InputError(f"{name}={value}: expected true or false")
-    return s == "true"
-
-
 def viewer(cfg: DictConfig) -> Path | None:
     """The CLI's body: build the renderer from the checkpoint(s), then a screenshot or the window.
 
@@ -541,11 +523,11 @@ def viewer(cfg: DictConfig) -> Path | None:
     if screenshot is not None and Path(str(screenshot)).suffix.lower() != ".png":
         raise InputError(f"screenshot={screenshot}: expected a .png path")
     for key in ("azimuth", "elevation"):
-        _number(key, cfg.get(key))
+        _num(cfg.get(key), key, "a finite number")
     orbit_view(cfg.azimuth, cfg.elevation, 1.0)  # elevation range, before anything slow
-    show_mask = _bool("mask", cfg.get("mask", True))
+    show_mask = _bool(cfg.get("mask", True), "mask")
     if cfg.get("distance") is not None:
-        _number("distance", cfg.distance)  # its range needs the scene: checked by the Viewer
+        _num(cfg.distance, "distance", "a finite number")  # its range needs the scene: checked by the Viewer
     threads = cfg.get("threads")
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
         raise InputError(f"threads={threads}: expected an integer >= 1 (torch CPU threads) or null")
