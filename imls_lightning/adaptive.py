@@ -7,11 +7,12 @@ The ORP (:mod:`imls_lightning.orp`) picks the smallest *fixed* ``u`` whose IML +
 pixels than a busy one for the same quality. This module makes ``u`` a function of the view:
 
 1. **Per-view labels** (:func:`compute_labels`): for each view of a cache split, the smallest
-   ``u_v`` in ``[0.01, 1]`` such that IML + RecNN on that view is within ``epsilon_db`` PSNR of the
+   ``u_v`` in ``[0.01, 1]`` such that the path on that view is within ``epsilon_db`` PSNR of the
    RecNN alone (against the FR ground truth), by bisection in ``log u`` with a fixed number of steps
-   (:func:`bisect_mean`), vectorized over a batch of views. The IML path is the trained IML's own
-   (:func:`iml_pim`, :func:`im_at_means`: encoder, normalization at ``u_v``, hard rejection sampling
-   against ``P``, decoder, RecNN) with the mean set per view at inference.
+   (:func:`bisect_mean`), vectorized over a batch of views. The path is the product's, IML/S
+   (``source="ims"``: the IMS's PIM' from the view, scaled to ``u_v``, decoder, RecNN), or the
+   trained IML's own (``source="iml"``, :func:`iml_pim`, :func:`im_at_means`: encoder,
+   normalization at ``u_v``, hard rejection sampling against ``P``, decoder, RecNN).
 2. **A mean predictor** (:class:`MeanPredictor`): view ``(B, 9)`` -> ``u`` ``(B,)`` in ``[0.01, 1]``,
    a small MLP with a sigmoid in ``log u``, trained on the labels of the train split by
    :func:`train_predictor` (L1 on ``log u``, full batch, seeded); ``margin`` multiplies predictions.
@@ -24,7 +25,9 @@ pixels than a busy one for the same quality. This module makes ``u`` a function 
 4. **The CLI** (:func:`run_adaptive`): labels (cached next to the IMS run and reused), predictor,
    and the comparison on the test trajectory with the fixed-mean alternatives (the trained mean, the
    fixed-mean ORP on the validation views, the fixed mean whose average IPR matches the adaptive one),
-   written as ``adaptive.md`` + ``adaptive.csv`` + ``adaptive.png``.
+   written as ``adaptive.md`` + ``adaptive.csv`` + ``adaptive.png``; and the trade-off
+   (:func:`quality_at_means`, :func:`tradeoff`): the predictor at several margins against the whole
+   curve of fixed means on the (average IPR, average PSNR) plane (``tradeoff.png`` / ``.csv``).
 
     python -m imls_lightning.adaptive scene=flame data=small ims_checkpoint=<IMS .ckpt> epsilon_db=1.0
 
@@ -80,6 +83,9 @@ __all__ = [
     "im_at_means",
     "MeanLabels",
     "compute_labels",
+    "quality_at_means",
+    "TradeoffPoint",
+    "tradeoff",
     "view_complexity",
     "MeanPredictor",
     "ConstantMean",
@@ -95,6 +101,7 @@ __all__ = [
 register_resolvers()
 
 REFERENCES = ("recnn", "iml")
+SOURCES = ("ims", "iml")  # whose importance the labels bisect: the IMS (IML/S, the product) or the IML (upper bound)
 UNREACHABLE = ("hi", "best")  # the label of a view that no mean in the bracket brings within epsilon
 
 
@@ -328,10 +335,31 @@ def view_complexity(images: np.ndarray, background: Sequence[float] = (0.0, 0.0,
     return (diff > tol).reshape(len(a), -1).mean(axis=1)
 
 
+def _check_source(source: str, ims) -> None:
+    if source not in SOURCES:
+        raise InputError(f"label_source={source!r}: expected one of {list(SOURCES)}")
+    if source == "ims" and (ims is None or getattr(ims, "target", None) != "pim"):
+        raise InputError("label_source=ims: needs the IMS task (an IMS trained with model.target=pim)")
+
+
+def _mask_fn(source: str, iml: nn.Module, ims, c: torch.Tensor, view: torch.Tensor) -> Callable[[Any], torch.Tensor]:
+    """``u (B,) -> IM (B, 1, n, n)`` in ``c``'s dtype for one batch: the IML's mask at ``u`` from the
+    rendered C-Image ``c`` (``source="iml"``) or the IMS's PIM' for ``view`` scaled to ``u``
+    (``source="ims"``, the IML/S path). The network runs once here, not per ``u``."""
+    if source == "iml":
+        pim = iml_pim(iml, c)
+        return lambda u: im_at_means(iml, pim, u).to(c.dtype)
+    g = ims.generator(view.float()).float()
+    u_train = float(iml.mean)
+    return lambda u: scaled_pim_im(ims, g, torch.as_tensor(u, dtype=torch.float32).reshape(-1).expand(c.shape[0]),
+                                   u_train).to(c.dtype)
+
+
 def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: nn.Module, recnn_alone: nn.Module,
                    epsilon_db: float = 1.0, steps: int = 8, batch_size: int = 16, device: str | torch.device = "cpu",
                    progress: bool = True, desc: str = "labels", reference: str = "recnn",
-                   bracket: Sequence[float] = MEAN_RANGE, unreachable: str = "hi") -> MeanLabels:
+                   bracket: Sequence[float] = MEAN_RANGE, unreachable: str = "hi", source: str = "iml",
+                   ims=None) -> MeanLabels:
     """Per-view smallest mean value meeting epsilon, for the cache ``rows`` (see :func:`bisect_mean`).
 
     For each batch of views: the RecNN alone on the C-Image (once), the IML encoder (once), then per
@@ -352,6 +380,11 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
             ``(0.01, trained mean)``: its upper end meets epsilon by construction).
         batch_size: views per batch (>= 1).
         device: where the networks run.
+        source: whose importance is bisected: ``"iml"`` (the IML encoder on the rendered C-Image, the
+            upper bound) or ``"ims"`` (the product path IML/S: the IMS's PIM' from the view alone,
+            scaled to ``u`` by :func:`scaled_pim_im`; needs ``ims``, an IMS task with
+            ``target="pim"``). With ``"ims"`` and ``reference="iml"`` the reference is IML/S at the
+            trained mean.
     """
     from torch.utils.data import DataLoader
     from tqdm import tqdm
@@ -363,9 +396,10 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
     bs = _integer(batch_size, "batch_size", 1)
     if reference not in REFERENCES:
         raise InputError(f"reference={reference!r}: expected one of {list(REFERENCES)}")
+    _check_source(source, ims)
     dev = pick_device(device)
     rows = np.asarray(rows, np.int64)
-    for net in (iml, recnn_iml, recnn_alone):
+    for net in (iml, recnn_iml, recnn_alone) + ((ims,) if ims is not None else ()):
         net.to(dev).eval()
     ds = ViewImageDataset(cache.path, rows, pattern, fields=("view", "fr", "c"))
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("u", "met", "gap", "psnr")}
@@ -375,16 +409,14 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
         for batch in tqdm(loader, total=len(loader), desc=desc, unit="batch", file=sys.stderr,
                           disable=not progress, dynamic_ncols=True):
             c, fr = batch["c"].to(dev), batch["fr"].to(dev)
-            pim = iml_pim(iml, c)
+            mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
             if reference == "recnn":
                 psnr_ref = _psnr(recnn_alone(c), fr)
             else:
-                im0 = im_at_means(iml, pim, [float(iml.mean)] * c.shape[0])
-                psnr_ref = _psnr(recnn_iml(iml.decode(im0.to(c.dtype) * c)), fr)
+                psnr_ref = _psnr(recnn_iml(iml.decode(mask_at([float(iml.mean)] * c.shape[0]) * c)), fr)
 
             def gap_fn(u: torch.Tensor) -> torch.Tensor:
-                im = im_at_means(iml, pim, u)
-                return psnr_ref - _psnr(recnn_iml(iml.decode(im.to(c.dtype) * c)), fr)
+                return psnr_ref - _psnr(recnn_iml(iml.decode(mask_at(u) * c)), fr)
 
             res = bisect_mean(gap_fn, c.shape[0], eps, steps, bracket, unreachable)
             out["u"].append(res.u.numpy())
@@ -399,9 +431,160 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
     return MeanLabels(
         rows=rows, views=np.asarray(cache.views[rows], np.float32).reshape(-1, 9), u=cat("u", np.float64),
         met=cat("met", bool), gap_db=cat("gap", np.float64), psnr_ref=cat("psnr", np.float64), complexity=cplx,
-        meta={"epsilon_db": eps, "reference": reference, "steps": steps, "bracket": [float(x) for x in bracket], "unreachable": unreachable, "seconds": round(seconds, 3),
+        meta={"epsilon_db": eps, "reference": reference, "source": source, "steps": steps, "bracket": [float(x) for x in bracket], "unreachable": unreachable, "seconds": round(seconds, 3),
               "views": int(len(rows)), "evaluations_per_view": steps + 2},
     )
+
+
+def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn.Module, means: Mapping[str, Any], *,
+                     source: str = "ims", ims=None, batch_size: int = 16, device: str | torch.device = "cpu",
+                     progress: bool = False, desc: str = "trade-off") -> dict[str, dict[str, np.ndarray]]:
+    """Per-view PSNR and IPR of the IML/S (``source="ims"``) or IML (``"iml"``) + RecNN path at given means.
+
+    One pass over the cache ``rows``: per batch the RecNN alone, the importance network (once) and,
+    for every entry of ``means``, the mask at that entry's per-view ``u``, the decoder and the RecNN
+    on the float images of the cache (the selective render of the masked pixels gives those same
+    pixels, up to the uint8 rounding of the real renderer).
+
+    Args:
+        means: ``name -> u``: a number (one fixed mean) or an ``(N,)`` array (one mean per row).
+        source, ims: as :func:`compute_labels`.
+
+    Returns:
+        ``name -> {"psnr": (N,), "ipr": (N,)}`` plus ``"recnn" -> {"psnr": (N,)}`` (the RecNN alone);
+        IPR is rendered pixels / FR pixels.
+
+    Example (shapes only; see ``tests/test_adaptive.py``)::
+
+        q = quality_at_means(cache, rows, pattern, iml, recnn, {"fixed": 0.3, "adaptive": u_pred}, ims=ims)
+        q["adaptive"]["psnr"].mean(), q["adaptive"]["ipr"].mean()
+    """
+    from torch.utils.data import DataLoader
+    from tqdm import tqdm
+
+    from .data import ViewImageDataset
+
+    _check_source(source, ims)
+    bs = _integer(batch_size, "batch_size", 1)
+    rows = np.asarray(rows, np.int64)
+    n_rows = len(rows)
+    table: dict[str, np.ndarray] = {}
+    for name, u in means.items():
+        arr = np.asarray(u, np.float64)
+        arr = np.full(n_rows, float(arr)) if arr.ndim == 0 else arr.reshape(-1)
+        if arr.shape[0] != n_rows or not np.isfinite(arr).all() or (arr <= 0).any():
+            raise InputError(f"means[{name!r}]: expected a positive mean or {n_rows} positive means, got shape {np.shape(u)}")
+        table[name] = np.clip(arr, *MEAN_RANGE)
+    dev = pick_device(device)
+    for net in (iml, recnn) + ((ims,) if ims is not None else ()):
+        net.to(dev).eval()
+    fr_pixels = float(pattern.fr_size) ** 2
+    out: dict[str, dict[str, list[np.ndarray]]] = {k: {"psnr": [], "ipr": []} for k in table}
+    out["recnn"] = {"psnr": []}
+    ds = ViewImageDataset(cache.path, rows, pattern, fields=("view", "fr", "c"))
+    loader = DataLoader(ds, batch_size=bs, shuffle=False, num_workers=0)
+    start = 0
+    with torch.inference_mode():
+        for batch in tqdm(loader, total=len(loader), desc=desc, unit="batch", file=sys.stderr, disable=not progress,
+                          dynamic_ncols=True):
+            c, fr = batch["c"].to(dev), batch["fr"].to(dev)
+            sl = slice(start, start + c.shape[0])
+            start += c.shape[0]
+            out["recnn"]["psnr"].append(_psnr(recnn(c), fr).double().cpu().numpy())
+            mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
+            for name, u in table.items():
+                im = mask_at(torch.as_tensor(u[sl]))
+                out[name]["psnr"].append(_psnr(recnn(iml.decode(im * c)), fr).double().cpu().numpy())
+                out[name]["ipr"].append(im.flatten(1).sum(1).double().cpu().numpy() / fr_pixels)
+    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
+    return {name: {k: cat(v) for k, v in d.items()} for name, d in out.items()}
+
+
+@dataclass
+class TradeoffPoint:
+    """One setting on the IPR / quality plane, compared with the fixed-mean curve.
+
+    ``ipr``, ``psnr``: averages over the views; ``within``: share of views within epsilon of the
+    reference; ``fixed_psnr``: the fixed-mean curve's average PSNR at this average IPR (linear
+    between the curve's points; None outside its IPR range); ``fixed_ipr``: the smallest average
+    IPR at which the fixed-mean curve reaches this average PSNR (None: no fixed mean does);
+    ``fixed_within``: the curve's within-epsilon share at this IPR.
+    """
+
+    name: str
+    ipr: float
+    psnr: float
+    within: float
+    fixed_psnr: float | None
+    fixed_within: float | None
+    fixed_ipr: float | None
+
+    @property
+    def d_psnr(self) -> float | None:
+        """dB gained over the fixed mean at the same average IPR."""
+        return None if self.fixed_psnr is None else self.psnr - self.fixed_psnr
+
+    @property
+    def d_ipr(self) -> float | None:
+        """Relative change of the pixels rendered vs the fixed mean at the same average PSNR (< 0: fewer)."""
+        return None if not self.fixed_ipr else self.ipr / self.fixed_ipr - 1.0
+
+
+def tradeoff(reference: np.ndarray, fixed: Mapping[float, Mapping[str, np.ndarray]],
+             points: Mapping[str, Mapping[str, np.ndarray]], epsilon_db: float = 1.0) -> tuple[list[dict[str, float]], list[TradeoffPoint]]:
+    """Compare per-view settings with the curve of fixed means on the (average IPR, average PSNR) plane.
+
+    Args:
+        reference: ``(N,)`` per-view reference PSNR (a view is "within" when its PSNR is at most
+            ``epsilon_db`` below it).
+        fixed: ``u -> {"psnr": (N,), "ipr": (N,)}`` for several fixed means (the curve).
+        points: ``name -> {"psnr": (N,), "ipr": (N,)}``: the settings compared (adaptive, oracle).
+
+    Returns:
+        ``(curve, compared)``: the curve as ``{"u", "ipr", "psnr", "within"}`` rows sorted by IPR, and
+        one :class:`TradeoffPoint` per entry of ``points``.
+
+    Example:
+        >>> ref = np.array([30.0, 30.0])
+        >>> fixed = {u: {"psnr": np.array([20 + 10 * u, 20 + 10 * u]), "ipr": np.array([u, u])} for u in (0.1, 0.5, 1.0)}
+        >>> _, (p,) = tradeoff(ref, fixed, {"a": {"psnr": np.array([25.0, 27.0]), "ipr": np.array([0.2, 0.4])}})
+        >>> round(p.d_psnr, 3), round(p.d_ipr, 3)          # +3 dB at IPR 0.3; the curve needs 0.6 for 26 dB
+        (3.0, -0.5)
+    """
+    eps = check_epsilon(epsilon_db)
+    ref = np.asarray(reference, np.float64)
+
+    def summary(d: Mapping[str, np.ndarray]) -> tuple[float, float, float]:
+        ps = np.asarray(d["psnr"], np.float64)
+        if ps.shape != ref.shape:
+            raise InputError(f"tradeoff: expected {ref.shape[0]} per-view PSNRs, got shape {ps.shape}")
+        return float(np.mean(d["ipr"])), float(ps.mean()), float((ref - ps <= eps + 1e-9).mean())
+
+    curve = sorted(({"u": float(u), **dict(zip(("ipr", "psnr", "within"), summary(d)))} for u, d in fixed.items()),
+                   key=lambda r: (r["ipr"], r["u"]))
+    if not curve:
+        raise InputError("tradeoff: expected at least one fixed mean")
+    ci = np.array([r["ipr"] for r in curve])
+    cp = np.array([r["psnr"] for r in curve])
+    cw = np.array([r["within"] for r in curve])
+    env = np.maximum.accumulate(cp)  # best PSNR reachable with at most this IPR
+
+    def fixed_ipr_for(psnr: float) -> float | None:
+        if psnr > env[-1]:
+            return None
+        k = int(np.argmax(env >= psnr))
+        if k == 0 or env[k] == env[k - 1]:
+            return float(ci[k])
+        t = (psnr - env[k - 1]) / (env[k] - env[k - 1])
+        return float(ci[k - 1] + t * (ci[k] - ci[k - 1]))
+
+    compared = []
+    for name, d in points.items():
+        ip, ps, w = summary(d)
+        inside = len(ci) > 1 and ci[0] - 1e-12 <= ip <= ci[-1] + 1e-12
+        compared.append(TradeoffPoint(name, ip, ps, w, float(np.interp(ip, ci, cp)) if inside else None,
+                                      float(np.interp(ip, ci, cw)) if inside else None, fixed_ipr_for(ps)))
+    return curve, compared
 
 
 # ------------------------------------------------------------------------------------------------
@@ -813,6 +996,9 @@ class Settings:
     reference: str
     steps: int
     unreachable: str
+    label_source: str
+    tradeoff_means: int
+    tradeoff_margins: tuple[float, ...]
     batch_size: int
     predictor: dict[str, Any]
     views: str
@@ -825,11 +1011,12 @@ class Settings:
 
     def label_key(self) -> dict[str, Any]:
         return {"epsilon_db": self.epsilon_db, "reference": self.reference, "steps": self.steps,
-                "unreachable": self.unreachable}
+                "unreachable": self.unreachable, "source": self.label_source}
 
     def hashed(self) -> dict[str, Any]:
         return {**self.label_key(), "predictor": self.predictor, "views": self.views, "max_views": self.max_views,
-                "repeats": self.repeats, "timing_views": self.timing_views}
+                "repeats": self.repeats, "timing_views": self.timing_views,
+                "tradeoff_means": self.tradeoff_means, "tradeoff_margins": list(self.tradeoff_margins)}
 
 
 PREDICTOR_DEFAULTS = {"hidden": 64, "layers": 2, "epochs": 600, "lr": 3e-3, "weight_decay": 1e-4, "seed": 0, "margin": 1.0}
@@ -872,11 +1059,24 @@ def parse_settings(cfg) -> Settings:
     unreachable = str(cfg.get("unreachable", "best"))
     if unreachable not in UNREACHABLE:
         raise InputError(f"unreachable={unreachable}: expected best (within epsilon of the view's best gap) or hi (the bracket's top)")
+    source = str(cfg.get("label_source", "ims"))
+    if source not in SOURCES:
+        raise InputError(f"label_source={source}: expected ims (labels on the IML/S path, the product) or iml (the IML on the rendered C-Image)")
+    margins = to_plain(cfg.get("tradeoff_margins", [0.8, 1.0, 1.25, 1.5]))
+    if isinstance(margins, (int, float)) and not isinstance(margins, bool):
+        margins = [margins]
+    if not isinstance(margins, list) or not margins:
+        raise InputError(f"tradeoff_margins={margins}: expected a list of factors in (0, 10], e.g. [0.8,1,1.25]")
+    margins = [_number(x, "tradeoff_margins", "factors in (0, 10]") for x in margins]
+    if not all(0 < x <= 10 for x in margins):
+        raise InputError(f"tradeoff_margins={margins}: expected factors in (0, 10]")
     device = str(cfg.get("device", "auto"))
     pick_device(device)
     return Settings(
         ims=str(ims), recnn=str(recnn) if recnn else None, epsilon_db=check_epsilon(cfg.get("epsilon_db", 1.0)), reference=reference,
-        steps=_integer(cfg.get("steps", 8), "steps", 1, 30), unreachable=unreachable, batch_size=_integer(cfg.get("batch_size", 16), "batch_size", 1),
+        steps=_integer(cfg.get("steps", 8), "steps", 1, 30), unreachable=unreachable, label_source=source,
+        tradeoff_means=_integer(cfg.get("tradeoff_means", 16), "tradeoff_means", 0, 200),
+        tradeoff_margins=tuple(sorted(set(margins))), batch_size=_integer(cfg.get("batch_size", 16), "batch_size", 1),
         predictor=pred, views=views, max_views=None if mv is None else _integer(mv, "max_views", 1),
         repeats=_integer(cfg.get("repeats", 10), "repeats", 1), timing_views=_integer(cfg.get("timing_views", 20), "timing_views", 0),
         device=device, output_dir=cfg.get("output_dir") or None, progress=bool(cfg.get("progress", True)),
@@ -974,7 +1174,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
             lambda rows=rows, split=split: compute_labels(cache, rows, pattern, iml, recnn, recnn, s.epsilon_db, s.steps,
                                                          s.batch_size, device, s.progress, desc=f"labels {split}",
                                                          reference=s.reference, bracket=bracket,
-                                                         unreachable=s.unreachable),
+                                                         unreachable=s.unreachable, source=s.label_source, ims=ims),
             split)
         timing[f"labels_{split}_s"] = round(time.perf_counter() - t0, 2)
         timing[f"labels_{split}_reused"] = reused
@@ -1065,6 +1265,31 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
                 lat[name].append({k[:-3]: v for k, v in fields_.items() if k.endswith("_ms")})
         per_view.append(rec)
     timing["evaluate_s"] = round(time.perf_counter() - t_eval, 2)
+
+    # -- 4. trade-off curve: fixed means vs the predictor at several margins, on the label source's path --
+    trade = None
+    if s.tradeoff_means:
+        t0 = time.perf_counter()
+        with torch.inference_mode():
+            u_raw = predictor.log_mean(views_t).exp().double().cpu().numpy()
+        fixed_us = np.exp(np.linspace(math.log(0.05), 0.0, s.tradeoff_means)) if s.tradeoff_means > 1 else np.array([u_train])
+        means: dict[str, Any] = {f"fixed:{u:.6g}": float(u) for u in fixed_us}
+        means.update({f"adaptive x{mg:g}": u_raw * mg for mg in s.tradeoff_margins})
+        means["oracle (labels)"] = ev.u
+        q = quality_at_means(cache, rows, pattern, iml, recnn, means, source=s.label_source, ims=ims,
+                             batch_size=s.batch_size, device=device, progress=s.progress)
+        ref_psnr = q["recnn"]["psnr"]
+        if s.reference == "iml":  # the path itself at the trained mean
+            ref_psnr = quality_at_means(cache, rows, pattern, iml, recnn, {"t": u_train}, source=s.label_source, ims=ims,
+                                        batch_size=s.batch_size, device=device)["t"]["psnr"]
+        curve, compared = tradeoff(ref_psnr, {float(k[6:]): v for k, v in q.items() if k.startswith("fixed:")},
+                                   {k: v for k, v in q.items() if not k.startswith(("fixed:", "recnn"))}, s.epsilon_db)
+        trade = {"curve": curve, "points": compared, "seconds": round(time.perf_counter() - t0, 2)}
+        _write_csv(out / "tradeoff.csv", [{"setting": f"fixed u={r['u']:.5g}", **r} for r in curve] +
+                   [{"setting": p.name, "u": None, "ipr": p.ipr, "psnr": p.psnr, "within": p.within, "fixed_psnr": p.fixed_psnr,
+                     "fixed_ipr": p.fixed_ipr, "fixed_within": p.fixed_within} for p in compared])
+        _plot_tradeoff(out / "tradeoff.png", curve, compared, s.epsilon_db, rep, s.label_source)
+        timing["tradeoff_s"] = trade["seconds"]
     timing["total_s"] = round(time.perf_counter() - t_start, 2)
 
     # -- report ----------------------------------------------------------------------------------------
@@ -1088,8 +1313,10 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     _write_csv(out / "adaptive.csv", csv_rows)
     _plot(out / "adaptive.png", per_view, eps, rep, s.reference)
     md = _markdown(s, cfg, ims, cache, summ, per_view, hist, timing, labels, u_train, u_orp, orp_res, u_match,
-                   adaptive_ipr_est, out, command or _command())
-    rep.atomic_write_text(out / "adaptive.json", json.dumps({"summary": summ, "timing": timing, "predictor": hist,
+                   adaptive_ipr_est, out, command or _command(), trade)
+    trade_json = None if trade is None else {"curve": trade["curve"], "points": [
+        {**p.__dict__, "d_psnr": p.d_psnr, "d_ipr": p.d_ipr} for p in trade["points"]]}
+    rep.atomic_write_text(out / "adaptive.json", json.dumps({"summary": summ, "tradeoff": trade_json, "timing": timing, "predictor": hist,
                                                              "u_train": u_train, "u_orp": u_orp, "u_matched": u_match,
                                                              "epsilon_db": eps}, indent=2, default=str))
     rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(
@@ -1138,7 +1365,8 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
     import io
 
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["view"], lineterminator="\n")
+    fields = list(dict.fromkeys(k for r in rows for k in r)) or ["view"]  # union, in first-seen order
+    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     w.writeheader()
     for r in rows:
         w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
@@ -1174,8 +1402,29 @@ def _plot(path: Path, per_view: list[dict[str, Any]], eps: float, rep, reference
     rep.save_figure(fig, path)
 
 
+def _plot_tradeoff(path: Path, curve: list[dict[str, float]], points: list[TradeoffPoint], eps: float, rep, source: str) -> None:
+    fig = rep._figure(10.0, 4.0)
+    ax1, ax2 = fig.add_subplot(121), fig.add_subplot(122)
+    path_name = "IML/S + RecNN" if source == "ims" else "IML + RecNN"
+    for ax, key, label in ((ax1, "psnr", "average PSNR (dB)"), (ax2, "within", f"views within {eps:g} dB of the reference")):
+        ax.plot([r["ipr"] for r in curve], [r[key] for r in curve], "o-", ms=3, color="gray", label="fixed u (sweep)")
+        ad = [p for p in points if p.name.startswith("adaptive")]
+        ax.plot([p.ipr for p in ad], [getattr(p, key) for p in ad], "x-", ms=6, color="C1", label="adaptive u (margins)")
+        for p in ad:
+            ax.annotate(p.name.split(" ", 1)[1], (p.ipr, getattr(p, key)), fontsize=7, xytext=(3, -9), textcoords="offset points")
+        for p in points:
+            if p.name.startswith("oracle"):
+                ax.plot([p.ipr], [getattr(p, key)], "*", ms=10, color="C2", label="oracle u (labels)")
+        ax.set_xlabel("average IPR (rendered / FR pixels)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"{path_name}: per-view mean vs one fixed mean", fontsize=9)
+    rep.save_figure(fig, path)
+
+
 def _markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels, u_train, u_orp, orp_res, u_match,
-              adaptive_ipr_est, out: Path, command: str) -> str:
+              adaptive_ipr_est, out: Path, command: str, trade: dict[str, Any] | None = None) -> str:
     eps = s.epsilon_db
     n = len(per_view)
     L: list[str] = []
@@ -1185,8 +1434,12 @@ def _markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels
     L.append(f"- IMS checkpoint: `{s.ims}` (target=pim; IML trained at u = {u_train:g}); RecNN: "
              f"`{s.recnn or 'the one in the IMS checkpoint'}`; cache `{cache.path}`; device {pick_device(s.device)}.")
     ref_text = "RecNN alone" if s.reference == "recnn" else f"IML + RecNN at the trained u = {u_train:g}"
-    L.append(f"- Labels: per view, smallest u in [{bracket[0]:g}, {bracket[1]:g}] with PSNR(IML + RecNN at u) >= PSNR({ref_text}) - {eps:g} dB "
-             f"(reference={s.reference}), {s.steps} bisection steps in log u (+2 end checks); views that fail even at "
+    path_name = "IML/S + RecNN" if s.label_source == "ims" else "IML + RecNN"
+    orp_ref_text = ref_text  # the ORP search always runs on the IML + RecNN path
+    if s.reference != "recnn":
+        ref_text = f"{path_name} at the trained u = {u_train:g}"
+    L.append(f"- Labels: per view, smallest u in [{bracket[0]:g}, {bracket[1]:g}] with PSNR({path_name} at u) >= PSNR({ref_text}) - {eps:g} dB "
+             f"(reference={s.reference}, label_source={s.label_source}), {s.steps} bisection steps in log u (+2 end checks); views that fail even at "
              f"u = {bracket[1]:g}: " + ("the smallest u within epsilon of their gap there (unreachable=best)." if s.unreachable == "best"
                                       else f"u = {bracket[1]:g} (unreachable=hi)."))
     for split, lab in labels.items():
@@ -1206,7 +1459,7 @@ def _markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels
     L.append(f"- On the {s.views} views: corr(log label u, log predicted u) = {_fmt(corr, '.3f')}; "
              f"corr(complexity, log label u) = {_fmt(ccx, '.3f')}; L1(log u) = {float(np.abs(np.log(ul) - np.log(up)).mean()):.3f}.")
     L.append(f"- Fixed means compared: trained u = {u_train:g}; ORP u = {u_orp:.5g} (ORP search on the validation views against the "
-             f"{ref_text}, inference-time u, {orp_res.jobs} evaluations, {'found' if orp_res.found else 'NOT found: u = 1 used'}); "
+             f"{orp_ref_text}, inference-time u, {orp_res.jobs} evaluations, {'found' if orp_res.found else 'NOT found: u = 1 used'}); "
              f"IPR-matched u = {u_match:.5g} (IML/S average IPR {adaptive_ipr_est:.4f} of the adaptive one).")
     L.append(f"- Time: labels {sum(v for k, v in timing.items() if k.startswith('labels_') and k.endswith('_s')):.1f} s, "
              f"predictor {timing['train_predictor_s']:.1f} s, ORP search {timing['orp_search_s']:.1f} s, "
@@ -1237,6 +1490,8 @@ def _markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels
     L.append(f"- Upper bound (IML + RecNN, importance from the rendered C-Image): ORP IPR {i_o['ipr']:.4f} / gap {i_o['gap_ref']:.3f} dB / "
              f"within {100 * i_o['within']:.0f} %; adaptive IPR {i_a['ipr']:.4f} / gap {i_a['gap_ref']:.3f} dB / within "
              f"{100 * i_a['within']:.0f} %; oracle (labels) IPR {summ['iml_oracle']['ipr']:.4f} / within {100 * summ['iml_oracle']['within']:.0f} %.")
+    if trade is not None:
+        L.extend(_tradeoff_markdown(trade, s, path_name, len(per_view)))
     lat_a, lat_f = a.get("latency_ms"), f_t.get("latency_ms")
     if lat_a and lat_f:
         stages = [k for k in ("mean", "importance", "selective_render", "decoder", "recnn", "total") if k in lat_a or k in lat_f]
@@ -1258,9 +1513,40 @@ def _markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels
              "improve quality, so a view can fail at u = 1 although it passed at a smaller u (bisection then returns one "
              "crossing). PSNRs here are on the uint8 images of the real selective renderer; labels use the float images.")
     L.append("- Files: `adaptive.csv` (per view), `adaptive.png` (u and IPR vs complexity, gap per view), "
-             "`mean_predictor.pt`, `adaptive.json`.\n")
+             "`tradeoff.csv` / `tradeoff.png` (the curve), `mean_predictor.pt`, `adaptive.json`.\n")
     L.append("![adaptive](adaptive.png)\n")
     return "\n".join(L) + "\n"
+
+
+def _tradeoff_markdown(trade: dict[str, Any], s: Settings, path_name: str, n: int) -> list[str]:
+    eps = s.epsilon_db
+    curve, points = trade["curve"], trade["points"]
+    ref = "the RecNN alone" if s.reference == "recnn" else f"{path_name} at the trained mean"
+    L = ["", f"## Trade-off: adaptive vs the whole fixed-mean curve ({path_name})\n",
+         f"One fixed mean is one point; a fair comparison is against the curve of all of them. {len(curve)} fixed means "
+         f"(log-spaced in [0.05, 1]) and the predictor at margins {', '.join(f'x{m:g}' for m in s.tradeoff_margins)} "
+         f"on the {n} {s.views} views, float pipeline (cached images, no uint8 rounding), computed in {trade['seconds']:.1f} s. "
+         f"'fixed at same IPR': the curve's average PSNR / within-epsilon share at the setting's average IPR; "
+         f"'fixed IPR for same PSNR': the fewest pixels with which some fixed mean reaches the setting's average PSNR. "
+         f"Within epsilon: PSNR at most {eps:g} dB below {ref}.\n",
+         "| setting | avg IPR | avg PSNR (dB) | within epsilon | fixed at same IPR: PSNR / within | ΔPSNR (dB) | fixed IPR for same PSNR | Δ pixels |",
+         "|---|---|---|---|---|---|---|---|"]
+    for p in points:
+        fixed = "–" if p.fixed_psnr is None else f"{p.fixed_psnr:.2f} / {100 * p.fixed_within:.0f} %"
+        L.append(f"| {p.name} | {p.ipr:.4f} | {p.psnr:.2f} | {100 * p.within:.0f} % | {fixed} | {_fmt(p.d_psnr, '+.2f')} | "
+                 f"{_fmt(p.fixed_ipr, '.4f')} | {'–' if p.d_ipr is None else f'{100 * p.d_ipr:+.1f} %'} |")
+    ad = [p for p in points if p.name.startswith("adaptive") and p.d_psnr is not None]
+    if ad:
+        best = max(ad, key=lambda p: p.d_psnr)
+        L.append("")
+        L.append(f"- Adaptive beats the fixed-mean curve at {sum(p.d_psnr > 0 for p in ad)} of {len(ad)} margins inside its range; "
+                 f"largest gain {best.d_psnr:+.2f} dB at IPR {best.ipr:.4f} ({best.name}); "
+                 + ", ".join(f"{p.name}: {'–' if p.d_ipr is None else f'{100 * p.d_ipr:+.1f} %'} pixels for the same PSNR" for p in ad) + ".")
+    top = max(curve, key=lambda r: r["psnr"])
+    L.append(f"- The fixed-mean curve tops out at {top['psnr']:.2f} dB (u = {top['u']:.3g}, IPR {top['ipr']:.4f}); a setting "
+             f"above it has '–' as fixed IPR. See `tradeoff.png`, `tradeoff.csv`.\n")
+    L.append("![trade-off](tradeoff.png)")
+    return L
 
 
 def _command() -> str:
