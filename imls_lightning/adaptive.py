@@ -572,9 +572,9 @@ def tradeoff(reference: np.ndarray, fixed: Mapping[float, Mapping[str, np.ndarra
     def fixed_ipr_for(psnr: float) -> float | None:
         if psnr > env[-1]:
             return None
-        k = int(np.argmax(env >= psnr))
-        if k == 0 or env[k] == env[k - 1]:
-            return float(ci[k])
+        k = int(np.argmax(env >= psnr))  # first point reaching it; env[k - 1] < psnr <= env[k]
+        if k == 0:
+            return float(ci[0])
         t = (psnr - env[k - 1]) / (env[k] - env[k - 1])
         return float(ci[k - 1] + t * (ci[k] - ci[k - 1]))
 
@@ -1276,14 +1276,14 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
         means: dict[str, Any] = {f"fixed:{u:.6g}": float(u) for u in fixed_us}
         means.update({f"adaptive x{mg:g}": u_raw * mg for mg in s.tradeoff_margins})
         means["oracle (labels)"] = ev.u
+        if s.reference == "iml":  # the reference is the path itself at the trained mean: measured in the same pass
+            means["reference"] = u_train
         q = quality_at_means(cache, rows, pattern, iml, recnn, means, source=s.label_source, ims=ims,
                              batch_size=s.batch_size, device=device, progress=s.progress)
-        ref_psnr = q["recnn"]["psnr"]
-        if s.reference == "iml":  # the path itself at the trained mean
-            ref_psnr = quality_at_means(cache, rows, pattern, iml, recnn, {"t": u_train}, source=s.label_source, ims=ims,
-                                        batch_size=s.batch_size, device=device)["t"]["psnr"]
+        ref_psnr = q.pop("reference" if s.reference == "iml" else "recnn")["psnr"]
+        q.pop("recnn", None)
         curve, compared = tradeoff(ref_psnr, {float(k[6:]): v for k, v in q.items() if k.startswith("fixed:")},
-                                   {k: v for k, v in q.items() if not k.startswith(("fixed:", "recnn"))}, s.epsilon_db)
+                                   {k: v for k, v in q.items() if not k.startswith("fixed:")}, s.epsilon_db)
         trade = {"curve": curve, "points": compared, "seconds": round(time.perf_counter() - t0, 2)}
         _write_csv(out / "tradeoff.csv", [{"setting": f"fixed u={r['u']:.5g}", **r} for r in curve] +
                    [{"setting": p.name, "u": None, "ipr": p.ipr, "psnr": p.psnr, "within": p.within, "fixed_psnr": p.fixed_psnr,
@@ -1550,15 +1550,9 @@ def _tradeoff_markdown(trade: dict[str, Any], s: Settings, path_name: str, n: in
 
 
 def _command() -> str:
-    try:
-        from hydra.core.hydra_config import HydraConfig
+    from .report import hydra_command
 
-        if HydraConfig.initialized():
-            return "python -m imls_lightning.adaptive " + " ".join(HydraConfig.get().overrides.task)
-    except Exception:  # informative only
-        pass
-    return "run_adaptive(cfg) through the Python API"
-
+    return hydra_command("imls_lightning.adaptive", "run_adaptive(cfg) through the Python API")
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="adaptive")
 @cli_errors

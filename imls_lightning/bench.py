@@ -469,16 +469,9 @@ def _names(cfg: DictConfig, key: str) -> list[str]:
 
 
 def _command() -> str:
-    try:
-        from hydra.core.hydra_config import HydraConfig
+    from .report import hydra_command
 
-        if HydraConfig.initialized():
-            args = " ".join(quote(a) if " " in a else a for a in HydraConfig.get().overrides.task)
-            return f"python -m imls_lightning.bench {args}".rstrip()
-    except Exception:  # informative only
-        pass
-    return "python -m imls_lightning.bench"
-
+    return hydra_command("imls_lightning.bench", "python -m imls_lightning.bench")
 
 def _scale_lines(cfg: DictConfig, scenes, recnns, las_iprs) -> list[str]:
     """The scale of the run, for the report: scenes, data group, every stage's overrides."""

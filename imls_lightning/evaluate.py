@@ -294,16 +294,9 @@ def _bar(iterable, total: int, desc: str, enabled: bool):
 
 
 def _command() -> str:
-    try:
-        from hydra.core.hydra_config import HydraConfig
+    from .report import hydra_command
 
-        if HydraConfig.initialized():
-            args = list(HydraConfig.get().overrides.task)
-            return "python -m imls_lightning.evaluate " + " ".join(args)
-    except Exception:  # informative only
-        pass
-    return "evaluate(cfg) through the Python API (settings: config.yaml)"
-
+    return hydra_command("imls_lightning.evaluate", "evaluate(cfg) through the Python API (settings: config.yaml)")
 
 # ------------------------------------------------------------------------------------------------
 # the evaluation

@@ -193,6 +193,27 @@ def summary(metrics_csv: str | Path) -> dict[str, dict[str, Any]]:
 # machine
 
 
+def hydra_command(module: str, fallback: str) -> str:
+    """The command line of the running Hydra app (``python -m <module> <overrides>``, an override
+    with a space quoted), for reports; ``fallback`` when not run through Hydra.
+
+    Example:
+        >>> hydra_command("imls_lightning.evaluate", "evaluate(cfg) through the Python API")
+        'evaluate(cfg) through the Python API'
+    """
+    try:
+        from shlex import quote
+
+        from hydra.core.hydra_config import HydraConfig
+
+        if HydraConfig.initialized():
+            args = " ".join(quote(a) if " " in a else a for a in HydraConfig.get().overrides.task)
+            return f"python -m {module} {args}".rstrip()
+    except Exception:  # informative only
+        pass
+    return fallback
+
+
 def machine_info(device: str = "cpu") -> dict[str, str]:
     """CPU model, cores, library versions and the device the networks ran on."""
     cpu = platform.processor() or platform.machine()

@@ -81,6 +81,13 @@ def renderer(pim_task):
     return make_renderer(build_scene(pim_task.hparams["scene"]), pim_task.hparams["renderer"])
 
 
+def _c_fr(cache, rows, pattern):
+    from imls_lightning.compaction import compact
+
+    img = torch.from_numpy(np.array(cache.images[rows])).permute(0, 3, 1, 2).float() / 255
+    return compact(img, pattern.indices, pattern.c_size), img
+
+
 # ---- bisection ---------------------------------------------------------------------------------
 def test_bisect_mean_finds_the_known_answer_of_a_monotone_gap():
     # gap(u) = 20 log10(t / u) for u < t (0 beyond): the smallest u with gap <= eps is t * 10^(-eps/20)
@@ -150,13 +157,8 @@ def test_exception_bad_steps_and_bracket():
 
 # ---- the IML path at per-view means --------------------------------------------------------------
 def test_im_at_means_is_the_imls_own_path_at_each_mean(tiny_checkpoints, tiny_cache):
-    from imls_lightning.compaction import compact
-
     iml = load_task(tiny_checkpoints["iml"], expect="IMLTask")
-    pattern = iml.pattern
-    rows = tiny_cache.splits["train"][:3]
-    img = torch.from_numpy(np.array(tiny_cache.images[rows])).permute(0, 3, 1, 2).float() / 255
-    c = compact(img, pattern.indices, pattern.c_size)
+    c, _ = _c_fr(tiny_cache, tiny_cache.splits["train"][:3], iml.pattern)
     means = [0.01, 0.137, 1.0]
     with torch.inference_mode():
         got = im_at_means(iml.iml, iml_pim(iml.iml, c), means)
@@ -385,13 +387,6 @@ def test_labels_with_the_iml_reference_stay_below_the_trained_mean(tiny_cache, p
 
 
 # ---- labels and quality on the IML/S path; the trade-off curve ------------------------------------
-def _c_fr(cache, rows, pattern):
-    from imls_lightning.compaction import compact
-
-    img = torch.from_numpy(np.array(cache.images[rows])).permute(0, 3, 1, 2).float() / 255
-    return compact(img, pattern.indices, pattern.c_size), img
-
-
 def test_quality_at_means_is_the_imls_path_at_each_mean(tiny_cache, pim_task):
     from imls_lightning.tasks.base import psnr_per_image
 
