@@ -63,6 +63,7 @@ from .config import register_resolvers
 
 from .importance import MEAN_RANGE, normalize_importance
 from .orp import _num as _number  # the same finite-number check (bool refused) as the ORP settings
+from .tasks.ims import scaled_pim_im  # noqa: F401  (public here since the adaptive renderer was added)
 from .pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
@@ -413,10 +414,12 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
             if reference == "recnn":
                 psnr_ref = _psnr(recnn_alone(c), fr)
             else:
-                psnr_ref = _psnr(recnn_iml(iml.decode(mask_at([float(iml.mean)] * c.shape[0]) * c)), fr)
+                m_ref = mask_at([float(iml.mean)] * c.shape[0])
+                psnr_ref = _psnr(recnn_iml(iml.decode(m_ref * c, m_ref)), fr)
 
             def gap_fn(u: torch.Tensor) -> torch.Tensor:
-                return psnr_ref - _psnr(recnn_iml(iml.decode(mask_at(u) * c)), fr)
+                m = mask_at(u)
+                return psnr_ref - _psnr(recnn_iml(iml.decode(m * c, m)), fr)
 
             res = bisect_mean(gap_fn, c.shape[0], eps, steps, bracket, unreachable)
             out["u"].append(res.u.numpy())
@@ -494,7 +497,7 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
             mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
             for name, u in table.items():
                 im = mask_at(torch.as_tensor(u[sl]))
-                out[name]["psnr"].append(_psnr(recnn(iml.decode(im * c)), fr).double().cpu().numpy())
+                out[name]["psnr"].append(_psnr(recnn(iml.decode(im * c, im)), fr).double().cpu().numpy())
                 out[name]["ipr"].append(im.flatten(1).sum(1).double().cpu().numpy() / fr_pixels)
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
     return {name: {k: cat(v) for k, v in d.items()} for name, d in out.items()}
@@ -802,42 +805,6 @@ def train_predictor(views: np.ndarray | torch.Tensor, u: np.ndarray | torch.Tens
 
 # ------------------------------------------------------------------------------------------------
 # 3. adaptive renderers
-
-
-def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float | None = None) -> torch.Tensor:
-    """IM of an IMS (``target="pim"``) output at mean value ``u`` instead of the trained ``u_train``.
-
-    The IMS regresses ``PIM' = (g + 1) / 2`` normalized to mean ``u_train``; the IML normalization
-    ``PIM'(u) = l + (PIM'(u_train) - l) (u - l) / (u_train - l)`` is affine in ``u``, so the IM at
-    ``u`` is ``PIM'(u) > P`` (0 on padding). Exact while nothing saturates: the generator's target
-    was ``clamp(PIM', 0, 1)``, so a pixel at ``g = 1`` had ``PIM' >= 1``; it stays important when
-    ``u >= u_train`` and is compared at its lower bound otherwise. At ``u == u_train`` (same float32)
-    this is bit-for-bit :meth:`IMSTask.output_to_im`.
-
-    Args:
-        task: the :class:`~imls_lightning.tasks.ims.IMSTask` (its ``P``, ``valid``, IML ``lower``).
-        g: ``(B, 1, n, n)`` generator output in ``[-1, 1]``.
-        u: ``(B,)`` tensor or a number: the mean value per view.
-        u_train: the mean the IMS targets were normalized to (default: the IML's trained mean).
-
-    Returns:
-        ``(B, 1, n, n)`` bool IM.
-    """
-    if task.target != "pim":
-        raise InputError(f"ims_checkpoint: its IMS was trained with model.target={task.target}; the adaptive mean scales the "
-                         "regressed PIM', which needs an IMS trained with model.target=pim")
-    g = g.float()
-    u_train = float(task.iml.mean) if u_train is None else float(u_train)
-    lower = float(task.iml.normalization.lower)
-    ut = torch.as_tensor(u, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
-    scale = (ut - lower) / torch.tensor(u_train - lower, dtype=torch.float32, device=g.device)
-    pim = (g + 1.0) * 0.5
-    if lower == 0.0:
-        pim_u = pim * scale
-    else:
-        pim_u = (pim - lower) * scale + lower
-    im = (pim_u > task.P.to(g.device)) | ((g >= 1.0) & (scale >= 1.0))
-    return im & task.valid.to(g.device)
 
 
 def _view_tensor(view, device: torch.device) -> torch.Tensor:

@@ -7,8 +7,11 @@ overrides), so the demo exercises exactly the product's CLIs:
 2. ``python -m imls_lightning.train model=recnn``      the RecNN on its sampling pattern
 3. ``python -m imls_lightning.train model=iml``        the IML network, end to end through the RecNN
 4. ``python -m imls_lightning.train model=ims``        the IMS network on the IML's labels
-5. ``python -m imls_lightning.train model=las``        the LAS baseline (``stages.las=null`` skips it)
-6. ``python -m imls_lightning.evaluate``               every method on the 120-view test trajectory
+5. ``python -m imls_lightning.train model=iml model.importance=uniform``  the blue-noise mask
+   baseline's decoder (``stages.blue_noise=null`` skips it)
+6. ``python -m imls_lightning.train model=las``        the LAS baseline (``stages.las=null`` skips it)
+7. ``python -m imls_lightning.evaluate``               the ORP on the product path (validation
+   views), then every method and the untrained baselines on the 120-view test trajectory
 
 Each CLI prints its result (cache directory, best checkpoint, report) as its last stdout line and
 reuses a finished run of the same settings, so running the demo again costs seconds. The report's
@@ -111,6 +114,11 @@ def demo(cfg: DictConfig) -> Path:
     iml = run_stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *_list(cfg, "stages.iml")])
     ims = run_stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
                             *_list(cfg, "stages.ims")])
+    blue = None
+    if OmegaConf.select(cfg, "stages.blue_noise") is not None:
+        # the untrained-mask baseline: the blue-noise mask u > P with a decoder trained for it
+        blue = run_stage("blue-noise decoder", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}",
+                                                "model.importance=uniform", *_list(cfg, "stages.blue_noise")])
     las = None
     if OmegaConf.select(cfg, "stages.las") is not None:
         las = run_stage("LAS", [*train, "model=las", *train_common, *_list(cfg, "stages.las")])
@@ -119,6 +127,8 @@ def demo(cfg: DictConfig) -> Path:
           f"checkpoints.recnn={recnn}", f"progress={bool(cfg.progress)}", "reuse=true", *_list(cfg, "evaluate")]
     if las:
         ev.append(f"checkpoints.las={las}")
+    if blue:
+        ev.append(f"checkpoints.blue_noise={blue}")
     report = Path(run_stage("evaluation", ev))
     minutes = (time.perf_counter() - t0) / 60
     print(f"\n[demo] finished in {minutes:.1f} min. Contact sheet: {sheet}", file=sys.stderr, flush=True)

@@ -63,6 +63,8 @@ from .pipeline import (
     pick_device,
     time_method,
 )
+from .baselines import equal_share_rows, mask_at_share, product_orp, summarize_equal_share
+from .models.iml import FillDecoder
 from .report import summary  # noqa: F401  (public: summary(metrics_csv) -> dict)
 
 register_resolvers()
@@ -127,6 +129,11 @@ class Settings:
     output_dir: str | None
     reuse: bool
     progress: bool
+    blue_noise: str | None = None
+    orp: bool = True
+    epsilon_db: float = 1.0
+    orp_max_views: int | None = 30
+    shares: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.4])
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -136,7 +143,8 @@ class Settings:
             "options": vars(self.options), "options_sweep": self.options_sweep,
             "options_sweep_options": self.options_sweep_options, "options_sweep_views": self.options_sweep_views,
             "las_ipr": self.las_ipr, "las_iprs": self.las_iprs, "mean_values": self.mean_values,
-            "sweep_views": self.sweep_views, "grid_views": self.grid_views,
+            "sweep_views": self.sweep_views, "grid_views": self.grid_views, "orp": self.orp,
+            "epsilon_db": self.epsilon_db, "orp_max_views": self.orp_max_views, "shares": self.shares,
         }
 
 
@@ -177,6 +185,10 @@ def parse_settings(cfg: DictConfig) -> Settings:
         mean_values=_floats(cfg, "mean_values", 0.01, 1.0), sweep_views=_int(cfg, "sweep_views", 1, allow_none=True),
         grid_views=_int(cfg, "grid_views", 0), output_dir=cfg.get("output_dir") or None,
         reuse=bool(cfg.get("reuse", False)), progress=bool(cfg.get("progress", True)),
+        blue_noise=ck.get("blue_noise") or None, orp=bool(cfg.get("orp", True)),
+        epsilon_db=_floats(cfg, "epsilon_db", 0.0, 100.0)[0] if cfg.get("epsilon_db") is not None else 1.0,
+        orp_max_views=_int(cfg, "orp_max_views", 1, allow_none=True),
+        shares=_floats(cfg, "shares", 0.0, 1.0, lo_open=True) if cfg.get("shares") is not None else [],
     )
 
 
@@ -195,6 +207,7 @@ class Networks:
     recnn_name: str
     recnn_source: str
     iml_source: str
+    blue: torch.nn.Module | None = None
 
 
 def load_networks(s: Settings, resolution: int) -> Networks:
@@ -228,7 +241,15 @@ def load_networks(s: Settings, resolution: int) -> Networks:
         las = load_task(s.las, expect="LASTask", what="checkpoints.las")
         if int(las.hparams["fr_size"]) != fr:
             raise InputError(f"checkpoints.las={s.las}: trained at data.resolution={las.hparams['fr_size']}, the IMS at {fr}")
-    return Networks(ims, recnn, iml, las, str(recnn_name), str(recnn_source), str(iml_source))
+    blue = None
+    if s.blue_noise:
+        bt = load_task(s.blue_noise, expect="IMLTask", what="checkpoints.blue_noise")
+        if int(bt.hparams["fr_size"]) != fr or bt.pattern.fingerprint() != fp:
+            raise InputError(f"checkpoints.blue_noise={s.blue_noise}: trained on pattern {bt.pattern.summary()} at {bt.hparams['fr_size']}^2, the IMS on {ims.pattern.summary()} at {fr}^2")
+        if bt.hparams.get("importance") != "uniform":
+            raise InputError(f"checkpoints.blue_noise={s.blue_noise}: an IML trained with model.importance={bt.hparams.get('importance', 'learned')}; expected model.importance=uniform")
+        blue = bt.iml
+    return Networks(ims, recnn, iml, las, str(recnn_name), str(recnn_source), str(iml_source), blue)
 
 
 def _recnn_name(s: Settings) -> str:
@@ -310,7 +331,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
 
     s = parse_settings(cfg)
     resolution = int(cfg.data.resolution)
-    paths = {k: p for k, p in (("ims", s.ims), ("las", s.las), ("recnn", s.recnn), ("iml", s.iml)) if p}
+    paths = {k: p for k, p in (("ims", s.ims), ("las", s.las), ("recnn", s.recnn), ("iml", s.iml),
+                               ("blue_noise", s.blue_noise)) if p}
     for k, p in paths.items():
         if not Path(str(p)).expanduser().is_file():
             raise InputError(f"checkpoints.{k}={p}: file not found")
@@ -344,15 +366,29 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     pattern = ims.pattern
     m = resolution
 
+    notes: list[str] = []
+    # -- the ORP on the product path (validation views), then IML/S runs at that mean ----------------
+    orp_result, imls_mean = None, None
+    if s.orp and ims.target == "pim":
+        orp_result = _product_orp(s, cfg, cache, nets, pattern, device)
+        if orp_result.found:
+            imls_mean = float(orp_result.mean)
+        else:
+            notes.append(f"ORP: no mean value in [0.01, 1] brings IML/S within {s.epsilon_db} dB of the RecNN alone on the "
+                         "validation views; IML/S runs at its trained mean.")
+    elif s.orp:
+        notes.append(f"ORP search skipped: the IMS was trained with model.target={ims.target}, whose binary mask cannot be "
+                     "rescaled to another mean (train the IMS with model.target=pim).")
+
     # -- methods (the networks are shared between methods with the same options) -----------------
-    imls = IMLSRenderer.from_task(ims, renderer, nets.recnn, opts)
+    imls = IMLSRenderer.from_task(ims, renderer, nets.recnn, opts, mean=imls_mean)
     methods: dict[str, Method] = {
         "full": FullRayCast(renderer, m, opts),
         "recnn": RecNNAlone(renderer, pattern, nets.recnn, opts),
-        "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts),
+        "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts, mean=imls_mean),
         "imls": imls,
+        "imls_fill": IMLSRenderer(renderer, pattern, imls.predict_im, FillDecoder(), nets.recnn, opts),
     }
-    notes: list[str] = []
     las_ipr_used = None
     if nets.las_task is not None:
         if s.las_ipr is not None:
@@ -370,6 +406,11 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         notes.append(f"LAS at IPR {las_ipr_used:.4f}, {how}; its mean u is bisected per view outside the timed stages (LAS's evaluation protocol).")
     else:
         notes.append("LAS skipped: no LAS checkpoint (checkpoints.las=<LAS .ckpt>, trained with python -m imls_lightning.train model=las).")
+    if nets.blue is not None:
+        with torch.inference_mode():
+            shares = [float(imls.predict_im(torch.from_numpy(np.array(cache.views[rows_all[p]], np.float32))[None].to(device)).sum())
+                      / pattern.count for p in positions]
+        methods["blue_noise"] = blue_noise_method(renderer, pattern, nets.blue, nets.recnn, float(np.mean(shares)), opts)
     order = [k for k in rep.METHOD_ORDER if k in methods]
 
     # -- main loop -----------------------------------------------------------------------------
@@ -391,6 +432,9 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
                 if name == "imls":
                     grid[p]["imls_im"] = info.get("im")
     rep.write_metrics_csv(rows, out / "metrics.csv")
+
+    # -- untrained baselines at equal share (cache pixels = what the selective ray cast returns) ---------
+    equal_share = _equal_share(s, cache, rows_all, positions, nets, pattern, device) if s.shares else []
 
     # -- sweeps for the latency / PSNR plot ------------------------------------------------------
     sweep_rows = _sweeps(s, methods, nets, renderer, cache, rows_all, sweep_pos, opts, m)
@@ -415,8 +459,68 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         iml_mean=float(nets.iml.mean), rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, order=order,
         sweep_positions=sweep_pos, grid=grid, pattern_obj=pattern, notes=notes, las_ipr=las_ipr_used,
         machine=rep.machine_info(str(device)), command=command or _command(), cache=str(cache.path),
+        orp=_orp_summary(orp_result, s) if orp_result is not None else None, equal_share=equal_share,
     )
     return rep.write_report(ctx)
+
+
+def _loader(cache, rows, pattern, batch_size: int = 16):
+    from torch.utils.data import DataLoader
+
+    from .data import ViewImageDataset
+
+    ds = ViewImageDataset(cache.path, np.asarray(rows), pattern, fields=("view", "fr", "c"))
+    return DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=0)
+
+
+def _product_orp(s: Settings, cfg, cache, nets: Networks, pattern, device):
+    """The ORP on the product path, searched on the validation views (see :func:`baselines.product_orp`)."""
+    rows = cache.splits["val"]
+    if len(rows) == 0:
+        raise InputError(f"orp=true: the cache {cache.path} has no validation views to search the ORP on; pass orp=false")
+    rows = rows[spaced(len(rows), s.orp_max_views)]
+    ims = nets.ims_task.to(device)
+    with torch.inference_mode():
+        batches = list(_loader(cache, rows, pattern))
+        return product_orp(ims, ims.decoder, nets.recnn.to(device).eval(), batches, s.epsilon_db, device=device)
+
+
+def _orp_summary(result, s: Settings) -> dict[str, Any]:
+    best = result.best
+    rec = best.record if best is not None else {}
+    return {"found": result.found, "mean": result.mean, "epsilon_db": s.epsilon_db, "gap_db": rec.get("gap_db"),
+            "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
+            "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations),
+            "points": sorted(((e.u, (e.record or {}).get("gap_db"), (e.record or {}).get("c_share")) for e in result.evaluations))}
+
+
+def _equal_share(s: Settings, cache, rows_all, positions, nets: Networks, pattern, device) -> list[dict[str, Any]]:
+    ims = nets.ims_task.to(device)
+    out = []
+    with torch.inference_mode():
+        for b in _loader(cache, rows_all[positions], pattern):
+            out.append(equal_share_rows(b["c"].to(device), b["fr"].to(device), b["view"].to(device), nets.recnn.to(device).eval(),
+                                        iml=nets.iml.to(device).eval(), ims_task=ims, blue=None if nets.blue is None else nets.blue.to(device).eval(),
+                                        shares=s.shares))
+    return summarize_equal_share(out)
+
+
+def blue_noise_method(renderer, pattern, blue_iml, recnn, share: float, opts: NetOptions | None = None) -> IMLSRenderer:
+    """The blue-noise baseline on the product path: the plastic mask ``u > P`` at ``share`` of the
+    pattern's pixels (the same for every view; no network picks it), exactly those pixels ray-cast,
+    the decoder trained for blue-noise masks, the RecNN."""
+    n = pattern.c_size
+    valid = pattern.valid.bool()
+    P = blue_iml.sampling.P.detach().cpu()
+    mask = mask_at_share(lambda u: u.view(-1, 1, 1, 1) > P.view(1, 1, n, n), max(share, 1.0 / pattern.count), valid, 1)
+    mask = mask.bool()
+
+    def predict_im(view: torch.Tensor) -> torch.Tensor:
+        return mask.to(view.device)
+
+    method = IMLSRenderer(renderer, pattern, predict_im, blue_iml.decoder, recnn, opts)
+    method.name = "blue_noise"
+    return method
 
 
 def _sweeps(s: Settings, methods, nets: Networks, renderer, cache, rows_all, sweep_pos, opts, m) -> list[dict[str, Any]]:

@@ -12,8 +12,8 @@ file              input -> output                               what
 ================  ===========================================  ===============================
 ``im.*``          view ``(1, 9)`` float32 -> ``(1, 1, n, n)``   IMS generator + thresholding
                   bool                                          (``IMSTask.output_to_im``): the IM
-``decoder.*``     PR-C-Image ``(1, 3, n, n)`` -> ``(1, 3, n,    the IML decoder
-                  n)`` float32
+``decoder.*``     ``[PR-C-Image, IM]`` ``(1, 4, n, n)`` ->      the IML decoder
+                  ``(1, 3, n, n)`` float32
 ``recnn.*``       C-Image ``(1, 3, n, n)`` -> ``(1, 3, m, m)``  the RecNN (not clamped)
 ================  ===========================================  ===============================
 
@@ -114,6 +114,28 @@ class IMPredictor(nn.Module):
         return im & self.valid
 
 
+class PackedDecoder(nn.Module):
+    """The IML decoder with one input, for export: ``[PR-C-Image, IM]`` ``(B, 4, n, n)`` -> ``(B, 3, n, n)``."""
+
+    def __init__(self, decoder: nn.Module):
+        super().__init__()
+        self.decoder = decoder
+
+    def forward(self, packed: torch.Tensor) -> torch.Tensor:
+        return self.decoder(packed[:, :3], packed[:, 3:4])
+
+
+class UnpackedDecoder(nn.Module):
+    """An exported :class:`PackedDecoder` behind the decoder's call ``(pr_c_image, im) -> C-Image``."""
+
+    def __init__(self, packed: nn.Module):
+        super().__init__()
+        self.packed = packed
+
+    def forward(self, pr_c_image: torch.Tensor, im: torch.Tensor) -> torch.Tensor:
+        return self.packed(torch.cat([pr_c_image, im.to(pr_c_image.dtype)], 1))
+
+
 class _OnnxModule(nn.Module):
     """An ONNX Runtime session behind the ``nn.Module`` call interface (CPU tensors in and out;
     the result is moved to the input's device)."""
@@ -144,14 +166,16 @@ def _parts_from_task(task, recnn: nn.Module | None) -> dict[str, nn.Module]:
         raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
     task.eval()
     im = IMPredictor(task.generator, task.target, task.P, task.pattern.valid).eval()
-    return {"im": im, "decoder": task.decoder.eval(), "recnn": recnn.eval()}
+    return {"im": im, "decoder": PackedDecoder(task.decoder).eval(), "recnn": recnn.eval()}
 
 
 def _example_inputs(pattern: SamplingPattern) -> dict[str, torch.Tensor]:
     n = pattern.c_size
     g = torch.Generator().manual_seed(0)
     view = torch.tensor([[0.0, 0.0, 3.5, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
-    return {"im": view, "decoder": torch.rand(1, 3, n, n, generator=g), "recnn": torch.rand(1, 3, n, n, generator=g)}
+    packed = torch.rand(1, 4, n, n, generator=g)
+    packed[:, 3] = (packed[:, 3] > 0.5).float()  # a 0/1 mask channel
+    return {"im": view, "decoder": packed, "recnn": torch.rand(1, 3, n, n, generator=g)}
 
 
 def _export_torchscript(module: nn.Module, example: torch.Tensor, path: Path) -> None:
@@ -244,7 +268,7 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
                         "fingerprint": pattern.fingerprint(), "indices": INDICES,
                         "indices_sha256": hashlib.sha256(idx.tobytes()).hexdigest()},
             "target": task.target,
-            "inputs": {"im": [1, 9], "decoder": [1, 3, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
+            "inputs": {"im": [1, 9], "decoder": [1, 4, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
             "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
             "ims_checkpoint_sha256": _sha256(Path(ims_checkpoint).expanduser()),
             "recnn_checkpoint": None if not recnn_checkpoint else str(Path(recnn_checkpoint).expanduser().resolve()),
@@ -335,7 +359,7 @@ class ExportedIMLSRenderer(IMLSRenderer):
             from data_gen.renderers import make_renderer
 
             renderer = make_renderer(scene, renderer_cfg)
-        r = cls(renderer, pattern, mods["im"], mods["decoder"], mods["recnn"], NetOptions(device=str(dev)))
+        r = cls(renderer, pattern, mods["im"], UnpackedDecoder(mods["decoder"]), mods["recnn"], NetOptions(device=str(dev)))
         r.meta = meta
         r.export_path = p
         return r

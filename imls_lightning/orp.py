@@ -809,7 +809,7 @@ def _evaluate(dataset, batch_size: int, iml_task, recnn_iml, recnn_alone, ims_ta
             add("c_share", c_share(out.im, valid))
             if ims_task is not None:
                 im = ims_task.predict_im(batch["view"].to(device)).float()
-                c_rec = ims_task.decoder(im * c)
+                c_rec = ims_task.decoder(im * c, im)
                 add("psnr_imls_recnn", psnr_per_image(recnn_iml(c_rec), target))
                 add("imls_ipr", ipr(im, fr))
                 add("imls_c_share", c_share(im, valid))

@@ -249,7 +249,8 @@ class IMLPlusRecNN(_PatternMethod):
         info: dict = {}
         im = self._importance(c, view, timer, info)
         with timer.stage("decoder"), self.opts.autocast(self.device):
-            c_rec = self.iml.decode(im.to(c.dtype) * c)
+            m = im.to(c.dtype)
+            c_rec = self.iml.decode(m * c, m)
         with timer.stage("recnn"), self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
         im_cpu = im[0, 0].bool().cpu()
@@ -307,7 +308,7 @@ class IMLSRenderer(_PatternMethod):
         pattern: the RecNN's sampling pattern.
         predict_im: view ``(1, 9)`` float32 tensor on the device -> ``(1, 1, n, n)`` bool IM (the
             IMS generator + thresholding; padding already zero).
-        decoder: the IML decoder ``(1, 3, n, n) -> (1, 3, n, n)``.
+        decoder: the IML decoder ``(pr_c_image (1, 3, n, n), im (1, 1, n, n)) -> (1, 3, n, n)``.
         recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
         opts: :class:`NetOptions`.
         generator: the module ``predict_im`` calls, if any; moved to the device here (use
@@ -332,12 +333,16 @@ class IMLSRenderer(_PatternMethod):
 
     @classmethod
     def from_task(cls, task, renderer, recnn: torch.nn.Module | None = None,
-                  opts: NetOptions | None = None) -> "IMLSRenderer":
+                  opts: NetOptions | None = None, mean: float | None = None) -> "IMLSRenderer":
         """Build from a loaded ``IMSTask`` (its generator, IML decoder and RecNN, or ``recnn``).
 
-        The task's modules are moved to the options' device and prepared in place (share a task
-        between methods only with the same options).
+        ``mean``: render at this mean value instead of the trained one (e.g. the ORP; needs an IMS
+        trained with ``model.target=pim``, whose regressed PIM' is rescaled). The task's modules are
+        moved to the options' device and prepared in place (share a task between methods only with
+        the same options).
         """
+        if mean is not None and task.target != "pim":
+            raise InputError(f"mean={mean}: rescaling the IMS's mask needs an IMS trained with model.target=pim (this one: {task.target})")
         opts = opts or NetOptions()
         recnn = task.recnn if recnn is None else recnn
         if recnn is None:
@@ -349,9 +354,11 @@ class IMLSRenderer(_PatternMethod):
         def predict_im(view: torch.Tensor) -> torch.Tensor:
             with opts.autocast(device):
                 g = generator(view)
-            return task.output_to_im(g)  # float32 thresholding (against P for target=pim)
+            return task.output_to_im_at(g, mean)  # float32 thresholding (against P for target=pim)
 
-        return cls(renderer, task.pattern, predict_im, task.decoder, recnn, opts)
+        method = cls(renderer, task.pattern, predict_im, task.decoder, recnn, opts)
+        method.mean = task.iml.mean if mean is None else float(mean)
+        return method
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
@@ -383,7 +390,7 @@ class IMLSRenderer(_PatternMethod):
         with timer.stage("selective_render"):
             pr_c, count = self._render_c_pixels(view, im)
         with timer.stage("decoder"), self.opts.autocast(self.device):
-            c_rec = self.decoder(pr_c)
+            c_rec = self.decoder(pr_c, im.to(pr_c.dtype).view(1, 1, *im.shape[-2:]))
         with timer.stage("recnn"), self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
         return RenderResult(to_uint8_image(fr), timer.result(),

@@ -36,9 +36,11 @@ METHOD_LABELS = {
     "las": "LAS",
     "iml": "IML + RecNN",
     "imls": "IML/S + RecNN",
+    "imls_fill": "IML/S mask + fill + RecNN",
+    "blue_noise": "blue noise + decoder + RecNN",
     "iml_selective": "IML IM, selectively rendered",
 }
-METHOD_ORDER = ("full", "recnn", "las", "iml", "imls")
+METHOD_ORDER = ("full", "recnn", "las", "iml", "imls", "imls_fill", "blue_noise")
 STAGE_LABELS = {
     "low_res_render": "low-res render",
     "render": "render",
@@ -57,7 +59,7 @@ STAGE_COLORS = {
     "recnn": "#d62728",
 }
 METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "las": "#2ca02c", "iml": "#ff7f0e",
-                 "imls": "#d62728", "iml_selective": "#9467bd"}
+                 "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f"}
 
 #: columns of metrics.csv, in order
 METRIC_COLUMNS = (
@@ -555,6 +557,8 @@ class ReportContext:
     machine: dict[str, str] = field(default_factory=dict)
     command: str = ""
     cache: str = ""
+    orp: dict[str, Any] | None = None
+    equal_share: list[dict[str, Any]] = field(default_factory=list)
 
 
 def sweep_points(sweep_rows: Sequence[Mapping[str, Any]]) -> dict[tuple[str, float], dict[str, Any]]:
@@ -731,6 +735,23 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
              "Total: median of the per-run sums of the stages.")
     L.append("")
 
+    if ctx.orp is not None:
+        o = ctx.orp
+        L.append("## ORP on the product path")
+        L.append("")
+        if o["found"]:
+            L.append(f"The smallest mean value u whose IML/S + RecNN (IMS mask from the view, exactly those pixels "
+                     f"ray-cast, IML decoder, RecNN) stays within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN alone on "
+                     f"the validation views: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
+                     f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB ({o['evaluations']} means tried). IML/S + RecNN "
+                     "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u).")
+        else:
+            L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
+                     "alone on the validation views; IML/S runs at its trained mean.")
+        L.append("")
+        L.append(md_table(["u", "gap (dB)", "C-share"], [[fmt(u, 4), fmt(g, 2), fmt_pct(c)] for u, g, c in o["points"]], "rrr"))
+        L.append("")
+
     if "imls" in summ:
         L.append("## Speed-up of IML/S + RecNN")
         L.append("")
@@ -744,6 +765,21 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
     if "full" in summ:
         L.append("Ground truth = the cache's full ray cast by the same renderer, so the full ray cast scores "
                  "100 dB (identical images; the PSNR is capped there) unless the renderer is not deterministic.")
+        L.append("")
+
+    if ctx.equal_share:
+        from .baselines import equal_share_markdown
+
+        L.append("## Learned parts against untrained baselines, at equal share")
+        L.append("")
+        L.append("Each mask is brought to the target share of the C-Image per view (bisection on u, no ground truth); "
+                 "its pixels are rebuilt by the decoder trained for that mask or by the untrained pull-push fill, then "
+                 "by the same RecNN. PSNR after the RecNN, mean over the evaluated views. \"decoder − fill\": what the "
+                 "trained decoder adds on the same pixels; \"mask − blue noise\": what the learned mask adds over the "
+                 "blue-noise mask of the same share, each through its own trained decoder. Density: share of the empty "
+                 "background (ground truth black) and of the object that the mask samples.")
+        L.append("")
+        L.append(equal_share_markdown(ctx.equal_share))
         L.append("")
 
     if points:

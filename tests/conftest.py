@@ -46,9 +46,10 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
     """Real checkpoints on ``scene=tiny data=tiny renderer=numba``, trained once per session in this
     process through :func:`imls_lightning.train.train` (the train CLI's body) with
     ``trainer.fast_dev_run=true`` and small networks: RecNN (EnhanceNet) -> IML end to end with it ->
-    IMS on the IML's labels, and LAS. About 20 s on 2 cores.
+    IMS on the IML's labels (``ims``: target=im, ``ims_pim``: target=pim), the blue-noise decoder
+    (``blue``: an IML with importance=uniform), and LAS. About 30 s on 2 cores.
 
-    Returns ``{"recnn", "iml", "ims", "las": Path of the .ckpt, "cache_dir", "runs_dir": Path}``.
+    Returns ``{"recnn", "iml", "ims", "ims_pim", "blue", "las": Path of the .ckpt, "cache_dir", "runs_dir": Path}``.
     """
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -75,6 +76,14 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
     # bce instead of the perceptual loss: no VGG16 to load, same networks
     ims = run("ims", ["model=ims", f"iml.checkpoint={iml}", "model.layers=5", "model.base_channels=8",
                       "model.disc_base_channels=8", "model.loss.perceptual.weight=0", "model.loss.bce=1"])
+    # the product's IMS (regresses PIM', so one IMS serves every mean value: the ORP search needs it)
+    ims_pim = run("ims_pim", ["model=ims", f"iml.checkpoint={iml}", "model.layers=5", "model.base_channels=8",
+                              "model.target=pim", "model.loss.mse=1.0", "model.loss.perceptual.weight=0",
+                              "model.loss.adversarial=0"])
+    # the untrained-mask baseline: the blue-noise mask with a decoder trained for it
+    blue = run("blue", ["model=iml", "model.mode=end_to_end", f"recnn.checkpoint={recnn}", "model.depth=2",
+                        "model.base_channels=4", "model.importance=uniform"])
     las = run("las", ["model=las", "model.low_res=16", "model.importance_channels=4", "model.importance_blocks=1",
                       "model.recon_channels=4", "model.recon_blocks=1"])
-    return {"recnn": recnn, "iml": iml, "ims": ims, "las": las, "cache_dir": base / "cache", "runs_dir": base / "runs"}
+    return {"recnn": recnn, "iml": iml, "ims": ims, "ims_pim": ims_pim, "blue": blue, "las": las,
+            "cache_dir": base / "cache", "runs_dir": base / "runs"}

@@ -31,13 +31,16 @@ METHOD_STAGES = {
     "las": {"low_res_render", "importance", "selective_render", "recnn"},
     "iml": {"selective_render", "importance", "decoder", "recnn"},
     "imls": {"importance", "selective_render", "decoder", "recnn"},
+    "imls_fill": {"importance", "selective_render", "decoder", "recnn"},
+    "blue_noise": {"importance", "selective_render", "decoder", "recnn"},
 }
 PLOTS = ("stage_breakdown.png", "psnr_per_view.png", "latency_vs_psnr.png", "image_grid.png")
 
 
 def _args(ck: dict, *extra: str) -> list[str]:
     return ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={ck['cache_dir']}",
-            f"paths.runs_dir={ck['runs_dir']}", f"checkpoints.ims={ck['ims']}", f"checkpoints.las={ck['las']}",
+            f"paths.runs_dir={ck['runs_dir']}", f"checkpoints.ims={ck['ims_pim']}", f"checkpoints.las={ck['las']}",
+            f"checkpoints.blue_noise={ck['blue']}", "orp_max_views=4",
             "progress=false", "max_views=2", "sweep_views=1", f"mean_values=[{','.join(map(str, MEANS))}]",
             f"las_iprs=[{','.join(map(str, LAS_IPRS))}]", "grid_views=2", "warmup=0", *extra]
 
@@ -76,7 +79,7 @@ def test_metrics_csv_has_every_method_and_stage(run):
     columns, rows = _rows(run["out"] / "metrics.csv")
     for col in [f"{s}_ms" for s in STAGES] + ["total_ms", "ipr", "psnr", "ssim", "view", "method"]:
         assert col in columns, col
-    assert [r["method"] for r in rows[:5]] == list(METHOD_ORDER)
+    assert [r["method"] for r in rows[:len(METHOD_ORDER)]] == list(METHOD_ORDER)
     assert sorted((r["view"], r["method"]) for r in rows) == sorted((v, m) for v in {r["view"] for r in rows} for m in METHOD_ORDER)
     assert len({r["view"] for r in rows}) == 2
     for r in rows:
@@ -146,7 +149,8 @@ def test_report_has_the_paper_tables(run):
     table = text.split("## Average latency per method and stage (ms)")[1].split("\n\n")[1]
     lines = table.splitlines()
     assert lines[0].startswith("| Method | IPR |") and "RecNN (ms)" in lines[0] and "decoder (ms)" in lines[0]
-    assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "LAS", "IML + RecNN", "IML/S + RecNN"]
+    assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "LAS", "IML + RecNN", "IML/S + RecNN",
+                                                              "IML/S mask + fill + RecNN", "blue noise + decoder + RecNN"]
     # the speed-up over the RecNN alone is its total over IML/S's total
     s = summary(run["out"] / "metrics.csv")
     ratio = s["recnn"]["latency_ms"]["total"] / s["imls"]["latency_ms"]["total"]
@@ -164,7 +168,24 @@ def test_plots_and_image_grid_are_pngs(run):
         h, w = imread(path).shape[:2]
         assert h > 100 and w > 100, (name, h, w)
     h, w = imread(run["out"] / "image_grid.png").shape[:2]
-    assert w > 3 * h  # 2 view rows x (truth + 5 methods + 5 error maps + IM) columns
+    assert w > 3 * h  # 2 view rows x (truth + 7 methods + 7 error maps + IM) columns
+
+
+def test_orp_on_the_product_path_and_the_untrained_baselines(run):
+    text = run["report"].read_text()
+    orp = text.split("## ORP on the product path")[1].split("\n## ")[0]
+    assert "IMS mask from the view" in orp or "No mean value" in orp
+    settings = yaml.safe_load((run["out"] / "config.yaml").read_text())["settings"]
+    assert settings["orp"] is True and settings["epsilon_db"] == 1.0
+    table = text.split("## Learned parts against untrained baselines, at equal share")[1].split("\n## ")[0]
+    for needle in ("decoder − fill", "mask − blue noise", "IMS (from the view)", "IML (from the C-Image)",
+                   "blue noise (untrained)", "| 10 % |", "| 20 % |", "| 40 % |", "density: background"):
+        assert needle in table, needle
+    _, rows = _rows(run["out"] / "metrics.csv")
+    # the fill baseline renders exactly the product's pixels
+    by = {(r["view"], r["method"]): r for r in rows}
+    for v in {r["view"] for r in rows}:
+        assert by[(v, "imls_fill")]["rendered_pixels"] == by[(v, "imls")]["rendered_pixels"]
 
 
 # ---- reuse and errors -------------------------------------------------------------------------------

@@ -10,7 +10,8 @@ from data_gen.errors import InputError
 from imls_lightning.importance import normalize_importance
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.fovolnet import FoVolNet
-from imls_lightning.models.iml import IMLNet, IMLRecNN, c_share, ipr
+from imls_lightning.models.iml import FillDecoder, IMLNet, IMLRecNN, PlainDecoder, RefineDecoder, c_share, ipr
+from imls_lightning.models.pull_push import pull_push_inpaint
 from imls_lightning.patterns import SamplingPattern
 
 N = 16
@@ -52,7 +53,9 @@ def test_forward_against_direct_composition():
     torch.testing.assert_close(out.pim_norm, pim * 0.2 / (mu + 1e-7))
     torch.testing.assert_close(out.im, torch.sigmoid(30.0 * (out.pim_norm - net.sampling.P)))
     torch.testing.assert_close(out.pr_c_image, out.im * c)
-    torch.testing.assert_close(out.c_recon, net.decoder(out.im * c))
+    fill = pull_push_inpaint(c, out.im)
+    refined = fill + net.decoder.net(torch.cat([fill, out.im], 1))
+    torch.testing.assert_close(out.c_recon, out.im * c + (1 - out.im) * refined)
     assert out.pim.shape == out.im.shape == (2, 1, N, N) and out.c_recon.shape == (2, 3, N, N)
 
 
@@ -66,7 +69,7 @@ def test_hard_at_inference_soft_in_training_and_override():
     assert ((soft > 0) & (soft < 1)).any()
     assert torch.equal(net.train()(c, hard=True).im, hard)
     assert torch.equal(net.importance(c), hard)
-    torch.testing.assert_close(net.decode(hard * c), net.eval()(c).c_recon)
+    torch.testing.assert_close(net.decode(hard * c, hard), net.eval()(c).c_recon)
 
 
 def test_padding_is_never_important_and_excluded_from_the_mean():
@@ -182,7 +185,7 @@ def test_iml_recnn_paths_agree():
     c = torch.rand(1, 3, N, N)
     im = iml.importance(c)
     torch.testing.assert_close(model(c), model.from_im(c, im))
-    torch.testing.assert_close(model(c), model.from_pr_c_image(im * c))
+    torch.testing.assert_close(model(c), model.from_pr_c_image(im * c, im))
 
 
 def test_standalone_decoder_attaches_to_a_separately_built_recnn(tmp_path):
@@ -198,9 +201,65 @@ def test_standalone_decoder_attaches_to_a_separately_built_recnn(tmp_path):
     recnn2 = EnhanceNet(grid_pattern(N, 2), channels=4, blocks=1)
     recnn2.load_state_dict(torch.load(tmp_path / "recnn.pt"))
     c = torch.rand(1, 3, N, N)
-    want = recnn(iml.eval().decode(iml.importance(c) * c))
+    im = iml.eval().importance(c)
+    want = recnn(iml.decode(im * c, im))
     got = IMLRecNN(iml2, recnn2).eval()(c)
     torch.testing.assert_close(got, want)
+
+
+# ---------------------------------------------------------------- decoders
+
+
+@pytest.mark.parametrize("decoder", ["refine", "plain"])
+def test_smoke_decoders(decoder):
+    net = small_iml(decoder=decoder).eval()
+    c = torch.rand(2, 3, N, N)
+    out = net(c)
+    assert out.c_recon.shape == (2, 3, N, N) and torch.isfinite(out.c_recon).all()
+    assert isinstance(net.decoder, RefineDecoder if decoder == "refine" else PlainDecoder)
+
+
+def test_refine_decoder_keeps_rendered_pixels_and_is_exact_on_a_full_mask():
+    dec = small_iml().decoder
+    c = torch.rand(2, 3, N, N)
+    torch.testing.assert_close(dec(c, torch.ones(2, 1, N, N)), c, rtol=0, atol=0)
+    m = (torch.rand(2, 1, N, N) > 0.7).float()
+    out = dec(m * c, m)
+    torch.testing.assert_close(out * m, c * m, rtol=0, atol=0)  # the pixels it was given, untouched
+
+
+def test_refine_decoder_with_zero_correction_is_the_pull_push_fill():
+    dec = RefineDecoder(depth=2, base_channels=4)
+    torch.nn.init.zeros_(dec.net.head.weight)
+    torch.nn.init.zeros_(dec.net.head.bias)
+    c = torch.rand(1, 3, N, N)
+    m = (torch.rand(1, 1, N, N) > 0.6).float()
+    torch.testing.assert_close(dec(m * c, m), pull_push_inpaint(m * c, m))
+    torch.testing.assert_close(FillDecoder()(m * c, m), pull_push_inpaint(m * c, m))
+
+
+def test_refine_decoder_gradcheck():
+    dec = RefineDecoder(depth=2, base_channels=2).double()
+    c = torch.rand(1, 3, 4, 4, dtype=torch.float64, requires_grad=True)
+    m = torch.rand(1, 1, 4, 4, dtype=torch.float64).mul(0.8).add(0.1).requires_grad_(True)
+    assert torch.autograd.gradcheck(dec, (c, m))
+
+
+def test_uniform_importance_is_the_plastic_blue_noise_mask_without_an_encoder():
+    P = rank_pattern(N)
+    net = IMLNet(N, P, mean=0.25, depth=2, base_channels=2, importance="uniform").train()
+    assert net.encoder is None
+    im = net(torch.rand(2, 3, N, N)).im  # always hard, also in training
+    torch.testing.assert_close(im, (0.25 > P).float().expand(2, 1, N, N))
+
+
+def test_straight_through_is_hard_forward_with_the_soft_gradient():
+    net = small_iml(straight_through=True).train()
+    c = torch.rand(1, 3, N, N)
+    out = net(c)
+    assert set(out.im.unique().tolist()) <= {0.0, 1.0}
+    out.c_recon.sum().backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in net.encoder.parameters())
 
 
 # ---------------------------------------------------------------- errors
@@ -227,3 +286,7 @@ def test_invalid_hyperparameters_refused():
         IMLRecNN(net, EnhanceNet(grid_pattern(4, 2), channels=2, blocks=0))
     with pytest.raises(ValueError):
         net(torch.rand(1, 3, 4, 4))
+    with pytest.raises(InputError, match="decoder"):
+        IMLNet(8, P, depth=2, base_channels=2, decoder="unet")
+    with pytest.raises(InputError, match="importance"):
+        IMLNet(8, P, depth=2, base_channels=2, importance="random")

@@ -309,3 +309,32 @@ def test_exception_cuda_without_cuda():
     with pytest.raises(InputError, match="CUDA is not available"):
         pick_device("cuda")
     assert pick_device("auto") == torch.device("cpu")
+
+
+# ---- the invariant at the extreme: every pattern pixel rendered -> exactly the RecNN alone ----------
+def test_full_mask_gives_the_recnn_alone_exactly(env):
+    """C-share 100 %: IML/S + RecNN and IML + RecNN equal the RecNN alone (the refine decoder passes
+    rendered pixels through), within 0.1 dB (here: bit for bit)."""
+    from imls_lightning.evaluate import image_quality
+
+    ims = env["ims"]
+    valid = ims.pattern.valid.bool()[None, None]
+    imls = IMLSRenderer(env["renderer"], ims.pattern, lambda v: valid.to(v.device), ims.decoder, ims.recnn, CPU)
+    alone = RecNNAlone(env["renderer"], ims.pattern, ims.recnn, CPU)
+    for view, truth in zip(env["views"], env["truth"]):
+        a, _ = alone.render(view)
+        b, _ = imls.render(view)
+        assert np.array_equal(a, b)
+        assert abs(image_quality(a, truth)[0] - image_quality(b, truth)[0]) < 0.1
+    iml = ims.iml
+    c = torch.rand(2, 3, ims.pattern.c_size, ims.pattern.c_size)
+    full = ims.pattern.valid.float()[None, None].expand(2, 1, -1, -1)
+    torch.testing.assert_close(ims.recnn(iml.decode(full * c, full)), ims.recnn(c * full), rtol=0, atol=0)
+
+
+def test_imls_renderer_at_another_mean_needs_a_pim_target(env):
+    ims = env["ims"]
+    if ims.target == "pim":
+        pytest.skip("the tiny IMS regresses PIM'")
+    with pytest.raises(InputError, match="target=pim"):
+        IMLSRenderer.from_task(ims, env["renderer"], ims.recnn, CPU, mean=0.3)

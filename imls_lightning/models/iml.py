@@ -2,7 +2,21 @@
 
     C-Image --encoder U-Net (3->1) + softplus--> PIM --normalization (mean u)--> PIM'
             --rejection sampling vs P (soft in training, hard at inference)--> IM  (0 on padding)
-    PR-C-Image = IM * C-Image --decoder U-Net (3->3)--> reconstructed C-Image
+    (C-Image, IM) --decoder--> reconstructed C-Image
+
+Two decoders (``decoder=``):
+
+* ``"refine"`` (default), :class:`RefineDecoder`: the untrained pull-push fill of the sampled
+  pixels, plus a U-Net's correction from ``[fill, IM]``; sampled pixels pass through unchanged. It
+  starts at the classical fill's quality, can only learn upward from it, and never degrades a pixel
+  it was given (IM = 1 everywhere gives the C-Image back exactly).
+* ``"plain"``, :class:`PlainDecoder`: the paper's drawing, a U-Net on ``IM * C-Image`` alone. It
+  has to learn the fill from scratch and corrupts the pixels it was given; kept for the ablation
+  and for checkpoints written before the refine decoder.
+
+Two importance sources (``importance=``): ``"learned"`` (the encoder above) and ``"uniform"`` (no
+encoder: PIM' = u everywhere, so the IM is the blue-noise plastic mask ``u > P`` of share ``u``):
+the untrained mask baseline, trained with its own decoder.
 
 :class:`IMLRecNN` puts the decoder in front of any RecNN (EnhanceNet, FoVolNet): the paper's
 end-to-end model, and, with a standalone-trained IML, its "off-the-shelf RecNN" case.
@@ -22,9 +36,100 @@ from torch import nn
 
 from data_gen.errors import InputError
 from imls_lightning.importance import ImportanceNormalization, RejectionSampling
+from imls_lightning.models.pull_push import pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
-__all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "ipr", "c_share"]
+__all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "RefineDecoder", "PlainDecoder", "FillDecoder", "build_decoder",
+           "ipr", "c_share", "DECODERS", "IMPORTANCE_SOURCES"]
+
+DECODERS = ("refine", "plain")
+IMPORTANCE_SOURCES = ("learned", "uniform")
+
+
+def _mask_like(mask: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    if mask.dim() == 3:
+        mask = mask.unsqueeze(1)
+    if mask.dim() != 4 or mask.shape[1] != 1 or mask.shape[0] != values.shape[0] or mask.shape[-2:] != values.shape[-2:]:
+        raise ValueError(f"mask: expected (B, 1, H, W) matching values {tuple(values.shape)}, got {tuple(mask.shape)}")
+    return mask.to(values.dtype if values.is_floating_point() else torch.float32)
+
+
+class FillDecoder(nn.Module):
+    """The untrained baseline decoder: pull-push fill of the sampled pixels (no parameters).
+
+    ``forward(values (B, 3, n, n), mask (B, 1, n, n)) -> (B, 3, n, n)``; ``values`` only matter
+    where ``mask > 0`` (pass the C-Image or the PR-C-Image alike); sampled pixels are kept.
+
+    Example:
+        >>> v = torch.zeros(1, 3, 4, 4); v[:, :, 0, 0] = 1.0
+        >>> FillDecoder()(v, (v[:, :1] > 0).float()).mean().item()
+        1.0
+    """
+
+    def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return pull_push_inpaint(values, _mask_like(mask, values))
+
+
+class RefineDecoder(nn.Module):
+    """Fill-and-refine decoder: ``out = m v + (1 - m) (fill + U([fill, m]))``, ``fill`` = pull-push of
+    the samples ``(v, m)``.
+
+    The U-Net learns only the correction to the classical fill (the scene's prior: where nothing is,
+    edges, colour bleeding into empty space); the sampled pixels pass through unchanged, so a full
+    mask returns the input exactly (the invariant "the decoder never degrades a pixel it was given").
+    With a soft mask (training) the blend is differentiable in ``m``: every pixel's gradient says
+    how much sampling it would pay.
+
+    Args:
+        depth, base_channels, max_channels, norm: the U-Net's size (see :class:`UNet`).
+
+    Shapes: ``forward(values (B, 3, n, n), mask (B, 1, n, n) in [0, 1]) -> (B, 3, n, n)``.
+
+    Example:
+        >>> dec = RefineDecoder(depth=2, base_channels=4)
+        >>> c = torch.rand(1, 3, 8, 8)
+        >>> torch.equal(dec(c, torch.ones(1, 1, 8, 8)), c)
+        True
+    """
+
+    def __init__(self, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group"):
+        super().__init__()
+        self.net = UNet(4, 3, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
+        # zero correction at initialization: training starts exactly at the classical fill
+        nn.init.zeros_(self.net.head.weight)
+        nn.init.zeros_(self.net.head.bias)
+
+    def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        m = _mask_like(mask, values)
+        fill = pull_push_inpaint(values, m)
+        refined = fill + self.net(torch.cat([fill, m.to(fill.dtype)], 1)).to(fill.dtype)
+        return m * values.to(fill.dtype) + (1 - m) * refined
+
+
+class PlainDecoder(UNet):
+    """The paper's decoder: a U-Net on the PR-C-Image ``m * v`` alone (3 -> 3 channels).
+
+    A :class:`UNet` itself, so checkpoints written before the refine decoder load unchanged.
+
+    Shapes: ``forward(values (B, 3, n, n), mask (B, 1, n, n)) -> (B, 3, n, n)``.
+    """
+
+    def __init__(self, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group"):
+        super().__init__(3, 3, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
+
+    def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return super().forward(_mask_like(mask, values) * values)
+
+
+def build_decoder(kind: str, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group") -> nn.Module:
+    """``"refine"`` -> :class:`RefineDecoder`, ``"plain"`` -> :class:`PlainDecoder`, ``"fill"`` -> :class:`FillDecoder`."""
+    if kind == "refine":
+        return RefineDecoder(depth, base_channels, max_channels, norm)
+    if kind == "plain":
+        return PlainDecoder(depth, base_channels, max_channels, norm)
+    if kind == "fill":
+        return FillDecoder()
+    raise InputError(f"decoder={kind!r}: expected one of {list(DECODERS) + ['fill']}")
 
 
 class IMLOutput(NamedTuple):
@@ -99,12 +204,19 @@ class IMLNet(nn.Module):
         valid: optional ``(n, n)`` bool, True on the pattern's C-Image pixels (``pattern.valid``);
             the PIM mean is taken over them and the IM is forced to 0 elsewhere. ``None``: all valid.
         max_channels, norm: passed to :class:`~imls_lightning.models.unet.UNet`.
+        decoder: ``"refine"`` (default) or ``"plain"`` (see the module docstring).
+        importance: ``"learned"`` (default, the encoder) or ``"uniform"`` (no encoder: the blue-noise
+            mask ``u > P``; always hard).
+        straight_through: in training, sample the hard mask and pass the soft mask's gradient
+            (``hard + soft - soft.detach()``), so the decoder trains on exactly the masks it gets at
+            inference. Default False (the paper's soft mask).
 
     ``hard=None`` means soft rejection sampling in training mode and hard in eval mode.
 
     Attributes:
-        encoder, decoder: the two U-Nets (attach ``decoder`` to any RecNN, see :class:`IMLRecNN`).
-        normalization (:class:`ImportanceNormalization`), sampling (:class:`RejectionSampling`).
+        encoder (``None`` for uniform importance), decoder: the two networks (attach ``decoder`` to
+        any RecNN, see :class:`IMLRecNN`); normalization (:class:`ImportanceNormalization`),
+        sampling (:class:`RejectionSampling`).
 
     Example:
         >>> net = IMLNet(16, torch.rand(16, 16), depth=3, base_channels=4).eval()
@@ -126,17 +238,27 @@ class IMLNet(nn.Module):
         valid: Optional[torch.Tensor] = None,
         max_channels: int = 512,
         norm: str = "group",
+        decoder: str = "refine",
+        importance: str = "learned",
+        straight_through: bool = False,
     ):
         super().__init__()
         n = int(c_size)
         if n < 1:
             raise InputError(f"c_size={c_size}: expected a positive integer")
+        if decoder not in DECODERS:
+            raise InputError(f"decoder={decoder!r}: expected one of {list(DECODERS)}")
+        if importance not in IMPORTANCE_SOURCES:
+            raise InputError(f"importance={importance!r}: expected one of {list(IMPORTANCE_SOURCES)}")
         self.c_size = n
         P = torch.as_tensor(P, dtype=torch.float32)
         if tuple(P.shape) != (n, n):
             raise InputError(f"P: expected an ({n}, {n}) rank pattern for c_size={n}, got shape {tuple(P.shape)}")
-        self.encoder = UNet(3, 1, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
-        self.decoder = UNet(3, 3, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
+        self.decoder_kind, self.importance_source = decoder, importance
+        self.straight_through = bool(straight_through)
+        self.encoder = (UNet(3, 1, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
+                        if importance == "learned" else None)
+        self.decoder = build_decoder(decoder, depth, base_channels, max_channels, norm)
         self.normalization = ImportanceNormalization(mean, lower, delta)
         self.sampling = RejectionSampling(P, alpha)
         if valid is None:
@@ -172,35 +294,51 @@ class IMLNet(nn.Module):
     def encode(self, c_image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(pim, pim_norm)``, each ``(B, 1, n, n)`` float32."""
         self._check(c_image)
-        logits = self.encoder(c_image)
-        with torch.autocast(device_type=c_image.device.type, enabled=False):
-            x = logits if logits.dtype in (torch.float32, torch.float64) else logits.float()
-            pim = F.softplus(x)
+        if self.encoder is None:  # uniform importance: PIM' = u on every valid pixel
+            pim = torch.ones_like(c_image[:, :1], dtype=torch.float64 if c_image.dtype == torch.float64 else torch.float32)
+        else:
+            logits = self.encoder(c_image)
+            with torch.autocast(device_type=c_image.device.type, enabled=False):
+                x = logits if logits.dtype in (torch.float32, torch.float64) else logits.float()
+                pim = F.softplus(x)
         pim_norm = self.normalization(pim, None if self._all_valid else self.valid)
         return pim, pim_norm
 
     def sample(self, pim_norm: torch.Tensor, hard: Optional[bool] = None) -> torch.Tensor:
-        """IM from PIM' (soft/hard as :class:`RejectionSampling`), forced to 0 on C-Image padding."""
-        im = self.sampling(pim_norm, hard)
+        """IM from PIM' (soft/hard as :class:`RejectionSampling`), forced to 0 on C-Image padding.
+
+        Uniform importance is always hard; ``straight_through`` makes a soft request return the hard
+        mask with the soft mask's gradient.
+        """
+        if hard is None:
+            hard = not self.training
+        if self.encoder is None:
+            hard = True
+        if not hard and self.straight_through:
+            soft = self.sampling(pim_norm, False)
+            im = self.sampling(pim_norm, True) + (soft - soft.detach())  # exactly the hard values
+        else:
+            im = self.sampling(pim_norm, hard)
         return im if self._all_valid else im * self.valid.to(im.dtype)
 
     def importance(self, c_image: torch.Tensor, hard: bool = True) -> torch.Tensor:
         """The IM alone: ``(B, 1, n, n)`` float32 (``{0, 1}`` when ``hard``; use ``.bool()`` for bits)."""
         return self.sample(self.encode(c_image)[1], hard)
 
-    def decode(self, pr_c_image: torch.Tensor) -> torch.Tensor:
-        """Inpaint a PR-C-Image ``(B, 3, n, n)`` into the C-Image ``(B, 3, n, n)``."""
+    def decode(self, pr_c_image: torch.Tensor, im: torch.Tensor) -> torch.Tensor:
+        """Rebuild the C-Image ``(B, 3, n, n)`` from the rendered pixels ``pr_c_image`` (``(B, 3, n, n)``,
+        anything where ``im`` is 0) and the mask ``im`` ``(B, 1, n, n)``."""
         self._check(pr_c_image)
-        return self.decoder(pr_c_image)
+        return self.decoder(pr_c_image, im)
 
     def forward(self, c_image: torch.Tensor, hard: Optional[bool] = None) -> IMLOutput:
         pim, pim_norm = self.encode(c_image)
         im = self.sample(pim_norm, hard)
         pr_c = im * c_image.to(im.dtype)
-        return IMLOutput(pim, pim_norm, im, pr_c, self.decoder(pr_c))
+        return IMLOutput(pim, pim_norm, im, pr_c, self.decoder(c_image.to(im.dtype), im))
 
     def extra_repr(self) -> str:
-        return f"c_size={self.c_size}, all_valid={self._all_valid}"
+        return f"c_size={self.c_size}, all_valid={self._all_valid}, decoder={self.decoder_kind}, importance={self.importance_source}"
 
 
 class IMLRecNN(nn.Module):
@@ -213,7 +351,7 @@ class IMLRecNN(nn.Module):
     Methods:
         ``forward(c_image, hard=None)``: IM from the C-Image (IML + RecNN, the upper bound) -> FR-Image.
         ``from_im(c_image, im)``: a given IM (e.g. from IMS) selects the pixels -> FR-Image.
-        ``from_pr_c_image(pr_c_image)``: already selectively rendered C-Image -> FR-Image (IML/S).
+        ``from_pr_c_image(pr_c_image, im)``: already selectively rendered C-Image and its mask -> FR-Image (IML/S).
 
     Example:
         >>> from imls_lightning.patterns import SamplingPattern
@@ -232,12 +370,12 @@ class IMLRecNN(nn.Module):
             raise InputError(f"IML c_size={iml.c_size} does not match the RecNN's c_size={rc}")
         self.iml, self.recnn = iml, recnn
 
-    def from_pr_c_image(self, pr_c_image: torch.Tensor) -> torch.Tensor:
-        return self.recnn(self.iml.decode(pr_c_image))
+    def from_pr_c_image(self, pr_c_image: torch.Tensor, im: torch.Tensor) -> torch.Tensor:
+        return self.recnn(self.iml.decode(pr_c_image, im))
 
     def from_im(self, c_image: torch.Tensor, im: torch.Tensor) -> torch.Tensor:
         im = im.to(torch.float32 if c_image.dtype != torch.float64 else c_image.dtype)
-        return self.from_pr_c_image(im * c_image.to(im.dtype))
+        return self.from_pr_c_image(im * c_image.to(im.dtype), im)
 
     def forward(self, c_image: torch.Tensor, hard: Optional[bool] = None) -> torch.Tensor:
         return self.recnn(self.iml(c_image, hard).c_recon)

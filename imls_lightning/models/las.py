@@ -90,6 +90,7 @@ from imls_lightning.importance import (
     normalize_importance,
     soft_rejection_sample,
 )
+from imls_lightning.models.pull_push import PullPushInpaint, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 from imls_lightning.patterns import plastic_rank_pattern
 
@@ -103,109 +104,6 @@ __all__ = [
     "las_loss",
     "downsample_low_res",
 ]
-
-# Below this pyramid mass a pixel counts as empty in pull-push (LAS: exactly 0). Keeps 1/N finite.
-_PP_EPS = 1e-12
-
-
-# --------------------------------------------------------------------------------------------
-# pull-push (fractional fast inpainting)
-# --------------------------------------------------------------------------------------------
-
-
-def _pull(m: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    oh, ow = m.shape[-2] // 2, m.shape[-1] // 2
-    # adaptive pooling windows = LAS start/end_index (floor(i H / oH) .. ceil((i+1) H / oH))
-    mass = F.adaptive_avg_pool2d(m, (oh, ow))
-    wsum = F.adaptive_avg_pool2d(m * d, (oh, ow))
-    m_low = F.adaptive_max_pool2d(m, (oh, ow))
-    ok = mass > _PP_EPS
-    d_low = torch.where(ok, wsum / torch.where(ok, mass, torch.ones_like(mass)), torch.zeros_like(wsum))
-    return m_low, d_low
-
-
-def _push_index(n_high: int, n_low: int, device) -> tuple[torch.Tensor, torch.Tensor]:
-    """Indices into the 1-padded coarse axis: the own coarse pixel and the neighbour on the side."""
-    i = torch.arange(n_high, device=device)
-    own = i // 2
-    side = own + torch.where(i % 2 == 0, -1, 1)
-    # +1 for the zero pad; indices outside [0, n_low) land on the pad (weight 0 via `valid`)
-    return own.clamp(max=n_low) + 1, side.clamp(-1, n_low) + 1
-
-
-def _push(m, d, m_low, d_low):
-    h, w = m.shape[-2:]
-    oh, ow = m_low.shape[-2:]
-    r0, r1 = _push_index(h, oh, m.device)
-    c0, c1 = _push_index(w, ow, m.device)
-    valid = F.pad(torch.ones_like(m_low[:1, :1]), (1, 1, 1, 1))
-    mp = F.pad(m_low, (1, 1, 1, 1))
-    mdp = F.pad(m_low * d_low, (1, 1, 1, 1))
-
-    def taps(x):
-        a, b = x.index_select(-2, r0), x.index_select(-2, r1)
-        return (a.index_select(-1, c0), b.index_select(-1, c0), a.index_select(-1, c1), b.index_select(-1, c1))
-
-    wts = (9 / 16, 3 / 16, 3 / 16, 1 / 16)
-    W = sum(wt * t for wt, t in zip(wts, taps(valid)))
-    N = sum(wt * t for wt, t in zip(wts, taps(mp)))
-    D = sum(wt * t for wt, t in zip(wts, taps(mdp)))
-    ok = N > _PP_EPS
-    fill = torch.where(ok, D / torch.where(ok, N, torch.ones_like(N)), torch.zeros_like(D))
-    m_out = m + (1 - m) * (N / W)  # W >= 9/16 or 3/16 > 0 always (one coarse tap is inside)
-    d_out = m * d + (1 - m) * fill
-    return m_out, d_out
-
-
-def _pull_push(m, d):
-    if m.shape[-2] <= 1 or m.shape[-1] <= 1:
-        return m, d
-    m_low, d_low = _pull(m, d)
-    m_low, d_low = _pull_push(m_low, d_low)
-    return _push(m, d, m_low, d_low)
-
-
-def pull_push_inpaint(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Fill the unsampled pixels of a sparse image by a pull-push pyramid (LAS "fast inpainting").
-
-    Differentiable w.r.t. ``values`` and ``mask`` (fractional masks allowed: the soft sampling mask
-    of training). Pull: halve the image, ``m' = max(m)``, ``d' = sum(m d) / sum(m)`` over each
-    window; recurse down to a side of 1; push: each fine pixel blends its own value with the
-    bilinear (9/16, 3/16, 3/16, 1/16) mask-weighted average of the 4 nearest coarse pixels,
-    ``d_out = m d + (1 - m) D / N``. With a 0/1 mask, sampled pixels are returned unchanged. Works
-    for any ``H, W`` (not only powers of two). Runs in float32 (float64 kept) with autocast off.
-
-    Args:
-        values: ``(B, C, H, W)`` sample values (anything where the mask is 0).
-        mask: ``(B, 1, H, W)`` or ``(B, H, W)`` in [0, 1] (bool allowed).
-
-    Returns:
-        ``(B, C, H, W)`` inpainted image, dtype of ``values`` (float32 for reduced precision).
-        An all-zero mask gives all zeros.
-
-    Example:
-        >>> v = torch.zeros(1, 1, 4, 4); v[0, 0, 0, 0] = 2.0
-        >>> m = (v > 0).float()
-        >>> pull_push_inpaint(v, m).unique().tolist()
-        [2.0]
-    """
-    if values.dim() != 4:
-        raise ValueError(f"values: expected (B, C, H, W), got {tuple(values.shape)}")
-    if mask.dim() == 3:
-        mask = mask.unsqueeze(1)
-    if mask.dim() != 4 or mask.shape[1] != 1 or mask.shape[0] != values.shape[0] or mask.shape[-2:] != values.shape[-2:]:
-        raise ValueError(f"mask: expected (B, 1, H, W) matching values {tuple(values.shape)}, got {tuple(mask.shape)}")
-    dt = torch.float64 if values.dtype == torch.float64 else torch.float32
-    with torch.autocast(device_type=values.device.type, enabled=False):
-        return _pull_push(mask.to(dt), values.to(dt))[1]
-
-
-class PullPushInpaint(nn.Module):
-    """:func:`pull_push_inpaint` as a layer: ``forward(values, mask)``."""
-
-    def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return pull_push_inpaint(values, mask)
-
 
 # --------------------------------------------------------------------------------------------
 # networks

@@ -5,8 +5,17 @@
   starting from a trained RecNN checkpoint (``recnn.checkpoint=...``), frozen unless
   ``model.finetune_recnn=true``.
 
-Training uses the soft rejection sampling (sigmoid); validation and test use the hard mask, as at
-inference, so the logged IPR and PSNR are what a user will get.
+Training uses the soft rejection sampling (sigmoid; ``model.straight_through=true``: the hard mask
+with the sigmoid's gradient); validation and test use the hard mask, as at inference, so the logged
+IPR and PSNR (dB) are what a user will get. ``model.mean_range=[lo, hi]`` draws the mean value of
+every training batch uniformly from that range, so one decoder serves every mean the ORP search
+or a user picks at inference (validation stays at ``model.mean``).
+
+Logged next to the loss: ``val/fr_psnr`` (dB, after the RecNN), ``val/c_psnr``, ``val/fill_c_psnr``
+(the untrained pull-push fill of the same pixels: the decoder must beat it), and what the encoder
+learns: ``val/pim_contrast`` (mean PIM' on object pixels / on empty background, 1 = no preference),
+``val/density_background`` and ``val/density_object`` (share of each sampled), and
+``train/encoder_grad_norm``.
 """
 from __future__ import annotations
 
@@ -19,11 +28,43 @@ from data_gen.errors import InputError
 
 from ..config import to_plain
 from ..models.iml import IMLNet
+from ..models.pull_push import pull_push_inpaint
 from ..patterns import build_pattern, plastic_rank_pattern
 from .base import ImlsTask, load_task, psnr_per_image
 from .recnn import RecNNTask
 
 MODES = ("standalone", "end_to_end")
+# a C-Image pixel counts as empty background when every channel is below this (8-bit: < 2/255)
+BACKGROUND_LEVEL = 2.0 / 255.0
+
+
+def background_mask(c_image: torch.Tensor) -> torch.Tensor:
+    """``(B, 1, n, n)`` bool: pixels whose colour is (near) black, the empty background of the scene."""
+    return c_image.amax(dim=1, keepdim=True) < BACKGROUND_LEVEL
+
+
+def iml_net_from_hparams(h: Mapping, pattern) -> IMLNet:
+    """The :class:`IMLNet` of an ``IMLTask`` with hyperparameters ``h`` (one place for the defaults:
+    checkpoints written before a hyperparameter existed get the behaviour they were trained with)."""
+    n = pattern.c_size
+    return IMLNet(
+        n, plastic_rank_pattern(n), mean=h.get("mean", 0.1), alpha=h.get("alpha", 50.0), depth=h.get("depth", 5),
+        base_channels=h.get("base_channels", 32), lower=h.get("lower", 0.0), delta=h.get("delta", 1e-7),
+        valid=pattern.valid, decoder=h.get("decoder", "plain"), importance=h.get("importance", "learned"),
+        straight_through=h.get("straight_through", False),
+    )
+
+
+def _mean_range(value, mean: float) -> list[float] | None:
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"model.mean_range={value}: expected null or [lo, hi] with 0.01 <= lo <= hi <= 1") from None
+    if not (0.01 <= lo <= hi <= 1.0):
+        raise InputError(f"model.mean_range={value}: expected null or [lo, hi] with 0.01 <= lo <= hi <= 1")
+    return [lo, hi]
 
 
 class IMLTask(ImlsTask):
@@ -34,6 +75,10 @@ class IMLTask(ImlsTask):
         mode: ``"standalone"`` or ``"end_to_end"``.
         mean, alpha, lower, delta: normalization target u, sigmoid steepness, l and delta.
         depth, base_channels: U-Net size of encoder and decoder.
+        decoder: ``"refine"`` (fill + learned correction) or ``"plain"`` (the paper's U-Net).
+        importance: ``"learned"`` or ``"uniform"`` (the blue-noise mask baseline, decoder only).
+        straight_through: train on hard masks with the soft mask's gradient.
+        mean_range: ``None`` or ``[lo, hi]``: a random mean value per training batch.
         recnn_hparams: hyperparameters of the RecNN task (end-to-end only; taken from its checkpoint).
         finetune_recnn: train the RecNN's weights too.
     """
@@ -55,6 +100,10 @@ class IMLTask(ImlsTask):
         lr: float = 1e-3,
         recnn_hparams: Mapping | None = None,
         recnn_name: str = "recnn",
+        decoder: str = "plain",
+        importance: str = "learned",
+        straight_through: bool = False,
+        mean_range: Any = None,
         **_: Any,
     ):
         super().__init__()
@@ -70,13 +119,12 @@ class IMLTask(ImlsTask):
             "base_channels": int(base_channels), "compaction_weight": float(compaction_weight),
             "image_weight": float(image_weight), "finetune_recnn": bool(finetune_recnn), "lr": float(lr),
             "recnn_hparams": to_plain(recnn_hparams) if recnn_hparams else None, "recnn_name": recnn_name,
+            "decoder": str(decoder), "importance": str(importance), "straight_through": bool(straight_through),
+            "mean_range": _mean_range(to_plain(mean_range), float(mean)),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
-        n = self.pattern.c_size
-        self.iml = IMLNet(
-            n, plastic_rank_pattern(n), mean=mean, alpha=alpha, depth=depth, base_channels=base_channels,
-            lower=lower, delta=delta, valid=self.pattern.valid,
-        )
+        self.iml = iml_net_from_hparams(self.hparams, self.pattern)
+        self._rng = torch.Generator().manual_seed(0)
         self.recnn = None
         if mode == "end_to_end":
             rh = dict(recnn_hparams)
@@ -102,7 +150,8 @@ class IMLTask(ImlsTask):
             pattern=cfg.pattern, fr_size=cfg.data.resolution, mode=m.mode, mean=m.mean, alpha=m.alpha,
             lower=m.lower, delta=m.delta, depth=m.depth, base_channels=m.base_channels,
             compaction_weight=m.compaction_weight, image_weight=m.image_weight,
-            finetune_recnn=m.finetune_recnn, lr=m.lr,
+            finetune_recnn=m.finetune_recnn, lr=m.lr, decoder=m.decoder, importance=m.importance,
+            straight_through=m.straight_through, mean_range=m.mean_range,
             recnn_hparams=dict(recnn_task.hparams) if recnn_task is not None else None,
             recnn_name=cfg.recnn.name,
         )
@@ -124,7 +173,14 @@ class IMLTask(ImlsTask):
     def _step(self, batch: dict[str, torch.Tensor], prefix: str) -> torch.Tensor:
         c = batch["c"]
         hard = prefix != "train"
-        out = self.iml(c, hard=hard)
+        rng = self.hparams.mean_range
+        trained_mean = self.iml.mean
+        if prefix == "train" and rng is not None:
+            self.iml.mean = float(rng[0] + (rng[1] - rng[0]) * torch.rand((), generator=self._rng))
+        try:
+            out = self.iml(c, hard=hard)
+        finally:
+            self.iml.mean = trained_mean
         comp = F.mse_loss(out.c_recon, c)
         loss = comp
         bs = c.shape[0]
@@ -135,9 +191,9 @@ class IMLTask(ImlsTask):
             loss = self.hparams.compaction_weight * comp + self.hparams.image_weight * img
             self.log(f"{prefix}/image_loss", img, batch_size=bs, on_step=False, on_epoch=True)
             if prefix != "train":
-                self.log_image_metrics(f"{prefix}/fr", fr_pred, batch["fr"])
+                self.log_image_metrics(f"{prefix}/fr", fr_pred, batch["fr"], prog_bar=True)
         with torch.no_grad():
-            hard_im = out.im if hard else self.iml.sample(out.pim_norm, hard=True)
+            hard_im = out.im.detach() if hard else self.iml.sample(out.pim_norm.detach(), hard=True)
             ipr = hard_im.flatten(1).sum(1) / float(self.pattern.fr_size**2)
             share = hard_im.flatten(1).sum(1) / float(self.pattern.count)
         self.log(f"{prefix}/loss", loss, batch_size=bs, prog_bar=True, on_step=on_step, on_epoch=True)
@@ -145,8 +201,33 @@ class IMLTask(ImlsTask):
         self.log(f"{prefix}/ipr", ipr.mean(), batch_size=bs, prog_bar=True, on_step=False, on_epoch=True)
         self.log(f"{prefix}/c_share", share.mean(), batch_size=bs, on_step=False, on_epoch=True)
         if prefix != "train":
-            self.log(f"{prefix}/c_psnr", psnr_per_image(out.c_recon, c).mean(), batch_size=bs)
+            with torch.no_grad():
+                self.log(f"{prefix}/c_psnr", psnr_per_image(out.c_recon, c).mean(), batch_size=bs)
+                fill = pull_push_inpaint(c, hard_im)
+                self.log(f"{prefix}/fill_c_psnr", psnr_per_image(fill, c).mean(), batch_size=bs)
+                if self.recnn is not None:
+                    self.log(f"{prefix}/fill_fr_psnr", psnr_per_image(self.recnn(fill), batch["fr"]).mean(), batch_size=bs)
+                self._log_importance_stats(prefix, c, out.pim_norm, hard_im, bs)
         return loss
+
+    def _log_importance_stats(self, prefix: str, c: torch.Tensor, pim_norm: torch.Tensor, im: torch.Tensor, bs: int) -> None:
+        """What the encoder learned: PIM' and sampling density on empty background vs on the object."""
+        valid = self.iml.valid.bool().expand_as(im)
+        bg = background_mask(c) & valid
+        obj = ~background_mask(c) & valid
+        nb, no = bg.sum().clamp_min(1).float(), obj.sum().clamp_min(1).float()
+        pim_bg, pim_obj = (pim_norm * bg).sum() / nb, (pim_norm * obj).sum() / no
+        self.log(f"{prefix}/pim_contrast", pim_obj / pim_bg.clamp_min(1e-6), batch_size=bs)
+        self.log(f"{prefix}/density_background", (im * bg).sum() / nb, batch_size=bs)
+        self.log(f"{prefix}/density_object", (im * obj).sum() / no, batch_size=bs)
+
+    def on_before_optimizer_step(self, optimizer) -> None:
+        enc = self.iml.encoder
+        if enc is None:
+            return
+        norms = [p.grad.detach().norm() for p in enc.parameters() if p.grad is not None]
+        if norms:
+            self.log("train/encoder_grad_norm", torch.stack(norms).norm(), on_step=True, on_epoch=False)
 
     def training_step(self, batch, batch_idx):
         return self._step(batch, "train")

@@ -65,11 +65,12 @@ from ..backbones import BACKBONES, VGG16_LAYERS
 from ..losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
-from ..patterns import build_pattern, plastic_rank_pattern
+from ..patterns import build_pattern
 from .base import ImlsTask, load_task, psnr_per_image
+from .iml import iml_net_from_hparams
 from .recnn import RecNNTask
 
-__all__ = ["IMSTask", "TARGETS", "loss_config", "build_criterion", "pim_to_target", "build_iml_net"]
+__all__ = ["IMSTask", "TARGETS", "loss_config", "build_criterion", "pim_to_target", "build_iml_net", "scaled_pim_im"]
 
 TARGETS = ("im", "pim")
 LOSS_TERMS = ("bce", "mse", "perceptual", "adversarial")
@@ -163,21 +164,51 @@ def pim_to_target(pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> to
     return t
 
 
+def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float | None = None) -> torch.Tensor:
+    """IM of an IMS (``target="pim"``) output at mean value ``u`` instead of the trained ``u_train``.
+
+    The IMS regresses ``PIM' = (g + 1) / 2`` normalized to mean ``u_train``; the IML normalization
+    ``PIM'(u) = l + (PIM'(u_train) - l) (u - l) / (u_train - l)`` is affine in ``u``, so the IM at
+    ``u`` is ``PIM'(u) > P`` (0 on padding). Exact while nothing saturates: the generator's target
+    was ``clamp(PIM', 0, 1)``, so a pixel at ``g = 1`` had ``PIM' >= 1``; it stays important when
+    ``u >= u_train`` and is compared at its lower bound otherwise. At ``u == u_train`` (same float32)
+    this is bit-for-bit :meth:`IMSTask.output_to_im`.
+
+    Args:
+        task: the :class:`~imls_lightning.tasks.ims.IMSTask` (its ``P``, ``valid``, IML ``lower``).
+        g: ``(B, 1, n, n)`` generator output in ``[-1, 1]``.
+        u: ``(B,)`` tensor or a number: the mean value per view.
+        u_train: the mean the IMS targets were normalized to (default: the IML's trained mean).
+
+    Returns:
+        ``(B, 1, n, n)`` bool IM.
+    """
+    if task.target != "pim":
+        raise InputError(f"ims_checkpoint: its IMS was trained with model.target={task.target}; the adaptive mean scales the "
+                         "regressed PIM', which needs an IMS trained with model.target=pim")
+    g = g.float()
+    u_train = float(task.iml.mean) if u_train is None else float(u_train)
+    lower = float(task.iml.normalization.lower)
+    ut = torch.as_tensor(u, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
+    scale = (ut - lower) / torch.tensor(u_train - lower, dtype=torch.float32, device=g.device)
+    pim = (g + 1.0) * 0.5
+    if lower == 0.0:
+        pim_u = pim * scale
+    else:
+        pim_u = (pim - lower) * scale + lower
+    im = (pim_u > task.P.to(g.device)) | ((g >= 1.0) & (scale >= 1.0))
+    return im & task.valid.to(g.device)
+
+
 def _plain_json(obj: Any) -> Any:
     """Plain JSON data (checkpoint hyperparameters must load with ``weights_only=True``)."""
     return json.loads(json.dumps(to_plain(obj), default=str))
 
 
 def build_iml_net(iml_hparams: Mapping, pattern) -> IMLNet:
-    """The :class:`IMLNet` an ``IMLTask`` with these hyperparameters builds (same arguments, same
-    defaults as :class:`~imls_lightning.tasks.iml.IMLTask`; loading its weights strictly checks it)."""
-    h = dict(iml_hparams)
-    n = pattern.c_size
-    return IMLNet(
-        n, plastic_rank_pattern(n), mean=h.get("mean", 0.1), alpha=h.get("alpha", 50.0), depth=h.get("depth", 5),
-        base_channels=h.get("base_channels", 32), lower=h.get("lower", 0.0), delta=h.get("delta", 1e-7),
-        valid=pattern.valid,
-    )
+    """The :class:`IMLNet` an ``IMLTask`` with these hyperparameters builds (loading its weights
+    strictly checks it): :func:`imls_lightning.tasks.iml.iml_net_from_hparams`."""
+    return iml_net_from_hparams(iml_hparams, pattern)
 
 
 def _same_pattern(hp: Mapping, pattern, fr_size: int) -> bool:
@@ -412,18 +443,24 @@ class IMSTask(ImlsTask):
             im = ((g + 1.0) * 0.5 > self.P.to(g.device)) | (g >= 1.0)
         return im & self.valid.to(g.device)
 
+    def output_to_im_at(self, g: torch.Tensor, mean: torch.Tensor | float | None) -> torch.Tensor:
+        """:meth:`output_to_im` at mean value ``mean`` (``None``: the trained one; see :func:`scaled_pim_im`)."""
+        return self.output_to_im(g) if mean is None else scaled_pim_im(self, g, mean)
+
     @torch.no_grad()
-    def predict_im(self, view: torch.Tensor) -> torch.Tensor:
-        """Importance mask of views ``(B, 9)`` -> ``(B, 1, n, n)`` bool (the IMS product).
+    def predict_im(self, view: torch.Tensor, mean: float | None = None) -> torch.Tensor:
+        """Importance mask of views ``(B, 9)`` -> ``(B, 1, n, n)`` bool (the IMS product), at the
+        trained mean value or at ``mean`` (``target="pim"`` only: the regressed PIM' is rescaled).
 
         Uses the generator in whatever mode the task is in (``eval()`` for inference).
         """
         view = torch.as_tensor(view, dtype=torch.float32, device=self.valid.device)
-        return self.output_to_im(self.generator(view))
+        return self.output_to_im_at(self.generator(view), mean)
 
     def reconstruct(self, im: torch.Tensor, c_image: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
         """IML/S path from an IM and the C-Image: ``(decoder C-Image (B, 3, n, n), FR (B, 3, m, m) or None)``."""
-        c_rec = self.decoder(im.to(c_image.dtype) * c_image)
+        im = im.to(c_image.dtype)
+        c_rec = self.decoder(im * c_image, im)
         return c_rec, (self.recnn(c_rec) if self.recnn is not None else None)
 
     # -- training ------------------------------------------------------------------------------

@@ -1,0 +1,252 @@
+"""The untrained baselines every report shows beside the learned parts, at equal C-Image share.
+
+A learned part earns its place only by beating the simplest thing that needs no training, on the
+same pixels and with the same RecNN:
+
+* **decoder vs fill**: the same mask's pixels rebuilt by the trained IML decoder, or by the
+  untrained pull-push fill (:func:`~imls_lightning.models.pull_push.pull_push_inpaint`), each then
+  through the RecNN;
+* **mask vs blue noise**: the learned mask (IML from the C-Image, IMS from the view) against the
+  blue-noise plastic mask ``u > P`` of the same share, each through a decoder trained for it (the
+  blue-noise decoder is an IML trained with ``model.importance=uniform``), and each through the fill.
+
+Every mask is brought to the same share of the pattern's pixels per view by
+:func:`mask_at_share` (bisection on the mean value ``u``; the IMS's regressed PIM' is rescaled, no
+ground truth is used), so the comparison is at equal rendering cost. Quality is measured on the
+cache's pixels, which are exactly what the selective ray cast of the same renderer returns.
+
+Also reported per mask: its sampling density on empty background (ground truth black) and on the
+object, the measure of whether importance is learned at all.
+
+Example:
+    >>> rows = equal_share_rows(c, fr, views, recnn, iml, ims_task=ims, blue=blue_iml)  # doctest: +SKIP
+    >>> print(equal_share_markdown(rows))                                              # doctest: +SKIP
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from .models.pull_push import pull_push_inpaint
+from .tasks.base import psnr_per_image
+from .tasks.iml import background_mask
+
+__all__ = ["SHARES", "mask_at_share", "equal_share_rows", "summarize_equal_share", "equal_share_markdown"]
+
+#: the C-Image shares every report compares at (the issue's 10 %, 20 % and 40 % of C)
+SHARES = (0.1, 0.2, 0.4)
+
+
+def mask_at_share(mask_at: Callable[[torch.Tensor], torch.Tensor], share: float, valid: torch.Tensor,
+                  batch: int, steps: int = 24, bracket: Sequence[float] = (1e-3, 1.0)) -> torch.Tensor:
+    """The mask, per image, at the mean value ``u`` whose mask keeps about ``share`` of the valid pixels.
+
+    Bisection in ``log u`` per image; the mask's count grows with ``u``. The smallest ``u`` whose
+    count reaches the target is taken (the share may overshoot by the pixels that switch at once).
+
+    Args:
+        mask_at: ``u (B,) float32 -> (B, 1, n, n)`` bool or 0/1 mask at those means.
+        share: target share of the valid pixels in ``(0, 1]``.
+        valid: ``(n, n)`` bool, the pattern's pixels.
+        batch: ``B``.
+        steps: bisection rounds.
+        bracket: ``(lo, hi)`` of ``u``; ``hi`` is used when even it keeps fewer pixels.
+
+    Returns:
+        ``(B, 1, n, n)`` float32 0/1 mask.
+
+    Example:
+        >>> P = torch.rand(8, 8)
+        >>> m = mask_at_share(lambda u: u.view(-1, 1, 1, 1) > P, 0.25, torch.ones(8, 8, dtype=torch.bool), 2)
+        >>> m.mean(dim=(1, 2, 3)).tolist()
+        [0.25, 0.25]
+    """
+    if not (0.0 < float(share) <= 1.0):
+        raise ValueError(f"share={share}: expected a number in (0, 1]")
+    target = float(share) * float(valid.sum())
+    lo = torch.full((batch,), float(bracket[0]), dtype=torch.float64)
+    hi = torch.full((batch,), float(bracket[1]), dtype=torch.float64)
+
+    def count(u: torch.Tensor) -> torch.Tensor:
+        m = mask_at(u.float()).bool() & valid.to(torch.bool)
+        return m.flatten(1).sum(1).double().cpu()
+
+    for _ in range(int(steps)):
+        mid = (lo.log() + hi.log()).mul(0.5).exp()
+        enough = count(mid) >= target - 0.5
+        hi = torch.where(enough, mid, hi)
+        lo = torch.where(enough, lo, mid)
+    return (mask_at(hi.float()).bool() & valid.to(torch.bool)).float()
+
+
+def _densities(im: torch.Tensor, c: torch.Tensor, valid: torch.Tensor) -> tuple[float, float]:
+    bg = background_mask(c) & valid
+    obj = ~background_mask(c) & valid
+    d_bg = float((im.bool() & bg).sum()) / max(int(bg.sum()), 1)
+    d_obj = float((im.bool() & obj).sum()) / max(int(obj.sum()), 1)
+    return d_bg, d_obj
+
+
+@torch.no_grad()
+def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | None, recnn: torch.nn.Module,
+                     iml: torch.nn.Module | None = None, ims_task: Any = None, blue: torch.nn.Module | None = None,
+                     shares: Sequence[float] = SHARES, valid: torch.Tensor | None = None) -> list[dict[str, Any]]:
+    """Per-image PSNR after the RecNN for every (share, mask, reconstruction) on one batch.
+
+    Args:
+        c: ``(B, 3, n, n)`` C-Images (the pattern's rendered pixels).
+        fr: ``(B, 3, m, m)`` ground-truth FR-Images.
+        views: ``(B, 9)`` views (for the IMS mask) or ``None``.
+        recnn: the RecNN, the same for every row.
+        iml: the :class:`~imls_lightning.models.iml.IMLNet` whose encoder gives the IML mask and
+            whose decoder rebuilds the IML and IMS masks' pixels (``None``: no learned rows).
+        ims_task: an ``IMSTask`` trained with ``target=pim`` (its PIM' is rescaled to each share).
+        blue: an ``IMLNet`` trained with ``importance="uniform"`` (its decoder is the one trained
+            for blue-noise masks), or ``None`` (blue-noise masks get the fill only).
+        shares: C-Image shares.
+        valid: ``(n, n)`` bool pattern pixels (default: ``iml.valid`` or all).
+
+    Returns:
+        rows ``{"share", "mask", "reconstruction", "psnr" (B,), "c_share" (B,), "density_background",
+        "density_object"}``; ``mask`` in ``iml | ims | blue_noise``, ``reconstruction`` in
+        ``decoder | fill``.
+    """
+    n = c.shape[-1]
+    B = c.shape[0]
+    net = iml if iml is not None else blue
+    if valid is None:
+        valid = net.valid.bool().view(n, n) if net is not None else torch.ones(n, n, dtype=torch.bool)
+    valid = valid.to(c.device)
+    P = (net.sampling.P if net is not None else ims_task.P).to(c.device).view(1, 1, n, n)
+    sources: dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.nn.Module | None]] = {}
+    if iml is not None and iml.encoder is not None:
+        pim, _ = iml.encode(c)
+        lower, delta = iml.normalization.lower, iml.normalization.delta
+        from .importance import normalize_importance
+
+        def iml_mask(u: torch.Tensor) -> torch.Tensor:
+            return torch.cat([normalize_importance(pim[i:i + 1], float(u[i]), lower, delta, valid) for i in range(B)]) > P
+
+        sources["iml"] = (iml_mask, iml.decoder)
+    if ims_task is not None and views is not None and ims_task.target == "pim":
+        g = ims_task.generator(views.to(c.device).float()).float()
+        sources["ims"] = (lambda u: ims_task.output_to_im_at(g, u.to(c.device)), iml.decoder if iml is not None else None)
+    sources["blue_noise"] = (lambda u: u.to(c.device).view(-1, 1, 1, 1) > P, blue.decoder if blue is not None else None)
+
+    rows: list[dict[str, Any]] = []
+    for share in shares:
+        for name, (mask_at, decoder) in sources.items():
+            im = mask_at_share(mask_at, share, valid, B)
+            d_bg, d_obj = _densities(im, c, valid)
+            got = im.flatten(1).sum(1) / valid.sum()
+            recs = {"fill": pull_push_inpaint(im * c, im)}
+            if decoder is not None:
+                recs["decoder"] = decoder(im * c, im)
+            for rec_name, c_rec in recs.items():
+                rows.append({"share": float(share), "mask": name, "reconstruction": rec_name,
+                             "psnr": psnr_per_image(recnn(c_rec), fr).cpu().numpy(), "c_share": got.cpu().numpy(),
+                             "density_background": d_bg, "density_object": d_obj})
+    return rows
+
+
+def summarize_equal_share(batches: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
+    """Merge the rows of several batches: mean PSNR and share per (share, mask, reconstruction);
+    densities weighted by the batches' sizes."""
+    acc: dict[tuple, dict[str, Any]] = {}
+    for rows in batches:
+        for r in rows:
+            k = (r["share"], r["mask"], r["reconstruction"])
+            a = acc.setdefault(k, {"share": r["share"], "mask": r["mask"], "reconstruction": r["reconstruction"],
+                                   "psnr": [], "c_share": [], "bg": [], "obj": [], "w": []})
+            a["psnr"].append(np.asarray(r["psnr"]))
+            a["c_share"].append(np.asarray(r["c_share"]))
+            a["bg"].append(r["density_background"])
+            a["obj"].append(r["density_object"])
+            a["w"].append(len(np.asarray(r["psnr"]).reshape(-1)))
+    out = []
+    for a in acc.values():
+        w = np.asarray(a["w"], float)
+        out.append({"share": a["share"], "mask": a["mask"], "reconstruction": a["reconstruction"],
+                    "psnr": float(np.concatenate(a["psnr"]).mean()), "c_share": float(np.concatenate(a["c_share"]).mean()),
+                    "density_background": float(np.average(a["bg"], weights=w)),
+                    "density_object": float(np.average(a["obj"], weights=w)), "views": int(w.sum())})
+    return out
+
+
+MASK_LABELS = {"ims": "IMS (from the view)", "iml": "IML (from the C-Image)", "blue_noise": "blue noise (untrained)"}
+
+
+def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown table: per share and mask, PSNR after the RecNN with the trained decoder and with the
+    fill, the decoder's gain, and the mask's density on background vs object."""
+    from .report import fmt, md_table
+
+    by = {(r["share"], r["mask"], r["reconstruction"]): r for r in summary}
+    shares = sorted({r["share"] for r in summary})
+    masks = [m for m in ("ims", "iml", "blue_noise") if any(k[1] == m for k in by)]
+    rows = []
+    for s in shares:
+        blue_dec = by.get((s, "blue_noise", "decoder"))
+        for m in masks:
+            dec, fill = by.get((s, m, "decoder")), by.get((s, m, "fill"))
+            any_row = dec or fill
+            if any_row is None:
+                continue
+            gain = dec["psnr"] - fill["psnr"] if dec and fill else float("nan")
+            vs_blue = dec["psnr"] - blue_dec["psnr"] if dec and blue_dec and m != "blue_noise" else float("nan")
+            ratio = any_row["density_background"] / any_row["density_object"] if any_row["density_object"] > 0 else float("nan")
+            rows.append([f"{100 * s:.0f} %", MASK_LABELS.get(m, m), f"{100 * any_row['c_share']:.1f} %",
+                         fmt(dec["psnr"]) if dec else "–", fmt(fill["psnr"]) if fill else "–",
+                         fmt(gain, 2, " dB") if np.isfinite(gain) else "–",
+                         fmt(vs_blue, 2, " dB") if np.isfinite(vs_blue) else "–",
+                         f"{100 * any_row['density_background']:.1f} %", f"{100 * any_row['density_object']:.1f} %",
+                         fmt(ratio, 2) if np.isfinite(ratio) else "–"])
+    return md_table(["target share of C", "mask", "share kept", "decoder PSNR (dB)", "fill PSNR (dB)",
+                     "decoder − fill", "mask − blue noise", "density: background", "density: object",
+                     "background / object"], rows, "llrrrrrrrr")
+
+
+@torch.no_grad()
+def product_orp(ims_task: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
+                epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu"):
+    """The ORP on the product path: the smallest mean value ``u`` whose IML/S + RecNN (IMS mask from
+    the view at ``u``, exactly those C-pixels, the IML decoder, the RecNN) stays within
+    ``epsilon_db`` of the RecNN alone, in mean PSNR over the given (validation) views.
+
+    One IMS serves every ``u``: it regresses PIM' at its trained mean, rescaled to ``u``
+    (:meth:`~imls_lightning.tasks.ims.IMSTask.output_to_im_at`; needs ``target=pim``).
+
+    Args:
+        batches: dicts with ``view (B, 9)``, ``c (B, 3, n, n)``, ``fr (B, 3, m, m)``.
+
+    Returns:
+        :class:`~imls_lightning.orp.ORPResult`; each evaluation's ``record`` has ``gap_db``,
+        ``psnr_imls``, ``psnr_recnn``, ``c_share``, ``ipr``.
+    """
+    from .orp import ORPSearch
+
+    prepared = []
+    for b in batches:
+        c, fr, v = b["c"].to(device), b["fr"].to(device), b["view"].to(device).float()
+        prepared.append((c, fr, ims_task.generator(v).float(), psnr_per_image(recnn(c), fr)))
+    valid = ims_task.valid.to(device)
+    k = float(valid.sum())
+    m2 = float(prepared[0][1].shape[-1]) ** 2 if prepared else 1.0
+
+    def objective(us: Sequence[float]) -> list[dict[str, float]]:
+        out = []
+        for u in us:
+            ps, pr, shares = [], [], []
+            for c, fr, g, p_rec in prepared:
+                im = ims_task.output_to_im_at(g, torch.full((c.shape[0],), float(u))).float()
+                ps.append(psnr_per_image(recnn(decoder(im * c, im)), fr))
+                pr.append(p_rec)
+                shares.append(im.flatten(1).sum(1))
+            p_imls, p_rec, cnt = torch.cat(ps).mean(), torch.cat(pr).mean(), torch.cat(shares).float().mean()
+            out.append({"gap_db": float(p_rec - p_imls), "psnr_imls": float(p_imls), "psnr_recnn": float(p_rec),
+                        "c_share": float(cnt) / k, "ipr": float(cnt) / m2})
+        return out
+
+    return ORPSearch(epsilon_db=epsilon_db, tolerance=tolerance, max_rounds=12).run(objective)
