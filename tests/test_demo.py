@@ -31,7 +31,7 @@ def test_demo_config_takes_scene_data_and_recnn_overrides():
     assert (cfg.scene, cfg.data, cfg.recnn, cfg.renderer) == ("marschner_lobb", "tiny", "fovolnet", "vtk")
     assert list(cfg.stages.recnn) == ["trainer.max_epochs=1"]
     assert (default.scene, default.data, default.recnn, default.renderer) == ("flame", "small", "enhancenet", "numba")
-    for stage in ("recnn", "iml", "ims", "las"):
+    for stage in ("recnn", "iml", "ims", "las", "blue_noise"):
         assert list(default.stages[stage]), stage
 
 
@@ -41,6 +41,7 @@ TINY = ["scene=tiny", "data=tiny", "progress=false",
         _overrides("stages.ims", "model.target=pim", "model.loss.mse=1.0", "model.loss.perceptual.weight=0.0",
                    "model.loss.adversarial=0.0", "model.layers=3", "model.base_channels=8", "trainer.max_epochs=1"),
         _overrides("stages.las", "model.low_res=8", "trainer.max_epochs=1"),
+        _overrides("stages.blue_noise", "model.mode=end_to_end", "model.depth=2", "model.base_channels=4", "trainer.max_epochs=1"),
         _overrides("evaluate", "max_views=2", "repeats=10", "warmup=0", "sweep_views=1", "grid_views=1")]
 
 
@@ -57,10 +58,11 @@ def test_smoke_demo_pipeline_on_tiny_and_reuse(tmp_path):
     assert list(report.parent.glob("*.png")), "the report has no figures"
     sheets = list((tmp_path / "cache").rglob("contact_sheet.png"))
     assert len(sheets) == 1
-    for stage in ("cache", "RecNN", "IML", "IMS", "LAS", "evaluation"):
+    for stage in ("cache", "RecNN", "IML", "IMS", "blue-noise decoder", "LAS", "evaluation"):
         assert f"[demo] {stage} done in" in p.stderr, stage
     text = report.read_text()
-    for method in ("RecNN", "LAS", "IML/S"):
+    for method in ("RecNN", "LAS", "IML/S", "## ORP on the product path", "IML/S mask + fill", "blue noise + decoder",
+                   "## Learned parts against untrained baselines, at equal share"):
         assert method in text, method
 
     # a second run reuses every stage and prints the same report path last
