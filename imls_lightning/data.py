@@ -64,9 +64,11 @@ class ViewImageDataset(Dataset):
         from data_gen.cache import ViewImageCache
 
         if self._cache is None:
-            self._cache = ViewImageCache.open(self.cache_path)
+            # the DataModule's setup checked every view's pixels (ViewImageCache.open); loader
+            # processes do not check them again
+            self._cache = ViewImageCache.open(self.cache_path, check_pixels=False)
             if self.low_res_path is not None:
-                self._low = ViewImageCache.open(self.low_res_path)
+                self._low = ViewImageCache.open(self.low_res_path, check_pixels=False)
             if self.labels_path is not None:
                 from .labels import ImportanceLabels
 
