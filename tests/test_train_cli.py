@@ -119,6 +119,83 @@ def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
     assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
 
 
+def _copy_runs(work, tmp_path, recnn_ckpt) -> Path:
+    import shutil
+
+    for sub in ("runs", "cache"):
+        shutil.copytree(work / sub, tmp_path / sub)
+    return tmp_path / "runs" / recnn_ckpt.parent.parent.name
+
+
+def _truncate(path: Path) -> None:
+    os.truncate(path, path.stat().st_size // 2)
+
+
+def test_truncated_last_ckpt_falls_back_to_newest_intact_checkpoint(work, recnn_ckpt, tmp_path):
+    """A truncated last.ckpt gave a traceback on every rerun (issue 17, 6)."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    (run_dir / "result.json").unlink()
+    _truncate(run_dir / "checkpoints" / "last.ckpt")
+    best = run_dir / "checkpoints" / recnn_ckpt.name
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    warnings = [ln for ln in p.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "last.ckpt: not a loadable checkpoint" in warnings[0] and str(best) in warnings[0], p.stderr[-2000:]
+    assert f"resuming from {best}" in p.stdout
+    assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+
+
+def test_truncated_best_checkpoint_of_finished_run_is_not_trusted(work, recnn_ckpt, tmp_path):
+    """A truncated best checkpoint with result.json beside it was reused (issue 17, 6)."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    best = run_dir / "checkpoints" / recnn_ckpt.name
+    result = json.loads((run_dir / "result.json").read_text())
+    (run_dir / "result.json").write_text(json.dumps({**result, "best_checkpoint": str(best)}))  # the copy's own
+    _truncate(best)
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    assert "already finished" not in p.stdout
+    assert any(ln.startswith("warning:") and "training it again" in ln for ln in p.stderr.splitlines()), p.stderr[-2000:]
+    from imls_lightning.config import checkpoint_problem
+
+    assert checkpoint_problem(_last_line(p)) is None
+
+
+def test_resume_path_fallbacks(tmp_path, capsys):
+    from omegaconf import OmegaConf
+
+    from imls_lightning.train import _resume_path
+
+    ck = tmp_path / "checkpoints"
+    ck.mkdir()
+    cfg = OmegaConf.create({"resume": "auto"})
+    assert _resume_path(cfg, tmp_path) is None  # nothing yet
+    torch.save({"x": torch.zeros(3)}, ck / "epoch001.ckpt")
+    (ck / "last.ckpt").write_bytes(b"PK\x03\x04 cut")
+    assert _resume_path(cfg, tmp_path) == str(ck / "epoch001.ckpt")
+    assert "resuming from the newest intact checkpoint" in capsys.readouterr().err
+    _truncate(ck / "epoch001.ckpt")
+    assert _resume_path(cfg, tmp_path) is None
+    assert "training starts over" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["text", "other_model", "truncated"])
+def test_exception_resume_bad_file(work, recnn_ckpt, tmp_path, kind):
+    """resume=<a text file> or a checkpoint of another model ended in a traceback (issue 17, 11)."""
+    if kind == "text":
+        bad = tmp_path / "notes.txt"
+        bad.write_text("hello")
+        needles = ("resume=", "not a loadable checkpoint")
+    elif kind == "truncated":
+        bad = tmp_path / "cut.ckpt"
+        bad.write_bytes(recnn_ckpt.read_bytes()[:5000])
+        needles = ("resume=", "not a loadable checkpoint")
+    else:
+        bad = recnn_ckpt  # channels=8 net, resumed into a channels=4 one
+        needles = ("resume=", "do not fit the network")
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=1", "recnn.net.channels=4", "recnn.net.blocks=1",
+              f"resume={bad}"], tmp_path, check=False)
+    _one_line_error(p, *needles)
+
+
 def test_smoke_fovolnet_fast_dev_run(work):
     p = _run(["model=recnn", "recnn=fovolnet", "trainer.fast_dev_run=true"], work)
     ckpt = Path(_last_line(p))
