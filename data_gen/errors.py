@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import functools
 import sys
-from typing import Callable, TypeVar
+from pathlib import Path
+from typing import Callable, Sequence, TypeVar
 
 F = TypeVar("F", bound=Callable)
 
@@ -40,3 +41,48 @@ def cli_errors(fn: F) -> F:
             sys.exit(2)
 
     return wrapper  # type: ignore[return-value]
+
+
+def check_group_choices(config_dir: str | Path, argv: Sequence[str]) -> None:
+    """Check the config-group choices of a command line (``scene=NAME``, ``data=NAME``, ...) against
+    the ``.yaml`` files of ``config_dir/<group>/``: an unknown one raises :class:`InputError` listing
+    the choices there are (Hydra would print a 15-line message)."""
+    root = Path(config_dir)
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        key, value = arg.split("=", 1)
+        key = key.lstrip("+")
+        if not key or "." in key or "@" in key or "/" in key or key.startswith("~"):
+            continue
+        group = root / key
+        if not group.is_dir():
+            continue
+        if any(c in value for c in "()[]{}$*"):  # sweep functions, interpolations: Hydra's business
+            continue
+        choices = sorted(p.stem for p in group.glob("*.yaml"))
+        for v in value.split(","):  # a multirun sweep: scene=tiny,flame
+            v = v.strip()
+            if v in ("", "null") or v in choices:
+                continue
+            raise InputError(f"{key}={v}: no such {key}; expected one of {', '.join(choices)}")
+
+
+def group_choices_checked(config_dir: str | Path) -> Callable[[F], F]:
+    """Decorator for a Hydra command, put *outside* ``@hydra.main``: an unknown config-group choice
+    on the command line (``scene=no_such_scene``) prints one ``error:`` line listing the choices and
+    exits with status 2, before Hydra composes anything."""
+
+    def wrap(fn: F) -> F:
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            try:
+                check_group_choices(config_dir, sys.argv[1:])
+            except InputError as err:
+                print(f"error: {err}", file=sys.stderr, flush=True)
+                sys.exit(2)
+            return fn(*args, **kwargs)
+
+        return wrapper  # type: ignore[return-value]
+
+    return wrap

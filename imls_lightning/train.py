@@ -20,7 +20,7 @@ import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError, cli_errors
+from data_gen.errors import InputError, cli_errors, group_choices_checked
 
 from .config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
@@ -172,6 +172,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return result
 
 
+@group_choices_checked(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @cli_errors
 def main(cfg: DictConfig) -> float | dict | None:

@@ -75,6 +75,8 @@ ERRORS = [
     ("negative resolution", ["scene=tiny", "data.resolution=-8"], "data.resolution=-8"),
     ("unwritable cache dir", ["scene=tiny", "data.cache_dir={a_file}/sub"], "not writable"),
     ("bad camera distance", ["scene=tiny", "scene.camera_distance=[0,0]"], "camera_distance"),
+    # issue 17, 8: Hydra's 15-line message before
+    ("unknown scene", ["scene=no_such_scene"], "scene=no_such_scene: no such scene; expected one of ct_head, "),
 ]
 
 
@@ -110,3 +112,17 @@ def test_exception_cli_manifest_of_other_settings(tmp_path):
     err = p.stderr.strip().splitlines()
     assert len(err) == 1 and "belongs to other settings" in err[0] and "Traceback" not in p.stderr
     assert {q.name: q.read_bytes() for q in target.iterdir() if q.is_file()} == before
+
+
+def test_exception_cli_refuses_a_folder_of_mine(tmp_path):
+    """The user's own views.npy / images.npy / done.log were overwritten without a word (issue 17, 1)."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    files = {"views.npy": b"my views", "images.npy": b"my images", "done.log": b"my notes\n"}
+    for name, data in files.items():
+        (mine / name).write_bytes(data)
+    p = run_cli("scene=tiny", "data=tiny", f"data.cache_path={mine}", cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: data.cache_path={mine}: ") and "not a cache made by this tool" in err[0]
+    assert {q.name: q.read_bytes() for q in mine.iterdir()} == files

@@ -83,6 +83,19 @@ def test_exception_datamodule_bad_fields_and_batch_size(tmp_path):
         ImlsDataModule({}, {"resolution": 32, "batch_size": 0}, {}, {"kind": "full"})
 
 
+def test_exception_resolution_too_small_names_the_smallest_that_works():
+    """data.resolution=2 ended in a traceback from SSIM (issue 17, 9)."""
+    from data_gen.errors import InputError
+    from imls_lightning.data import ImlsDataModule
+
+    for m in (1, 2, 5):
+        with pytest.raises(InputError, match=rf"data.resolution={m}: too small to train on; the smallest that works is 6 "):
+            ImlsDataModule({}, {"resolution": m, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
+    with pytest.raises(InputError, match=r"the smallest that works is 8 "):
+        ImlsDataModule({}, {"resolution": 4, "batch_size": 2}, {}, {"kind": "downsample", "factor": 4})
+    ImlsDataModule({}, {"resolution": 6, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
+
+
 # ---- RecNN ------------------------------------------------------------------------------------
 def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
     from imls_lightning.tasks.base import load_task

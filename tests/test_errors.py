@@ -1,0 +1,25 @@
+"""One-line errors: InputError, cli_errors, and the config-group choice check of the commands."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from data_gen.errors import InputError, check_group_choices
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+
+
+def test_group_choices_listed_in_one_line():
+    with pytest.raises(InputError, match=r"^scene=no_such_scene: no such scene; expected one of ct_head, .*, tiny$") as e:
+        check_group_choices(CONF, ["data=tiny", "scene=no_such_scene"])
+    assert "\n" not in str(e.value)
+    with pytest.raises(InputError, match=r"^data=huge: no such data; expected one of bench, default, small, tiny$"):
+        check_group_choices(CONF, ["+data=huge"])
+    with pytest.raises(InputError, match="scene=nope"):
+        check_group_choices(CONF, ["-m", "scene=tiny,nope"])
+
+
+def test_group_choices_leave_everything_else_to_hydra():
+    check_group_choices(CONF, ["scene=tiny", "data=tiny", "experiment=null", "scene.name=anything", "seed=3",
+                               "hydra/sweeper=orp", "--cfg", "job", "scene=choice(tiny,flame)", "paths.runs_dir=/x=y"])
