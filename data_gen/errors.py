@@ -6,10 +6,12 @@ line, exit with status 2 and show no traceback (see :func:`cli_errors`).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
+import re
 import sys
 from pathlib import Path
-from typing import Callable, Sequence, TypeVar
+from typing import Callable, Iterator, Mapping, Sequence, TypeVar
 
 F = TypeVar("F", bound=Callable)
 
@@ -86,3 +88,24 @@ def group_choices_checked(config_dir: str | Path) -> Callable[[F], F]:
         return wrapper  # type: ignore[return-value]
 
     return wrap
+
+
+@contextlib.contextmanager
+def config_keys(keys: Mapping[str, str]) -> Iterator[None]:
+    """Name the user's key in errors of code that knows only its own argument names: an
+    :class:`InputError` raised inside that starts with ``name=`` for a ``name`` in ``keys``
+    (``depth=0: ...``) becomes ``keys[name]=...`` (``model.depth=0: ...``).
+
+    Example:
+        >>> with config_keys({"depth": "model.depth"}):       # doctest: +SKIP
+        ...     IMLNet(16, P, depth=0)
+        InputError: model.depth=0: expected an integer >= 1 (number of U-Net resolution levels)
+    """
+    try:
+        yield
+    except InputError as err:
+        msg = str(err)
+        m = re.match(r"([A-Za-z_][A-Za-z0-9_]*)=", msg)
+        if m is None or m.group(1) not in keys:
+            raise
+        raise InputError(f"{keys[m.group(1)]}={msg[m.end():]}") from None

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import InputError, check_group_choices
+from data_gen.errors import InputError, check_group_choices, config_keys
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -23,3 +23,12 @@ def test_group_choices_listed_in_one_line():
 def test_group_choices_leave_everything_else_to_hydra():
     check_group_choices(CONF, ["scene=tiny", "data=tiny", "experiment=null", "scene.name=anything", "seed=3",
                                "hydra/sweeper=orp", "--cfg", "job", "scene=choice(tiny,flame)", "paths.runs_dir=/x=y"])
+
+
+def test_config_keys_names_the_users_key():
+    with pytest.raises(InputError, match=r"^model.depth=0: expected"):
+        with config_keys({"depth": "model.depth"}):
+            raise InputError("depth=0: expected an integer >= 1")
+    with pytest.raises(InputError, match=r"^c_size=3: expected"):  # not a key of the user's: as it was
+        with config_keys({"depth": "model.depth"}):
+            raise InputError("c_size=3: expected")

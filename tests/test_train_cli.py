@@ -96,6 +96,16 @@ def test_exception_resolution_too_small_names_the_smallest_that_works():
     ImlsDataModule({}, {"resolution": 6, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
 
 
+def test_exception_iml_errors_name_the_users_keys():
+    """Errors named internal keys (depth=, alpha=) instead of the key the user typed (issue 17, minor)."""
+    from data_gen.errors import InputError
+    from imls_lightning.tasks.iml import IMLTask
+
+    for kw, key in (({"depth": 0}, "model.depth=0"), ({"alpha": -1.0}, "model.alpha=-1"), ({"mean": 2.0}, "model.mean=2")):
+        with pytest.raises(InputError, match=f"^{key}"):
+            IMLTask({"kind": "downsample", "factor": 2}, 32, **kw)
+
+
 # ---- RecNN ------------------------------------------------------------------------------------
 def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
     from imls_lightning.tasks.base import load_task

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError
+from data_gen.errors import InputError, config_keys
 
 from ..config import to_plain
 from ..models.iml import IMLNet
@@ -73,10 +73,12 @@ class IMLTask(ImlsTask):
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
-        self.iml = IMLNet(
-            n, plastic_rank_pattern(n), mean=mean, alpha=alpha, depth=depth, base_channels=base_channels,
-            lower=lower, delta=delta, valid=self.pattern.valid,
-        )
+        # errors name the user's keys (model.depth=, model.alpha=, ...)
+        with config_keys({k: f"model.{k}" for k in ("mean", "alpha", "depth", "base_channels", "lower", "delta")}):
+            self.iml = IMLNet(
+                n, plastic_rank_pattern(n), mean=mean, alpha=alpha, depth=depth, base_channels=base_channels,
+                lower=lower, delta=delta, valid=self.pattern.valid,
+            )
         self.recnn = None
         if mode == "end_to_end":
             rh = dict(recnn_hparams)
