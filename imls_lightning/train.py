@@ -172,6 +172,22 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return result
 
 
+def remove_if_only_hydra(run_dir: Path) -> bool:
+    """Remove a run folder that holds nothing but what Hydra put there when the job started
+    (``.hydra/`` and the job's empty log): a failed run leaves no empty run folder behind."""
+    try:
+        names = {p.name for p in run_dir.iterdir()}
+    except OSError:
+        return False
+    logs = {p.name for p in run_dir.glob("*.log") if p.is_file() and p.stat().st_size == 0}
+    if not names or names - logs - {".hydra"}:
+        return False
+    import shutil
+
+    shutil.rmtree(run_dir, ignore_errors=True)
+    return True
+
+
 @group_choices_checked(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @cli_errors
@@ -181,7 +197,11 @@ def main(cfg: DictConfig) -> float | dict | None:
         from .orp import orp_main
 
         return orp_main(cfg)
-    result = train(cfg)
+    try:
+        result = train(cfg)
+    except BaseException:
+        remove_if_only_hydra(Path(str(cfg.paths.output_dir)))
+        raise
     print(result["best_checkpoint"], flush=True)
     return result.get("best_score")
 

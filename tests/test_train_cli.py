@@ -106,6 +106,13 @@ def test_exception_iml_errors_name_the_users_keys():
             IMLTask({"kind": "downsample", "factor": 2}, 32, **kw)
 
 
+def test_failed_run_leaves_no_empty_run_folder(tmp_path):
+    """A failed run left an empty run folder (only Hydra's .hydra/ and log) behind (issue 17, minor)."""
+    p = _run(["model=iml", "model.depth=0"], tmp_path, check=False)
+    _one_line_error(p, "model.depth=0")
+    assert not (tmp_path / "runs").exists() or list((tmp_path / "runs").iterdir()) == []
+
+
 # ---- RecNN ------------------------------------------------------------------------------------
 def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
     from imls_lightning.tasks.base import load_task
