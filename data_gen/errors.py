@@ -70,15 +70,45 @@ def check_group_choices(config_dir: str | Path, argv: Sequence[str]) -> None:
             raise InputError(f"{key}={v}: no such {key}; expected one of {', '.join(choices)}")
 
 
-def group_choices_checked(config_dir: str | Path) -> Callable[[F], F]:
-    """Decorator for a Hydra command, put *outside* ``@hydra.main``: an unknown config-group choice
-    on the command line (``scene=no_such_scene``) prints one ``error:`` line listing the choices and
-    exits with status 2, before Hydra composes anything."""
+_HYDRA_SPECIAL = set("[]{}(),'\"$\\=")
+
+
+def quote_non_ascii(argv: Sequence[str]) -> list[str]:
+    """Hydra's override parser takes non-ASCII characters only inside quotes: quote the value of
+    ``key=value`` when it has some (``scene.volume.path=/data/volumes_é/x.raw`` ->
+    ``scene.volume.path="/data/volumes_é/x.raw"``). A value that also holds Hydra's own syntax
+    (lists, sweeps, quotes, interpolations) is not guessed at: one-line :class:`InputError` showing
+    how to quote it."""
+    out = []
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg or arg.isascii():
+            out.append(arg)
+            continue
+        key, value = arg.split("=", 1)
+        if not key.isascii():
+            raise InputError(f"{key}: config keys are ASCII names; check the spelling")
+        if value.isascii() or (len(value) >= 2 and value[0] in "'\"" and value[-1] == value[0]):  # quoted already
+            out.append(arg)
+        elif set(value) & _HYDRA_SPECIAL:
+            raise InputError(f"{arg}: Hydra reads non-ASCII characters only inside quotes; quote each string that holds them, "
+                             f"e.g. '{key}=[\"/data/volumes_é/a.raw\", ...]' (single quotes around it all, for the shell)")
+        else:
+            out.append(f'{key}="{value}"')
+    return out
+
+
+def checked_command_line(config_dir: str | Path) -> Callable[[F], F]:
+    """Decorator for a Hydra command, put *outside* ``@hydra.main``, that fixes or refuses in one
+    line what Hydra would answer with a long message or a traceback, before Hydra composes
+    anything: an unknown config-group choice (``scene=no_such_scene``: the ``error:`` line lists the
+    choices there are) and values with non-ASCII characters (quoted, see :func:`quote_non_ascii`).
+    Errors exit with status 2."""
 
     def wrap(fn: F) -> F:
         @functools.wraps(fn)
         def wrapper(*args, **kwargs):
             try:
+                sys.argv[1:] = quote_non_ascii(sys.argv[1:])
                 check_group_choices(config_dir, sys.argv[1:])
             except InputError as err:
                 print(f"error: {err}", file=sys.stderr, flush=True)

@@ -47,7 +47,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 import data_gen  # noqa: F401  (registers the scene config resolvers)
-from data_gen.errors import InputError, cli_errors, group_choices_checked
+from data_gen.errors import InputError, cli_errors, checked_command_line
 
 from . import report as rep
 from .config import file_hash, register_resolvers, settings_hash, to_plain
@@ -533,7 +533,7 @@ def _options_sweep(s: Settings, renderer, cache, rows_all, positions) -> list[di
     return out
 
 
-@group_choices_checked(Path(__file__).resolve().parents[1] / "conf")
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 @cli_errors
 def main(cfg: DictConfig) -> None:

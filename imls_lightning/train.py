@@ -20,7 +20,7 @@ import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError, cli_errors, group_choices_checked
+from data_gen.errors import InputError, cli_errors, checked_command_line
 
 from .config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
@@ -188,7 +188,7 @@ def remove_if_only_hydra(run_dir: Path) -> bool:
     return True
 
 
-@group_choices_checked(Path(__file__).resolve().parents[1] / "conf")
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @cli_errors
 def main(cfg: DictConfig) -> float | dict | None:

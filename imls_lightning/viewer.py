@@ -67,7 +67,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.camera import validate_view
-from data_gen.errors import InputError, cli_errors, group_choices_checked
+from data_gen.errors import InputError, cli_errors, checked_command_line
 from data_gen.views import _orthogonal_up, _unit
 
 from .orp import _bool, _num  # the same one-line checks as the ORP settings
@@ -588,7 +588,7 @@ def viewer(cfg: DictConfig) -> Path | None:
     return None
 
 
-@group_choices_checked(Path(__file__).resolve().parents[1] / "conf")
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="viewer")
 @cli_errors
 def main(cfg: DictConfig) -> None:

@@ -126,3 +126,15 @@ def test_exception_cli_refuses_a_folder_of_mine(tmp_path):
     err = p.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: data.cache_path={mine}: ") and "not a cache made by this tool" in err[0]
     assert {q.name: q.read_bytes() for q in mine.iterdir()} == files
+
+
+def test_cli_volume_path_with_non_ascii_characters(tmp_path):
+    """volumes_é/... ended in Hydra's lexer traceback (issue 17, 13); spaces work too."""
+    for folder in ("volumes_é", "my volumes"):
+        d = tmp_path / folder
+        d.mkdir()
+        (np.arange(216) % 250).astype(np.uint8).tofile(d / "v_6x6x6_uint8.raw")
+        p = run_cli("scene=file", f"scene.volume.path={d / 'v_6x6x6_uint8.raw'}", "data=tiny", "data.num_views=4",
+                    "data.test_views=2", "data.resolution=16", f"data.cache_dir={tmp_path / 'cache'}", "progress=false", cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        assert Path(p.stdout.strip().splitlines()[-1]).parent == tmp_path / "cache"

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import InputError, check_group_choices, config_keys
+from data_gen.errors import InputError, check_group_choices, config_keys, quote_non_ascii
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -32,3 +32,12 @@ def test_config_keys_names_the_users_key():
     with pytest.raises(InputError, match=r"^c_size=3: expected"):  # not a key of the user's: as it was
         with config_keys({"depth": "model.depth"}):
             raise InputError("c_size=3: expected")
+
+
+def test_non_ascii_values_are_quoted_for_hydra():
+    """A volume path with non-ASCII characters ended in Hydra's lexer traceback (issue 17, 13)."""
+    argv = ["scene=file", "scene.volume.path=/data/volumes_é/x y.raw", "--cfg", "job", 'a="already é"']
+    assert quote_non_ascii(argv) == ["scene=file", 'scene.volume.path="/data/volumes_é/x y.raw"', "--cfg", "job", 'a="already é"']
+    with pytest.raises(InputError, match=r"quote each string that holds them") as e:
+        quote_non_ascii(["x.paths=[/é/a,/é/b]"])
+    assert "\n" not in str(e.value)
