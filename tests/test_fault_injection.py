@@ -164,3 +164,31 @@ def test_training_killed_at_several_epochs_resumes_from_the_newest_saved_one(tmp
     run_dir = next((tmp_path / "runs").glob("recnn-*"))
     assert json.loads((run_dir / "result.json").read_text())["epochs"] == epochs
     assert kills >= 1
+
+
+def test_orp_sweep_killed_after_its_first_iml_job_resumes_reusing_finished_runs(tmp_path):
+    """kill -9 of an ORP sweep once its RecNN and first IML run have finished: the rerun reuses both
+    (nothing trained twice) and finishes the search."""
+    tiny = ["model=iml", "recnn=enhancenet", "hydra/sweeper=orp", "scene=tiny", "data=tiny", "renderer=numba",
+            "trainer.max_epochs=1", "recnn.net.channels=4", "recnn.net.blocks=1", "model.depth=2", "model.base_channels=4",
+            "test=false", "trainer.enable_progress_bar=false", "sweeper.latency_views=1", "sweeper.latency_repeats=2",
+            "sweeper.k=1", "sweeper.max_rounds=2", "sweeper.epsilon_db=100", "logger=none",
+            f"paths.runs_dir={tmp_path / 'runs'}", f"data.cache_dir={tmp_path / 'cache'}"]
+    proc = _popen(["imls_lightning.train", "-m", *tiny])
+    try:
+        finished = lambda: len(list((tmp_path / "runs").glob("iml-*/result.json"))) >= 1  # noqa: E731
+        assert _wait_for(finished, 400, proc), "the sweep ended before the kill point"
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=60)
+    done_before = {p.parent.name for p in (tmp_path / "runs").glob("*/result.json")}
+    assert any(n.startswith("recnn-") for n in done_before) and any(n.startswith("iml-") for n in done_before)
+    p = subprocess.run([sys.executable, "-m", "imls_lightning.train", "-m", *tiny], cwd=ROOT, capture_output=True, text=True,
+                       timeout=600, env=dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2"))
+    assert p.returncode == 0, p.stderr[-2000:]
+    reused = {Path(ln.split("] ", 1)[1].split(" already finished")[0]).name for ln in p.stdout.splitlines()
+              if "already finished" in ln}
+    assert done_before <= reused, (done_before, reused)
+    assert any(ln.startswith("[orp] ") and ln.endswith("orp.yaml") for ln in p.stdout.splitlines())
