@@ -207,23 +207,33 @@ def test_resume_path_fallbacks(tmp_path, capsys):
     assert "training starts over" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("kind", ["text", "other_model", "truncated"])
-def test_exception_resume_bad_file(work, recnn_ckpt, tmp_path, kind):
-    """resume=<a text file> or a checkpoint of another model ended in a traceback (issue 17, 11)."""
-    if kind == "text":
-        bad = tmp_path / "notes.txt"
-        bad.write_text("hello")
-        needles = ("resume=", "not a loadable checkpoint")
-    elif kind == "truncated":
-        bad = tmp_path / "cut.ckpt"
-        bad.write_bytes(recnn_ckpt.read_bytes()[:5000])
-        needles = ("resume=", "not a loadable checkpoint")
-    else:
-        bad = recnn_ckpt  # channels=8 net, resumed into a channels=4 one
-        needles = ("resume=", "do not fit the network")
+def test_exception_resume_checkpoint_of_another_model(work, recnn_ckpt, tmp_path):
+    """resume= with a checkpoint of another model ended in a traceback (issue 17, 11)."""
     p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=1", "recnn.net.channels=4", "recnn.net.blocks=1",
-              f"resume={bad}"], tmp_path, check=False)
-    _one_line_error(p, *needles)
+              f"resume={recnn_ckpt}"], tmp_path, check=False)  # a channels=8 net resumed into a channels=4 one
+    _one_line_error(p, f"resume={recnn_ckpt}", "do not fit the network")
+
+
+def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
+    """resume=<a text file> ended in a traceback (issue 17, 11); in process (the CLI path is the test above)."""
+    from omegaconf import OmegaConf
+
+    from data_gen.errors import InputError
+    from imls_lightning.tasks.base import load_task
+    from imls_lightning.tasks.iml import IMLTask
+    from imls_lightning.train import _resume_path
+
+    task = load_task(recnn_ckpt, expect="RecNNTask")
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    cut = tmp_path / "cut.ckpt"
+    cut.write_bytes(recnn_ckpt.read_bytes()[:5000])
+    for bad in (text, cut):
+        with pytest.raises(InputError, match=f"^resume={bad}: not a loadable checkpoint"):
+            _resume_path(OmegaConf.create({"resume": str(bad)}), tmp_path, task)
+    with pytest.raises(InputError, match=f"^resume={recnn_ckpt}: is a RecNNTask checkpoint, this run trains a IMLTask"):
+        _resume_path(OmegaConf.create({"resume": str(recnn_ckpt)}), tmp_path, IMLTask({"kind": "downsample", "factor": 2}, 32, depth=2))
+    assert _resume_path(OmegaConf.create({"resume": str(recnn_ckpt)}), tmp_path, task) == str(recnn_ckpt)
 
 
 def test_smoke_fovolnet_fast_dev_run(work):
