@@ -20,11 +20,12 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import cli_errors
+from data_gen.errors import cli_errors, checked_command_line
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
 
+@checked_command_line(CONF_DIR)
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="data_gen")
 @cli_errors
 def main(cfg: DictConfig) -> None:

@@ -247,8 +247,8 @@ def read_nrrd(path: Path, what: str | None = None):
     else:
         try:
             data, header = nrrd.read(str(path), index_order="C")
-        except (nrrd.NRRDError, OSError, ValueError) as err:
-            raise InputError(f"{what}: cannot read NRRD data ({err})") from None
+        except (nrrd.NRRDError, OSError, ValueError, EOFError, zlib.error) as err:  # zlib.error: corrupt gzip data
+            raise InputError(f"{what}: cannot read NRRD data ({type(err).__name__}: {err}); the file is damaged or truncated") from None
         data = np.ascontiguousarray(data)
     spacing = None
     if "spacings" in header:

@@ -57,7 +57,7 @@ from omegaconf import DictConfig
 from torch import nn
 
 import data_gen  # noqa: F401  (registers the scene config resolvers)
-from data_gen.errors import InputError, cli_errors
+from data_gen.errors import InputError, cli_errors, checked_command_line
 
 from .config import register_resolvers
 
@@ -1521,6 +1521,7 @@ def _command() -> str:
 
     return hydra_command("imls_lightning.adaptive", "run_adaptive(cfg) through the Python API")
 
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="adaptive")
 @cli_errors
 def main(cfg: DictConfig) -> None:

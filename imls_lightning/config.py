@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -23,28 +24,56 @@ def to_plain(obj: Any) -> Any:
     return obj
 
 
+def is_checkpoint_key(key: Any) -> bool:
+    """Config keys that name an input checkpoint file (``checkpoint``, ``iml_checkpoint``, ...)."""
+    return isinstance(key, str) and (key == "checkpoint" or key.endswith("_checkpoint"))
+
+
 def _strip(obj: Any) -> Any:
     if isinstance(obj, Mapping):
-        return {k: _strip(v) for k, v in sorted(obj.items()) if k not in NON_RESULT_KEYS}
+        return {k: _checkpoint_id(v) if is_checkpoint_key(k) else _strip(v)
+                for k, v in sorted(obj.items()) if k not in NON_RESULT_KEYS}
     if isinstance(obj, (list, tuple)):
         return [_strip(v) for v in obj]
     return obj
 
 
+def _checkpoint_id(value: Any) -> Any:
+    """An input checkpoint enters a hash by its content, not its path: a checkpoint replaced at the
+    same path gives another hash, the same file moved elsewhere the same one. A path that is not a
+    file (yet) stays as it is (its use fails later with a one-line error)."""
+    if isinstance(value, str) and value.strip():
+        p = Path(value).expanduser()
+        if p.is_file():
+            return {"sha256": file_hash(p)}
+    return value
+
+
 def settings_hash(*parts: Any, length: int = 8) -> str:
-    """Stable short hash of config parts (order matters, non-result keys ignored)."""
+    """Stable short hash of config parts (order matters, non-result keys ignored, input checkpoints
+    by their content)."""
     plain = [_strip(to_plain(p)) for p in parts]
     blob = json.dumps(plain, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:length]
 
 
+#: (resolved path, inode, size, mtime) -> SHA-256 hex of the file: config resolution asks again and again
+_FILE_HASHES: dict[tuple, str] = {}
+
+
 def file_hash(path: str | Path, length: int = 16) -> str:
-    """SHA-256 of a file's bytes (checkpoints are small enough to read whole)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()[:length]
+    """SHA-256 of a file's bytes (checkpoints are small enough to read whole); remembered in this
+    process while the file's inode, size and modification time stay the same."""
+    p = Path(path)
+    st = p.stat()
+    key = (str(p.resolve()), st.st_ino, st.st_size, st.st_mtime_ns)
+    if key not in _FILE_HASHES:
+        h = hashlib.sha256()
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        _FILE_HASHES[key] = h.hexdigest()
+    return _FILE_HASHES[key][:length]
 
 
 def register_resolvers() -> None:
@@ -53,15 +82,37 @@ def register_resolvers() -> None:
         OmegaConf.register_new_resolver("imls_hash", lambda *parts: settings_hash(*parts))
 
 
-def load_checkpoint(path: str | Path, *, what: str = "checkpoint") -> dict:
-    """Load a Lightning checkpoint safely (``weights_only=True``) on the CPU.
+def checkpoint_problem(path: str | Path) -> str | None:
+    """Why ``path`` is not an intact checkpoint file (short phrase), or None when it is one.
 
-    Raises:
-        InputError: the file is missing or is not a checkpoint of this project.
+    ``torch.save`` writes a zip archive whose members carry CRC-32s: a truncated file has no
+    central directory, a changed byte fails its member's CRC (which ``torch.load`` does not check).
+    Costs one read of the file.
     """
     p = Path(str(path)).expanduser()
     if not p.is_file():
-        raise InputError(f"{what}={path}: file not found")
+        return "file not found"
+    try:
+        with zipfile.ZipFile(p) as z:
+            bad = z.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as err:
+        return f"not a loadable checkpoint (truncated, damaged or another kind of file: {type(err).__name__})"
+    if bad is not None:
+        return f"not a loadable checkpoint (damaged: its member {bad} fails its CRC-32)"
+    return None
+
+
+def load_checkpoint(path: str | Path, *, what: str = "checkpoint") -> dict:
+    """Load a Lightning checkpoint safely (``weights_only=True``) on the CPU, after checking that
+    the file is intact (:func:`checkpoint_problem`).
+
+    Raises:
+        InputError: the file is missing, damaged or is not a checkpoint of this project.
+    """
+    p = Path(str(path)).expanduser()
+    problem = checkpoint_problem(p)
+    if problem is not None:
+        raise InputError(f"{what}={path}: {problem}")
     try:
         ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as err:  # unpickling errors of all kinds

@@ -64,9 +64,11 @@ class ViewImageDataset(Dataset):
         from data_gen.cache import ViewImageCache
 
         if self._cache is None:
-            self._cache = ViewImageCache.open(self.cache_path)
+            # the DataModule's setup checked every view's pixels (ViewImageCache.open); loader
+            # processes do not check them again
+            self._cache = ViewImageCache.open(self.cache_path, check_pixels=False)
             if self.low_res_path is not None:
-                self._low = ViewImageCache.open(self.low_res_path)
+                self._low = ViewImageCache.open(self.low_res_path, check_pixels=False)
             if self.labels_path is not None:
                 from .labels import ImportanceLabels
 
@@ -93,6 +95,24 @@ class ViewImageDataset(Dataset):
             out["im"] = torch.from_numpy(self._labels.im(row)).float()[None]
             out["pim"] = torch.from_numpy(self._labels.pim(row)).float()[None]
         return out
+
+
+#: smallest FR-Image side the training metrics accept: SSIM's Gaussian window (sigma 1.5, 11 pixels)
+#: reflection-pads images by 5 pixels, which needs at least 6
+MIN_RESOLUTION = 6
+
+
+def _smallest_resolution(pattern) -> int:
+    """The smallest ``data.resolution >= MIN_RESOLUTION`` the sampling pattern accepts."""
+    if isinstance(pattern, SamplingPattern):
+        return MIN_RESOLUTION
+    for m in range(MIN_RESOLUTION, 4097):
+        try:
+            build_pattern(to_plain(pattern), m)
+            return m
+        except (InputError, ValueError):
+            continue
+    return MIN_RESOLUTION
 
 
 class ImlsDataModule(L.LightningDataModule):
@@ -135,6 +155,10 @@ class ImlsDataModule(L.LightningDataModule):
         if self.batch_size <= 0:
             raise InputError(f"data.batch_size={self.batch_size}: expected a positive integer")
         self.fr_size = int(self.data_cfg["resolution"])
+        if self.fr_size < MIN_RESOLUTION:
+            raise InputError(f"data.resolution={self.fr_size}: too small to train on; the smallest that works is "
+                             f"{_smallest_resolution(pattern)} (the SSIM metric's 11-pixel Gaussian window needs images of "
+                             f"at least {MIN_RESOLUTION}x{MIN_RESOLUTION}, and the sampling pattern must fit)")
         self.pattern = pattern if isinstance(pattern, SamplingPattern) else build_pattern(to_plain(pattern), self.fr_size)
         self.cache_path: Path | None = None
         self.low_res_path: Path | None = None

@@ -47,7 +47,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 import data_gen  # noqa: F401  (registers the scene config resolvers)
-from data_gen.errors import InputError, cli_errors
+from data_gen.errors import InputError, cli_errors, checked_command_line
 
 from . import report as rep
 from .config import file_hash, register_resolvers, settings_hash, to_plain
@@ -252,6 +252,57 @@ def load_networks(s: Settings, resolution: int) -> Networks:
     return Networks(ims, recnn, iml, las, str(recnn_name), str(recnn_source), str(iml_source), blue)
 
 
+def _diff(a: Any, b: Any, prefix: str = "") -> list[str]:
+    """Dotted keys where two plain configs differ (paths to the same file count as equal)."""
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        out: list[str] = []
+        for k in sorted(set(a) | set(b), key=str):
+            out += _diff(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
+        return out
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b):
+        return [] if all(not _diff(x, y) for x, y in zip(a, b)) else [prefix]
+    if a == b:
+        return []
+    if isinstance(a, str) and isinstance(b, str) and prefix.endswith("path"):
+        try:
+            if Path(a).expanduser().resolve() == Path(b).expanduser().resolve():
+                return []
+        except OSError:
+            pass
+    return [prefix]
+
+
+def check_trained_on(cfg: DictConfig, s: Settings) -> None:
+    """The scene and renderer of this evaluation must be those the IMS checkpoint was trained on
+    (recorded in it); otherwise a one-line error, unless ``allow_mismatch=true``. (The sampling
+    pattern and resolution are checked in :func:`load_networks`.)"""
+    from data_gen.renderers import renderer_pixel_settings
+
+    from .config import load_checkpoint
+
+    hp = load_checkpoint(s.ims, what="checkpoints.ims")["hyper_parameters"]
+    if bool(cfg.get("allow_mismatch", False)):
+        return
+    trained_scene, trained_renderer = hp.get("scene"), hp.get("renderer")
+    if trained_scene:
+        diff = _diff(trained_scene, to_plain(cfg.scene))
+        if diff:
+            name = trained_scene.get("name", "?")
+            raise InputError(
+                f"checkpoints.ims={s.ims}: trained on scene={name}, this evaluation uses scene={cfg.scene.get('name')} "
+                f"(scene differs in {', '.join(diff[:3])}{', ...' if len(diff) > 3 else ''}); pass scene={name} "
+                f"(with the overrides it was trained with), or allow_mismatch=true to evaluate it anyway"
+            )
+    if trained_renderer:
+        a, b = renderer_pixel_settings(trained_renderer), renderer_pixel_settings(to_plain(cfg.renderer))
+        if a != b:
+            diff = _diff(a, b)
+            raise InputError(
+                f"checkpoints.ims={s.ims}: trained with renderer={a.get('name')}, this evaluation uses renderer={b.get('name')} "
+                f"(differs in {', '.join(diff[:3])}); pass renderer={a.get('name')}, or allow_mismatch=true to evaluate it anyway"
+            )
+
+
 def _recnn_name(s: Settings) -> str:
     """The RecNN's config name (``enhancenet``, ``fovolnet``) from the checkpoints' hyper-parameters
     alone, as :func:`load_networks` finds it (no network is built)."""
@@ -336,6 +387,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     for k, p in paths.items():
         if not Path(str(p)).expanduser().is_file():
             raise InputError(f"checkpoints.{k}={p}: file not found")
+    check_trained_on(cfg, s)
     scene = build_scene(cfg.scene)
     rcfg = to_plain(cfg.renderer)
 
@@ -585,6 +637,7 @@ def _options_sweep(s: Settings, renderer, cache, rows_all, positions) -> list[di
     return out
 
 
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 @cli_errors
 def main(cfg: DictConfig) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -19,9 +20,9 @@ import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError, cli_errors
+from data_gen.errors import InputError, cli_errors, checked_command_line
 
-from .config import register_resolvers, to_plain
+from .config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
 
@@ -36,16 +37,66 @@ def _loggers(cfg: DictConfig) -> list:
     return [instantiate(c) for c in (cfg.get("logger") or {}).values() if c is not None and "_target_" in c]
 
 
-def _resume_path(cfg: DictConfig, run_dir: Path) -> str | None:
+def _warn(message: str) -> None:
+    print("warning: " + " ".join(str(message).split()), file=sys.stderr, flush=True)
+
+
+def _resume_path(cfg: DictConfig, run_dir: Path, task=None) -> str | None:
+    """The checkpoint to resume from: ``resume=auto`` takes the run's ``last.ckpt`` when it is
+    intact, else the newest intact checkpoint of the run (or none: training starts over), with a
+    one-line warning; ``resume=<path>`` must be an intact checkpoint of the model being trained."""
     resume = str(cfg.get("resume", "auto"))
     if resume == "never":
         return None
     if resume == "auto":
-        last = run_dir / "checkpoints" / "last.ckpt"
-        return str(last) if last.is_file() else None
-    if not Path(resume).is_file():
+        ckdir = run_dir / "checkpoints"
+        last = ckdir / "last.ckpt"
+        if not last.is_file():
+            return None
+        problem = checkpoint_problem(last)
+        if problem is None:
+            return str(last)
+        others = sorted((p for p in ckdir.glob("*.ckpt") if p != last), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+        good = next((p for p in others if checkpoint_problem(p) is None), None)
+        if good is not None:
+            _warn(f"{last}: {problem}; resuming from the newest intact checkpoint {good}")
+            return str(good)
+        _warn(f"{last}: {problem}; no intact checkpoint in {ckdir}, training starts over")
+        return None
+    if not Path(resume).expanduser().is_file():
         raise InputError(f"resume={resume}: checkpoint not found (use 'auto', 'never' or a .ckpt path)")
-    return resume
+    if task is not None:
+        check_resume_checkpoint(resume, task)
+    return str(Path(resume).expanduser())
+
+
+def check_resume_checkpoint(path: str, task) -> None:
+    """``resume=<path>``: an intact Lightning checkpoint of the same task whose weights fit ``task``.
+
+    Raises:
+        InputError: one line naming ``resume=`` and what is wrong.
+    """
+    ckpt = load_checkpoint(path, what="resume")
+    name = ckpt.get("imls_task")
+    if name != type(task).__name__:
+        raise InputError(f"resume={path}: is a {name or 'foreign'} checkpoint, this run trains a {type(task).__name__} (model={cfg_model_name(task)})")
+    own = task.state_dict()
+    theirs = ckpt["state_dict"]
+    optional = task.optional_state_prefixes() if hasattr(task, "optional_state_prefixes") else ()
+    missing = [k for k in own if k not in theirs and not k.startswith(optional)]
+    unexpected = [k for k in theirs if k not in own]
+    shapes = [k for k in own if k in theirs and hasattr(theirs[k], "shape") and tuple(theirs[k].shape) != tuple(own[k].shape)]
+    if missing or unexpected or shapes:
+        raise InputError(
+            f"resume={path}: its weights do not fit the network configured here (another recnn/model setting?"
+            f" missing {missing[:2]}, unexpected {unexpected[:2]}, other shapes {shapes[:2]})"
+        )
+    if "optimizer_states" not in ckpt or "loops" not in ckpt:
+        raise InputError(f"resume={path}: holds weights only (no optimizer or loop state) and cannot resume training")
+
+
+def cfg_model_name(task) -> str:
+    return {"RecNNTask": "recnn", "IMLTask": "iml", "IMSTask": "ims", "LASTask": "las"}.get(type(task).__name__, "?")
 
 
 def build_datamodule(cfg: DictConfig, task_cls) -> L.LightningDataModule:
@@ -60,11 +111,21 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     run_dir = Path(cfg.paths.output_dir)
     result_file = run_dir / RESULT_FILE
     fast = bool(cfg.trainer.get("fast_dev_run", False))
+    restart = False
     if str(cfg.get("resume", "auto")) == "auto" and result_file.is_file() and not fast:
-        result = json.loads(result_file.read_text())
-        if Path(result.get("best_checkpoint", "")).is_file():
+        try:
+            result = json.loads(result_file.read_text())
+            best = str(result.get("best_checkpoint", ""))
+        except (OSError, ValueError, AttributeError):
+            result, best = None, ""
+        problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
+        if result is not None and problem is None:
             print(f"[train] {run_dir} already finished; reusing it (resume=never retrains)", flush=True)
             return result
+        # never trust a finished run whose best checkpoint is gone or damaged: train it again
+        _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
+        result_file.unlink(missing_ok=True)
+        restart = True
 
     L.seed_everything(int(cfg.seed), workers=True)
     task_cls = get_class(cfg.model._target_)
@@ -72,7 +133,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     datamodule = build_datamodule(cfg, task_cls)
     trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg), logger=_loggers(cfg) or False)
 
-    ckpt_path = None if fast else _resume_path(cfg, run_dir)
+    ckpt_path = None if fast or restart else _resume_path(cfg, run_dir, task)
     if ckpt_path:
         print(f"[train] resuming from {ckpt_path}", flush=True)
     t0 = time.perf_counter()
@@ -111,6 +172,23 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return result
 
 
+def remove_if_only_hydra(run_dir: Path) -> bool:
+    """Remove a run folder that holds nothing but what Hydra put there when the job started
+    (``.hydra/`` and the job's empty log): a failed run leaves no empty run folder behind."""
+    try:
+        names = {p.name for p in run_dir.iterdir()}
+    except OSError:
+        return False
+    logs = {p.name for p in run_dir.glob("*.log") if p.is_file() and p.stat().st_size == 0}
+    if not names or names - logs - {".hydra"}:
+        return False
+    import shutil
+
+    shutil.rmtree(run_dir, ignore_errors=True)
+    return True
+
+
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @cli_errors
 def main(cfg: DictConfig) -> float | dict | None:
@@ -119,7 +197,11 @@ def main(cfg: DictConfig) -> float | dict | None:
         from .orp import orp_main
 
         return orp_main(cfg)
-    result = train(cfg)
+    try:
+        result = train(cfg)
+    except BaseException:
+        remove_if_only_hydra(Path(str(cfg.paths.output_dir)))
+        raise
     print(result["best_checkpoint"], flush=True)
     return result.get("best_score")
 

@@ -67,7 +67,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.camera import validate_view
-from data_gen.errors import InputError, cli_errors
+from data_gen.errors import InputError, cli_errors, checked_command_line
 from data_gen.views import _orthogonal_up, _unit
 
 from .orp import _bool, _num  # the same one-line checks as the ORP settings
@@ -511,6 +511,25 @@ def _interactive_backend_error() -> str | None:
     return None
 
 
+def check_writable(path, key: str) -> None:
+    """A file can be written at ``path`` (its folder exists and takes a new file, or can be made):
+    checked with a real probe file, removed at once. One-line :class:`InputError` naming ``key``."""
+    out = Path(str(path)).expanduser()
+    if out.is_dir():
+        raise InputError(f"{key}={path}: is a directory, expected a .png file path")
+    parent = out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent  # the folders missing on the way are made when the file is written
+    if not parent.is_dir():
+        raise InputError(f"{key}={path}: {parent} is not a directory")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise InputError(f"{key}={path}: cannot write into {parent} ({err.strerror or type(err).__name__})") from None
+
+
 def viewer(cfg: DictConfig) -> Path | None:
     """The CLI's body: build the renderer from the checkpoint(s), then a screenshot or the window.
 
@@ -520,8 +539,10 @@ def viewer(cfg: DictConfig) -> Path | None:
         raise InputError("ims_checkpoint: required (usage: python -m imls_lightning.viewer ims_checkpoint=<IMS .ckpt> "
                          "[recnn_checkpoint=<RecNN .ckpt>] [screenshot=out.png])")
     screenshot = cfg.get("screenshot") or None
-    if screenshot is not None and Path(str(screenshot)).suffix.lower() != ".png":
-        raise InputError(f"screenshot={screenshot}: expected a .png path")
+    if screenshot is not None:
+        if Path(str(screenshot)).suffix.lower() != ".png":
+            raise InputError(f"screenshot={screenshot}: expected a .png path")
+        check_writable(screenshot, "screenshot")  # before any work, not after it
     for key in ("azimuth", "elevation"):
         _num(cfg.get(key), key, "a finite number")
     orbit_view(cfg.azimuth, cfg.elevation, 1.0)  # elevation range, before anything slow
@@ -567,6 +588,7 @@ def viewer(cfg: DictConfig) -> Path | None:
     return None
 
 
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="viewer")
 @cli_errors
 def main(cfg: DictConfig) -> None:

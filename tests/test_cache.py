@@ -131,7 +131,184 @@ def test_verify_detects_silent_corruption(tmp_path, tiny_scene):
     with open(path / "images.npy", "r+b") as f:
         f.seek(-10, os.SEEK_END)
         f.write(b"\x01" * 10)
-    assert ViewImageCache.open(path).verify().tolist() == [15]
+    assert ViewImageCache.open(path, check_pixels=False).verify().tolist() == [15]
+
+
+# ---- trust: changed, truncated and foreign files (issue 17) ---------------------------------
+def test_changed_pixels_refused_on_open_and_rerendered(tmp_path, tiny_scene, capsys):
+    d = _data(tmp_path)
+    path = render_cache(tiny_scene, d, VTK, progress=False).path
+    ref = np.array(ViewImageCache.open(path).images)
+    a = np.load(path / "images.npy", mmap_mode="r+")
+    a[1] = 255
+    a.flush()
+    del a
+    from data_gen import cache as cache_mod
+
+    cache_mod._CHECKED.clear()  # as a new process would
+    with pytest.raises(InputError, match=r"pixels of 1 view\(s\) do not match their checksums \(rows 1;") as e:
+        ViewImageCache.open(path)
+    assert "\n" not in str(e.value)
+    capsys.readouterr()
+    rep = render_cache(tiny_scene, d, VTK, progress=False)
+    err = capsys.readouterr().err
+    assert rep.rendered == 1 and rep.already_done == 15
+    warnings = [ln for ln in err.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "do not match their checksums (rows 1)" in warnings[0]
+    cache_mod._CHECKED.clear()
+    np.testing.assert_array_equal(np.asarray(ViewImageCache.open(path).images), ref)
+
+
+def test_pixel_check_costs_far_less_than_rendering_a_view(tmp_path, tiny_scene):
+    from data_gen.cache import bad_views
+
+    path = render_cache(tiny_scene, _data(tmp_path, resolution=128, num_views=4, test_views=0), VTK, progress=False).path
+    c = ViewImageCache.open(path)
+    t0 = time.perf_counter()
+    for _ in range(20):
+        assert len(bad_views(c.images, np.arange(4), c.crc)) == 0
+    check = (time.perf_counter() - t0) / 80
+    assert check < 0.05 * float(np.median(c.render_seconds)), (check, np.median(c.render_seconds))
+
+
+def test_truncated_images_are_repaired(tmp_path, tiny_scene, capsys):
+    d = _data(tmp_path)
+    path = render_cache(tiny_scene, d, VTK, progress=False).path
+    ref = np.array(ViewImageCache.open(path).images)
+    size = (path / "images.npy").stat().st_size
+    os.truncate(path / "images.npy", size - 6 * 24 * 24 * 3)  # views 10..15 lose their pixels
+    from data_gen import cache as cache_mod
+
+    cache_mod._CHECKED.clear()
+    with pytest.raises(InputError, match="damaged or unreadable") as e:
+        ViewImageCache.open(path)
+    assert "\n" not in str(e.value)
+    capsys.readouterr()
+    rep = render_cache(tiny_scene, d, VTK, progress=False)
+    assert rep.rendered == 6 and rep.already_done == 10
+    assert "images.npy is truncated" in capsys.readouterr().err
+    np.testing.assert_array_equal(np.asarray(ViewImageCache.open(path).images), ref)
+    # a header cut short: everything is checked, and re-rendered
+    os.truncate(path / "images.npy", 40)
+    rep = render_cache(tiny_scene, d, VTK, progress=False)
+    assert rep.rendered == 16
+    np.testing.assert_array_equal(np.asarray(ViewImageCache.open(path).images), ref)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "delete"])
+def test_truncated_or_deleted_views_are_repaired(tmp_path, tiny_scene, capsys, damage):
+    d = _data(tmp_path)
+    path = render_cache(tiny_scene, d, VTK, progress=False).path
+    views = np.load(path / "views.npy")
+    if damage == "truncate":
+        os.truncate(path / "views.npy", 200)
+    else:
+        (path / "views.npy").unlink()
+    with pytest.raises(InputError, match="damaged or unreadable") as e:
+        ViewImageCache.open(path)
+    assert "\n" not in str(e.value)
+    capsys.readouterr()
+    rep = render_cache(tiny_scene, d, VTK, progress=False)
+    assert rep.rendered == 0
+    assert "views.npy is missing, truncated or changed" in capsys.readouterr().err
+    np.testing.assert_array_equal(ViewImageCache.open(path).views, views)
+
+
+def test_changed_views_refused_on_open(tmp_path, tiny_scene):
+    path = render_cache(tiny_scene, _data(tmp_path), VTK, progress=False).path
+    v = np.load(path / "views.npy")
+    v[0, 0] += 0.5
+    np.save(path / "views.npy", v)
+    with pytest.raises(InputError, match="changed after rendering"):
+        ViewImageCache.open(path)
+
+
+def test_foreign_folder_with_cache_file_names_is_refused_untouched(tmp_path, tiny_scene):
+    """A user's folder holding files named like the cache's own: refused, nothing written (issue 17, 1)."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    files = {"views.npy": b"my views", "images.npy": b"my images", "done.log": b"my log\n"}
+    for name, data in files.items():
+        (mine / name).write_bytes(data)
+    with pytest.raises(InputError, match=r"data.cache_path=.*not a cache made by this tool .* choose an empty or new directory") as e:
+        render_cache(tiny_scene, _data(tmp_path, cache_path=str(mine)), VTK, progress=False)
+    assert "\n" not in str(e.value)
+    assert {p.name: p.read_bytes() for p in mine.iterdir()} == files  # untouched, not even a .lock
+
+
+def test_empty_folder_is_used_and_interrupted_initialisation_redone(tmp_path, tiny_scene):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    d = _data(tmp_path, cache_path=str(mine))
+    rep = render_cache(tiny_scene, d, VTK, progress=False)
+    assert rep.rendered == 16 and (mine / ".imls-cache").is_file()
+    # an initialisation cut short (the marker is there, the manifest not yet): redone
+    (mine / "manifest.json").unlink()
+    assert render_cache(tiny_scene, d, VTK, progress=False).rendered == 16
+
+
+def test_failed_run_in_empty_folder_leaves_it_empty(tmp_path, tiny_scene, monkeypatch):
+    from data_gen import cache as cache_mod
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+
+    def boom(*a, **k):
+        raise InputError("boom")
+
+    monkeypatch.setattr(cache_mod, "_initialise", boom)
+    with pytest.raises(InputError, match="boom"):
+        render_cache(tiny_scene, _data(tmp_path, cache_path=str(mine)), VTK, progress=False)
+    assert list(mine.iterdir()) == []
+
+
+def test_complete_cache_on_read_only_mount_is_read_without_writing(tmp_path, tiny_scene, monkeypatch):
+    from data_gen import cache as cache_mod
+
+    d = _data(tmp_path)
+    path = render_cache(tiny_scene, d, VTK, progress=False).path
+    before = {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in path.iterdir()}
+    monkeypatch.setattr(cache_mod, "_dir_writable", lambda p: False)  # root ignores chmod: as on a ro mount
+    monkeypatch.setattr(cache_mod, "_prepare_dir", lambda *a: pytest.fail("wrote into a read-only cache"))
+    cache_mod._CHECKED.clear()
+    rep = render_cache(tiny_scene, d, VTK, progress=False)
+    assert rep.path == path and rep.rendered == 0 and rep.already_done == 16
+    assert {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in path.iterdir()} == before
+
+
+def test_orphaned_worker_exits_when_its_parent_dies(tmp_path):
+    """A render worker whose parent is SIGKILLed before its setup arrived must exit (issue 17, 7)."""
+    code = (
+        "import multiprocessing as mp, os, sys, time\n"
+        "from data_gen.cache import _worker_main\n"
+        "if __name__ == '__main__':\n"
+        "    ctx = mp.get_context('spawn')\n"
+        "    setup, tasks, results = ctx.Queue(), ctx.Queue(), ctx.Queue()\n"
+        "    p = ctx.Process(target=_worker_main, args=(setup, os.getpid(), tasks, results))\n"
+        "    p.start()\n"
+        "    print(p.pid, flush=True)\n"
+        "    time.sleep(600)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        worker = int(parent.stdout.readline())
+        time.sleep(3)  # the worker is up and waiting for its setup
+        assert _alive(worker)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and _alive(worker):
+        time.sleep(0.1)
+    assert not _alive(worker), "the orphaned worker still waits for its setup"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state not in ("Z", "X")
 
 
 def test_resume_after_sigkill(tmp_path):
@@ -208,7 +385,7 @@ def test_exception_not_a_cache_directory(tmp_path, tiny_scene):
     (tmp_path / "notes" / "thesis.tex").write_text("precious")
     with pytest.raises(InputError, match="not a cache"):
         render_cache(tiny_scene, _data(tmp_path, cache_path=str(tmp_path / "notes")), VTK, progress=False)
-    assert sorted(p.name for p in (tmp_path / "notes").iterdir()) == [".lock", "thesis.tex"]
+    assert sorted(p.name for p in (tmp_path / "notes").iterdir()) == ["thesis.tex"]  # not even a .lock
 
 
 def test_exception_unwritable_cache_dir(tmp_path, tiny_scene):

@@ -75,6 +75,8 @@ ERRORS = [
     ("negative resolution", ["scene=tiny", "data.resolution=-8"], "data.resolution=-8"),
     ("unwritable cache dir", ["scene=tiny", "data.cache_dir={a_file}/sub"], "not writable"),
     ("bad camera distance", ["scene=tiny", "scene.camera_distance=[0,0]"], "camera_distance"),
+    # issue 17, 8: Hydra's 15-line message before
+    ("unknown scene", ["scene=no_such_scene"], "scene=no_such_scene: no such scene; expected one of ct_head, "),
 ]
 
 
@@ -110,3 +112,29 @@ def test_exception_cli_manifest_of_other_settings(tmp_path):
     err = p.stderr.strip().splitlines()
     assert len(err) == 1 and "belongs to other settings" in err[0] and "Traceback" not in p.stderr
     assert {q.name: q.read_bytes() for q in target.iterdir() if q.is_file()} == before
+
+
+def test_exception_cli_refuses_a_folder_of_mine(tmp_path):
+    """The user's own views.npy / images.npy / done.log were overwritten without a word (issue 17, 1)."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    files = {"views.npy": b"my views", "images.npy": b"my images", "done.log": b"my notes\n"}
+    for name, data in files.items():
+        (mine / name).write_bytes(data)
+    p = run_cli("scene=tiny", "data=tiny", f"data.cache_path={mine}", cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: data.cache_path={mine}: ") and "not a cache made by this tool" in err[0]
+    assert {q.name: q.read_bytes() for q in mine.iterdir()} == files
+
+
+def test_cli_volume_path_with_non_ascii_characters(tmp_path):
+    """volumes_é/... ended in Hydra's lexer traceback (issue 17, 13); spaces work too."""
+    for folder in ("volumes_é", "my volumes"):
+        d = tmp_path / folder
+        d.mkdir()
+        (np.arange(216) % 250).astype(np.uint8).tofile(d / "v_6x6x6_uint8.raw")
+        p = run_cli("scene=file", f"scene.volume.path={d / 'v_6x6x6_uint8.raw'}", "data=tiny", "data.num_views=4",
+                    "data.test_views=2", "data.resolution=16", f"data.cache_dir={tmp_path / 'cache'}", "progress=false", cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        assert Path(p.stdout.strip().splitlines()[-1]).parent == tmp_path / "cache"

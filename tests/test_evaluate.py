@@ -211,6 +211,23 @@ def test_python_api_reuses_the_same_directory(run):
 
 
 @pytest.mark.parametrize("override,needle", [
+    ("scene=marschner_lobb", r"checkpoints.ims=.*: trained on scene=tiny, this evaluation uses scene=marschner_lobb .*allow_mismatch=true"),
+    ("scene.transfer_function.colormap=viridis", r"trained on scene=tiny, this evaluation uses scene=tiny \(scene differs in transfer_function.colormap\)"),
+    ("renderer=vtk", r"checkpoints.ims=.*: trained with renderer=numba, this evaluation uses renderer=vtk"),
+])
+def test_exception_scene_or_renderer_other_than_trained(tiny_checkpoints, tmp_path, override, needle):
+    """Evaluating an IMS on another scene wrote a plausible but wrong report (issue 17, 5)."""
+    from imls_lightning.evaluate import check_trained_on, evaluate, parse_settings
+
+    args = [*_args(tiny_checkpoints), f"output_dir={tmp_path / 'out'}", override]
+    with pytest.raises(InputError, match=needle) as e:
+        evaluate(_compose(*args))
+    assert "\n" not in str(e.value) and not (tmp_path / "out").exists()
+    cfg = _compose(*args, "allow_mismatch=true")
+    check_trained_on(cfg, parse_settings(cfg))  # the explicit override lets it through
+
+
+@pytest.mark.parametrize("override,needle", [
     (None, "error: checkpoints.ims: required"),
     ("checkpoints.ims=/nonexistent/ims.ckpt", "error: checkpoints.ims=/nonexistent/ims.ckpt: file not found"),
 ])

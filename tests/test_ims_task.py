@@ -557,3 +557,12 @@ def test_cli_smoke_recnn_then_iml_then_ims(tmp_path, recnn):
            "logger=none", "model=ims", f"recnn={other}", f"iml.checkpoint={iml}"]
     proc = subprocess.run(cmd, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=600)
     assert proc.returncode == 2 and "error: iml.checkpoint=" in proc.stdout + proc.stderr
+
+
+def test_exception_errors_name_the_users_keys():
+    """Errors named internal keys (base_channels=) instead of the key the user typed (issue 17, minor)."""
+    small = {**SMALL, "loss": NO_PER}
+    for kw, key in (({"layers": 0}, "model.layers=0"), ({"base_channels": 0}, "model.base_channels=0"),
+                    ({"disc_base_channels": 0}, "model.disc_base_channels=0")):
+        with pytest.raises(InputError, match=f"^{key}"):
+            IMSTask(DOWN, FR, iml_hparams(DOWN), **{**small, **kw})

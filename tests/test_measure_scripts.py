@@ -87,3 +87,14 @@ def test_exception_measure_iml_bad_means(tmp_path):
     assert p.returncode == 2 and "Traceback" not in p.stderr
     err = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
     assert len(err) == 1 and err[0].startswith("error: --means=0.001: expected a number in [0.01, 1"), p.stderr[-2000:]
+
+
+def test_measure_pixel_check_script(tmp_path):
+    """scripts/measure_pixel_check.py: the cache's per-view CRC-32 check vs one render (issue 17, 2)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("measure_pixel_check", ROOT / "scripts" / "measure_pixel_check.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = mod.main(["--resolution", "64", "--views", "3", "--repeats", "5", "--cache-dir", str(tmp_path)])
+    assert out["check_ms"] > 0 and out["ratio"] > 20, out

@@ -83,6 +83,36 @@ def test_exception_datamodule_bad_fields_and_batch_size(tmp_path):
         ImlsDataModule({}, {"resolution": 32, "batch_size": 0}, {}, {"kind": "full"})
 
 
+def test_exception_resolution_too_small_names_the_smallest_that_works():
+    """data.resolution=2 ended in a traceback from SSIM (issue 17, 9)."""
+    from data_gen.errors import InputError
+    from imls_lightning.data import ImlsDataModule
+
+    for m in (1, 2, 5):
+        with pytest.raises(InputError, match=rf"data.resolution={m}: too small to train on; the smallest that works is 6 "):
+            ImlsDataModule({}, {"resolution": m, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
+    with pytest.raises(InputError, match=r"the smallest that works is 8 "):
+        ImlsDataModule({}, {"resolution": 4, "batch_size": 2}, {}, {"kind": "downsample", "factor": 4})
+    ImlsDataModule({}, {"resolution": 6, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
+
+
+def test_exception_iml_errors_name_the_users_keys():
+    """Errors named internal keys (depth=, alpha=) instead of the key the user typed (issue 17, minor)."""
+    from data_gen.errors import InputError
+    from imls_lightning.tasks.iml import IMLTask
+
+    for kw, key in (({"depth": 0}, "model.depth=0"), ({"alpha": -1.0}, "model.alpha=-1"), ({"mean": 2.0}, "model.mean=2")):
+        with pytest.raises(InputError, match=f"^{key}"):
+            IMLTask({"kind": "downsample", "factor": 2}, 32, **kw)
+
+
+def test_failed_run_leaves_no_empty_run_folder(tmp_path):
+    """A failed run left an empty run folder (only Hydra's .hydra/ and log) behind (issue 17, minor)."""
+    p = _run(["model=iml", "model.depth=0"], tmp_path, check=False)
+    _one_line_error(p, "model.depth=0")
+    assert not (tmp_path / "runs").exists() or list((tmp_path / "runs").iterdir()) == []
+
+
 # ---- RecNN ------------------------------------------------------------------------------------
 def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
     from imls_lightning.tasks.base import load_task
@@ -117,6 +147,93 @@ def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
     p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
     assert "resuming from" in p.stdout and str(run_dir / "checkpoints" / "last.ckpt") in p.stdout
     assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+
+
+def _copy_runs(work, tmp_path, recnn_ckpt) -> Path:
+    import shutil
+
+    for sub in ("runs", "cache"):
+        shutil.copytree(work / sub, tmp_path / sub)
+    return tmp_path / "runs" / recnn_ckpt.parent.parent.name
+
+
+def _truncate(path: Path) -> None:
+    os.truncate(path, path.stat().st_size // 2)
+
+
+def test_truncated_last_ckpt_falls_back_to_newest_intact_checkpoint(work, recnn_ckpt, tmp_path):
+    """A truncated last.ckpt gave a traceback on every rerun (issue 17, 6)."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    (run_dir / "result.json").unlink()
+    _truncate(run_dir / "checkpoints" / "last.ckpt")
+    best = run_dir / "checkpoints" / recnn_ckpt.name
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    warnings = [ln for ln in p.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "last.ckpt: not a loadable checkpoint" in warnings[0] and str(best) in warnings[0], p.stderr[-2000:]
+    assert f"resuming from {best}" in p.stdout
+    assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+
+
+def test_truncated_best_checkpoint_of_finished_run_is_not_trusted(work, recnn_ckpt, tmp_path):
+    """A truncated best checkpoint with result.json beside it was reused (issue 17, 6)."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    best = run_dir / "checkpoints" / recnn_ckpt.name
+    result = json.loads((run_dir / "result.json").read_text())
+    (run_dir / "result.json").write_text(json.dumps({**result, "best_checkpoint": str(best)}))  # the copy's own
+    _truncate(best)
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    assert "already finished" not in p.stdout
+    assert any(ln.startswith("warning:") and "training it again" in ln for ln in p.stderr.splitlines()), p.stderr[-2000:]
+    from imls_lightning.config import checkpoint_problem
+
+    assert checkpoint_problem(_last_line(p)) is None
+
+
+def test_resume_path_fallbacks(tmp_path, capsys):
+    from omegaconf import OmegaConf
+
+    from imls_lightning.train import _resume_path
+
+    ck = tmp_path / "checkpoints"
+    ck.mkdir()
+    cfg = OmegaConf.create({"resume": "auto"})
+    assert _resume_path(cfg, tmp_path) is None  # nothing yet
+    torch.save({"x": torch.zeros(3)}, ck / "epoch001.ckpt")
+    (ck / "last.ckpt").write_bytes(b"PK\x03\x04 cut")
+    assert _resume_path(cfg, tmp_path) == str(ck / "epoch001.ckpt")
+    assert "resuming from the newest intact checkpoint" in capsys.readouterr().err
+    _truncate(ck / "epoch001.ckpt")
+    assert _resume_path(cfg, tmp_path) is None
+    assert "training starts over" in capsys.readouterr().err
+
+
+def test_exception_resume_checkpoint_of_another_model(work, recnn_ckpt, tmp_path):
+    """resume= with a checkpoint of another model ended in a traceback (issue 17, 11)."""
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=1", "recnn.net.channels=4", "recnn.net.blocks=1",
+              f"resume={recnn_ckpt}"], tmp_path, check=False)  # a channels=8 net resumed into a channels=4 one
+    _one_line_error(p, f"resume={recnn_ckpt}", "do not fit the network")
+
+
+def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
+    """resume=<a text file> ended in a traceback (issue 17, 11); in process (the CLI path is the test above)."""
+    from omegaconf import OmegaConf
+
+    from data_gen.errors import InputError
+    from imls_lightning.tasks.base import load_task
+    from imls_lightning.tasks.iml import IMLTask
+    from imls_lightning.train import _resume_path
+
+    task = load_task(recnn_ckpt, expect="RecNNTask")
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    cut = tmp_path / "cut.ckpt"
+    cut.write_bytes(recnn_ckpt.read_bytes()[:5000])
+    for bad in (text, cut):
+        with pytest.raises(InputError, match=f"^resume={bad}: not a loadable checkpoint"):
+            _resume_path(OmegaConf.create({"resume": str(bad)}), tmp_path, task)
+    with pytest.raises(InputError, match=f"^resume={recnn_ckpt}: is a RecNNTask checkpoint, this run trains a IMLTask"):
+        _resume_path(OmegaConf.create({"resume": str(recnn_ckpt)}), tmp_path, IMLTask({"kind": "downsample", "factor": 2}, 32, depth=2))
+    assert _resume_path(OmegaConf.create({"resume": str(recnn_ckpt)}), tmp_path, task) == str(recnn_ckpt)
 
 
 def test_smoke_fovolnet_fast_dev_run(work):

@@ -191,6 +191,22 @@ def test_exception_bad_arguments_fail_before_loading(tmp_path, arg, name):
         viewer(_compose(f"screenshot={tmp_path / 'x.png'}"))
 
 
+def test_exception_unwritable_screenshot_path_fails_before_loading(tmp_path):
+    """An unwritable screenshot= path failed with a PermissionError after all the work (issue 17, 12)."""
+    from data_gen.errors import InputError
+    from imls_lightning.viewer import viewer
+
+    (tmp_path / "a_file").write_text("x")
+    (tmp_path / "dir.png").mkdir()
+    for shot, needle in ((tmp_path / "a_file" / "sub" / "x.png", "is not a directory"),
+                         (tmp_path / "dir.png", "is a directory"),
+                         (Path("/proc/imls_no_such/x.png"), "cannot write into /proc")):
+        with pytest.raises(InputError, match=f"^screenshot={shot}: .*{needle}") as e:
+            viewer(_compose(f"ims_checkpoint={tmp_path / 'never_read.ckpt'}", f"screenshot={shot}"))
+        assert "\n" not in str(e.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "dir.png"]  # no probe left behind
+
+
 def test_exception_viewer_distance_outside_scene_range(renderer):
     from data_gen.errors import InputError
     from imls_lightning.viewer import Viewer, orbit_view

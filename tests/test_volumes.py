@@ -156,6 +156,27 @@ def test_nrrd(tmp_path, encoding, detached):
     assert isinstance(vol.data, np.memmap) == (encoding == "raw")
 
 
+@pytest.mark.parametrize("damage", ["flip", "truncate"])
+def test_exception_corrupt_gzip_nrrd(tmp_path, damage):
+    """A gzip NRRD whose data is corrupt ended in a zlib traceback (issue 17, 10)."""
+    import nrrd
+
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 1000, size=(8, 9, 10)).astype(np.int16)  # incompressible enough to damage
+    path = tmp_path / "v.nrrd"
+    nrrd.write(str(path), a, {"encoding": "gzip"}, index_order="C")
+    b = bytearray(path.read_bytes())
+    if damage == "flip":
+        for i in range(len(b) - 300, len(b) - 200):
+            b[i] ^= 0x5A
+    else:
+        b = b[: len(b) - 200]
+    path.write_bytes(bytes(b))
+    with pytest.raises(InputError, match=r"v.nrrd: cannot read NRRD data") as e:
+        load_volume({"path": str(path)})
+    assert "\n" not in str(e.value)
+
+
 def test_nrrd_space_directions_and_big_endian(tmp_path):
     import nrrd
 

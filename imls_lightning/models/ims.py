@@ -181,8 +181,9 @@ class IMSDiscriminator(nn.Module):
 
     def __init__(self, c_size: int, base_channels: int = 32, max_channels: int = 256, in_channels: int = 1):
         super().__init__()
-        if int(c_size) < 1 or int(base_channels) < 1 or int(max_channels) < 1:
-            raise InputError(f"c_size={c_size}, base_channels={base_channels}: expected positive integers")
+        for name, v in (("c_size", c_size), ("base_channels", base_channels), ("max_channels", max_channels)):
+            if int(v) < 1:  # one key per message: the task renames it to the user's key
+                raise InputError(f"{name}={v}: expected a positive integer")
         self.c_size, self.in_channels = int(c_size), int(in_channels)
         mods: list[nn.Module] = []
         side, cin, i = self.c_size, self.in_channels, 0

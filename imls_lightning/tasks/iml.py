@@ -24,7 +24,7 @@ from typing import Any, Mapping
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError
+from data_gen.errors import InputError, config_keys
 
 from ..config import to_plain
 from ..models.iml import IMLNet
@@ -123,7 +123,10 @@ class IMLTask(ImlsTask):
             "mean_range": _mean_range(to_plain(mean_range), float(mean)),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
-        self.iml = iml_net_from_hparams(self.hparams, self.pattern)
+        # errors name the user's keys (model.depth=, model.alpha=, ...)
+        with config_keys({k: f"model.{k}" for k in ("mean", "alpha", "depth", "base_channels", "lower", "delta",
+                                                    "decoder", "importance")}):
+            self.iml = iml_net_from_hparams(self.hparams, self.pattern)
         self._rng = torch.Generator().manual_seed(0)
         self.recnn = None
         if mode == "end_to_end":

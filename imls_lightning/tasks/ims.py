@@ -58,7 +58,7 @@ from typing import Any, Mapping, Optional
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
-from data_gen.errors import InputError
+from data_gen.errors import InputError, config_keys
 
 from ..config import to_plain
 from ..backbones import BACKBONES, VGG16_LAYERS
@@ -301,8 +301,10 @@ class IMSTask(ImlsTask):
                 f"iml.checkpoint: the IML was trained on another sampling pattern or resolution (its fr_size={iml_hparams.get('fr_size')}, "
                 f"pattern={iml_hparams.get('pattern')}); use the recnn/pattern and data.resolution it was trained with"
             )
-        self.generator = IMSGenerator(n, layers=layers, base_channels=base_channels, max_channels=max_channels)
-        self.discriminator = IMSDiscriminator(n, base_channels=disc_base_channels, max_channels=disc_max_channels)
+        with config_keys({k: f"model.{k}" for k in ("layers", "base_channels", "max_channels")}):  # the user's keys
+            self.generator = IMSGenerator(n, layers=layers, base_channels=base_channels, max_channels=max_channels)
+        with config_keys({"base_channels": "model.disc_base_channels", "max_channels": "model.disc_max_channels"}):
+            self.discriminator = IMSDiscriminator(n, base_channels=disc_base_channels, max_channels=disc_max_channels)
         self.iml = build_iml_net(iml_hparams, self.pattern).requires_grad_(False)
         self.recnn = None
         if recnn_hparams:
