@@ -399,7 +399,7 @@ def test_quality_at_means_is_the_imls_path_at_each_mean(tiny_cache, pim_task):
     views = torch.as_tensor(np.asarray(tiny_cache.views[rows], np.float32))
     with torch.inference_mode():
         im = pim_task.predict_im(views).float()  # the IMSTask's own inference mask at the trained mean
-        direct = psnr_per_image(pim_task.recnn(pim_task.decoder(im * c)), fr).double().numpy()
+        direct = psnr_per_image(pim_task.recnn(pim_task.decoder(im * c, im)), fr).double().numpy()
         alone = psnr_per_image(pim_task.recnn(c), fr).double().numpy()
     n = pim_task.pattern.fr_size ** 2
     np.testing.assert_allclose(q["trained"]["ipr"], im.flatten(1).sum(1).numpy() / n)

@@ -301,8 +301,8 @@ def test_eval_metrics_against_direct_computation():
     assert out["val/ipr"] == pytest.approx(pred.flatten(1).sum(1).float().mean().item() / FR**2, abs=1e-7)
     assert out["val/label_ipr"] == pytest.approx(label.flatten(1).sum(1).float().mean().item() / FR**2, abs=1e-7)
     with torch.no_grad():
-        fr_pred = task.recnn(task.decoder(pred.float() * batch["c"]))
-        fr_label = task.recnn(task.decoder(label.float() * batch["c"]))
+        fr_pred = task.recnn(task.decoder(pred.float() * batch["c"], pred.float()))
+        fr_label = task.recnn(task.decoder(label.float() * batch["c"], label.float()))
     assert out["val/fr_psnr"] == pytest.approx(psnr_per_image(fr_pred, batch["fr"]).mean().item(), rel=1e-5)
     assert out["val/label_fr_psnr"] == pytest.approx(psnr_per_image(fr_label, batch["fr"]).mean().item(), rel=1e-5)
     assert {"val/fr_ssim", "val/label_fr_ssim", "val/c_psnr", "val/loss", "val/bce"} <= set(out)

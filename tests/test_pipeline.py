@@ -102,7 +102,7 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
         flat = np.zeros((n * n, 3), np.float32)
         flat[c_pos] = env["renderer"].render_pixels(view, m, pattern.indices.numpy()[c_pos]) / 255.0
         pr_c = torch.from_numpy(flat).view(n, n, 3).permute(2, 0, 1)[None]
-        direct = to_uint8_image(task.recnn(task.decoder(pr_c)))
+        direct = to_uint8_image(task.recnn(task.decoder(pr_c, im.float()[None, None])))
     np.testing.assert_array_equal(image, direct)
 
     # the stored RecNN is the frozen RecNN checkpoint the IML was trained with: passing it gives the same image
@@ -143,9 +143,9 @@ def test_selective_render_casts_only_the_masked_pixels(env):
             super().__init__()
             self.inner = inner
 
-        def forward(self, x):
+        def forward(self, x, im):
             seen.append(x.clone())
-            return self.inner(x)
+            return self.inner(x, im)
 
     rec = RecordingRenderer(env["renderer"])
     r = IMLSRenderer(rec, pattern, lambda v: mask, Decoder(task.decoder), task.recnn, CPU)

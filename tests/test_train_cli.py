@@ -281,7 +281,8 @@ def test_smoke_standalone_decoder_attaches_to_off_the_shelf_recnn(work, recnn_ck
     c = torch.rand(2, 3, iml.pattern.c_size, iml.pattern.c_size)
     with torch.no_grad():
         out = net(c, hard=True)
-        direct = rec.net(iml.iml.decode(iml.iml.importance(c, hard=True) * c))
+        im = iml.iml.importance(c, hard=True)
+        direct = rec.net(iml.iml.decode(im * c, im))
     assert out.shape == (2, 3, iml.pattern.fr_size, iml.pattern.fr_size) and torch.isfinite(out).all()
     torch.testing.assert_close(out, direct)
 

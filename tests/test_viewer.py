@@ -76,7 +76,7 @@ def test_smoke_screenshot_cli_writes_png_with_both_panels(tiny_checkpoints, view
     import matplotlib.image as mpimg
 
     out = tmp_path / "shots" / "viewer.png"
-    r = _run(f"ims_checkpoint={tiny_checkpoints['ims']}", f"screenshot={out}", "azimuth=30", "elevation=20",
+    r = _run(f"ims_checkpoint={tiny_checkpoints['ims_pim']}", f"screenshot={out}", "azimuth=30", "elevation=20",
              f"figsize=[{FIGSIZE[0]},{FIGSIZE[1]}]", f"dpi={DPI}", "options.device=cpu")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().splitlines()[-1] == str(out)
