@@ -75,6 +75,8 @@ ERRORS = [
     ("negative resolution", ["scene=tiny", "data.resolution=-8"], "data.resolution=-8"),
     ("unwritable cache dir", ["scene=tiny", "data.cache_dir={a_file}/sub"], "not writable"),
     ("bad camera distance", ["scene=tiny", "scene.camera_distance=[0,0]"], "camera_distance"),
+    ("bad sample distance", ["scene=tiny", "scene.sample_distance=fine"], "scene.sample_distance='fine'"),
+    ("bad sample distance in voxels", ["scene=tiny", "scene.sample_distance_voxels=-1"], "scene.sample_distance_voxels=-1"),
 ]
 
 
