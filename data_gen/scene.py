@@ -120,7 +120,7 @@ def voxel_size(volume: Volume) -> float:
     return float(np.min(volume.normalized_spacing))
 
 
-def _positive(key: str, value, unit: str) -> float | None:
+def _positive(key: str, value, expected: str) -> float | None:
     """``value`` as a positive finite float; None for ``None``/``auto``; InputError naming ``key``."""
     if value is None or (isinstance(value, str) and value.strip().lower() in ("auto", "none", "null", "")):
         return None
@@ -131,7 +131,7 @@ def _positive(key: str, value, unit: str) -> float | None:
         except (TypeError, ValueError):
             pass
     if not (math.isfinite(v) and v > 0):
-        raise InputError(f"{key}={value!r}: expected auto (half a voxel) or a positive number in {unit}")
+        raise InputError(f"{key}={value!r}: expected {expected}")
     return v
 
 
@@ -156,8 +156,10 @@ def resolve_sample_distance(volume: Volume, sample_distance="auto", sample_dista
         >>> resolve_sample_distance(v), resolve_sample_distance(v, 0.02), resolve_sample_distance(v, "auto", 2)
         (0.125, 0.02, 0.5)
     """
-    normalized = _positive("scene.sample_distance", sample_distance, "normalized units (the volume's longest axis spans [-1, 1])")
-    voxels = _positive("scene.sample_distance_voxels", sample_distance_voxels, "voxels (of the smallest voxel spacing)")
+    normalized = _positive("scene.sample_distance", sample_distance, "auto (half a voxel) or a positive number in normalized "
+                           "units (the volume's longest axis spans [-1, 1]); for voxels use scene.sample_distance_voxels")
+    voxels = _positive("scene.sample_distance_voxels", sample_distance_voxels,
+                       "a positive number of voxels (of the smallest voxel spacing), or null")
     if normalized is not None and voxels is not None:
         raise InputError(f"scene.sample_distance={sample_distance!r} and scene.sample_distance_voxels={sample_distance_voxels!r}: "
                          "give only one (scene.sample_distance=auto with scene.sample_distance_voxels)")
