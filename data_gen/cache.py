@@ -1,9 +1,11 @@
 """The (view, full-resolution image) cache: hashed, atomic, resumable, rendered in parallel.
 
 One directory per hash of everything that changes the pixels, ``<data.cache_dir>/<scene>-<hash12>``
-(or exactly ``data.cache_path``)::
+(or exactly ``data.cache_path``); the scene part holds the *resolved* sample distance, in normalized
+units and in voxels, so ``sample_distance: auto`` keys by the step it means::
 
-    manifest.json        settings (hashed part + provenance), counts, runs; written last, atomically
+    manifest.json        settings (hashed part + provenance), counts, runs, the resolved sample
+                         distance (normalized and in voxels); written last, atomically
     views.npy            (N, 9) float32: train+val views (rows 0..V-1), then the test trajectory
     splits.json          {"train": [...], "val": [...], "test": [...]} row indices
     images.npy           (N, m, m, 3) uint8, created sparse with ``np.lib.format.open_memmap`` and
@@ -77,7 +79,7 @@ import numpy as np
 
 from .errors import InputError
 from .renderers import make_renderer, renderer_pixel_settings, renderer_version
-from .scene import Scene
+from .scene import Scene, voxel_size
 from .views import (
     exploration_trajectory,
     load_views_file,
@@ -823,6 +825,9 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
                     "renderer": _jsonable({**rcfg, "pixel_settings": renderer_pixel_settings(rcfg), "version": renderer_version(rcfg)}),
                     "resolution": m,
                     "view_angle": float(scene.view_angle),
+                    # the resolved ray step (scene.sample_distance: auto = half a voxel), in both units
+                    "sample_distance": {"normalized": float(scene.sample_distance), "voxels": scene.sample_distance_voxels,
+                                        "voxel_size_normalized": voxel_size(scene.volume)},
                     "data": _jsonable({k: d[k] for k in ("num_views", "test_views", "val_fraction", "seed", "lookat_jitter", "test_trajectory")}),
                     "counts": {"train": len(splits["train"]), "val": len(splits["val"]), "test": len(splits["test"]), "total": n},
                     "files": {"views": VIEWS, "splits": SPLITS, "images": IMAGES, "log": LOG, "render_seconds": SECONDS},

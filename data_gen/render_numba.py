@@ -10,7 +10,8 @@ Scene model (the conventions of VTK's fixed-point mapper, read from its source):
 
 * **Rays** through pixel centres (:func:`data_gen.camera.pixel_rays`). Rays that miss the volume's
   box ``[origin, origin + (dims - 1) * spacing]`` get the background and are never marched.
-* **Samples** every ``scene.sample_distance`` (normalized units) along the ray, on a grid anchored
+* **Samples** every ``scene.sample_distance`` along the ray (normalized units, resolved by
+  :func:`data_gen.scene.resolve_sample_distance`: ``auto`` is half a voxel), on a grid anchored
   at the near clipping plane that VTK's ``vtkRenderer::ResetCameraClippingRange`` gives for the
   volume's box (:func:`clipping_range`; :class:`~data_gen.render_vtk.VTKRenderer` sets the same
   planes). As VTK does, the ray is clipped to the box inset by 0.01 voxel, the segment is shortened

@@ -11,6 +11,10 @@ VTK's fixed-point mapper and comparing with our own caster, :mod:`data_gen.rende
 * the per-voxel normals are computed single-threaded (first render). VTK computes them in one z
   slab per thread with one-sided differences at every slab boundary, so the picture depended on
   the number of threads (61 dB between 1 and 2 threads, 46 dB for 3 on ct_head);
+* the sample distance is the scene's resolved one (:func:`data_gen.scene.resolve_sample_distance`;
+  ``auto`` is half the smallest voxel spacing, after VTK's ``LockSampleDistanceToInputSpacing``), set
+  explicitly with VTK's own locking and automatic adjustment off, so both renderers step alike; the opacity is
+  corrected for it through ``ScalarOpacityUnitDistance`` (``scene.opacity_unit_distance``);
 * the clipping range is set from the volume's bounds alone (VTK starts its rays at the near plane
   and spaces the samples from there), so extra geometry never moves the samples;
 * with the fixed-point mapper the image is read from the mapper's own ray-cast image (15-bit

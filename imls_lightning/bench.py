@@ -25,9 +25,15 @@ again after an interruption continues where it stopped. Stage times are kept in
 ``<runs_dir>/bench_times.json``, keyed by each stage's result, so the table of stage times of a
 resumed benchmark still shows what each result cost when it was made.
 
+Any scene: every scene override that ``python -m data_gen`` accepts (``scene.volume.path=...``,
+``scene.sample_distance_voxels=...``, ...) applies to every scene benchmarked and is passed to every
+stage's command (:func:`imls_lightning.demo.split_scene_overrides`); ``scene=NAME`` benchmarks that one
+preset instead of ``scenes``. ``dry_run=true`` prints the stage commands instead of running them.
+
 Example:
     python -m imls_lightning.bench                                        # the full benchmark (make bench)
     python -m imls_lightning.bench scenes=[mri_head] recnns=[enhancenet]  # one scene, one RecNN
+    python -m imls_lightning.bench scene=file scene.volume.path=/data/my_head.nii.gz   # your own volume
 """
 from __future__ import annotations
 
@@ -46,7 +52,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
-from .demo import StageFailed, _list, run_stage
+from .demo import StageFailed, _list, check_scene_overrides, dry_stage, run_stage, split_scene_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = str(ROOT / "conf")
@@ -468,14 +474,41 @@ def _names(cfg: DictConfig, key: str) -> list[str]:
     return [str(x) for x in v]
 
 
-def _command() -> str:
+def _command(scene_overrides: Sequence[str] = ()) -> str:
+    from shlex import quote as shell_quote
+
     from .report import hydra_command
 
-    return hydra_command("imls_lightning.bench", "python -m imls_lightning.bench")
+    cmd = hydra_command("imls_lightning.bench", "python -m imls_lightning.bench")
+    return " ".join([cmd, *(shell_quote(a) for a in scene_overrides)])
 
-def _scale_lines(cfg: DictConfig, scenes, recnns, las_iprs) -> list[str]:
+
+def scene_label(scene: str, scene_overrides: Sequence[str]) -> str:
+    """A benchmarked scene's name in the tables: ``scene.name=`` when overridden, the volume's name
+    for ``scene=file`` (``scene.volume.name=``, else from ``scene.volume.path=``), else the preset's.
+
+    Example:
+        >>> scene_label("file", ["scene.volume.path=/d/engine_256x256x128_uint8.raw"]), scene_label("ct_head", [])
+        ('engine', 'ct_head')
+    """
+    from data_gen.scene import volume_name
+
+    given = {}
+    for o in scene_overrides:
+        key, eq, value = o.lstrip("+").partition("=")
+        if eq:
+            given[key] = value.strip().strip("'\"")
+    if given.get("scene.name"):
+        return given["scene.name"]
+    if scene == "file":
+        return volume_name(given.get("scene.volume.name"), given.get("scene.volume.path"))
+    return scene
+
+def _scale_lines(cfg: DictConfig, scenes, recnns, las_iprs, scene_overrides: Sequence[str] = ()) -> list[str]:
     """The scale of the run, for the report: scenes, data group, every stage's overrides."""
     lines = [f"scenes: {', '.join(scenes)}; RecNNs: {', '.join(f'{r} ({KIND.get(r, r)})' for r in recnns)}; renderer: {cfg.renderer}"]
+    if scene_overrides:
+        lines.append(f"scene overrides (every scene): `{' '.join(scene_overrides)}`")
     try:  # the data group's numbers (informative; `common` overrides are listed below)
         d = OmegaConf.merge(OmegaConf.load(Path(CONF_DIR) / "data" / "default.yaml"),
                             OmegaConf.load(Path(CONF_DIR) / "data" / f"{cfg.data}.yaml"))
@@ -493,15 +526,24 @@ def _scale_lines(cfg: DictConfig, scenes, recnns, las_iprs) -> list[str]:
     return lines
 
 
-def bench(cfg: DictConfig) -> Path:
-    """Run (or resume) the benchmark; returns the path of the BENCHMARKS.md written."""
+def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
+    """Run (or resume) the benchmark; returns the path of the BENCHMARKS.md written (None with
+    ``dry_run``). ``scene_overrides`` (``scene.<key>=...``) follow ``scene=<name>`` in every stage's
+    command, for every scene."""
     from .report import machine_info
 
-    scenes, recnns = _names(cfg, "scenes"), _names(cfg, "recnns")
+    one = cfg.get("scene")
+    scenes, recnns = ([str(one)] if one else _names(cfg, "scenes")), _names(cfg, "recnns")
     for s in scenes:
         if not (Path(CONF_DIR) / "scene" / f"{s}.yaml").is_file():
             known = sorted(p.stem for p in (Path(CONF_DIR) / "scene").glob("*.yaml"))
-            raise InputError(f"scenes: unknown scene {s!r}; expected names of conf/scene presets: {', '.join(known)}")
+            raise InputError(f"{'scene' if one else 'scenes'}: unknown scene {s!r}; expected names of conf/scene presets: {', '.join(known)}")
+        check_scene_overrides(s, scene_overrides)
+    label = {s: scene_label(s, scene_overrides) for s in scenes}
+    if len(set(label.values())) < len(scenes):
+        raise InputError(f"scenes={scenes} with {' '.join(scene_overrides)}: the scenes get the same name {sorted(label.values())}; "
+                         "benchmark them one at a time")
+    dry = bool(cfg.get("dry_run", False))
     for r in [*recnns, str(cfg.las_recnn)]:
         if r not in KIND:
             raise InputError(f"recnns/las_recnn: unknown RecNN {r!r}; expected one of {', '.join(KIND)}")
@@ -516,8 +558,8 @@ def bench(cfg: DictConfig) -> Path:
     t0 = time.perf_counter()
     n_pairs = len(scenes) * len(recnns)
     meta: dict[str, Any] = {
-        "scenes": scenes, "recnns": recnns, "command": _command(), "machine": machine_info("cpu"),
-        "scale": _scale_lines(cfg, scenes, recnns, las_iprs), "times": pair_times, "total": n_pairs,
+        "scenes": [label[s] for s in scenes], "recnns": recnns, "command": _command(scene_overrides), "machine": machine_info("cpu"),
+        "scale": _scale_lines(cfg, [label[s] for s in scenes], recnns, las_iprs, scene_overrides), "times": pair_times, "total": n_pairs,
         "notes": [
             "Timings are medians of the evaluation's repeats per view (after a warm-up run), averaged over the views; "
             "the networks run on the CPU next to the renderer, as everything else on this machine.",
@@ -531,6 +573,8 @@ def bench(cfg: DictConfig) -> Path:
         return hms(time.perf_counter() - t0)
 
     def stage(pair: str, key: str, name: str, args: list[str], result_key=lambda line: line) -> str:
+        if dry:
+            return dry_stage(name, args, tag="bench")
         log(f"\n[bench] {pair}: {name} (elapsed {elapsed()})")
         s0 = time.perf_counter()
         result = run_stage(f"{pair} {name}", args, tag="bench")
@@ -544,21 +588,24 @@ def bench(cfg: DictConfig) -> Path:
     las_ckpt: dict[str, str] = {}
     train = ["-m", "imls_lightning.train"]
     for scene in scenes:
-        common = [f"scene={scene}", f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={quote(cache)}", *_list(cfg, "common")]
+        common = [f"scene={scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={quote(cache)}",
+                  *_list(cfg, "common")]
         base_train = [*common, f"paths.runs_dir={quote(str(runs))}", f"seed={int(cfg.seed)}", *_list(cfg, "train")]
         if not progress:
             base_train.append("trainer.enable_progress_bar=false")
         for recnn in recnns:
-            pair = f"{scene}/{recnn}"
+            pair = f"{label[scene]}/{recnn}"
             net = [f"recnn={recnn}", *_list(cfg, f"recnn_net.{recnn}")]
             tc = [*base_train, *net]
             recnn_ckpt = stage(pair, "recnn", "RecNN", [*train, "model=recnn", *tc, *_list(cfg, "stages.recnn")])
 
             sweep = [*train, "-m", "model=iml", *tc, *_list(cfg, "stages.iml"), "hydra/sweeper=orp",
                      f"recnn.checkpoint={quote(recnn_ckpt)}", *_list(cfg, "stages.orp")]
-            sweep_dir = runs / "orp" / f"{scene}-{recnn}-{args_hash(sweep)}"
+            sweep_dir = runs / "orp" / f"{label[scene]}-{recnn}-{args_hash(sweep)}"
             orp_yaml = sweep_dir / "orp.yaml"
-            if orp_yaml.is_file() and read_orp_finished(orp_yaml):
+            if dry:
+                stage(pair, "orp", "ORP search", [*sweep, f"hydra.sweep.dir={quote(str(sweep_dir))}"])
+            elif orp_yaml.is_file() and read_orp_finished(orp_yaml):
                 log(f"\n[bench] {pair}: ORP search already finished; reusing {orp_yaml}")
                 pair_times.setdefault(pair, {})["orp"] = times.data.get(str(orp_yaml), math.nan)
             else:
@@ -566,9 +613,12 @@ def bench(cfg: DictConfig) -> Path:
                              result_key=lambda _: str(orp_yaml))
                 if not line.startswith("[orp] ") or not orp_yaml.is_file():
                     raise StageFailed(f"{pair} ORP search: expected '[orp] {orp_yaml}' as its last line, got {line!r}")
-            orp = read_orp(orp_yaml)
-            log(f"[bench] {pair}: ORP {'found' if orp['found'] else 'NOT found'}: u={orp['mean']:g}, "
-                f"C-share {pct(orp['c_share'])}, gap {fmt(orp['gap_db'])} dB")
+            if dry:
+                orp = {"iml_checkpoint": "<ORP-IML>", "pattern_ipr": math.nan}
+            else:
+                orp = read_orp(orp_yaml)
+                log(f"[bench] {pair}: ORP {'found' if orp['found'] else 'NOT found'}: u={orp['mean']:g}, "
+                    f"C-share {pct(orp['c_share'])}, gap {fmt(orp['gap_db'])} dB")
 
             ims_ckpt = stage(pair, "ims", "IMS", [*train, "model=ims", *tc, f"iml.checkpoint={quote(orp['iml_checkpoint'])}",
                                                   f"recnn.checkpoint={quote(recnn_ckpt)}", *_list(cfg, "stages.ims")])
@@ -586,12 +636,14 @@ def bench(cfg: DictConfig) -> Path:
             if with_las:
                 ev.append(f"checkpoints.las={quote(las_ckpt[scene])}")
             report = Path(stage(pair, "evaluate", "evaluation", ev))
+            if dry:
+                continue
             if report.name != "report.md" or not (report.parent / "metrics.csv").is_file():
                 raise StageFailed(f"{pair} evaluation: expected the path of its report.md as its last line, got {str(report)!r}")
-            records.append(collect_pair(scene, recnn, orp, report.parent, las_iprs, means, with_las))
+            records.append(collect_pair(label[scene], recnn, orp, report.parent, las_iprs, means, with_las))
             path = write()
             log(f"[bench] {pair} done (elapsed {elapsed()}); tables so far: {path}")
-    return write()
+    return None if dry else write()
 
 
 def read_orp_finished(path: Path) -> bool:
@@ -605,19 +657,32 @@ def read_orp_finished(path: Path) -> bool:
     return bool((rep.get("context") or {}).get("finished"))
 
 
+#: the scene overrides taken out of this process's command line by :func:`main`
+_SCENE_OVERRIDES: list[str] = []
+
+
 @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="bench")
 @cli_errors
-def main(cfg: DictConfig) -> None:
+def _main(cfg: DictConfig) -> None:
     t0 = time.perf_counter()
     try:
-        path = bench(cfg)
+        path = bench(cfg, _SCENE_OVERRIDES)
     except StageFailed as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         print(f"[bench] partial tables (if any): {cfg.output}; run the same command again to resume", file=sys.stderr, flush=True)
         sys.exit(1)
+    if path is None:  # dry_run
+        return
     print(path.read_text(), flush=True)
     log(f"[bench] finished in {(time.perf_counter() - t0) / 60:.1f} min")
     print(path, flush=True)
+
+
+def main() -> None:
+    """``python -m imls_lightning.bench``: the scene overrides leave the command line before Hydra
+    composes the pipeline's config (:func:`imls_lightning.demo.split_scene_overrides`)."""
+    sys.argv[1:], _SCENE_OVERRIDES[:] = split_scene_overrides(sys.argv[1:])
+    _main()
 
 
 if __name__ == "__main__":

@@ -17,15 +17,24 @@ Each CLI prints its result (cache directory, best checkpoint, report) as its las
 reuses a finished run of the same settings, so running the demo again costs seconds. The report's
 path is the last line this command prints.
 
+Any scene: every scene override that ``python -m data_gen`` accepts (``scene.volume.path=...``,
+``scene.transfer_function.colormap=...``, ``scene.sample_distance_voxels=...``, also with ``+``,
+``++`` or ``~``) is taken out of the command line before Hydra composes the pipeline's own config
+(where ``scene`` is a plain name, :func:`split_scene_overrides`), checked against ``data_gen``'s config
+(:func:`check_scene_overrides`) and passed, verbatim, right after ``scene=<name>`` to every stage's
+command. ``dry_run=true`` prints the stage commands (stdout) instead of running them.
+
 Example:
     python -m imls_lightning.demo                                   # flame, EnhanceNet
     python -m imls_lightning.demo scene=marschner_lobb recnn=fovolnet
+    python -m imls_lightning.demo scene=file scene.volume.path=/data/my_head.nii.gz   # your own volume
 """
 from __future__ import annotations
 
 import codecs
 import os
 import re
+import shlex
 import subprocess
 import sys
 import time
@@ -43,6 +52,71 @@ CONF_DIR = str(ROOT / "conf")
 
 class StageFailed(RuntimeError):
     """A stage's command exited with an error; its own message was already printed."""
+
+
+# ------------------------------------------------------------------------------------------------
+# scene overrides: the pipelines take every scene override python -m data_gen takes
+
+#: Hydra flags whose value is the next argument (that argument is never a scene override)
+_FLAGS_WITH_VALUE = frozenset({"--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun"})
+#: ``scene.<key>=...`` with Hydra's prefixes (``+`` add, ``++`` force-add, ``~`` delete)
+_SCENE_OVERRIDE = re.compile(r"(?:\+\+|\+|~)?scene\.[A-Za-z_]")
+
+
+def split_scene_overrides(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Split a pipeline's command line into its own arguments and the scene overrides.
+
+    The pipelines' configs hold ``scene`` as a plain preset name, so Hydra would refuse
+    ``scene.volume.path=...`` ("Key 'volume' is not in struct"); the scene overrides are taken out
+    and passed, verbatim, to the stage commands (whose configs compose the ``scene`` group).
+
+    Example:
+        >>> split_scene_overrides(["scene=file", "scene.volume.path=/d/a b.nii.gz", "data=tiny", "~scene.volume.dims"])
+        (['scene=file', 'data=tiny'], ['scene.volume.path=/d/a b.nii.gz', '~scene.volume.dims'])
+    """
+    own: list[str] = []
+    scene: list[str] = []
+    value_of_flag = False
+    for a in argv:
+        if value_of_flag or not _SCENE_OVERRIDE.match(a):
+            own.append(a)
+            value_of_flag = not value_of_flag and a in _FLAGS_WITH_VALUE
+        else:
+            scene.append(a)
+    return own, scene
+
+
+def check_scene_overrides(scene: str, overrides: Sequence[str]) -> None:
+    """Compose ``python -m data_gen``'s config with ``scene=<scene>`` and ``overrides`` in this
+    process, so a bad override stops the pipeline before any stage runs, with Hydra's message.
+
+    Raises:
+        InputError: the scene preset does not exist or an override does not apply to it.
+    """
+    if not overrides:
+        return
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from hydra.initialize import get_gh_backup, restore_gh_from_backup
+    from omegaconf.errors import OmegaConfBaseException
+
+    backup = get_gh_backup()  # inside a running Hydra app: set its state aside, restore it after
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(CONF_DIR, version_base="1.3", job_name="scene_check"):
+            compose("data_gen", overrides=[f"scene={scene}", *overrides])
+    except (HydraException, OmegaConfBaseException) as err:
+        raise InputError(f"scene overrides {' '.join(overrides)} (scene={scene}): {err}") from None
+    finally:
+        restore_gh_from_backup(backup)
+
+
+def dry_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo") -> str:
+    """``dry_run=true``: print the stage's command (shell-quoted) on stdout instead of running it;
+    its result is the placeholder ``<name>`` (spaces as ``-``)."""
+    print(shlex.join(["python", *args]), flush=True)
+    return f"<{'-'.join(name.split())}>"
 
 
 def run_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo") -> str:
@@ -96,32 +170,39 @@ def _list(cfg: DictConfig, key: str) -> list[str]:
     return [str(x) for x in v]
 
 
-def demo(cfg: DictConfig) -> Path:
-    """Run every stage; returns the evaluation report's path."""
+def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
+    """Run every stage; returns the evaluation report's path (None with ``dry_run``).
+
+    ``scene_overrides`` (``scene.<key>=...``, see :func:`split_scene_overrides`) follow
+    ``scene=<cfg.scene>`` in every stage's command."""
     runs = str(cfg.runs_dir)
-    common = [f"scene={cfg.scene}", f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={cfg.cache_dir}"]
+    dry = bool(cfg.get("dry_run", False))
+    check_scene_overrides(str(cfg.scene), scene_overrides)
+    stage = dry_stage if dry else run_stage
+    common = [f"scene={cfg.scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={cfg.cache_dir}"]
     train_common = [*common, f"recnn={cfg.recnn}", f"paths.runs_dir={runs}", f"seed={int(cfg.seed)}"]
     if not cfg.progress:
         train_common.append("trainer.enable_progress_bar=false")
     t0 = time.perf_counter()
 
-    cache = run_stage("cache", ["-m", "data_gen", *common, "contact_sheet=true", f"progress={bool(cfg.progress)}"])
+    cache = stage("cache", ["-m", "data_gen", *common, "contact_sheet=true", f"progress={bool(cfg.progress)}"])
     sheet = Path(cache) / "contact_sheet.png"
-    print(f"[demo] contact sheet of the cached views: {sheet}", file=sys.stderr, flush=True)
+    if not dry:
+        print(f"[demo] contact sheet of the cached views: {sheet}", file=sys.stderr, flush=True)
 
     train = ["-m", "imls_lightning.train"]
-    recnn = run_stage("RecNN", [*train, "model=recnn", *train_common, *_list(cfg, "stages.recnn")])
-    iml = run_stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *_list(cfg, "stages.iml")])
-    ims = run_stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
-                            *_list(cfg, "stages.ims")])
+    recnn = stage("RecNN", [*train, "model=recnn", *train_common, *_list(cfg, "stages.recnn")])
+    iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *_list(cfg, "stages.iml")])
+    ims = stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
+                        *_list(cfg, "stages.ims")])
     blue = None
     if OmegaConf.select(cfg, "stages.blue_noise") is not None:
         # the untrained-mask baseline: the blue-noise mask u > P with a decoder trained for it
-        blue = run_stage("blue-noise decoder", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}",
-                                                "model.importance=uniform", *_list(cfg, "stages.blue_noise")])
+        blue = stage("blue-noise decoder", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}",
+                                            "model.importance=uniform", *_list(cfg, "stages.blue_noise")])
     las = None
     if OmegaConf.select(cfg, "stages.las") is not None:
-        las = run_stage("LAS", [*train, "model=las", *train_common, *_list(cfg, "stages.las")])
+        las = stage("LAS", [*train, "model=las", *train_common, *_list(cfg, "stages.las")])
 
     ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={runs}", f"checkpoints.ims={ims}",
           f"checkpoints.recnn={recnn}", f"progress={bool(cfg.progress)}", "reuse=true", *_list(cfg, "evaluate")]
@@ -129,22 +210,36 @@ def demo(cfg: DictConfig) -> Path:
         ev.append(f"checkpoints.las={las}")
     if blue:
         ev.append(f"checkpoints.blue_noise={blue}")
-    report = Path(run_stage("evaluation", ev))
+    report = Path(stage("evaluation", ev))
+    if dry:
+        return None
     minutes = (time.perf_counter() - t0) / 60
     print(f"\n[demo] finished in {minutes:.1f} min. Contact sheet: {sheet}", file=sys.stderr, flush=True)
     print(f"[demo] report (tables, plots, image grid): {report}", file=sys.stderr, flush=True)
     return report
 
 
+#: the scene overrides taken out of this process's command line by :func:`main`
+_SCENE_OVERRIDES: list[str] = []
+
+
 @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="demo")
 @cli_errors
-def main(cfg: DictConfig) -> None:
+def _main(cfg: DictConfig) -> None:
     try:
-        report = demo(cfg)
+        report = demo(cfg, _SCENE_OVERRIDES)
     except StageFailed as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         sys.exit(1)
-    print(report, flush=True)
+    if report is not None:
+        print(report, flush=True)
+
+
+def main() -> None:
+    """``python -m imls_lightning.demo``: the scene overrides leave the command line before Hydra
+    composes the pipeline's config (:func:`split_scene_overrides`)."""
+    sys.argv[1:], _SCENE_OVERRIDES[:] = split_scene_overrides(sys.argv[1:])
+    _main()
 
 
 if __name__ == "__main__":

@@ -63,6 +63,11 @@ def test_smoke_cache_layout_and_contents(tmp_path, tiny_scene):
     assert m["scene"]["volume"]["fingerprint"] == tiny_scene.volume.fingerprint()
     assert m["scene"]["transfer_function"] == tiny_scene.transfer_function.to_dict()
     assert m["renderer"]["pixel_settings"] == {"name": "vtk", "mapper": "fixed_point", "revision": 2}
+    # the resolved sample distance (tiny.yaml: auto = half a voxel), in both units, keyed and recorded
+    assert m["sample_distance"] == {"normalized": tiny_scene.sample_distance, "voxels": 0.5,
+                                    "voxel_size_normalized": 2 * tiny_scene.sample_distance}
+    assert m["settings"]["scene"]["sample_distance"] == tiny_scene.sample_distance
+    assert m["settings"]["scene"]["sample_distance_voxels"] == 0.5
     assert m["renderer"]["version"].startswith("vtk ")
     assert m["runs"][-1]["rendered"] == 16
     # every entry equals a fresh render of its stored view (and can be re-rendered from the manifest)
@@ -89,6 +94,12 @@ def test_key_changes_with_pixel_settings(tmp_path, tiny_scene):
     for kw in ({"resolution": 32}, {"num_views": 11}, {"seed": 1}, {"test_views": 5}, {"val_fraction": 0.2}):
         assert cache_path_for(tiny_scene, _data(tmp_path, **kw), VTK) != base, kw
     assert cache_path_for(tiny_scene, _data(tmp_path), {**VTK, "mapper": "gpu"}) != base
+    # the sample distance: auto keys by the step it resolves to, whichever way the step is given
+    cfg = OmegaConf.load(ROOT / "conf" / "scene" / "tiny.yaml")
+    quarter = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.25}), volume=tiny_scene.volume)
+    assert cache_path_for(quarter, _data(tmp_path), VTK) != base
+    half = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.5}), volume=tiny_scene.volume)
+    assert cache_path_for(half, _data(tmp_path), VTK) == base
     # settings that do not change pixels keep the key
     assert cache_path_for(tiny_scene, _data(tmp_path, workers=3, batch_size=99), {**VTK, "threads": 7}) == base
 

@@ -77,6 +77,8 @@ ERRORS = [
     ("bad camera distance", ["scene=tiny", "scene.camera_distance=[0,0]"], "camera_distance"),
     # issue 17, 8: Hydra's 15-line message before
     ("unknown scene", ["scene=no_such_scene"], "scene=no_such_scene: no such scene; expected one of ct_head, "),
+    ("bad sample distance", ["scene=tiny", "scene.sample_distance=fine"], "scene.sample_distance='fine'"),
+    ("bad sample distance in voxels", ["scene=tiny", "scene.sample_distance_voxels=-1"], "scene.sample_distance_voxels=-1"),
 ]
 
 

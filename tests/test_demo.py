@@ -101,3 +101,103 @@ def test_echo_keeps_carriage_returns_and_returns_the_last_line():
     assert last == "/run/best é.ckpt"
     assert out.getvalue() == "  epoch\r   50%\r  100%\n  /run/best é.ckpt\n\n"
     assert _echo(Chunked(b"no newline at the end"), io.StringIO()) == "no newline at the end"
+
+
+# ---- any scene: the scene overrides of python -m data_gen pass through to every stage ------------
+def test_split_scene_overrides_takes_every_scene_key_and_nothing_else():
+    from imls_lightning.demo import split_scene_overrides
+
+    argv = ["scene=file", "scene.volume.path=/d/my head.nii.gz", "+scene.volume.name=mine", "++scene.view_angle=40",
+            "~scene.volume.dims", "scenes=[ct_head]", "data=tiny", "-cn", "scene.x=1", "stages.recnn=['scene.a=1']",
+            "scene_overrides=1", "--cfg", "job"]
+    own, scene = split_scene_overrides(argv)
+    assert scene == ["scene.volume.path=/d/my head.nii.gz", "+scene.volume.name=mine", "++scene.view_angle=40", "~scene.volume.dims"]
+    # the value of a Hydra flag (-cn NAME) and keys that merely start with "scene" stay the pipeline's
+    assert own == ["scene=file", "scenes=[ct_head]", "data=tiny", "-cn", "scene.x=1", "stages.recnn=['scene.a=1']",
+                   "scene_overrides=1", "--cfg", "job"]
+
+
+def _write_nifti(path: Path, spacing=(1.0, 1.0, 1.5)) -> Path:
+    """The procedural tiny volume (32^3) as a NIfTI file of one's own."""
+    import nibabel as nib
+    import numpy as np
+
+    from data_gen.volumes import load_volume
+
+    vol = load_volume({"kind": "procedural", "generator": "tiny", "seed": 0})
+    img = nib.Nifti1Image(np.asarray(vol.data, np.float32).T, np.diag([*spacing, 1.0]))  # (Z, Y, X) -> NIfTI (X, Y, Z)
+    img.header.set_zooms(spacing)
+    nib.save(img, str(path))
+    return path
+
+
+def _commands(stdout: str) -> list[list[str]]:
+    import shlex
+
+    return [shlex.split(line) for line in stdout.strip().splitlines()]
+
+
+def test_demo_dry_run_passes_scene_overrides_to_every_stage(tmp_path):
+    """The user's first try, `demo scene=file scene.volume.path=<my.nii.gz>`, no longer fails with
+    "Key 'volume' is not in struct": the overrides follow scene=file in every stage's command."""
+    vol = tmp_path / "my volume.nii.gz"  # a space in the path: passed verbatim, never re-parsed
+    overrides = [f"scene.volume.path={vol}", "scene.volume.spacing=[1,1,2]", "scene.sample_distance_voxels=1.0",
+                 "+scene.volume.name=mine"]
+    p = subprocess.run([PY, "-m", "imls_lightning.demo", "scene=file", *overrides, "dry_run=true",
+                        f"runs_dir={tmp_path}/runs", f"cache_dir={tmp_path}/cache"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    cmds = _commands(p.stdout)
+    # cache, RecNN, IML, IMS, blue-noise decoder, LAS, evaluation
+    assert [c[2] for c in cmds] == ["data_gen", *["imls_lightning.train"] * 5, "imls_lightning.evaluate"]
+    for c in cmds:
+        i = c.index("scene=file")
+        assert c[i + 1:i + 1 + len(overrides)] == overrides, c
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "cache").exists()  # nothing ran
+
+
+def test_bench_dry_run_passes_scene_overrides_and_takes_one_scene(tmp_path):
+    p = subprocess.run([PY, "-m", "imls_lightning.bench", "scene=file", "scene.volume.path=/d/engine_64x64x64_uint8.raw",
+                        "recnns=[enhancenet]", "dry_run=true", f"runs_dir={tmp_path}/runs", f"output={tmp_path}/B.md"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    cmds = _commands(p.stdout)
+    assert len(cmds) == 5  # RecNN, ORP search, IMS, LAS, evaluation: one scene (scene= replaces scenes)
+    for c in cmds:
+        i = c.index("scene=file")
+        assert c[i + 1] == "scene.volume.path=/d/engine_64x64x64_uint8.raw", c
+    # the ORP sweep directory is named after the volume, not after the preset "file"
+    assert any(a.startswith(f"hydra.sweep.dir={tmp_path}/runs/orp/engine-enhancenet-") for a in cmds[1])
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "B.md").exists()
+
+
+@pytest.mark.parametrize("module", ["imls_lightning.demo", "imls_lightning.bench"])
+def test_exception_bad_scene_override_stops_before_any_stage(tmp_path, module):
+    p = subprocess.run([PY, "-m", module, "scene=tiny", "scene.volume.pth=/x.nii.gz", f"runs_dir={tmp_path}/runs",
+                        f"cache_dir={tmp_path}/cache"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2, p.stderr
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: scene overrides scene.volume.pth=/x.nii.gz (scene=tiny): ")
+    assert "scene.volume.pth" in err[0] and "Traceback" not in p.stderr
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "cache").exists()
+
+
+def test_smoke_demo_on_your_own_nifti_file(tmp_path):
+    """The whole demo, CI-sized, on a NIfTI file of one's own with scene overrides (auto transfer
+    function, an explicit spacing and sample distance): every stage sees the same scene."""
+    import json
+
+    vol = _write_nifti(tmp_path / "mine.nii.gz")
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    cmd = [PY, "-m", "imls_lightning.demo", *TINY, "scene=file", f"scene.volume.path={vol}", "scene.volume.spacing=[1,1,2]",
+           "scene.sample_distance_voxels=1.0", "stages.las=null", f"runs_dir={tmp_path}/runs", f"cache_dir={tmp_path}/cache"]
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, f"STDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-5000:]}"
+    report = Path(p.stdout.strip().splitlines()[-1])
+    assert report.name == "report.md" and report.is_file() and "IML/S" in report.read_text()
+    caches = list((tmp_path / "cache").glob("mine-*"))
+    assert len(caches) == 1  # one cache: the trainings and the evaluation rebuilt the very same scene
+    m = json.loads((caches[0] / "manifest.json").read_text())
+    assert m["scene"]["name"] == "mine" and m["scene"]["volume"]["spacing_xyz"] == [1.0, 1.0, 2.0]
+    assert m["sample_distance"]["voxels"] == 1.0 and m["scene_config"]["transfer_function"]["auto"] is True
+    assert len(list((tmp_path / "runs").glob("*-mine-*"))) == 4  # RecNN, IML, IMS, blue-noise runs of this scene

@@ -9,7 +9,8 @@ from omegaconf import OmegaConf
 
 import data_gen  # noqa: F401  (registers the OmegaConf resolvers)
 from data_gen.errors import InputError
-from data_gen.scene import Scene, auto_transfer_function, build_scene, default_volumes_dir
+from data_gen.scene import (Scene, auto_transfer_function, build_scene, default_volumes_dir, resolve_sample_distance,
+                            voxel_size)
 from data_gen.volume import Volume
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "scene"
@@ -43,7 +44,7 @@ def test_preset_files_cover_the_issue():
 @pytest.mark.parametrize("name", PROCEDURAL)
 def test_smoke_procedural_presets_build(name):
     s = build_scene(_preset(name))
-    assert s.name == name and s.sample_distance == 0.02
+    assert s.name == name and s.sample_distance_voxels == 0.5   # sample_distance: auto
     assert s.volume.source.startswith(f"procedural:{name}")
     assert s.config is not None and s.config["name"] == name
     assert float(s.transfer_function.opacity[:, 1].max()) >= 0.3
@@ -143,6 +144,85 @@ def test_exception_bad_scene_values(blob_volume):
         build_scene({"transfer_function": {"auto": True}, "camera_distance": [3, 2]}, volume=blob_volume)
     with pytest.raises(InputError, match="scene.volume"):
         build_scene({"name": "x"})
+
+
+# ---- sample distance ------------------------------------------------------------------------
+def _half_voxel(dims_xyz, spacing_xyz) -> float:
+    """Direct computation: half the smallest spacing, in the space where the longest axis spans 2."""
+    extent = [(d - 1) * s for d, s in zip(dims_xyz, spacing_xyz)]
+    return 0.5 * min(spacing_xyz) * 2.0 / max(extent)
+
+
+def test_every_scene_preset_defaults_to_auto_sample_distance():
+    for p in sorted(CONF.glob("*.yaml")):
+        cfg = OmegaConf.load(p)
+        assert cfg.sample_distance == "auto" and cfg.sample_distance_voxels is None, p.name
+        assert "normalized" in p.read_text() and "voxel" in p.read_text(), f"{p.name}: the config must state the units"
+
+
+def test_auto_sample_distance_is_half_the_smallest_voxel(blob_volume):
+    # the blob is anisotropic: 40 x 32 x 24 voxels, spacing (1, 1, 1.5): x spans 39, z 34.5
+    s = build_scene({"name": "b", "transfer_function": {"auto": True}, "sample_distance": "auto"}, volume=blob_volume)
+    assert s.sample_distance == pytest.approx(_half_voxel((40, 32, 24), (1.0, 1.0, 1.5)), rel=1e-12)
+    assert s.sample_distance_voxels == 0.5
+    assert voxel_size(blob_volume) == pytest.approx(2 * _half_voxel((40, 32, 24), (1.0, 1.0, 1.5)), rel=1e-12)
+    # the default of a Scene built in code, and of a config without the key, is auto too
+    assert Scene("b", blob_volume, s.transfer_function).sample_distance == s.sample_distance
+    assert build_scene({"name": "b", "transfer_function": {"auto": True}}, volume=blob_volume).sample_distance == s.sample_distance
+    # the smallest spacing decides, whichever axis it is on and however the box is shaped
+    v = Volume(np.zeros((10, 50, 20), np.float32), (2.0, 0.5, 0.8), (0.0, 1.0), "v", "test")
+    assert resolve_sample_distance(v) == pytest.approx(_half_voxel((20, 50, 10), (2.0, 0.5, 0.8)), rel=1e-12)
+
+
+def test_auto_sample_distance_of_presets(volumes_dir):
+    tiny = build_scene(_preset("tiny"))
+    assert tiny.sample_distance == pytest.approx(_half_voxel((32, 32, 32), (1, 1, 1)), rel=1e-12)
+    ct = build_scene(_preset("ct_head", **{"volume.path": str(volumes_dir / REAL["ct_head"])}))
+    assert ct.sample_distance == pytest.approx(_half_voxel((256, 256, 108), (0.957, 0.957, 1.5)), rel=1e-12)
+    assert 0.0039 < ct.sample_distance < 0.00393   # the old default 0.02 was 2.55 voxels
+
+
+def test_explicit_sample_distance_in_voxels_or_normalized_units(blob_volume):
+    base = {"name": "b", "transfer_function": {"auto": True}}
+    vs = voxel_size(blob_volume)
+    s = build_scene({**base, "sample_distance_voxels": 0.25}, volume=blob_volume)
+    assert s.sample_distance == pytest.approx(0.25 * vs, rel=1e-12) and s.sample_distance_voxels == 0.25
+    s = build_scene({**base, "sample_distance": "auto", "sample_distance_voxels": 2}, volume=blob_volume)
+    assert s.sample_distance == pytest.approx(2 * vs, rel=1e-12)
+    s = build_scene({**base, "sample_distance": 0.02}, volume=blob_volume)   # normalized units, as before
+    assert s.sample_distance == 0.02 and s.sample_distance_voxels == pytest.approx(0.02 / vs)
+    settings = s.pixel_settings()
+    assert settings["sample_distance"] == 0.02 and settings["sample_distance_voxels"] == s.sample_distance_voxels
+    # through Hydra's override of the preset
+    assert build_scene(_preset("tiny", sample_distance_voxels=0.25)).sample_distance_voxels == 0.25
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("sample_distance", "fine", "scene.sample_distance='fine'"),
+    ("sample_distance", 0, "scene.sample_distance=0:"),
+    ("sample_distance", -0.01, "scene.sample_distance=-0.01"),
+    ("sample_distance", float("nan"), "scene.sample_distance=nan"),
+    ("sample_distance", float("inf"), "scene.sample_distance=inf"),
+    ("sample_distance", True, "scene.sample_distance=True"),
+    ("sample_distance", [0.1], r"scene.sample_distance=\[0.1\]"),
+    ("sample_distance", 1e-6, "finer than 0.01 voxel"),
+    ("sample_distance_voxels", "half", "scene.sample_distance_voxels='half'"),
+    ("sample_distance_voxels", 0, "scene.sample_distance_voxels=0:"),
+    ("sample_distance_voxels", -1, "scene.sample_distance_voxels=-1"),
+    ("sample_distance_voxels", 0.001, "scene.sample_distance_voxels=0.001: finer than 0.01 voxel"),
+])
+def test_exception_bad_sample_distance(blob_volume, key, value, match):
+    with pytest.raises(InputError, match=match) as err:
+        build_scene({"name": "b", "transfer_function": {"auto": True}, key: value}, volume=blob_volume)
+    assert "\n" not in str(err.value)
+
+
+def test_exception_sample_distance_given_twice(blob_volume):
+    with pytest.raises(InputError, match="scene.sample_distance=0.02 and scene.sample_distance_voxels=0.5: give only one"):
+        build_scene({"name": "b", "transfer_function": {"auto": True}, "sample_distance": 0.02,
+                     "sample_distance_voxels": 0.5}, volume=blob_volume)
+    with pytest.raises(InputError, match="scene.opacity_unit_distance"):
+        build_scene({"name": "b", "transfer_function": {"auto": True}, "opacity_unit_distance": "x"}, volume=blob_volume)
 
 
 # ---- a real VTK render ----------------------------------------------------------------------
