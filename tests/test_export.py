@@ -114,7 +114,10 @@ def _compare(ref: IMLSRenderer, exp: ExportedIMLSRenderer, views, tol: int) -> l
 
 
 @pytest.mark.parametrize("recnn", list(PATTERNS))
-def test_torchscript_export_renders_bitwise_the_same_images(ckpts, renderer, tmp_path, recnn):
+def test_torchscript_export_renders_the_same_images_within_one_level(ckpts, renderer, tmp_path, recnn):
+    """The IM is bitwise the same; the image within one 8-bit level: TorchScript's profiling executor
+    fuses the refine decoder's elementwise blend after the first calls, and fused float arithmetic may
+    round differently."""
     out = export_renderer(ckpts[recnn], tmp_path / "ts", format="torchscript")
     meta = json.loads((out / "export.json").read_text())
     assert meta["format"] == "torchscript" and sorted(meta["files"]) == ["decoder", "im", "recnn"]
@@ -124,7 +127,7 @@ def test_torchscript_export_renders_bitwise_the_same_images(ckpts, renderer, tmp
     exp = ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu")
     assert exp.pattern.fingerprint() == ref.pattern.fingerprint()
     assert isinstance(exp.decoder.packed, torch.jit.ScriptModule)  # the decoder runs as TorchScript
-    sizes = _compare(ref, exp, _views(4, 7), tol=0)
+    sizes = _compare(ref, exp, _views(4, 7), tol=1)
     valid = ref.pattern.count
     assert all(0 < s < valid for s in sizes), (sizes, valid)  # a mixed IM: the networks really ran
 
@@ -167,7 +170,7 @@ def test_standalone_ims_needs_recnn_checkpoint(ckpts, renderer, tmp_path):
     out = export_renderer(ckpts["standalone"], tmp_path / "b", recnn_checkpoint=ckpts["enhancenet_recnn"])
     assert json.loads((out / "export.json").read_text())["recnn_source"] == "recnn_checkpoint"
     ref = IMLSRenderer.from_checkpoints(ckpts["standalone"], renderer=renderer, recnn_checkpoint=ckpts["enhancenet_recnn"])
-    _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(2, 5), tol=0)
+    _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(2, 5), tol=1)
     with pytest.raises(InputError, match="another sampling pattern"):
         export_renderer(ckpts["standalone"], tmp_path / "c", recnn_checkpoint=ckpts["fovolnet_recnn"])
 
@@ -245,4 +248,4 @@ def test_cli_chain_train_then_export_both_formats(tmp_path, renderer):
         assert p.returncode == 0, p.stderr[-3000:]
         if fmt == "onnx":
             pytest.importorskip("onnxruntime")
-        _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(4, 9), tol=0 if fmt == "torchscript" else 1)
+        _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(4, 9), tol=1)
