@@ -282,6 +282,37 @@ def fmt_pct(v: Any, digits: int = 1) -> str:
     return "–" if not math.isfinite(x) else f"{100 * x:.{digits}f}%"
 
 
+MASK_LABELS = {"ims": "IMS (from the view)", "iml": "IML (from the C-Image)", "blue_noise": "blue noise (untrained)"}
+
+
+def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown table: per share and mask, PSNR after the RecNN with the trained decoder and with the
+    fill, the decoder's gain, and the mask's density on background vs object."""
+    by = {(r["share"], r["mask"], r["reconstruction"]): r for r in summary}
+    shares = sorted({r["share"] for r in summary})
+    masks = [m for m in ("ims", "iml", "blue_noise") if any(k[1] == m for k in by)]
+    rows = []
+    for s in shares:
+        blue_dec = by.get((s, "blue_noise", "decoder"))
+        for m in masks:
+            dec, fill = by.get((s, m, "decoder")), by.get((s, m, "fill"))
+            any_row = dec or fill
+            if any_row is None:
+                continue
+            gain = dec["psnr"] - fill["psnr"] if dec and fill else float("nan")
+            vs_blue = dec["psnr"] - blue_dec["psnr"] if dec and blue_dec and m != "blue_noise" else float("nan")
+            ratio = any_row["density_background"] / any_row["density_object"] if any_row["density_object"] > 0 else float("nan")
+            rows.append([f"{100 * s:.0f} %", MASK_LABELS.get(m, m), f"{100 * any_row['c_share']:.1f} %",
+                         fmt(dec["psnr"]) if dec else "–", fmt(fill["psnr"]) if fill else "–",
+                         fmt(gain, 2, " dB") if np.isfinite(gain) else "–",
+                         fmt(vs_blue, 2, " dB") if np.isfinite(vs_blue) else "–",
+                         f"{100 * any_row['density_background']:.1f} %", f"{100 * any_row['density_object']:.1f} %",
+                         fmt(ratio, 2) if np.isfinite(ratio) else "–"])
+    return md_table(["target share of C", "mask", "share kept", "decoder PSNR (dB)", "fill PSNR (dB)",
+                     "decoder − fill", "mask − blue noise", "density: background", "density: object",
+                     "background / object"], rows, "llrrrrrrrr")
+
+
 def speedup(slow_ms: float, fast_ms: float) -> str:
     """``slow / fast`` as ``2.07×`` (the paper's speed-up)."""
     if not (math.isfinite(slow_ms) and math.isfinite(fast_ms)) or fast_ms <= 0:
@@ -768,8 +799,6 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         L.append("")
 
     if ctx.equal_share:
-        from .baselines import equal_share_markdown
-
         L.append("## Learned parts against untrained baselines, at equal share")
         L.append("")
         L.append("Each mask is brought to the target share of the C-Image per view (bisection on u, no ground truth); "
