@@ -344,7 +344,8 @@ def latency_table(summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str],
 # plots (Agg canvas, atomic PNGs)
 
 
-def _figure(w: float = 7.0, h: float = 4.0):
+def new_figure(w: float = 7.0, h: float = 4.0):
+    """A matplotlib figure of ``w`` x ``h`` inches on the Agg canvas (no display needed), for :func:`save_figure`."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -365,7 +366,7 @@ def save_figure(fig, path: str | Path) -> Path:
 
 def plot_stage_breakdown(summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str], path: str | Path) -> Path:
     """Stacked bars: average time of each stage per method (the paper's time-breakdown figure)."""
-    fig = _figure(max(5.0, 1.3 * len(methods) + 2), 4.2)
+    fig = new_figure(max(5.0, 1.3 * len(methods) + 2), 4.2)
     ax = fig.add_subplot(111)
     x = np.arange(len(methods))
     bottom = np.zeros(len(methods))
@@ -388,7 +389,7 @@ def plot_stage_breakdown(summ: Mapping[str, Mapping[str, Any]], methods: Sequenc
 
 def plot_psnr_per_view(rows: Sequence[Mapping[str, Any]], methods: Sequence[str], path: str | Path) -> Path:
     """PSNR of every view along the trajectory, one line per method (the full ray cast is exact)."""
-    fig = _figure(8.0, 4.0)
+    fig = new_figure(8.0, 4.0)
     ax = fig.add_subplot(111)
     for m in methods:
         rs = sorted((r for r in rows if r["method"] == m), key=lambda r: _num(r["view"]))
@@ -409,7 +410,7 @@ def plot_latency_vs_psnr(curves: Mapping[str, Sequence[tuple[float, float, str]]
                          points: Mapping[str, tuple[float, float]], full_ms: float | None, path: str | Path) -> Path:
     """Latency (x) vs PSNR (y): ``curves`` label -> [(ms, psnr, annotation)], ``points`` label -> (ms, psnr),
     the full ray cast as a vertical line (exact image, PSNR unbounded)."""
-    fig = _figure(7.5, 4.8)
+    fig = new_figure(7.5, 4.8)
     ax = fig.add_subplot(111)
     markers = iter(["o", "s", "^", "D", "v"])
     for label, pts in curves.items():
@@ -438,7 +439,7 @@ def plot_latency_vs_psnr(curves: Mapping[str, Sequence[tuple[float, float, str]]
 
 def plot_options(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     """Bars of the IML/S network stages' time under each inference option."""
-    fig = _figure(6.0, 3.6)
+    fig = new_figure(6.0, 3.6)
     ax = fig.add_subplot(111)
     names = [r["option"] for r in rows]
     x = np.arange(len(rows))
@@ -500,7 +501,7 @@ def plot_image_grid(grid: Mapping[int, Mapping[str, Any]], methods: Sequence[str
     # one colour scale for every error map: the 99th percentile of all errors (at least one grey level)
     vmax = max([float(np.percentile(e, 99)) for e in errs.values()] + [1.0 / 255.0])
     size = 1.45
-    fig = _figure(size * len(cols) + 0.8, size * len(views) + 0.5)
+    fig = new_figure(size * len(cols) + 0.8, size * len(views) + 0.5)
     axes = fig.subplots(len(views), len(cols), squeeze=False)
     cmap = colormaps["magma"]
     im_handle = None
@@ -864,6 +865,6 @@ __all__ = [
     "atomic_write_text", "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "md_table",
     "fmt", "fmt_pct", "speedup", "latency_table", "speedup_table", "quality_table", "sweep_table", "options_table",
     "sweep_points", "error_map", "im_to_fr_mask", "plot_stage_breakdown", "plot_psnr_per_view",
-    "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "save_figure", "ReportContext", "write_report",
+    "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "new_figure", "save_figure", "ReportContext", "write_report",
     "render_markdown",
 ]

@@ -122,3 +122,8 @@ def test_no_import_cycles():
 
 def test_cycle_finder_finds_a_cycle():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_no_private_imports_across_modules():
+    _, private = _scan()
+    assert private == [], "\n".join(f"{m}:{line}: {what}" for m, line, what in private)
