@@ -61,6 +61,7 @@ from data_gen.errors import InputError, checked_command_line, cli_errors, finite
 
 from .config import register_resolvers
 from .importance import MEAN_RANGE, normalize_importance
+from .metrics import psnr_per_image
 from .tasks.ims import scaled_pim_im  # noqa: F401  (public here since the adaptive renderer was added)
 from .pipeline import (
     IMLPlusRecNN,
@@ -264,12 +265,6 @@ def im_at_means(iml: nn.Module, pim: torch.Tensor, means: torch.Tensor | Sequenc
     return iml.sample(pim_norm, hard=True)
 
 
-def _psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    from .tasks.base import psnr_per_image
-
-    return psnr_per_image(pred, target)
-
-
 @dataclass
 class MeanLabels:
     """Per-view mean-value labels of one cache split (plain arrays; :meth:`save` / :meth:`load` as ``.npz``).
@@ -410,14 +405,14 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
             c, fr = batch["c"].to(dev), batch["fr"].to(dev)
             mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
             if reference == "recnn":
-                psnr_ref = _psnr(recnn_alone(c), fr)
+                psnr_ref = psnr_per_image(recnn_alone(c), fr)
             else:
                 m_ref = mask_at([float(iml.mean)] * c.shape[0])
-                psnr_ref = _psnr(recnn_iml(iml.decode(m_ref * c, m_ref)), fr)
+                psnr_ref = psnr_per_image(recnn_iml(iml.decode(m_ref * c, m_ref)), fr)
 
             def gap_fn(u: torch.Tensor) -> torch.Tensor:
                 m = mask_at(u)
-                return psnr_ref - _psnr(recnn_iml(iml.decode(m * c, m)), fr)
+                return psnr_ref - psnr_per_image(recnn_iml(iml.decode(m * c, m)), fr)
 
             res = bisect_mean(gap_fn, c.shape[0], eps, steps, bracket, unreachable)
             out["u"].append(res.u.numpy())
@@ -491,11 +486,11 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
             c, fr = batch["c"].to(dev), batch["fr"].to(dev)
             sl = slice(start, start + c.shape[0])
             start += c.shape[0]
-            out["recnn"]["psnr"].append(_psnr(recnn(c), fr).double().cpu().numpy())
+            out["recnn"]["psnr"].append(psnr_per_image(recnn(c), fr).double().cpu().numpy())
             mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
             for name, u in table.items():
                 im = mask_at(torch.as_tensor(u[sl]))
-                out[name]["psnr"].append(_psnr(recnn(iml.decode(im * c, im)), fr).double().cpu().numpy())
+                out[name]["psnr"].append(psnr_per_image(recnn(iml.decode(im * c, im)), fr).double().cpu().numpy())
                 out[name]["ipr"].append(im.flatten(1).sum(1).double().cpu().numpy() / fr_pixels)
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
     return {name: {k: cat(v) for k, v in d.items()} for name, d in out.items()}

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from .models.pull_push import pull_push_inpaint
-from .tasks.base import psnr_per_image
+from .metrics import psnr_per_image
 from .tasks.iml import background_mask
 
 __all__ = ["SHARES", "mask_at_share", "equal_share_rows", "summarize_equal_share"]

@@ -771,7 +771,7 @@ def evaluate_quality(dataset, batch_size: int, iml_task, recnn_iml, recnn_alone,
     from torch.utils.data import DataLoader
 
     from .models.iml import c_share, ipr
-    from .tasks.base import psnr_per_image
+    from .metrics import psnr_per_image
 
     fr = iml_task.pattern.fr_size
     valid = iml_task.pattern.valid.to(device)

@@ -27,6 +27,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from .metrics import psnr_from_mse
 from .pipeline import STAGES
 
 #: method key -> label in tables and plots (the paper's names)
@@ -535,7 +536,7 @@ def plot_image_grid(grid: Mapping[int, Mapping[str, Any]], methods: Sequence[str
                 if img is not None:
                     ax.imshow(img, interpolation="nearest")
                     mse = float(((np.asarray(img, np.float64) - truth) / 255.0).__pow__(2).mean())
-                    ax.set_xlabel("exact" if mse == 0 else f"{10 * math.log10(1.0 / max(mse, 1e-10)):.1f} dB", fontsize=6)
+                    ax.set_xlabel("exact" if mse == 0 else f"{float(psnr_from_mse(mse)):.1f} dB", fontsize=6)
                 title = METHOD_LABELS.get(col, col)
             if r == 0:
                 ax.set_title(title, fontsize=6)

@@ -123,7 +123,7 @@ def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0
 
 def frame_psnr(image: np.ndarray, truth: np.ndarray) -> float:
     """PSNR in dB of two ``(m, m, 3)`` uint8 images (100 dB when identical), as the evaluation scores it."""
-    from .losses import psnr
+    from .metrics import psnr
 
     p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float()
     t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float()
