@@ -101,3 +101,30 @@ def ray_box_hits(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tu
     t0 = np.maximum(tmin.max(axis=1), 0.0)
     t1 = tmax.min(axis=1)
     return t0, t1
+
+
+def validate_pixels(pixels, resolution: int, *, name: str = "pixels") -> np.ndarray:
+    """Check flat raster pixel indices of an ``m x m`` image and return them as int64 ``(K,)``.
+
+    Any integer dtype is accepted; the order is kept and duplicates are allowed.
+
+    Raises:
+        InputError: not one-dimensional, not integers (floats and booleans are refused: use
+            ``np.flatnonzero(mask.ravel())`` for a boolean mask), or outside ``[0, m*m)``.
+
+    Example:
+        >>> validate_pixels(np.array([0, 5, 15], np.int32), 4).dtype
+        dtype('int64')
+    """
+    m = int(resolution)
+    a = np.asarray(pixels)
+    if a.ndim != 1:
+        raise InputError(f"{name}: expected a 1-D array of flat pixel indices (row * {m} + col), got shape {a.shape}")
+    if a.size == 0:
+        return np.zeros(0, np.int64)
+    if a.dtype == bool or not np.issubdtype(a.dtype, np.integer):
+        raise InputError(f"{name}: expected integer flat pixel indices, got dtype {a.dtype}")
+    lo, hi = int(a.min()), int(a.max())
+    if lo < 0 or hi >= m * m:
+        raise InputError(f"{name}: indices must lie in [0, {m * m}) for a {m}x{m} image, got min {lo} max {hi}")
+    return np.ascontiguousarray(a, dtype=np.int64)

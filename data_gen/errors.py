@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import re
 import sys
 from pathlib import Path
-from typing import Callable, Iterator, Mapping, Sequence, TypeVar
+from typing import Any, Callable, Iterator, Mapping, Sequence, TypeVar
 
 F = TypeVar("F", bound=Callable)
 
@@ -25,6 +26,36 @@ class InputError(ValueError):
     def __init__(self, message: str):
         # one line, always: the CLI prints it verbatim
         super().__init__(" ".join(str(message).split()))
+
+
+def finite_number(value: Any, key: str, what: str) -> float:
+    """``value`` as a finite float, else an :class:`InputError` ``key=value: expected what``.
+
+    A bool is refused (``True`` is not a number here), as are NaN and infinities.
+
+    Example:
+        >>> finite_number("0.5", "model.mean", "a number in (0, 1]")
+        0.5
+    """
+    try:
+        if isinstance(value, bool):
+            raise TypeError
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{key}={value!r}: expected {what}") from None
+    if not math.isfinite(x):
+        raise InputError(f"{key}={value!r}: expected {what}")
+    return x
+
+
+def boolean(value: Any, key: str) -> bool:
+    """``value`` as a bool: ``True``/``False`` or the strings ``true``/``false`` (any case), else an
+    :class:`InputError` ``key=value: expected true or false``."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.lower() in ("true", "false"):
+        return value.lower() == "true"
+    raise InputError(f"{key}={value!r}: expected true or false")
 
 
 def cli_errors(fn: F) -> F:

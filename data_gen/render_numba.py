@@ -719,7 +719,7 @@ class NumbaRenderer:
         Only those rays are cast; the result equals ``render(view, resolution)`` at those pixels
         exactly. An empty ``pixels`` returns ``(0, 3)`` at once.
         """
-        from .selective import validate_pixels
+        from .camera import validate_pixels
 
         validate_view(view)
         m = _check_resolution(resolution)

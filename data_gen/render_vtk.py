@@ -29,7 +29,7 @@ VTK's fixed-point mapper and comparing with our own caster, :mod:`data_gen.rende
 ``render_pixels`` ray-casts a pixel subset: every other pixel whose ray would reach the volume is
 covered by opaque geometry just behind the near plane (one quad per horizontal run of such pixels),
 and the mapper's intersecting-geometry mixing ends those rays before their first sample (see
-:mod:`data_gen.selective`).
+:meth:`VTKRenderer.render_pixels`).
 """
 from __future__ import annotations
 
@@ -366,7 +366,7 @@ class VTKRenderer:
         of pixels covered. An empty ``pixels`` costs nothing.
         """
         from .render_numba import ray_hit_mask
-        from .selective import validate_pixels
+        from .camera import validate_pixels
 
         if self._mapper_kind != "fixed_point":
             raise InputError("renderer.mapper=gpu: render_pixels needs the fixed_point mapper (or renderer=numba)")

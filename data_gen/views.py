@@ -37,15 +37,16 @@ def _check_distance(camera_distance) -> tuple[float, float]:
     return lo, hi
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit_vectors(v: np.ndarray) -> np.ndarray:
+    """``v`` scaled to length 1 along its last axis."""
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _orthogonal_up(direction: np.ndarray, up: np.ndarray) -> np.ndarray:
+def orthogonal_up(direction: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Gram-Schmidt: remove from ``up`` its component along ``direction`` (both ``(N, 3)``)."""
-    d = _unit(direction)
+    d = unit_vectors(direction)
     u = up - np.sum(up * d, axis=-1, keepdims=True) * d
-    return _unit(u)
+    return unit_vectors(u)
 
 
 def sample_training_views(
@@ -73,19 +74,19 @@ def sample_training_views(
     lo, hi = _check_distance(camera_distance)
     jitter = _check_jitter(lookat_jitter)
     rng = _rng(seed, _STREAM_TRAIN)
-    direction = _unit(rng.normal(size=(n, 3)))
+    direction = unit_vectors(rng.normal(size=(n, 3)))
     radius = rng.uniform(lo, hi, size=(n, 1))
     eye = direction * radius
     # uniform in the ball: direction uniform, radius ~ r^(1/3)
-    look = _unit(rng.normal(size=(n, 3))) * (jitter * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3))
+    look = unit_vectors(rng.normal(size=(n, 3))) * (jitter * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3))
     up = rng.normal(size=(n, 3))
     fwd = look - eye
     # a random up almost parallel to the view direction is redrawn (probability ~1e-6 per view)
-    bad = np.linalg.norm(np.cross(_unit(fwd), _unit(up)), axis=1) < 1e-3
+    bad = np.linalg.norm(np.cross(unit_vectors(fwd), unit_vectors(up)), axis=1) < 1e-3
     while np.any(bad):
         up[bad] = rng.normal(size=(int(bad.sum()), 3))
-        bad = np.linalg.norm(np.cross(_unit(fwd), _unit(up)), axis=1) < 1e-3
-    up = _orthogonal_up(fwd, up)
+        bad = np.linalg.norm(np.cross(unit_vectors(fwd), unit_vectors(up)), axis=1) < 1e-3
+    up = orthogonal_up(fwd, up)
     views = np.concatenate([eye, look, up], axis=1)
     return validate_views(views, name="training view")
 
@@ -155,8 +156,8 @@ def exploration_trajectory(
         [np.sin(2 * np.pi * 1.0 * s + ph[3]), np.sin(2 * np.pi * 1.5 * s + ph[4]), np.sin(2 * np.pi * 0.75 * s + ph[5])],
         axis=1,
     ) * (jitter / np.sqrt(3.0))
-    fwd = _unit(look - eye)
-    up0 = _orthogonal_up(fwd, np.broadcast_to(np.array([0.0, 0.0, 1.0]), fwd.shape))
+    fwd = unit_vectors(look - eye)
+    up0 = orthogonal_up(fwd, np.broadcast_to(np.array([0.0, 0.0, 1.0]), fwd.shape))
     right = np.cross(fwd, up0)
     roll = np.deg2rad(20.0) * np.sin(2 * np.pi * 0.5 * s + ph[6])
     up = np.cos(roll)[:, None] * up0 + np.sin(roll)[:, None] * right
@@ -212,4 +213,5 @@ def _check_jitter(value) -> float:
     return j
 
 
-__all__ = ["sample_training_views", "split_train_val", "exploration_trajectory", "load_views_file", "validate_views"]
+__all__ = ["sample_training_views", "split_train_val", "exploration_trajectory", "load_views_file", "validate_views",
+           "unit_vectors", "orthogonal_up"]

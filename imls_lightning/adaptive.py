@@ -57,21 +57,20 @@ from omegaconf import DictConfig
 from torch import nn
 
 import data_gen  # noqa: F401  (registers the scene config resolvers)
-from data_gen.errors import InputError, cli_errors, checked_command_line
+from data_gen.errors import InputError, checked_command_line, cli_errors, finite_number
 
 from .config import register_resolvers
-
 from .importance import MEAN_RANGE, normalize_importance
-from .orp import _num as _number  # the same finite-number check (bool refused) as the ORP settings
+from .metrics import psnr_per_image
 from .tasks.ims import scaled_pim_im  # noqa: F401  (public here since the adaptive renderer was added)
 from .pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
     NetOptions,
-    _prepare,
-    _Timer,
+    StageTimer,
     load_ims_and_recnn,
     pick_device,
+    prepare_net,
     renderer_for_task,
 )
 
@@ -112,7 +111,7 @@ UNREACHABLE = ("hi", "best")  # the label of a view that no mean in the bracket 
 
 def _integer(value: Any, key: str, lo: int, hi: int | None = None) -> int:
     what = f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}"
-    x = _number(value, key, what)
+    x = finite_number(value, key, what)
     if x != int(x) or x < lo or (hi is not None and x > hi):
         raise InputError(f"{key}={value!r}: expected {what}")
     return int(x)
@@ -125,7 +124,7 @@ def check_epsilon(epsilon_db: Any, key: str = "epsilon_db") -> float:
         >>> check_epsilon(1)
         1.0
     """
-    eps = _number(epsilon_db, key, "a finite number of dB >= 0")
+    eps = finite_number(epsilon_db, key, "a finite number of dB >= 0")
     if eps < 0:
         raise InputError(f"{key}={epsilon_db!r}: expected a finite number of dB >= 0")
     return eps
@@ -189,7 +188,7 @@ def bisect_mean(gap_fn: Callable[[torch.Tensor], torch.Tensor], batch: int, epsi
     eps = check_epsilon(epsilon_db)
     steps = _integer(steps, "steps", 1, 60)
     batch = _integer(batch, "batch", 1)
-    lo0, hi0 = (_number(x, "bracket", "two numbers 0 < lo < hi") for x in bracket)
+    lo0, hi0 = (finite_number(x, "bracket", "two numbers 0 < lo < hi") for x in bracket)
     if not 0 < lo0 < hi0:
         raise InputError(f"bracket=[{lo0}, {hi0}]: expected 0 < lo < hi")
     if unreachable not in UNREACHABLE:
@@ -264,12 +263,6 @@ def im_at_means(iml: nn.Module, pim: torch.Tensor, means: torch.Tensor | Sequenc
     pim_norm = torch.cat([normalize_importance(pim[b:b + 1], _clamp_mean(u), norm.lower, norm.delta, valid)
                           for b, u in enumerate(us)])
     return iml.sample(pim_norm, hard=True)
-
-
-def _psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    from .tasks.base import psnr_per_image
-
-    return psnr_per_image(pred, target)
 
 
 @dataclass
@@ -412,14 +405,14 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
             c, fr = batch["c"].to(dev), batch["fr"].to(dev)
             mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
             if reference == "recnn":
-                psnr_ref = _psnr(recnn_alone(c), fr)
+                psnr_ref = psnr_per_image(recnn_alone(c), fr)
             else:
                 m_ref = mask_at([float(iml.mean)] * c.shape[0])
-                psnr_ref = _psnr(recnn_iml(iml.decode(m_ref * c, m_ref)), fr)
+                psnr_ref = psnr_per_image(recnn_iml(iml.decode(m_ref * c, m_ref)), fr)
 
             def gap_fn(u: torch.Tensor) -> torch.Tensor:
                 m = mask_at(u)
-                return psnr_ref - _psnr(recnn_iml(iml.decode(m * c, m)), fr)
+                return psnr_ref - psnr_per_image(recnn_iml(iml.decode(m * c, m)), fr)
 
             res = bisect_mean(gap_fn, c.shape[0], eps, steps, bracket, unreachable)
             out["u"].append(res.u.numpy())
@@ -493,11 +486,11 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
             c, fr = batch["c"].to(dev), batch["fr"].to(dev)
             sl = slice(start, start + c.shape[0])
             start += c.shape[0]
-            out["recnn"]["psnr"].append(_psnr(recnn(c), fr).double().cpu().numpy())
+            out["recnn"]["psnr"].append(psnr_per_image(recnn(c), fr).double().cpu().numpy())
             mask_at = _mask_fn(source, iml, ims, c, batch["view"].to(dev))
             for name, u in table.items():
                 im = mask_at(torch.as_tensor(u[sl]))
-                out[name]["psnr"].append(_psnr(recnn(iml.decode(im * c, im)), fr).double().cpu().numpy())
+                out[name]["psnr"].append(psnr_per_image(recnn(iml.decode(im * c, im)), fr).double().cpu().numpy())
                 out[name]["ipr"].append(im.flatten(1).sum(1).double().cpu().numpy() / fr_pixels)
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
     return {name: {k: cat(v) for k, v in d.items()} for name, d in out.items()}
@@ -619,7 +612,7 @@ class MeanPredictor(nn.Module):
         super().__init__()
         hidden = _integer(hidden, "predictor.hidden", 1, 4096)
         layers = _integer(layers, "predictor.layers", 0, 16)
-        lo, hi = (_number(x, "predictor.bracket", "two numbers in [0.01, 1]") for x in bracket)
+        lo, hi = (finite_number(x, "predictor.bracket", "two numbers in [0.01, 1]") for x in bracket)
         if not MEAN_RANGE[0] <= lo < hi <= MEAN_RANGE[1]:
             raise InputError(f"predictor.bracket=[{lo}, {hi}]: expected {MEAN_RANGE[0]} <= lo < hi <= {MEAN_RANGE[1]}")
         self.hidden, self.layers, self.bracket = hidden, layers, (lo, hi)
@@ -640,7 +633,7 @@ class MeanPredictor(nn.Module):
 
     @margin.setter
     def margin(self, value: float) -> None:
-        m = _number(value, "predictor.margin", "a number in (0, 10]")
+        m = finite_number(value, "predictor.margin", "a number in (0, 10]")
         if not 0 < m <= 10:
             raise InputError(f"predictor.margin={value!r}: expected a number in (0, 10] (1: no margin)")
         self._margin = m
@@ -712,7 +705,7 @@ class ConstantMean(nn.Module):
 
     def __init__(self, u: float):
         super().__init__()
-        u = _number(u, "u", f"a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
+        u = finite_number(u, "u", f"a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
         if not MEAN_RANGE[0] <= u <= MEAN_RANGE[1]:
             raise InputError(f"u={u}: expected a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
         self.u = u
@@ -756,8 +749,8 @@ def train_predictor(views: np.ndarray | torch.Tensor, u: np.ndarray | torch.Tens
     if not bool(torch.isfinite(y).all()) or float(y.min()) <= 0:
         raise InputError("u: expected positive finite labels in [0.01, 1]")
     epochs = _integer(epochs, "predictor.epochs", 1, 1_000_000)
-    lr = _number(lr, "predictor.lr", "a positive learning rate")
-    wd = _number(weight_decay, "predictor.weight_decay", "a number >= 0")
+    lr = finite_number(lr, "predictor.lr", "a positive learning rate")
+    wd = finite_number(weight_decay, "predictor.weight_decay", "a number >= 0")
     if lr <= 0 or wd < 0:
         raise InputError(f"predictor.lr={lr}, predictor.weight_decay={wd}: expected lr > 0 and weight_decay >= 0")
     target = y.clamp(*MEAN_RANGE).log()
@@ -857,7 +850,7 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
         task.to(device).eval()
         self.task = task
         self.u_train = float(task.iml.mean)
-        self.generator = _prepare(task.generator, device, opts)
+        self.generator = prepare_net(task.generator, device, opts)
         self.predictor = predictor.to(device).eval()
         super().__init__(renderer, task.pattern, self._predict_im, task.decoder, recnn, opts)
 
@@ -890,7 +883,7 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
         with torch.inference_mode():
             return float(_mean_of(self.predictor, _view_tensor(view, self.device))[0])
 
-    def _importance(self, view, timer: _Timer, info: dict) -> torch.Tensor:
+    def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
         v = _view_tensor(view, self.device)
         with timer.stage("mean"):
             u = _mean_of(self.predictor, v)
@@ -915,7 +908,7 @@ class AdaptiveIMLPlusRecNN(IMLPlusRecNN):
         super().__init__(renderer, pattern, iml, recnn, opts)
         self.predictor = predictor.to(self.device).eval()
 
-    def _importance(self, c: torch.Tensor, view, timer: _Timer, info: dict) -> torch.Tensor:
+    def _importance(self, c: torch.Tensor, view, timer: StageTimer, info: dict) -> torch.Tensor:
         with timer.stage("mean"):
             u = _mean_of(self.predictor, _view_tensor(view, self.device))
         info["mean"] = float(u[0])
@@ -1013,7 +1006,7 @@ def parse_settings(cfg) -> Settings:
     pred["epochs"] = _integer(pred["epochs"], "predictor.epochs", 1, 1_000_000)
     pred["seed"] = _integer(pred["seed"], "predictor.seed", 0)
     for k in ("lr", "weight_decay", "margin"):
-        pred[k] = _number(pred[k], f"predictor.{k}", "a finite number")
+        pred[k] = finite_number(pred[k], f"predictor.{k}", "a finite number")
     if pred["lr"] <= 0 or pred["weight_decay"] < 0 or not 0 < pred["margin"] <= 10:
         raise InputError(f"predictor: expected lr > 0, weight_decay >= 0 and margin in (0, 10] (got {pred['lr']}, {pred['weight_decay']}, {pred['margin']})")
     views = str(cfg.get("views", "test"))
@@ -1034,7 +1027,7 @@ def parse_settings(cfg) -> Settings:
         margins = [margins]
     if not isinstance(margins, list) or not margins:
         raise InputError(f"tradeoff_margins={margins}: expected a list of factors in (0, 10], e.g. [0.8,1,1.25]")
-    margins = [_number(x, "tradeoff_margins", "factors in (0, 10]") for x in margins]
+    margins = [finite_number(x, "tradeoff_margins", "factors in (0, 10]") for x in margins]
     if not all(0 < x <= 10 for x in margins):
         raise InputError(f"tradeoff_margins={margins}: expected factors in (0, 10]")
     device = str(cfg.get("device", "auto"))
@@ -1082,7 +1075,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     from . import report as rep
     from .config import file_hash, settings_hash, to_plain
     from .evaluate import measure, spaced
-    from .orp import ORPSearch, _evaluate, batched
+    from .orp import ORPSearch, evaluate_quality, batched
     from .pipeline import RecNNAlone
 
     s = parse_settings(cfg)
@@ -1166,7 +1159,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     def orp_quality(u: float) -> dict[str, float]:
         it = copy.deepcopy(iml)
         it.mean = _clamp_mean(u)
-        return _evaluate(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
+        return evaluate_quality(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
                          recnn.to(device), None, device)
 
     ref_q = orp_quality(u_train)["psnr_iml_recnn"] if s.reference == "iml" else None
@@ -1343,7 +1336,7 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def _plot(path: Path, per_view: list[dict[str, Any]], eps: float, rep, reference: str = "recnn") -> None:
-    fig = rep._figure(13.0, 4.0)
+    fig = rep.new_figure(13.0, 4.0)
     cx = np.array([r["complexity"] for r in per_view])
     ax1, ax2, ax3 = fig.add_subplot(131), fig.add_subplot(132), fig.add_subplot(133)
     ax1.scatter(cx, [r["u_label"] for r in per_view], s=12, label="label u (oracle)", alpha=0.7)
@@ -1370,7 +1363,7 @@ def _plot(path: Path, per_view: list[dict[str, Any]], eps: float, rep, reference
 
 
 def _plot_tradeoff(path: Path, curve: list[dict[str, float]], points: list[TradeoffPoint], eps: float, rep, source: str) -> None:
-    fig = rep._figure(10.0, 4.0)
+    fig = rep.new_figure(10.0, 4.0)
     ax1, ax2 = fig.add_subplot(121), fig.add_subplot(122)
     path_name = "IML/S + RecNN" if source == "ims" else "IML + RecNN"
     for ax, key, label in ((ax1, "psnr", "average PSNR (dB)"), (ax2, "within", f"views within {eps:g} dB of the reference")):

@@ -20,7 +20,9 @@ object, the measure of whether importance is learned at all.
 
 Example:
     >>> rows = equal_share_rows(c, fr, views, recnn, iml, ims_task=ims, blue=blue_iml)  # doctest: +SKIP
-    >>> print(equal_share_markdown(rows))                                              # doctest: +SKIP
+    >>> print(equal_share_markdown(summarize_equal_share([rows])))                     # doctest: +SKIP
+
+(:func:`~imls_lightning.report.equal_share_markdown`, with the report's other tables).
 """
 from __future__ import annotations
 
@@ -30,10 +32,10 @@ import numpy as np
 import torch
 
 from .models.pull_push import pull_push_inpaint
-from .tasks.base import psnr_per_image
+from .metrics import psnr_per_image
 from .tasks.iml import background_mask
 
-__all__ = ["SHARES", "mask_at_share", "equal_share_rows", "summarize_equal_share", "equal_share_markdown"]
+__all__ = ["SHARES", "mask_at_share", "equal_share_rows", "summarize_equal_share"]
 
 #: the C-Image shares every report compares at (the issue's 10 %, 20 % and 40 % of C)
 SHARES = (0.1, 0.2, 0.4)
@@ -173,39 +175,6 @@ def summarize_equal_share(batches: Sequence[Sequence[Mapping[str, Any]]]) -> lis
                     "density_background": float(np.average(a["bg"], weights=w)),
                     "density_object": float(np.average(a["obj"], weights=w)), "views": int(w.sum())})
     return out
-
-
-MASK_LABELS = {"ims": "IMS (from the view)", "iml": "IML (from the C-Image)", "blue_noise": "blue noise (untrained)"}
-
-
-def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:
-    """Markdown table: per share and mask, PSNR after the RecNN with the trained decoder and with the
-    fill, the decoder's gain, and the mask's density on background vs object."""
-    from .report import fmt, md_table
-
-    by = {(r["share"], r["mask"], r["reconstruction"]): r for r in summary}
-    shares = sorted({r["share"] for r in summary})
-    masks = [m for m in ("ims", "iml", "blue_noise") if any(k[1] == m for k in by)]
-    rows = []
-    for s in shares:
-        blue_dec = by.get((s, "blue_noise", "decoder"))
-        for m in masks:
-            dec, fill = by.get((s, m, "decoder")), by.get((s, m, "fill"))
-            any_row = dec or fill
-            if any_row is None:
-                continue
-            gain = dec["psnr"] - fill["psnr"] if dec and fill else float("nan")
-            vs_blue = dec["psnr"] - blue_dec["psnr"] if dec and blue_dec and m != "blue_noise" else float("nan")
-            ratio = any_row["density_background"] / any_row["density_object"] if any_row["density_object"] > 0 else float("nan")
-            rows.append([f"{100 * s:.0f} %", MASK_LABELS.get(m, m), f"{100 * any_row['c_share']:.1f} %",
-                         fmt(dec["psnr"]) if dec else "–", fmt(fill["psnr"]) if fill else "–",
-                         fmt(gain, 2, " dB") if np.isfinite(gain) else "–",
-                         fmt(vs_blue, 2, " dB") if np.isfinite(vs_blue) else "–",
-                         f"{100 * any_row['density_background']:.1f} %", f"{100 * any_row['density_object']:.1f} %",
-                         fmt(ratio, 2) if np.isfinite(ratio) else "–"])
-    return md_table(["target share of C", "mask", "share kept", "decoder PSNR (dB)", "fill PSNR (dB)",
-                     "decoder − fill", "mask − blue noise", "density: background", "density: object",
-                     "background / object"], rows, "llrrrrrrrr")
 
 
 @torch.no_grad()

@@ -52,7 +52,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
-from .demo import StageFailed, _list, check_scene_overrides, dry_stage, run_stage, split_scene_overrides
+from .demo import StageFailed, check_scene_overrides, dry_stage, override_list, run_stage, split_scene_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = str(ROOT / "conf")
@@ -519,10 +519,10 @@ def _scale_lines(cfg: DictConfig, scenes, recnns, las_iprs, scene_overrides: Seq
     except Exception:
         lines.append(f"data={cfg.data}")
     for key in ("common", "train", "stages.recnn", "stages.iml", "stages.orp", "stages.ims", "stages.las", "evaluate"):
-        lines.append(f"{key}: `{' '.join(_list(cfg, key)) or '–'}`")
+        lines.append(f"{key}: `{' '.join(override_list(cfg, key)) or '–'}`")
     for r in recnns:
-        lines.append(f"recnn_net.{r}: `{' '.join(_list(cfg, f'recnn_net.{r}')) or '(defaults)'}`")
-    lines.append(f"LAS comparison IPRs: {', '.join(pct(x, 1) for x in las_iprs)}; LAS with: {', '.join(_list(cfg, 'las_with')) or '–'}")
+        lines.append(f"recnn_net.{r}: `{' '.join(override_list(cfg, f'recnn_net.{r}')) or '(defaults)'}`")
+    lines.append(f"LAS comparison IPRs: {', '.join(pct(x, 1) for x in las_iprs)}; LAS with: {', '.join(override_list(cfg, 'las_with')) or '–'}")
     return lines
 
 
@@ -548,7 +548,7 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
         if r not in KIND:
             raise InputError(f"recnns/las_recnn: unknown RecNN {r!r}; expected one of {', '.join(KIND)}")
     las_iprs = _floats(cfg, "las_iprs", 0.0, 1.0)
-    las_with = set(_list(cfg, "las_with"))
+    las_with = set(override_list(cfg, "las_with"))
     runs = Path(str(cfg.runs_dir))
     out_path = Path(str(cfg.output))
     cache = str(cfg.cache_dir)
@@ -589,18 +589,18 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     train = ["-m", "imls_lightning.train"]
     for scene in scenes:
         common = [f"scene={scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={quote(cache)}",
-                  *_list(cfg, "common")]
-        base_train = [*common, f"paths.runs_dir={quote(str(runs))}", f"seed={int(cfg.seed)}", *_list(cfg, "train")]
+                  *override_list(cfg, "common")]
+        base_train = [*common, f"paths.runs_dir={quote(str(runs))}", f"seed={int(cfg.seed)}", *override_list(cfg, "train")]
         if not progress:
             base_train.append("trainer.enable_progress_bar=false")
         for recnn in recnns:
             pair = f"{label[scene]}/{recnn}"
-            net = [f"recnn={recnn}", *_list(cfg, f"recnn_net.{recnn}")]
+            net = [f"recnn={recnn}", *override_list(cfg, f"recnn_net.{recnn}")]
             tc = [*base_train, *net]
-            recnn_ckpt = stage(pair, "recnn", "RecNN", [*train, "model=recnn", *tc, *_list(cfg, "stages.recnn")])
+            recnn_ckpt = stage(pair, "recnn", "RecNN", [*train, "model=recnn", *tc, *override_list(cfg, "stages.recnn")])
 
-            sweep = [*train, "-m", "model=iml", *tc, *_list(cfg, "stages.iml"), "hydra/sweeper=orp",
-                     f"recnn.checkpoint={quote(recnn_ckpt)}", *_list(cfg, "stages.orp")]
+            sweep = [*train, "-m", "model=iml", *tc, *override_list(cfg, "stages.iml"), "hydra/sweeper=orp",
+                     f"recnn.checkpoint={quote(recnn_ckpt)}", *override_list(cfg, "stages.orp")]
             sweep_dir = runs / "orp" / f"{label[scene]}-{recnn}-{args_hash(sweep)}"
             orp_yaml = sweep_dir / "orp.yaml"
             if dry:
@@ -621,18 +621,18 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
                     f"C-share {pct(orp['c_share'])}, gap {fmt(orp['gap_db'])} dB")
 
             ims_ckpt = stage(pair, "ims", "IMS", [*train, "model=ims", *tc, f"iml.checkpoint={quote(orp['iml_checkpoint'])}",
-                                                  f"recnn.checkpoint={quote(recnn_ckpt)}", *_list(cfg, "stages.ims")])
+                                                  f"recnn.checkpoint={quote(recnn_ckpt)}", *override_list(cfg, "stages.ims")])
             with_las = recnn in las_with
             if with_las and scene not in las_ckpt:
                 las_ckpt[scene] = stage(pair, "las", "LAS", [*train, "model=las", *base_train, f"recnn={cfg.las_recnn}",
-                                                             *_list(cfg, "stages.las")])
+                                                             *override_list(cfg, "stages.las")])
             elif with_las:
                 pair_times.setdefault(pair, {})["las"] = times.data.get(las_ckpt[scene], math.nan)
             means = sweep_means(las_iprs, orp["pattern_ipr"])
             ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={quote(str(runs))}",
                   f"checkpoints.ims={quote(ims_ckpt)}", f"checkpoints.recnn={quote(recnn_ckpt)}",
                   f"las_iprs=[{','.join(repr(x) for x in las_iprs)}]", f"mean_values=[{','.join(repr(u) for u in means)}]",
-                  f"progress={progress}", "reuse=true", *_list(cfg, "evaluate")]
+                  f"progress={progress}", "reuse=true", *override_list(cfg, "evaluate")]
             if with_las:
                 ev.append(f"checkpoints.las={quote(las_ckpt[scene])}")
             report = Path(stage(pair, "evaluate", "evaluation", ev))

@@ -161,7 +161,8 @@ def _echo(stream, log) -> str:
     return last
 
 
-def _list(cfg: DictConfig, key: str) -> list[str]:
+def override_list(cfg: DictConfig, key: str) -> list[str]:
+    """The list of overrides at ``key`` of the demo/bench config (``[]`` when unset), as strings."""
     v = OmegaConf.select(cfg, key)
     if v is None:
         return []
@@ -191,21 +192,21 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
         print(f"[demo] contact sheet of the cached views: {sheet}", file=sys.stderr, flush=True)
 
     train = ["-m", "imls_lightning.train"]
-    recnn = stage("RecNN", [*train, "model=recnn", *train_common, *_list(cfg, "stages.recnn")])
-    iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *_list(cfg, "stages.iml")])
+    recnn = stage("RecNN", [*train, "model=recnn", *train_common, *override_list(cfg, "stages.recnn")])
+    iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *override_list(cfg, "stages.iml")])
     ims = stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
-                        *_list(cfg, "stages.ims")])
+                        *override_list(cfg, "stages.ims")])
     blue = None
     if OmegaConf.select(cfg, "stages.blue_noise") is not None:
         # the untrained-mask baseline: the blue-noise mask u > P with a decoder trained for it
         blue = stage("blue-noise decoder", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}",
-                                            "model.importance=uniform", *_list(cfg, "stages.blue_noise")])
+                                            "model.importance=uniform", *override_list(cfg, "stages.blue_noise")])
     las = None
     if OmegaConf.select(cfg, "stages.las") is not None:
-        las = stage("LAS", [*train, "model=las", *train_common, *_list(cfg, "stages.las")])
+        las = stage("LAS", [*train, "model=las", *train_common, *override_list(cfg, "stages.las")])
 
     ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={runs}", f"checkpoints.ims={ims}",
-          f"checkpoints.recnn={recnn}", f"progress={bool(cfg.progress)}", "reuse=true", *_list(cfg, "evaluate")]
+          f"checkpoints.recnn={recnn}", f"progress={bool(cfg.progress)}", "reuse=true", *override_list(cfg, "evaluate")]
     if las:
         ev.append(f"checkpoints.las={las}")
     if blue:

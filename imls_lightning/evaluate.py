@@ -319,13 +319,14 @@ def _recnn_name(s: Settings) -> str:
 
 
 def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """PSNR (dB, 100 for identical images) and SSIM of two ``(m, m, 3)`` uint8 images."""
-    from .losses import psnr, ssim
+    """PSNR (dB, 100 for identical images) and SSIM of two ``(m, m, 3)`` uint8 images, by the same
+    functions as the training logs (:mod:`imls_lightning.metrics`)."""
+    from .metrics import psnr, ssim_metric
 
     # np.array copies: the cache's images are read-only memory maps (torch warns on those)
     p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float().div(255.0)
     t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float().div(255.0)
-    return float(psnr(p, t)), float(ssim(p, t))
+    return float(psnr(p, t)), float(ssim_metric(p, t))
 
 
 def measure(method: Method, view: np.ndarray, truth: np.ndarray, repeats: int, warmup: int) -> tuple[dict[str, Any], np.ndarray, dict[str, Any]]:

@@ -1,7 +1,8 @@
 """Losses and image-quality metrics: pixel/SSIM image losses, IM losses, GAN losses, perceptual loss.
 
 * Image losses for RecNN / IML training: :func:`image_loss` (MSE or L1, optionally ``+ w * (1 - SSIM)``)
-  and the metrics :func:`psnr` and :func:`ssim` (Gaussian window, as Wang et al. 2004).
+  and the differentiable :func:`ssim` (Gaussian window, as Wang et al. 2004). The metrics (PSNR, and
+  SSIM as logged and reported) live in :mod:`imls_lightning.metrics`; :func:`psnr` is that one.
 * IM losses for the IMS generator, whose tanh output lives in (-1, 1) and whose targets are the
   IML labels scaled from {0, 1} to {-1, 1}: :func:`im_bce_loss` (computed from logits, so it is
   finite at saturation) and :func:`im_mse_loss`.
@@ -26,6 +27,7 @@ from torch import nn
 
 from data_gen.errors import InputError
 from imls_lightning.backbones import BACKBONES, VGG16_LAYERS, load_vgg16, to_rgb01
+from imls_lightning.metrics import psnr  # noqa: F401  (public here too: the one PSNR lives in imls_lightning.metrics)
 
 __all__ = [
     "psnr", "ssim", "image_loss", "ImageLoss",
@@ -65,31 +67,6 @@ def _no_autocast(x: torch.Tensor):
 
 # ----------------------------------------------------------------------------------------------
 # metrics
-
-
-def psnr(pred: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, reduction: str = "mean") -> torch.Tensor:
-    """Peak signal-to-noise ratio in dB, per image then averaged.
-
-    ``10 log10(L^2 / MSE)`` with the MSE floored at ``1e-10 L^2``, so identical images give 100 dB,
-    not infinity.
-
-    Args:
-        pred, target: ``(B, C, H, W)``.
-        data_range: ``L``, the value span (1 for [0, 1] images, 255 for uint8 values, 2 for [-1, 1]).
-        reduction: ``"mean"`` -> scalar, ``"none"`` -> ``(B,)``.
-
-    Example:
-        >>> x = torch.zeros(1, 3, 4, 4)
-        >>> round(psnr(x + 0.1, x).item(), 3)
-        20.0
-    """
-    _images(pred, target)
-    with _no_autocast(pred):
-        d = pred.float() - target.float() if pred.dtype != torch.float64 else pred - target
-        mse = d.pow(2).flatten(1).mean(1)
-        peak = float(data_range) ** 2
-        per_image = 10.0 * torch.log10(peak / mse.clamp_min(1e-10 * peak))
-    return _reduce(per_image, reduction)
 
 
 def _gaussian_window(size: int, sigma: float, channels: int, dtype, device) -> torch.Tensor:

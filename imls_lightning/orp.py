@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
-from data_gen.errors import InputError
+from data_gen.errors import InputError, boolean, finite_number
 
 __all__ = [
     "DEFAULTS",
@@ -66,6 +66,7 @@ __all__ = [
     "orp_main",
     "orp_job",
     "orp_recnn_job",
+    "evaluate_quality",
     "orp_report",
     "format_table",
     "JOB_FILE",
@@ -109,31 +110,11 @@ JOB_KEYS = ("epsilon_db", "with_ims", "gap_of", "latency_views", "latency_repeat
 # --------------------------------------------------------------------------------------------
 # settings
 # --------------------------------------------------------------------------------------------
-def _num(value: Any, key: str, what: str) -> float:
-    try:
-        if isinstance(value, bool):
-            raise TypeError
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{key}={value!r}: expected {what}") from None
-    if not math.isfinite(x):
-        raise InputError(f"{key}={value!r}: expected {what}")
-    return x
-
-
 def _int(value: Any, key: str, lo: int) -> int:
-    x = _num(value, key, f"an integer >= {lo}")
+    x = finite_number(value, key, f"an integer >= {lo}")
     if x != int(x) or x < lo:
         raise InputError(f"{key}={value!r}: expected an integer >= {lo}")
     return int(x)
-
-
-def _bool(value: Any, key: str) -> bool:
-    if isinstance(value, bool):
-        return value
-    if isinstance(value, str) and value.lower() in ("true", "false"):
-        return value.lower() == "true"
-    raise InputError(f"{key}={value!r}: expected true or false")
 
 
 @dataclass(frozen=True)
@@ -169,13 +150,13 @@ class ORPSettings:
                 raise InputError(f"{prefix}{key}: unknown knob of the ORP sweeper (expected one of {sorted(DEFAULTS)})")
             v[key] = val
         p = prefix
-        eps = _num(v["epsilon_db"], p + "epsilon_db", "a number of dB >= 0")
+        eps = finite_number(v["epsilon_db"], p + "epsilon_db", "a number of dB >= 0")
         if eps < 0:
             raise InputError(f"{p}epsilon_db={v['epsilon_db']}: expected a number of dB >= 0")
         br = v["bracket"]
         if isinstance(br, (str, bytes)) or not isinstance(br, Iterable) or len(list(br)) != 2:
             raise InputError(f"{p}bracket={br!r}: expected two mean values [lo, hi]")
-        lo, hi = (_num(x, p + "bracket", "two numbers [lo, hi]") for x in br)
+        lo, hi = (finite_number(x, p + "bracket", "two numbers [lo, hi]") for x in br)
         scale = str(v["scale"])
         if scale not in SCALES:
             raise InputError(f"{p}scale={scale!r}: expected one of {list(SCALES)}")
@@ -188,13 +169,13 @@ class ORPSettings:
             raise InputError(f"{p}bracket=[{lo}, {hi}]: the mean value must lie in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
         if scale == "log" and lo <= 0:
             raise InputError(f"{p}bracket=[{lo}, {hi}]: scale=log needs lo > 0")
-        tol = _num(v["tolerance"], p + "tolerance", "a relative width in [0.001, 10]")
+        tol = finite_number(v["tolerance"], p + "tolerance", "a relative width in [0.001, 10]")
         if not 1e-3 <= tol <= 10:
             raise InputError(f"{p}tolerance={v['tolerance']}: expected a relative width in [0.001, 10] (0.1 = 10 %)")
         gap_of = str(v["gap_of"])
         if gap_of not in GAP_OF:
             raise InputError(f"{p}gap_of={gap_of!r}: expected one of {list(GAP_OF)}")
-        with_ims = _bool(v["with_ims"], p + "with_ims")
+        with_ims = boolean(v["with_ims"], p + "with_ims")
         if gap_of == "imls" and not with_ims:
             raise InputError(f"{p}gap_of=imls: needs {p}with_ims=true (IML/S is only evaluated with IMS)")
         ims = v["ims_overrides"] if v["ims_overrides"] is not None else []
@@ -584,7 +565,7 @@ def orp_recnn_job(cfg) -> dict[str, Any]:
     """
 
     def work(job_dir: Path, overrides: list[str]) -> dict[str, Any]:
-        from .train import train
+        from .training import train
 
         if not str(cfg.model.get("_target_", "")).endswith("RecNNTask"):
             raise InputError(f"model={cfg.model.get('name')}: the ORP's RecNN stage trains model=recnn")
@@ -603,7 +584,7 @@ def orp_job(cfg, task_overrides: Sequence[str] | None = None) -> dict[str, Any]:
     Runs inside ``python -m imls_lightning.train`` when the config has an ``orp_job`` node (the
     ORP sweeper adds ``++orp_job={...}`` with the knobs in :data:`JOB_KEYS`). Steps:
 
-    1. train the IML with :func:`imls_lightning.train.train` in its own settings-hashed run
+    1. train the IML with :func:`imls_lightning.training.train` in its own settings-hashed run
        directory ``<paths.runs_dir>/<run_name>-<run_hash>`` (a finished run is reused, so a sweep
        that is started again only re-evaluates);
     2. on the validation views: PSNR of IML + RecNN (hard mask; the RecNN inside an end-to-end IML
@@ -682,7 +663,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
 
     from .pipeline import pick_device
     from .tasks.base import load_task
-    from .train import train
+    from .training import train
 
     flag = _plain(cfg.orp_job)
     flag = dict(flag) if isinstance(flag, Mapping) else {}
@@ -727,7 +708,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     nets = [iml_task.iml, recnn_iml, recnn_alone_task.net] + ([ims_task] if ims_task is not None else [])
     for net in nets:
         net.to(device).eval()
-    quality = _evaluate(val, int(cfg.data.get("batch_size", 8)), iml_task, recnn_iml, recnn_alone_task.net, ims_task, device)
+    quality = evaluate_quality(val, int(cfg.data.get("batch_size", 8)), iml_task, recnn_iml, recnn_alone_task.net, ims_task, device)
 
     gap_iml = quality["psnr_recnn"] - quality["psnr_iml_recnn"]
     gap_imls = None if ims_task is None else quality["psnr_recnn"] - quality["psnr_imls_recnn"]
@@ -784,13 +765,13 @@ def _select_number(cfg, key: str) -> Any:
     return val
 
 
-def _evaluate(dataset, batch_size: int, iml_task, recnn_iml, recnn_alone, ims_task, device) -> dict[str, float]:
+def evaluate_quality(dataset, batch_size: int, iml_task, recnn_iml, recnn_alone, ims_task, device) -> dict[str, float]:
     """Mean per-image PSNRs, IPR and C-share over ``dataset`` (hard masks, as at inference)."""
     import torch
     from torch.utils.data import DataLoader
 
     from .models.iml import c_share, ipr
-    from .tasks.base import psnr_per_image
+    from .metrics import psnr_per_image
 
     fr = iml_task.pattern.fr_size
     valid = iml_task.pattern.valid.to(device)

@@ -79,7 +79,7 @@ class NetOptions:
         return torch.autocast(device.type, dtype=dtype)
 
 
-class _Timer:
+class StageTimer:
     """Stage timer: wall time around a block, synchronized on CUDA so GPU work is counted."""
 
     def __init__(self, device: torch.device):
@@ -102,7 +102,8 @@ class _Timer:
         return out
 
 
-def _prepare(net: torch.nn.Module | None, device: torch.device, opts: NetOptions):
+def prepare_net(net: torch.nn.Module | None, device: torch.device, opts: NetOptions):
+    """``net`` on ``device`` in eval mode, channels-last and/or compiled as ``opts`` asks (``None`` stays ``None``)."""
     if net is None:
         return None
     net = net.to(device).eval()
@@ -158,7 +159,7 @@ class FullRayCast(Method):
     name = "full"
 
     def run(self, view) -> RenderResult:
-        timer = _Timer(torch.device("cpu"))
+        timer = StageTimer(torch.device("cpu"))
         with timer.stage("render"):
             img = self.renderer.render(view, self.fr_size)
         return RenderResult(img, timer.result(), {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
@@ -197,10 +198,10 @@ class RecNNAlone(_PatternMethod):
 
     def __init__(self, renderer, pattern, recnn: torch.nn.Module, opts: NetOptions | None = None):
         super().__init__(renderer, pattern, opts)
-        self.recnn = _prepare(recnn, self.device, self.opts)
+        self.recnn = prepare_net(recnn, self.device, self.opts)
 
     def run(self, view) -> RenderResult:
-        timer = _Timer(self.device)
+        timer = StageTimer(self.device)
         with timer.stage("selective_render"):
             c, count = self._render_c_pixels(view, None)
         with timer.stage("recnn"), self.opts.autocast(self.device):
@@ -230,20 +231,20 @@ class IMLPlusRecNN(_PatternMethod):
         if mean is not None and float(mean) != float(iml.mean):
             iml = copy.deepcopy(iml)
             iml.mean = mean  # validated by IMLNet (InputError outside [0.01, 1])
-        self.iml = _prepare(iml, self.device, self.opts)
-        self.recnn = _prepare(recnn, self.device, self.opts)
+        self.iml = prepare_net(iml, self.device, self.opts)
+        self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @property
     def mean(self) -> float:
         return float(self.iml.mean)
 
-    def _importance(self, c: torch.Tensor, view, timer: _Timer, info: dict) -> torch.Tensor:
+    def _importance(self, c: torch.Tensor, view, timer: StageTimer, info: dict) -> torch.Tensor:
         """The hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
         with timer.stage("importance"), self.opts.autocast(self.device):
             return self.iml.importance(c, hard=True)
 
     def run(self, view) -> RenderResult:
-        timer = _Timer(self.device)
+        timer = StageTimer(self.device)
         with timer.stage("selective_render"):
             c, _ = self._render_c_pixels(view, None)
         info: dict = {}
@@ -328,8 +329,8 @@ class IMLSRenderer(_PatternMethod):
         if generator is not None:
             generator.to(self.device).eval()
         self.predict_im = predict_im
-        self.decoder = _prepare(decoder, self.device, self.opts)
-        self.recnn = _prepare(recnn, self.device, self.opts)
+        self.decoder = prepare_net(decoder, self.device, self.opts)
+        self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @classmethod
     def from_task(cls, task, renderer, recnn: torch.nn.Module | None = None,
@@ -349,7 +350,7 @@ class IMLSRenderer(_PatternMethod):
             raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
         device = pick_device(opts.device)
         task.to(device).eval()  # buffers (valid, P) follow the networks
-        generator = _prepare(task.generator, device, opts)
+        generator = prepare_net(task.generator, device, opts)
 
         def predict_im(view: torch.Tensor) -> torch.Tensor:
             with opts.autocast(device):
@@ -377,14 +378,14 @@ class IMLSRenderer(_PatternMethod):
             raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
         return cls.from_task(task, renderer_for_task(task, scene, renderer, renderer_cfg), recnn, opts)
 
-    def _importance(self, view, timer: _Timer, info: dict) -> torch.Tensor:
+    def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
         """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
         with timer.stage("importance"):
             v = torch.as_tensor(np.asarray(view, np.float32))[None].to(self.device)
             return self.predict_im(v)[0, 0].bool()
 
     def run(self, view) -> RenderResult:
-        timer = _Timer(self.device)
+        timer = StageTimer(self.device)
         info: dict = {}
         im = self._importance(view, timer, info)
         with timer.stage("selective_render"):
@@ -456,7 +457,7 @@ class LASMethod(Method):
     def __init__(self, renderer, las_net: torch.nn.Module, fr_size: int, low_res: int,
                  ipr: float | None = None, opts: NetOptions | None = None):
         super().__init__(renderer, fr_size, opts)
-        self.las = _prepare(las_net, self.device, self.opts)
+        self.las = prepare_net(las_net, self.device, self.opts)
         self.low_res = int(low_res)
         if ipr is not None:
             try:
@@ -468,7 +469,7 @@ class LASMethod(Method):
         self.ipr = ipr
 
     def run(self, view) -> RenderResult:
-        timer = _Timer(self.device)
+        timer = StageTimer(self.device)
         m = self.fr_size
         net = getattr(self.las, "_orig_mod", self.las)  # attributes of a compiled LASNet
         with timer.stage("low_res_render"):

@@ -27,6 +27,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from .metrics import psnr_from_mse
 from .pipeline import STAGES
 
 #: method key -> label in tables and plots (the paper's names)
@@ -282,6 +283,37 @@ def fmt_pct(v: Any, digits: int = 1) -> str:
     return "–" if not math.isfinite(x) else f"{100 * x:.{digits}f}%"
 
 
+MASK_LABELS = {"ims": "IMS (from the view)", "iml": "IML (from the C-Image)", "blue_noise": "blue noise (untrained)"}
+
+
+def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown table: per share and mask, PSNR after the RecNN with the trained decoder and with the
+    fill, the decoder's gain, and the mask's density on background vs object."""
+    by = {(r["share"], r["mask"], r["reconstruction"]): r for r in summary}
+    shares = sorted({r["share"] for r in summary})
+    masks = [m for m in ("ims", "iml", "blue_noise") if any(k[1] == m for k in by)]
+    rows = []
+    for s in shares:
+        blue_dec = by.get((s, "blue_noise", "decoder"))
+        for m in masks:
+            dec, fill = by.get((s, m, "decoder")), by.get((s, m, "fill"))
+            any_row = dec or fill
+            if any_row is None:
+                continue
+            gain = dec["psnr"] - fill["psnr"] if dec and fill else float("nan")
+            vs_blue = dec["psnr"] - blue_dec["psnr"] if dec and blue_dec and m != "blue_noise" else float("nan")
+            ratio = any_row["density_background"] / any_row["density_object"] if any_row["density_object"] > 0 else float("nan")
+            rows.append([f"{100 * s:.0f} %", MASK_LABELS.get(m, m), f"{100 * any_row['c_share']:.1f} %",
+                         fmt(dec["psnr"]) if dec else "–", fmt(fill["psnr"]) if fill else "–",
+                         fmt(gain, 2, " dB") if np.isfinite(gain) else "–",
+                         fmt(vs_blue, 2, " dB") if np.isfinite(vs_blue) else "–",
+                         f"{100 * any_row['density_background']:.1f} %", f"{100 * any_row['density_object']:.1f} %",
+                         fmt(ratio, 2) if np.isfinite(ratio) else "–"])
+    return md_table(["target share of C", "mask", "share kept", "decoder PSNR (dB)", "fill PSNR (dB)",
+                     "decoder − fill", "mask − blue noise", "density: background", "density: object",
+                     "background / object"], rows, "llrrrrrrrr")
+
+
 def speedup(slow_ms: float, fast_ms: float) -> str:
     """``slow / fast`` as ``2.07×`` (the paper's speed-up)."""
     if not (math.isfinite(slow_ms) and math.isfinite(fast_ms)) or fast_ms <= 0:
@@ -313,7 +345,8 @@ def latency_table(summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str],
 # plots (Agg canvas, atomic PNGs)
 
 
-def _figure(w: float = 7.0, h: float = 4.0):
+def new_figure(w: float = 7.0, h: float = 4.0):
+    """A matplotlib figure of ``w`` x ``h`` inches on the Agg canvas (no display needed), for :func:`save_figure`."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -334,7 +367,7 @@ def save_figure(fig, path: str | Path) -> Path:
 
 def plot_stage_breakdown(summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str], path: str | Path) -> Path:
     """Stacked bars: average time of each stage per method (the paper's time-breakdown figure)."""
-    fig = _figure(max(5.0, 1.3 * len(methods) + 2), 4.2)
+    fig = new_figure(max(5.0, 1.3 * len(methods) + 2), 4.2)
     ax = fig.add_subplot(111)
     x = np.arange(len(methods))
     bottom = np.zeros(len(methods))
@@ -357,7 +390,7 @@ def plot_stage_breakdown(summ: Mapping[str, Mapping[str, Any]], methods: Sequenc
 
 def plot_psnr_per_view(rows: Sequence[Mapping[str, Any]], methods: Sequence[str], path: str | Path) -> Path:
     """PSNR of every view along the trajectory, one line per method (the full ray cast is exact)."""
-    fig = _figure(8.0, 4.0)
+    fig = new_figure(8.0, 4.0)
     ax = fig.add_subplot(111)
     for m in methods:
         rs = sorted((r for r in rows if r["method"] == m), key=lambda r: _num(r["view"]))
@@ -378,7 +411,7 @@ def plot_latency_vs_psnr(curves: Mapping[str, Sequence[tuple[float, float, str]]
                          points: Mapping[str, tuple[float, float]], full_ms: float | None, path: str | Path) -> Path:
     """Latency (x) vs PSNR (y): ``curves`` label -> [(ms, psnr, annotation)], ``points`` label -> (ms, psnr),
     the full ray cast as a vertical line (exact image, PSNR unbounded)."""
-    fig = _figure(7.5, 4.8)
+    fig = new_figure(7.5, 4.8)
     ax = fig.add_subplot(111)
     markers = iter(["o", "s", "^", "D", "v"])
     for label, pts in curves.items():
@@ -407,7 +440,7 @@ def plot_latency_vs_psnr(curves: Mapping[str, Sequence[tuple[float, float, str]]
 
 def plot_options(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     """Bars of the IML/S network stages' time under each inference option."""
-    fig = _figure(6.0, 3.6)
+    fig = new_figure(6.0, 3.6)
     ax = fig.add_subplot(111)
     names = [r["option"] for r in rows]
     x = np.arange(len(rows))
@@ -469,7 +502,7 @@ def plot_image_grid(grid: Mapping[int, Mapping[str, Any]], methods: Sequence[str
     # one colour scale for every error map: the 99th percentile of all errors (at least one grey level)
     vmax = max([float(np.percentile(e, 99)) for e in errs.values()] + [1.0 / 255.0])
     size = 1.45
-    fig = _figure(size * len(cols) + 0.8, size * len(views) + 0.5)
+    fig = new_figure(size * len(cols) + 0.8, size * len(views) + 0.5)
     axes = fig.subplots(len(views), len(cols), squeeze=False)
     cmap = colormaps["magma"]
     im_handle = None
@@ -503,7 +536,7 @@ def plot_image_grid(grid: Mapping[int, Mapping[str, Any]], methods: Sequence[str
                 if img is not None:
                     ax.imshow(img, interpolation="nearest")
                     mse = float(((np.asarray(img, np.float64) - truth) / 255.0).__pow__(2).mean())
-                    ax.set_xlabel("exact" if mse == 0 else f"{10 * math.log10(1.0 / max(mse, 1e-10)):.1f} dB", fontsize=6)
+                    ax.set_xlabel("exact" if mse == 0 else f"{float(psnr_from_mse(mse)):.1f} dB", fontsize=6)
                 title = METHOD_LABELS.get(col, col)
             if r == 0:
                 ax.set_title(title, fontsize=6)
@@ -768,8 +801,6 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         L.append("")
 
     if ctx.equal_share:
-        from .baselines import equal_share_markdown
-
         L.append("## Learned parts against untrained baselines, at equal share")
         L.append("")
         L.append("Each mask is brought to the target share of the C-Image per view (bisection on u, no ground truth); "
@@ -835,6 +866,6 @@ __all__ = [
     "atomic_write_text", "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "md_table",
     "fmt", "fmt_pct", "speedup", "latency_table", "speedup_table", "quality_table", "sweep_table", "options_table",
     "sweep_points", "error_map", "im_to_fr_mask", "plot_stage_breakdown", "plot_psnr_per_view",
-    "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "save_figure", "ReportContext", "write_report",
+    "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "new_figure", "save_figure", "ReportContext", "write_report",
     "render_markdown",
 ]

@@ -1,191 +1,29 @@
 """Train any model of the project: ``python -m imls_lightning.train model=... recnn=... scene=...``.
 
-Thin on purpose: compose the config, build the DataModule and the task (``model._target_``), run
-the Trainer, test the best checkpoint on the test trajectory, and print the best checkpoint's path
-as the last line. Runs live in ``runs/<model>-<recnn>-<scene>-<settings hash>/``: running the same
+Thin on purpose: compose the config and call :func:`imls_lightning.training.train` (or, for a job
+of the ORP sweeper, :func:`imls_lightning.orp.orp_main`), then print the best checkpoint's path as
+the last line. Runs live in ``runs/<model>-<recnn>-<scene>-<settings hash>/``: running the same
 settings again resumes from ``last.ckpt``, or returns at once when that run had finished.
 """
 from __future__ import annotations
 
-import json
-import math
-import sys
-import time
 from pathlib import Path
-from typing import Any
 
 import hydra
-import lightning as L
 import torch
-from hydra.utils import get_class, instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from data_gen.errors import InputError, cli_errors, checked_command_line
+from data_gen.errors import checked_command_line, cli_errors
 
-from .config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
-
-register_resolvers()
-
-RESULT_FILE = "result.json"
-
-
-def _callbacks(cfg: DictConfig) -> list[L.Callback]:
-    return [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c is not None and "_target_" in c]
-
-
-def _loggers(cfg: DictConfig) -> list:
-    return [instantiate(c) for c in (cfg.get("logger") or {}).values() if c is not None and "_target_" in c]
-
-
-def _warn(message: str) -> None:
-    print("warning: " + " ".join(str(message).split()), file=sys.stderr, flush=True)
-
-
-def _resume_path(cfg: DictConfig, run_dir: Path, task=None) -> str | None:
-    """The checkpoint to resume from: ``resume=auto`` takes the run's ``last.ckpt`` when it is
-    intact, else the newest intact checkpoint of the run (or none: training starts over), with a
-    one-line warning; ``resume=<path>`` must be an intact checkpoint of the model being trained."""
-    resume = str(cfg.get("resume", "auto"))
-    if resume == "never":
-        return None
-    if resume == "auto":
-        ckdir = run_dir / "checkpoints"
-        last = ckdir / "last.ckpt"
-        if not last.is_file():
-            return None
-        problem = checkpoint_problem(last)
-        if problem is None:
-            return str(last)
-        others = sorted((p for p in ckdir.glob("*.ckpt") if p != last), key=lambda p: p.stat().st_mtime_ns, reverse=True)
-        good = next((p for p in others if checkpoint_problem(p) is None), None)
-        if good is not None:
-            _warn(f"{last}: {problem}; resuming from the newest intact checkpoint {good}")
-            return str(good)
-        _warn(f"{last}: {problem}; no intact checkpoint in {ckdir}, training starts over")
-        return None
-    if not Path(resume).expanduser().is_file():
-        raise InputError(f"resume={resume}: checkpoint not found (use 'auto', 'never' or a .ckpt path)")
-    if task is not None:
-        check_resume_checkpoint(resume, task)
-    return str(Path(resume).expanduser())
-
-
-def check_resume_checkpoint(path: str, task) -> None:
-    """``resume=<path>``: an intact Lightning checkpoint of the same task whose weights fit ``task``.
-
-    Raises:
-        InputError: one line naming ``resume=`` and what is wrong.
-    """
-    ckpt = load_checkpoint(path, what="resume")
-    name = ckpt.get("imls_task")
-    if name != type(task).__name__:
-        raise InputError(f"resume={path}: is a {name or 'foreign'} checkpoint, this run trains a {type(task).__name__} (model={cfg_model_name(task)})")
-    own = task.state_dict()
-    theirs = ckpt["state_dict"]
-    optional = task.optional_state_prefixes() if hasattr(task, "optional_state_prefixes") else ()
-    missing = [k for k in own if k not in theirs and not k.startswith(optional)]
-    unexpected = [k for k in theirs if k not in own]
-    shapes = [k for k in own if k in theirs and hasattr(theirs[k], "shape") and tuple(theirs[k].shape) != tuple(own[k].shape)]
-    if missing or unexpected or shapes:
-        raise InputError(
-            f"resume={path}: its weights do not fit the network configured here (another recnn/model setting?"
-            f" missing {missing[:2]}, unexpected {unexpected[:2]}, other shapes {shapes[:2]})"
-        )
-    if "optimizer_states" not in ckpt or "loops" not in ckpt:
-        raise InputError(f"resume={path}: holds weights only (no optimizer or loop state) and cannot resume training")
-
-
-def cfg_model_name(task) -> str:
-    return {"RecNNTask": "recnn", "IMLTask": "iml", "IMSTask": "ims", "LASTask": "las"}.get(type(task).__name__, "?")
-
-
-def build_datamodule(cfg: DictConfig, task_cls) -> L.LightningDataModule:
-    from .data import ImlsDataModule
-
-    extra = task_cls.datamodule_kwargs(cfg) if hasattr(task_cls, "datamodule_kwargs") else {}
-    return ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=cfg.pattern, **extra)
-
-
-def train(cfg: DictConfig) -> dict[str, Any]:
-    """Fit (or resume, or reuse) the configured model; returns the run's result record."""
-    run_dir = Path(cfg.paths.output_dir)
-    result_file = run_dir / RESULT_FILE
-    fast = bool(cfg.trainer.get("fast_dev_run", False))
-    restart = False
-    if str(cfg.get("resume", "auto")) == "auto" and result_file.is_file() and not fast:
-        try:
-            result = json.loads(result_file.read_text())
-            best = str(result.get("best_checkpoint", ""))
-        except (OSError, ValueError, AttributeError):
-            result, best = None, ""
-        problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
-        if result is not None and problem is None:
-            print(f"[train] {run_dir} already finished; reusing it (resume=never retrains)", flush=True)
-            return result
-        # never trust a finished run whose best checkpoint is gone or damaged: train it again
-        _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
-        result_file.unlink(missing_ok=True)
-        restart = True
-
-    L.seed_everything(int(cfg.seed), workers=True)
-    task_cls = get_class(cfg.model._target_)
-    task = task_cls.from_config(cfg) if hasattr(task_cls, "from_config") else instantiate(cfg.model)
-    datamodule = build_datamodule(cfg, task_cls)
-    trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg), logger=_loggers(cfg) or False)
-
-    ckpt_path = None if fast or restart else _resume_path(cfg, run_dir, task)
-    if ckpt_path:
-        print(f"[train] resuming from {ckpt_path}", flush=True)
-    t0 = time.perf_counter()
-    trainer.fit(task, datamodule=datamodule, ckpt_path=ckpt_path)
-    minutes = (time.perf_counter() - t0) / 60.0
-    if trainer.interrupted:
-        raise InputError(f"training interrupted; run the same command again to resume from {run_dir / 'checkpoints' / 'last.ckpt'}")
-
-    ckpt_cb = trainer.checkpoint_callback
-    best = getattr(ckpt_cb, "best_model_path", "") if ckpt_cb is not None else ""
-    if not best:
-        # fast_dev_run (or checkpointing off): keep the weights anyway, so stages can be chained
-        best = str(run_dir / "checkpoints" / ("fast_dev_run.ckpt" if fast else "final.ckpt"))
-        trainer.save_checkpoint(best)
-    score = getattr(ckpt_cb, "best_model_score", None) if ckpt_cb is not None else None
-    test_metrics: dict[str, float] = {}
-    if cfg.get("test", True):
-        ckpt_for_test = None if fast or not getattr(ckpt_cb, "best_model_path", "") else "best"
-        out = trainer.test(task, datamodule=datamodule, ckpt_path=ckpt_for_test, verbose=False)
-        test_metrics = {k: float(v) for k, v in (out[0] if out else {}).items()}
-
-    result = {
-        "best_checkpoint": str(Path(best).resolve()),
-        "best_score": float(score) if score is not None and math.isfinite(float(score)) else None,
-        "monitor": str(cfg.model.get("monitor", "")),
-        "epochs": int(trainer.current_epoch),
-        "train_minutes": round(minutes, 3),
-        "test": test_metrics,
-        "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
-    }
-    if trainer.is_global_zero and not fast:
-        tmp = result_file.with_suffix(".tmp")
-        run_dir.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(result, indent=2, default=str))
-        tmp.replace(result_file)
-    return result
-
-
-def remove_if_only_hydra(run_dir: Path) -> bool:
-    """Remove a run folder that holds nothing but what Hydra put there when the job started
-    (``.hydra/`` and the job's empty log): a failed run leaves no empty run folder behind."""
-    try:
-        names = {p.name for p in run_dir.iterdir()}
-    except OSError:
-        return False
-    logs = {p.name for p in run_dir.glob("*.log") if p.is_file() and p.stat().st_size == 0}
-    if not names or names - logs - {".hydra"}:
-        return False
-    import shutil
-
-    shutil.rmtree(run_dir, ignore_errors=True)
-    return True
+from .orp import orp_main
+from .training import (  # noqa: F401  (re-exported: the train CLI's body, by its old names)
+    RESULT_FILE,
+    build_datamodule,
+    cfg_model_name,
+    check_resume_checkpoint,
+    remove_if_only_hydra,
+    train,
+)
 
 
 @checked_command_line(Path(__file__).resolve().parents[1] / "conf")
@@ -194,8 +32,6 @@ def remove_if_only_hydra(run_dir: Path) -> bool:
 def main(cfg: DictConfig) -> float | dict | None:
     if cfg.get("orp_job") is not None:
         # a job of the ORP sweeper (hydra/sweeper=orp, docs/ORP.md): its record goes back to the sweeper
-        from .orp import orp_main
-
         return orp_main(cfg)
     try:
         result = train(cfg)

@@ -67,10 +67,9 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.camera import validate_view
-from data_gen.errors import InputError, cli_errors, checked_command_line
-from data_gen.views import _orthogonal_up, _unit
+from data_gen.errors import InputError, boolean, checked_command_line, cli_errors, finite_number
+from data_gen.views import orthogonal_up, unit_vectors
 
-from .orp import _bool, _num  # the same one-line checks as the ORP settings
 from .pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
 
 __all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer", "viewer", "main"]
@@ -108,7 +107,7 @@ def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0
         >>> np.round(orbit_view(0, 0, 3.0), 6).tolist()
         [3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
     """
-    az, el, r = (_num(v, k, "a finite number") for v, k in ((azimuth, "azimuth"), (elevation, "elevation"), (distance, "distance")))
+    az, el, r = (finite_number(v, k, "a finite number") for v, k in ((azimuth, "azimuth"), (elevation, "elevation"), (distance, "distance")))
     if abs(el) > MAX_ELEVATION:
         raise InputError(f"elevation={elevation}: expected degrees in [-{MAX_ELEVATION:g}, {MAX_ELEVATION:g}] (the up vector is +z)")
     if r <= 0:
@@ -117,14 +116,14 @@ def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0
     look = np.asarray(lookat, dtype=np.float64).reshape(3)
     eye = look + r * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
     # the same up convention as the test trajectory (data_gen.views): +z, Gram-Schmidt against the view direction
-    fwd = _unit((look - eye)[None])
-    up = _orthogonal_up(fwd, np.array([[0.0, 0.0, 1.0]]))[0]
+    fwd = unit_vectors((look - eye)[None])
+    up = orthogonal_up(fwd, np.array([[0.0, 0.0, 1.0]]))[0]
     return validate_view(np.concatenate([eye, look, up]))
 
 
 def frame_psnr(image: np.ndarray, truth: np.ndarray) -> float:
     """PSNR in dB of two ``(m, m, 3)`` uint8 images (100 dB when identical), as the evaluation scores it."""
-    from .losses import psnr
+    from .metrics import psnr
 
     p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float()
     t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float()
@@ -169,11 +168,11 @@ class Viewer:
         lo, hi = (float(c) for c in getattr(scene, "camera_distance", DEFAULT_DISTANCE_RANGE))
         self.distance_range = (lo, hi)
         self.scene_name = getattr(scene, "name", "?")
-        dist = 0.5 * (lo + hi) if distance is None else _num(distance, "distance", "a finite number")
+        dist = 0.5 * (lo + hi) if distance is None else finite_number(distance, "distance", "a finite number")
         if not (lo - 1e-9 <= dist <= hi + 1e-9):
             raise InputError(f"distance={distance}: expected a camera distance in scene.camera_distance=[{lo:g}, {hi:g}]")
         orbit_view(azimuth, elevation, dist)  # validates the angles (one-line InputError)
-        self.home = (_num(azimuth, "azimuth", "a finite number"), _num(elevation, "elevation", "a finite number"), dist)
+        self.home = (finite_number(azimuth, "azimuth", "a finite number"), finite_number(elevation, "elevation", "a finite number"), dist)
         self.azimuth, self.elevation, self.distance = self.home
         if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
             raise InputError(f"warmup={warmup}: expected an integer >= 0")
@@ -544,11 +543,11 @@ def viewer(cfg: DictConfig) -> Path | None:
             raise InputError(f"screenshot={screenshot}: expected a .png path")
         check_writable(screenshot, "screenshot")  # before any work, not after it
     for key in ("azimuth", "elevation"):
-        _num(cfg.get(key), key, "a finite number")
+        finite_number(cfg.get(key), key, "a finite number")
     orbit_view(cfg.azimuth, cfg.elevation, 1.0)  # elevation range, before anything slow
-    show_mask = _bool(cfg.get("mask", True), "mask")
+    show_mask = boolean(cfg.get("mask", True), "mask")
     if cfg.get("distance") is not None:
-        _num(cfg.distance, "distance", "a finite number")  # its range needs the scene: checked by the Viewer
+        finite_number(cfg.distance, "distance", "a finite number")  # its range needs the scene: checked by the Viewer
     threads = cfg.get("threads")
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
         raise InputError(f"threads={threads}: expected an integer >= 1 (torch CPU threads) or null")

@@ -6,7 +6,6 @@ import pytest
 import torch
 
 from imls_lightning.baselines import (
-    equal_share_markdown,
     equal_share_rows,
     mask_at_share,
     product_orp,
@@ -16,6 +15,7 @@ from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.iml import IMLNet
 from imls_lightning.models.pull_push import pull_push_inpaint
 from imls_lightning.patterns import SamplingPattern, plastic_rank_pattern
+from imls_lightning.report import equal_share_markdown
 from imls_lightning.tasks.base import psnr_per_image
 
 N = 16

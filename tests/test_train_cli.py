@@ -192,7 +192,7 @@ def test_truncated_best_checkpoint_of_finished_run_is_not_trusted(work, recnn_ck
 def test_resume_path_fallbacks(tmp_path, capsys):
     from omegaconf import OmegaConf
 
-    from imls_lightning.train import _resume_path
+    from imls_lightning.training import _resume_path
 
     ck = tmp_path / "checkpoints"
     ck.mkdir()
@@ -221,7 +221,7 @@ def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
     from data_gen.errors import InputError
     from imls_lightning.tasks.base import load_task
     from imls_lightning.tasks.iml import IMLTask
-    from imls_lightning.train import _resume_path
+    from imls_lightning.training import _resume_path
 
     task = load_task(recnn_ckpt, expect="RecNNTask")
     text = tmp_path / "notes.txt"

@@ -12,11 +12,11 @@ from typing import Any
 
 import lightning as L
 import torch
-from torchmetrics.functional.image import peak_signal_noise_ratio, structural_similarity_index_measure
 
 from data_gen.errors import InputError
 
 from ..config import load_checkpoint
+from ..metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
 
 # tasks that checkpoints may name (never import an arbitrary class from a file)
 _TASKS = {
@@ -25,30 +25,6 @@ _TASKS = {
     "IMSTask": "imls_lightning.tasks.ims",
     "LASTask": "imls_lightning.tasks.las",
 }
-
-
-def psnr_per_image(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """PSNR in dB of each image of a batch ``(B, C, H, W)`` in [0, 1] -> ``(B,)``.
-
-    Identical images would give +inf; the MSE is floored at 1e-10 (100 dB) to keep logs finite.
-    """
-    p = pred.detach().float().clamp(0, 1)
-    t = target.detach().float()
-    mse = (p - t).pow(2).flatten(1).mean(1).clamp_min(1e-10)
-    return 10.0 * torch.log10(1.0 / mse)
-
-
-def psnr_torchmetrics(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean per-image PSNR from torchmetrics (same numbers as :func:`psnr_per_image` away from 100 dB)."""
-    return peak_signal_noise_ratio(pred.detach().float().clamp(0, 1), target.detach().float(), data_range=1.0, dim=(1, 2, 3))
-
-
-def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean SSIM (torchmetrics, Gaussian window 11, data range 1) of a batch."""
-    p = pred.detach().float().clamp(0, 1)
-    t = target.detach().float()
-    k = 11 if min(p.shape[-2:]) >= 11 else (min(p.shape[-2:]) // 2) * 2 - 1
-    return structural_similarity_index_measure(p, t, data_range=1.0, kernel_size=max(k, 3))
 
 
 class ImlsTask(L.LightningModule):
@@ -79,7 +55,7 @@ class ImlsTask(L.LightningModule):
         psnr = psnr_per_image(pred, target)
         bs = pred.shape[0]
         self.log(f"{prefix}_psnr", psnr.mean(), batch_size=bs, **kw)
-        self.log(f"{prefix}_ssim", ssim(pred, target), batch_size=bs, **kw)
+        self.log(f"{prefix}_ssim", ssim_metric(pred, target), batch_size=bs, **kw)
         return psnr
 
 

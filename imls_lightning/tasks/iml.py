@@ -30,7 +30,8 @@ from ..config import to_plain
 from ..models.iml import IMLNet
 from ..models.pull_push import pull_push_inpaint
 from ..patterns import build_pattern, plastic_rank_pattern
-from .base import ImlsTask, load_task, psnr_per_image
+from ..metrics import psnr_per_image
+from .base import ImlsTask, load_task
 from .recnn import RecNNTask
 
 MODES = ("standalone", "end_to_end")

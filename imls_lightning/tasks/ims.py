@@ -66,7 +66,8 @@ from ..losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
 from ..patterns import build_pattern
-from .base import ImlsTask, load_task, psnr_per_image
+from ..metrics import psnr_per_image
+from .base import ImlsTask, load_task
 from .iml import iml_net_from_hparams
 from .recnn import RecNNTask
 

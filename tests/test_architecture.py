@@ -1,0 +1,129 @@
+"""Architecture rules of the package (issue 16), checked on the source with ``ast`` (fast, no imports).
+
+* no import cycles between the modules of ``imls_lightning/`` and ``data_gen/``, counting imports
+  inside functions too (a lazy import only hides a cycle);
+* no module imports another module's private ``_name``: what is shared has a public name in its one
+  home. Only the package is checked; tests may reach private names.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("imls_lightning", "data_gen")
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            mods[".".join(parts)] = path
+    return mods
+
+
+def _absolute(module: str, path: Path, node: ast.ImportFrom) -> str:
+    """The absolute name ``from ... import`` refers to (relative imports resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = module.split(".")
+    if path.name != "__init__.py":
+        base = base[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def _scan():
+    """``(edges, private)``: module -> package modules it imports (anywhere in it), and every
+    ``(module, line, what)`` that reaches another module's private name."""
+    mods = _modules()
+    edges: dict[str, set[str]] = {}
+    private: list[tuple[str, int, str]] = []
+    for mod, path in mods.items():
+        tree = ast.parse(path.read_text(), str(path))
+        deps: set[str] = set()
+        aliases: dict[str, str] = {}  # local name -> package module it is bound to
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                src = _absolute(mod, path, node)
+                for a in node.names:
+                    full = f"{src}.{a.name}"
+                    if full in mods:  # from pkg import module
+                        deps.add(full)
+                        aliases[a.asname or a.name] = full
+                    else:
+                        deps.add(src)
+                        if _private(a.name) and src in mods and src != mod:
+                            private.append((mod, node.lineno, f"from {src} import {a.name}"))
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    deps.add(a.name)
+                    if a.asname:
+                        aliases[a.asname] = a.name
+                    elif a.name in mods:
+                        aliases[a.name] = a.name
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and _private(node.attr):
+                target = ast.unparse(node.value)
+                target = aliases.get(target, target)
+                if target in mods and target != mod:
+                    private.append((mod, node.lineno, f"{target}.{node.attr}"))
+        edges[mod] = {d for d in deps if d in mods and d != mod}
+    return edges, private
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(edges[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles():
+    edges, _ = _scan()
+    assert "imls_lightning.train" in edges and "imls_lightning.orp" in edges["imls_lightning.train"]
+    assert _cycles(edges) == []
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_no_private_imports_across_modules():
+    _, private = _scan()
+    assert private == [], "\n".join(f"{m}:{line}: {what}" for m, line, what in private)
