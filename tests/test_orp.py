@@ -142,8 +142,20 @@ def test_evaluation_from_normalizes_outcomes():
     assert e.error == "InputError: model.lr=-1: expected a positive number"
 
 
-def test_module_doctests():
-    assert doctest.testmod(orp).failed == 0
+@pytest.mark.parametrize("module", ["", ".search", ".overrides", ".job", ".report"])
+def test_module_doctests(module):
+    import importlib
+
+    mod = importlib.import_module(f"imls_lightning.orp{module}")
+    assert doctest.testmod(mod).failed == 0
+
+
+@pytest.mark.parametrize("module", ["imls_lightning.orp.search", "imls_lightning.orp"])
+def test_search_imports_no_torch(module):
+    """The search (and the package the Hydra sweeper plugin imports while Hydra scans plugins) loads no torch."""
+    code = f"import sys, {module}; assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)[:5]"
+    p = subprocess.run([PY, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]
 
 
 # ---- settings -----------------------------------------------------------------------------
