@@ -498,3 +498,13 @@ def test_exception_tradeoff_bad_input():
         tradeoff(ref, {0.1: {"ipr": np.zeros(2), "psnr": np.zeros(2)}}, {})
     with pytest.raises(InputError, match="epsilon"):
         tradeoff(ref, {0.1: {"ipr": np.zeros(3), "psnr": np.zeros(3)}}, {}, epsilon_db=-1)
+
+
+@pytest.mark.parametrize("module", ["", ".checks", ".labels", ".predictor", ".renderer", ".tradeoff", ".settings",
+                                    ".report", ".cli"])
+def test_module_doctests(module):
+    import doctest
+    import importlib
+
+    mod = importlib.import_module(f"imls_lightning.adaptive{module}")
+    assert doctest.testmod(mod).failed == 0

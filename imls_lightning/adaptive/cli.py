@@ -1,0 +1,291 @@
+"""``python -m imls_lightning.adaptive``: labels -> predictor -> comparison on the test trajectory
+(:func:`run_adaptive`), with its settings (:func:`parse_settings`, ``conf/adaptive.yaml``).
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, Callable
+
+import hydra
+import numpy as np
+import torch
+from omegaconf import DictConfig
+
+import data_gen  # noqa: F401  (registers the scene config resolvers)
+from data_gen.errors import InputError, checked_command_line, cli_errors
+
+from ..config import register_resolvers
+from ..importance import MEAN_RANGE
+from ..pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, load_ims_and_recnn, pick_device
+from ..tasks.ims import scaled_pim_im
+from .checks import clamp_mean
+from .labels import MeanLabels, compute_labels
+from .predictor import ConstantMean, TableMean, train_predictor
+from .renderer import AdaptiveIMLPlusRecNN, AdaptiveIMLSRenderer
+from .report import markdown, plot_per_view, plot_tradeoff, reference_method, write_csv
+from .settings import parse_settings
+from .tradeoff import mean_for_ipr, quality_at_means, tradeoff
+
+register_resolvers()
+
+# the Hydra configs: an absolute path, right whether this module runs as a file or is imported
+CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+
+
+def run_dir_of(checkpoint: str | Path) -> Path:
+    """The training run directory of a checkpoint (``<run>/checkpoints/x.ckpt`` -> ``<run>``)."""
+    p = Path(str(checkpoint)).expanduser().resolve()
+    return p.parent.parent if p.parent.name == "checkpoints" else p.parent
+
+
+def ensure_labels(path: Path, make: Callable[[], MeanLabels], what: str) -> tuple[MeanLabels, bool]:
+    """``(labels, reused)``: the labels saved at ``path``, or ``make()`` saved there."""
+    if path.is_file():
+        print(f"[adaptive] reusing {what} labels {path}", file=sys.stderr, flush=True)
+        return MeanLabels.load(path), True
+    labels = make()
+    labels.save(path)
+    return labels, False
+
+
+def run_adaptive(cfg, command: str | None = None) -> Path:
+    """The CLI's body: labels -> predictor -> comparison on the test trajectory; returns ``adaptive.md``."""
+    from omegaconf import OmegaConf
+
+    from data_gen.cache import ViewImageCache, ensure_cache
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene
+
+    from ..config import file_hash, settings_hash, to_plain
+    from ..evaluate import measure, spaced
+    from ..orp.job import evaluate_quality
+    from ..orp.search import ORPSearch, batched
+    from ..pipeline import RecNNAlone
+    from ..report import atomic_write_text
+
+    s = parse_settings(cfg)
+    t_start = time.perf_counter()
+    ims, recnn = load_ims_and_recnn(s.ims, s.recnn)
+    if ims.target != "pim":
+        raise InputError(f"ims_checkpoint={s.ims}: its IMS was trained with model.target={ims.target}; the adaptive mean scales "
+                         "the regressed PIM', which needs an IMS trained with model.target=pim")
+    resolution = int(cfg.data.resolution)
+    fr = int(ims.hparams["fr_size"])
+    if fr != resolution:
+        raise InputError(f"data.resolution={resolution}: the IMS checkpoint was trained at {fr}^2; pass the data group it was trained with")
+    trained_scene = (ims.hparams.get("scene") or {}).get("name")
+    if trained_scene and str(cfg.scene.get("name")) != str(trained_scene):
+        raise InputError(f"scene={cfg.scene.get('name')}: the IMS checkpoint was trained on scene {trained_scene}; pass scene={trained_scene}")
+    recnn = recnn if recnn is not None else ims.recnn
+    if recnn is None:
+        raise InputError(f"ims_checkpoint={s.ims}: carries no RecNN (its IML was trained standalone); pass recnn_checkpoint=<RecNN .ckpt>")
+    device = pick_device(s.device)
+    opts = NetOptions(device=str(device))
+    iml = ims.iml
+    u_train = float(iml.mean)
+    pattern = ims.pattern
+    m = resolution
+
+    scene = build_scene(cfg.scene)
+    cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
+    if cache.resolution != resolution:
+        raise InputError(f"data.resolution={resolution}: the cache {cache.path} holds {cache.resolution}^2 images")
+    ck_hashes = {"ims": file_hash(Path(s.ims).expanduser()), "recnn": file_hash(Path(s.recnn).expanduser()) if s.recnn else None}
+    run_dir = run_dir_of(s.ims)
+    label_dir = run_dir / "adaptive" / "labels"
+    label_hash = settings_hash(ck_hashes, cache.path.name, s.label_key())
+    out = Path(s.output_dir) if s.output_dir else run_dir / "adaptive" / settings_hash(ck_hashes, cache.path.name, s.hashed())
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "adaptive.md").unlink(missing_ok=True)
+    timing: dict[str, Any] = {}
+
+    # -- 1. labels ---------------------------------------------------------------------------------
+    labels: dict[str, MeanLabels] = {}
+    bracket = MEAN_RANGE if s.reference == "recnn" else (MEAN_RANGE[0], u_train)
+    for split in ("train", "val", s.views):
+        if split in labels:
+            continue
+        rows = cache.splits[split]
+        if split == s.views:
+            rows = rows[spaced(len(rows), s.max_views)]
+        if len(rows) == 0:
+            if split == "train":
+                raise InputError(f"data: the cache {cache.path} has no training views to label")
+            continue
+        t0 = time.perf_counter()
+        tag = split if split != s.views or s.max_views is None else f"{split}{len(rows)}"
+        labels[split], reused = ensure_labels(
+            label_dir / f"{tag}-{label_hash}.npz",
+            lambda rows=rows, split=split: compute_labels(cache, rows, pattern, iml, recnn, recnn, s.epsilon_db, s.steps,
+                                                         s.batch_size, device, s.progress, desc=f"labels {split}",
+                                                         reference=s.reference, bracket=bracket,
+                                                         unreachable=s.unreachable, source=s.label_source, ims=ims),
+            split)
+        timing[f"labels_{split}_s"] = round(time.perf_counter() - t0, 2)
+        timing[f"labels_{split}_reused"] = reused
+    train_l = labels["train"]
+    val_l = labels.get("val")
+
+    # -- 2. predictor --------------------------------------------------------------------------------
+    p = s.predictor
+    predictor, hist = train_predictor(train_l.views, train_l.u, val=(val_l.views, val_l.u) if val_l is not None else None,
+                                      hidden=p["hidden"], layers=p["layers"], epochs=p["epochs"], lr=p["lr"],
+                                      weight_decay=p["weight_decay"], seed=p["seed"], margin=p["margin"])
+    predictor.save(out / "mean_predictor.pt")
+    timing["train_predictor_s"] = round(hist["seconds"], 2)
+
+    # -- fixed-mean ORP on the validation views (the ORP's own evaluation at an inference-time u) ----
+    t0 = time.perf_counter()
+    from ..data import ViewImageDataset
+
+    orp_rows = cache.splits["val"] if len(cache.splits["val"]) else cache.splits["train"]
+    orp_ds = ViewImageDataset(cache.path, orp_rows, pattern, fields=("view", "fr", "c"))
+
+    def orp_quality(u: float) -> dict[str, float]:
+        it = copy.deepcopy(iml)
+        it.mean = clamp_mean(u)
+        return evaluate_quality(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
+                         recnn.to(device), None, device)
+
+    ref_q = orp_quality(u_train)["psnr_iml_recnn"] if s.reference == "iml" else None
+
+    def orp_gap(u: float) -> float:
+        q = orp_quality(u)
+        return (q["psnr_recnn"] if ref_q is None else ref_q) - q["psnr_iml_recnn"]
+
+    orp_res = ORPSearch(epsilon_db=s.epsilon_db, bracket=bracket, tolerance=0.05, k=1, max_rounds=12, scale="log").run(batched(orp_gap))
+    u_orp = float(orp_res.mean) if orp_res.found else MEAN_RANGE[1]
+    timing["orp_search_s"] = round(time.perf_counter() - t0, 2)
+
+    # -- 3. evaluation on the trajectory -------------------------------------------------------------
+    t_eval = time.perf_counter()
+    ev = labels[s.views]
+    rows = ev.rows
+    renderer = make_renderer(scene, to_plain(cfg.renderer))
+    ims.to(device).eval()
+    views_t = torch.as_tensor(np.asarray(ev.views, np.float32)).to(device)
+    with torch.inference_mode():
+        g_all = ims.generator(views_t).float()
+        u_pred = predictor.to(device)(views_t).double().cpu().numpy()
+
+    def imls_ipr(u: float | np.ndarray) -> float:
+        with torch.inference_mode():
+            im = scaled_pim_im(ims, g_all, torch.as_tensor(u, dtype=torch.float32).expand(len(rows)), u_train)
+        return float(im.flatten(1).sum(1).double().mean()) / m**2
+
+    adaptive_ipr_est = imls_ipr(u_pred)
+    u_match = mean_for_ipr(imls_ipr, adaptive_ipr_est)
+    const = {"fixed": u_train, "orp": u_orp, "matched": u_match}
+    methods: dict[str, Any] = {"recnn": RecNNAlone(renderer, pattern, recnn, opts),
+                               "imls_fixed": IMLSRenderer.from_task(ims, renderer, recnn, opts)}
+    for k in ("orp", "matched"):
+        methods[f"imls_{k}"] = AdaptiveIMLSRenderer(renderer, ims, ConstantMean(clamp_mean(const[k])), recnn, opts)
+    methods["imls_adaptive"] = AdaptiveIMLSRenderer(renderer, ims, predictor, recnn, opts)
+    oracle = TableMean(ev.views, ev.u)
+    methods["imls_oracle"] = AdaptiveIMLSRenderer(renderer, ims, oracle, recnn, opts)
+    methods["iml_fixed"] = IMLPlusRecNN(renderer, pattern, iml, recnn, opts)
+    methods["iml_orp"] = IMLPlusRecNN(renderer, pattern, iml, recnn, opts, mean=clamp_mean(u_orp))
+    methods["iml_adaptive"] = AdaptiveIMLPlusRecNN(renderer, pattern, iml, recnn, predictor, opts)
+    methods["iml_oracle"] = AdaptiveIMLPlusRecNN(renderer, pattern, iml, recnn, oracle, opts)
+
+    timed = {"recnn", "imls_fixed", "imls_adaptive"}
+    timing_pos = set(spaced(len(rows), s.timing_views).tolist()) if s.timing_views else set()
+    per_view: list[dict[str, Any]] = []
+    lat: dict[str, list[dict[str, float]]] = {k: [] for k in timed}
+    from tqdm import tqdm
+
+    for i in tqdm(range(len(rows)), desc=f"evaluate {s.views}", unit="view", file=sys.stderr, disable=not s.progress,
+                  dynamic_ncols=True):
+        r = int(rows[i])
+        view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
+        rec: dict[str, Any] = {"view": i, "row": r, "complexity": float(ev.complexity[i]), "u_label": float(ev.u[i]),
+                               "label_met": bool(ev.met[i]), "u_pred": float(u_pred[i]), "u_fixed": u_train,
+                               "u_orp": u_orp, "u_matched": u_match}
+        for name, method in methods.items():
+            reps = s.repeats if (name in timed and i in timing_pos) else 1
+            fields_, _, _ = measure(method, view, truth, reps, 1 if reps > 1 else 0)
+            rec[f"psnr_{name}"] = fields_["psnr"]
+            rec[f"ipr_{name}"] = fields_["ipr"]
+            if reps > 1:
+                lat[name].append({k[:-3]: v for k, v in fields_.items() if k.endswith("_ms")})
+        per_view.append(rec)
+    timing["evaluate_s"] = round(time.perf_counter() - t_eval, 2)
+
+    # -- 4. trade-off curve: fixed means vs the predictor at several margins, on the label source's path --
+    trade = None
+    if s.tradeoff_means:
+        t0 = time.perf_counter()
+        with torch.inference_mode():
+            u_raw = predictor.log_mean(views_t).exp().double().cpu().numpy()
+        fixed_us = np.exp(np.linspace(math.log(0.05), 0.0, s.tradeoff_means)) if s.tradeoff_means > 1 else np.array([u_train])
+        means: dict[str, Any] = {f"fixed:{u:.6g}": float(u) for u in fixed_us}
+        means.update({f"adaptive x{mg:g}": u_raw * mg for mg in s.tradeoff_margins})
+        means["oracle (labels)"] = ev.u
+        if s.reference == "iml":  # the reference is the path itself at the trained mean: measured in the same pass
+            means["reference"] = u_train
+        q = quality_at_means(cache, rows, pattern, iml, recnn, means, source=s.label_source, ims=ims,
+                             batch_size=s.batch_size, device=device, progress=s.progress)
+        ref_psnr = q.pop("reference" if s.reference == "iml" else "recnn")["psnr"]
+        q.pop("recnn", None)
+        curve, compared = tradeoff(ref_psnr, {float(k[6:]): v for k, v in q.items() if k.startswith("fixed:")},
+                                   {k: v for k, v in q.items() if not k.startswith("fixed:")}, s.epsilon_db)
+        trade = {"curve": curve, "points": compared, "seconds": round(time.perf_counter() - t0, 2)}
+        write_csv(out / "tradeoff.csv", [{"setting": f"fixed u={r['u']:.5g}", **r} for r in curve] +
+                   [{"setting": p.name, "u": None, "ipr": p.ipr, "psnr": p.psnr, "within": p.within, "fixed_psnr": p.fixed_psnr,
+                     "fixed_ipr": p.fixed_ipr, "fixed_within": p.fixed_within} for p in compared])
+        plot_tradeoff(out / "tradeoff.png", curve, compared, s.epsilon_db, s.label_source)
+        timing["tradeoff_s"] = trade["seconds"]
+    timing["total_s"] = round(time.perf_counter() - t_start, 2)
+
+    # -- report ----------------------------------------------------------------------------------------
+    eps = s.epsilon_db
+    names = list(methods)
+    summ: dict[str, dict[str, Any]] = {}
+    base = np.array([r["psnr_recnn"] for r in per_view])
+    for name in names:
+        ps = np.array([r[f"psnr_{name}"] for r in per_view])
+        ip = np.array([r[f"ipr_{name}"] for r in per_view])
+        gap = base - ps
+        ref = np.array([r[f"psnr_{reference_method(name, s.reference)}"] for r in per_view])
+        gap_ref = ref - ps
+        summ[name] = {"ipr": float(ip.mean()), "psnr": float(ps.mean()), "gap": float(gap.mean()),
+                      "gap_ref": float(gap_ref.mean()), "max_gap_ref": float(gap_ref.max()),
+                      "max_gap": float(gap.max()), "within": float((gap_ref <= eps + 1e-9).mean()),
+                      "ipr_min": float(ip.min()), "ipr_max": float(ip.max())}
+        if lat.get(name):
+            summ[name]["latency_ms"] = {k: float(np.mean([d.get(k, 0.0) for d in lat[name]])) for k in lat[name][0]}
+    csv_rows = per_view
+    write_csv(out / "adaptive.csv", csv_rows)
+    plot_per_view(out / "adaptive.png", per_view, eps, s.reference)
+    md = markdown(s, cfg, ims, cache, summ, per_view, hist, timing, labels, u_train, u_orp, orp_res, u_match,
+                   adaptive_ipr_est, out, command or _command(), trade)
+    trade_json = None if trade is None else {"curve": trade["curve"], "points": [
+        {**p.__dict__, "d_psnr": p.d_psnr, "d_ipr": p.d_ipr} for p in trade["points"]]}
+    atomic_write_text(out / "adaptive.json", json.dumps({"summary": summ, "tradeoff": trade_json, "timing": timing, "predictor": hist,
+                                                             "u_train": u_train, "u_orp": u_orp, "u_matched": u_match,
+                                                             "epsilon_db": eps}, indent=2, default=str))
+    atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(
+        {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg} | {"settings": s.hashed(), "ims_checkpoint": s.ims,
+                                                                                    "recnn_checkpoint": s.recnn})))
+    return atomic_write_text(out / "adaptive.md", md)
+
+
+def _command() -> str:
+    from ..report import hydra_command
+
+    return hydra_command("imls_lightning.adaptive", "run_adaptive(cfg) through the Python API")
+
+
+@checked_command_line(CONF_DIR)
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="adaptive")
+@cli_errors
+def main(cfg: DictConfig) -> None:
+    """``python -m imls_lightning.adaptive ...``: prints the report's path last."""
+    path = run_adaptive(cfg)
+    print(path, flush=True)
