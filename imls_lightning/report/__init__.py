@@ -1,0 +1,73 @@
+"""Evaluation report: the metrics CSV, its per-method summary, paper-style Markdown tables and plots.
+
+:mod:`imls_lightning.evaluate` measures; this package only formats. Every file is written atomically
+(temporary name + rename), so an interrupted run never leaves a half-written CSV, PNG or report.
+
+Plots use matplotlib's object-oriented API on the Agg canvas (no pyplot global state, no display).
+
+Example:
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> rows = [{"view": 0, "row": 40, "method": "recnn", "total_ms": 2.0, "recnn_ms": 1.0,
+    ...          "selective_render_ms": 1.0, "ipr": 0.25, "psnr": 30.0, "ssim": 0.9}]
+    >>> p = write_metrics_csv(rows, d / "metrics.csv")
+    >>> summary(p)["recnn"]["latency_ms"]["total"]
+    2.0
+
+One idea per module, every public name re-exported here: :mod:`~imls_lightning.report.names`
+(labels, colours, CSV columns), :mod:`~imls_lightning.report.metrics_csv` (atomic files, the CSVs,
+the per-method summary), :mod:`~imls_lightning.report.machine` (command line, machine),
+:mod:`~imls_lightning.report.tables` (Markdown tables), :mod:`~imls_lightning.report.plots` and
+:mod:`~imls_lightning.report.document` (``report.md``).
+"""
+from __future__ import annotations
+
+from .document import ReportContext, render_markdown, write_report
+from .machine import hydra_command, machine_info
+from .metrics_csv import atomic_write_text, number, read_csv, summarize_rows, summary, write_metrics_csv
+from .names import (
+    MASK_LABELS,
+    METHOD_COLORS,
+    METHOD_LABELS,
+    METHOD_ORDER,
+    METRIC_COLUMNS,
+    OPTION_COLUMNS,
+    STAGE_COLORS,
+    STAGE_LABELS,
+    SWEEP_COLUMNS,
+)
+from .plots import (
+    error_map,
+    im_to_fr_mask,
+    new_figure,
+    plot_image_grid,
+    plot_latency_vs_psnr,
+    plot_options,
+    plot_psnr_per_view,
+    plot_stage_breakdown,
+    save_figure,
+)
+from .tables import (
+    equal_share_markdown,
+    fmt,
+    fmt_pct,
+    latency_table,
+    md_table,
+    options_table,
+    quality_table,
+    speedup,
+    speedup_table,
+    sweep_label,
+    sweep_points,
+    sweep_table,
+)
+
+__all__ = [
+    "METHOD_LABELS", "METHOD_ORDER", "METRIC_COLUMNS", "SWEEP_COLUMNS", "OPTION_COLUMNS", "STAGE_LABELS",
+    "atomic_write_text", "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "md_table",
+    "fmt", "fmt_pct", "speedup", "latency_table", "speedup_table", "quality_table", "sweep_table", "options_table",
+    "sweep_points", "error_map", "im_to_fr_mask", "plot_stage_breakdown", "plot_psnr_per_view",
+    "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "new_figure", "save_figure", "ReportContext", "write_report",
+    "render_markdown",
+    "STAGE_COLORS", "METHOD_COLORS", "MASK_LABELS", "hydra_command", "equal_share_markdown", "number", "sweep_label",
+]

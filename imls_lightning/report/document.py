@@ -1,0 +1,259 @@
+"""``report.md``: :class:`ReportContext` (everything the evaluation measured) and :func:`write_report`
+(the plots, the image grid and, last, the Markdown text of :func:`render_markdown`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from .metrics_csv import atomic_write_text, summarize_rows
+from .names import METHOD_LABELS, METHOD_ORDER
+from .plots import plot_image_grid, plot_latency_vs_psnr, plot_options, plot_psnr_per_view, plot_stage_breakdown
+from .tables import (
+    equal_share_markdown,
+    fmt,
+    fmt_pct,
+    latency_table,
+    md_table,
+    options_table,
+    quality_table,
+    speedup_table,
+    sweep_label,
+    sweep_points,
+    sweep_table,
+)
+
+
+@dataclass
+class ReportContext:
+    """Everything :func:`write_report` formats (filled by :func:`imls_lightning.evaluate.evaluate`).
+
+    ``rows`` / ``sweep_rows`` / ``option_rows`` are the rows of metrics.csv / sweep.csv / options.csv;
+    ``grid`` is :func:`plot_image_grid`'s input; ``order`` the evaluated methods in table order.
+    """
+
+    out: Path
+    scene: str
+    recnn_name: str
+    resolution: int
+    c_size: int
+    pattern: str
+    renderer: str
+    views: str
+    positions: list[int]
+    trajectory_len: int
+    repeats: int
+    warmup: int
+    options: dict[str, Any]
+    device: str
+    checkpoints: dict[str, str]
+    iml_mean: float
+    rows: list[dict[str, Any]]
+    sweep_rows: list[dict[str, Any]] = field(default_factory=list)
+    option_rows: list[dict[str, Any]] = field(default_factory=list)
+    order: list[str] = field(default_factory=lambda: list(METHOD_ORDER))
+    sweep_positions: list[int] = field(default_factory=list)
+    grid: dict[int, dict[str, Any]] = field(default_factory=dict)
+    pattern_obj: Any = None
+    notes: list[str] = field(default_factory=list)
+    las_ipr: float | None = None
+    machine: dict[str, str] = field(default_factory=dict)
+    command: str = ""
+    cache: str = ""
+    orp: dict[str, Any] | None = None
+    equal_share: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _latency_points(ctx: ReportContext, summ, points) -> tuple[dict, dict, float | None]:
+    curves: dict[str, list[tuple[float, float, str]]] = {}
+    for (method, value), s in sorted(points.items(), key=lambda kv: kv[0][1]):
+        label = METHOD_LABELS.get(method, method) + (" (sweep)" if method == "las" else "")
+        note = sweep_label(method, s["setting"], value)
+        if method == "iml_selective":
+            note = f"{note}, IPR {fmt_pct(s['ipr'])}"
+        curves.setdefault(label, []).append((s["latency_ms"].get("total", math.nan), s["psnr"], note))
+    pts = {}
+    for m in ctx.order:
+        if m == "full":
+            continue
+        s = summ[m]
+        extra = f" (u={ctx.iml_mean:g})" if m == "iml" else (f" (IPR {fmt_pct(s['ipr'])})" if m in ("imls", "las") else "")
+        pts[f"{s['label']}{extra}"] = (s["latency_ms"].get("total", math.nan), s["psnr"])
+    full = summ["full"]["latency_ms"].get("total") if "full" in summ else None
+    return curves, pts, full
+
+
+def _md_image(name: str, alt: str) -> str:
+    return f"![{alt}]({name})"
+
+
+def write_report(ctx: ReportContext) -> Path:
+    """Write the plots, the image grid and (last, atomically) ``report.md`` into ``ctx.out``.
+
+    Files: ``stage_breakdown.png``, ``psnr_per_view.png``, ``latency_vs_psnr.png`` (with sweep rows),
+    ``options.png`` (with option rows), ``image_grid.png`` (with grid views), ``report.md``.
+    Returns the path of ``report.md``.
+    """
+    out = Path(ctx.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not ctx.rows:
+        raise ValueError("write_report: no metric rows")
+    summ = summarize_rows(ctx.rows)
+    order = [m for m in ctx.order if m in summ]
+    figures: list[tuple[str, str]] = []
+
+    plot_stage_breakdown(summ, order, out / "stage_breakdown.png")
+    figures.append(("stage_breakdown.png", "Time breakdown per method"))
+    approx = [m for m in order if m != "full"]  # the full ray cast is the ground truth
+    plot_psnr_per_view(ctx.rows, approx, out / "psnr_per_view.png")
+    figures.append(("psnr_per_view.png", "PSNR per view"))
+    points = sweep_points(ctx.sweep_rows) if ctx.sweep_rows else {}
+    curves, pts, full_ms = _latency_points(ctx, summ, points)
+    plot_latency_vs_psnr(curves, pts, full_ms, out / "latency_vs_psnr.png")
+    figures.append(("latency_vs_psnr.png", "Latency vs PSNR"))
+    if ctx.option_rows:
+        ok = [r for r in ctx.option_rows if not r.get("error")]
+        if ok:
+            plot_options(ok, out / "options.png")
+            figures.append(("options.png", "IML/S network stages per inference option"))
+    if ctx.grid:
+        plot_image_grid(ctx.grid, order, out / "image_grid.png", ctx.pattern_obj, ctx.resolution)
+        figures.append(("image_grid.png", "Image grid: ground truth, each method, error maps"))
+
+    text = render_markdown(ctx, summ, order, points, figures)
+    return atomic_write_text(out / "report.md", text)
+
+
+def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figures: Sequence[tuple[str, str]]) -> str:
+    """The text of report.md (paper-style tables; see :func:`write_report`)."""
+    L: list[str] = []
+    L.append(f"# IML/S evaluation: {ctx.scene}, {ctx.recnn_name}")
+    L.append("")
+    n_views = len(ctx.positions)
+    opts = ", ".join(f"{k}={v}" for k, v in ctx.options.items())
+    mach = ctx.machine or {}
+    machine = ", ".join(f"{k} {v}" for k, v in mach.items() if k not in ("device",))
+    header = [
+        ("scene", ctx.scene),
+        ("RecNN", ctx.recnn_name),
+        ("resolution (FR-Image)", f"{ctx.resolution}×{ctx.resolution}"),
+        ("C-Image size", f"{ctx.c_size}×{ctx.c_size}"),
+        ("sampling pattern", ctx.pattern),
+        ("renderer", ctx.renderer),
+        ("views", f"{n_views} of the {ctx.trajectory_len} '{ctx.views}' views"
+                  + (" (the test trajectory)" if ctx.views == "test" else "")),
+        ("timing", f"per view and stage: median of {ctx.repeats} runs after {ctx.warmup} warm-up run(s); tables: mean over views"),
+        ("device (networks)", mach.get("device", ctx.device)),
+        ("inference options", opts),
+        ("machine", machine or "–"),
+        ("command", f"`{ctx.command}`" if ctx.command else "–"),
+        ("cache", f"`{ctx.cache}`" if ctx.cache else "–"),
+    ]
+    header += [(f"checkpoint: {k}", f"`{v}`" if v and v != "–" else "–") for k, v in ctx.checkpoints.items()]
+    header.append(("IML mean u (as trained)", fmt(ctx.iml_mean, 4)))
+    if ctx.las_ipr is not None:
+        header.append(("LAS IPR", fmt_pct(ctx.las_ipr, 2)))
+    L.append(md_table(["", ""], [(k, str(v).replace("|", "\\|")) for k, v in header], "ll"))
+    L.append("")
+
+    L.append("## Average latency per method and stage (ms)")
+    L.append("")
+    L.append(latency_table(summ, order, reference="recnn"))
+    L.append("")
+    L.append("IPR: ray-cast important pixels / FR pixels (the RecNN alone and IML + RecNN ray-cast their whole "
+             "pattern; IML + RecNN's IPR is the IML mask it keeps). C-Image share: important / pattern pixels. "
+             "Total: median of the per-run sums of the stages.")
+    L.append("")
+
+    if ctx.orp is not None:
+        o = ctx.orp
+        L.append("## ORP on the product path")
+        L.append("")
+        if o["found"]:
+            L.append(f"The smallest mean value u whose IML/S + RecNN (IMS mask from the view, exactly those pixels "
+                     f"ray-cast, IML decoder, RecNN) stays within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN alone on "
+                     f"the validation views: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
+                     f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB ({o['evaluations']} means tried). IML/S + RecNN "
+                     "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u).")
+        else:
+            L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
+                     "alone on the validation views; IML/S runs at its trained mean.")
+        L.append("")
+        L.append(md_table(["u", "gap (dB)", "C-share"], [[fmt(u, 4), fmt(g, 2), fmt_pct(c)] for u, g, c in o["points"]], "rrr"))
+        L.append("")
+
+    if "imls" in summ:
+        L.append("## Speed-up of IML/S + RecNN")
+        L.append("")
+        L.append(speedup_table(summ))
+        L.append("")
+
+    L.append("## Average image quality")
+    L.append("")
+    L.append(quality_table(ctx.rows, summ, order))
+    L.append("")
+    if "full" in summ:
+        L.append("Ground truth = the cache's full ray cast by the same renderer, so the full ray cast scores "
+                 "100 dB (identical images; the PSNR is capped there) unless the renderer is not deterministic.")
+        L.append("")
+
+    if ctx.equal_share:
+        L.append("## Learned parts against untrained baselines, at equal share")
+        L.append("")
+        L.append("Each mask is brought to the target share of the C-Image per view (bisection on u, no ground truth); "
+                 "its pixels are rebuilt by the decoder trained for that mask or by the untrained pull-push fill, then "
+                 "by the same RecNN. PSNR after the RecNN, mean over the evaluated views. \"decoder − fill\": what the "
+                 "trained decoder adds on the same pixels; \"mask − blue noise\": what the learned mask adds over the "
+                 "blue-noise mask of the same share, each through its own trained decoder. Density: share of the empty "
+                 "background (ground truth black) and of the object that the mask samples.")
+        L.append("")
+        L.append(equal_share_markdown(ctx.equal_share))
+        L.append("")
+
+    if points:
+        L.append("## Latency / PSNR sweep")
+        L.append("")
+        L.append(f"On {len(ctx.sweep_positions)} view(s) (positions {_positions(ctx.sweep_positions)}). "
+                 "IML + RecNN at each inference mean u; \"IML IM, selectively rendered\": the IML/S pipeline "
+                 "with the IML's mask of that u in place of the IMS output (the latency IML/S would have if "
+                 "its IMS reproduced that mask)"
+                 + ("; LAS at each IPR." if any(k[0] == "las" for k in points) else "."))
+        L.append("")
+        L.append(sweep_table(points))
+        L.append("")
+
+    if ctx.option_rows:
+        L.append("## Inference options (IML/S network stages)")
+        L.append("")
+        L.append(options_table(ctx.option_rows))
+        L.append("")
+
+    L.append("## Notes")
+    L.append("")
+    for note in ctx.notes:
+        L.append(f"- {note}")
+    L.append("- Selective rendering is real: the renderer ray-casts only the chosen pixels, so its stage time "
+             "falls with the IPR; IML + RecNN renders the whole pattern (its importance comes from the "
+             "rendered C-Image), so it bounds quality, not speed.")
+    L.append(f"- Evaluated view positions: {_positions(ctx.positions)}.")
+    L.append("- Files: `metrics.csv` (view × method), `sweep.csv`"
+             + (", `options.csv`" if ctx.option_rows else "") + ", `config.yaml`.")
+    L.append("")
+
+    L.append("## Figures")
+    L.append("")
+    for name, alt in figures:
+        L.append(f"### {alt}")
+        L.append("")
+        L.append(_md_image(name, alt))
+        L.append("")
+    return "\n".join(L)
+
+
+def _positions(ps: Sequence[int], limit: int = 24) -> str:
+    ps = [int(p) for p in ps]
+    if len(ps) > 1 and ps == list(range(ps[0], ps[-1] + 1)):
+        return f"{ps[0]}–{ps[-1]}"
+    s = ", ".join(str(p) for p in ps[:limit])
+    return s + (f", … ({len(ps)} in all)" if len(ps) > limit else "")

@@ -1,0 +1,123 @@
+"""The metrics CSV: written atomically (temporary name + rename), read back, and summarized per method."""
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ..pipeline import STAGES
+from .names import METHOD_LABELS, METRIC_COLUMNS
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file and a rename (never half-written)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    with open(tmp, "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    tmp.replace(p)
+    return p
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
+    import io
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: _fmt_cell(r.get(k)) for k in columns})
+    return buf.getvalue()
+
+
+def _fmt_cell(v: Any) -> Any:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(round(v, 6))
+    return v
+
+
+def write_metrics_csv(rows: Sequence[Mapping[str, Any]], path: str | Path, columns: Sequence[str] = METRIC_COLUMNS) -> Path:
+    """One row per (view, method); missing stages are empty cells. Atomic."""
+    return atomic_write_text(path, _csv_text(rows, columns))
+
+
+def read_csv(path: str | Path) -> list[dict[str, Any]]:
+    """Rows of a CSV written here; numeric cells as float (empty -> NaN), text cells as str."""
+    p = Path(path)
+    if not p.is_file():
+        from data_gen.errors import InputError
+
+        raise InputError(f"metrics_csv={path}: file not found")
+    out = []
+    with open(p, newline="", encoding="utf-8") as f:
+        for r in csv.DictReader(f):
+            row: dict[str, Any] = {}
+            for k, v in r.items():
+                if k in ("method", "setting"):
+                    row[k] = v
+                    continue
+                try:
+                    row[k] = float(v) if v != "" else math.nan
+                except ValueError:
+                    row[k] = v
+            out.append(row)
+    return out
+
+def _nanmean(values: Iterable[float]) -> float:
+    a = np.asarray([v for v in values], dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else math.nan
+
+
+def summarize_rows(rows: Sequence[Mapping[str, Any]], key: str = "method") -> dict[str, dict[str, Any]]:
+    """Per-method (or per ``key``) averages of metric rows; see :func:`summary`."""
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(str(r[key]), []).append(r)
+    out: dict[str, dict[str, Any]] = {}
+    for name, rs in groups.items():
+        lat = {}
+        for s in list(STAGES) + ["total"]:
+            v = _nanmean(number(r.get(f"{s}_ms")) for r in rs)
+            if math.isfinite(v):
+                lat[s] = v
+        out[name] = {
+            "label": METHOD_LABELS.get(name, name),
+            "views": len(rs),
+            "latency_ms": lat,
+            **{k: _nanmean(number(r.get(k)) for r in rs) for k in ("psnr", "ssim", "ipr", "c_share", "rendered_pixels")},
+        }
+    return out
+
+
+def number(v: Any) -> float:
+    """A cell as a float: None, an empty or a non-numeric cell -> NaN."""
+    try:
+        return float(v) if v not in (None, "") else math.nan
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def summary(metrics_csv: str | Path) -> dict[str, dict[str, Any]]:
+    """Per-method averages over the views of an evaluation's ``metrics.csv``.
+
+    Returns:
+        ``{method: {"label", "views", "latency_ms": {stage: mean ms, ..., "total": mean ms},
+        "psnr", "ssim", "ipr", "c_share", "rendered_pixels"}}`` in the CSV's method order; stages
+        a method does not have are absent, metrics it does not have are NaN.
+
+    Example:
+        >>> s = summary("runs/eval/tiny-enhancenet-1a2b3c4d/metrics.csv")   # doctest: +SKIP
+        >>> s["imls"]["latency_ms"]["total"], s["imls"]["psnr"]             # doctest: +SKIP
+        (1.21, 27.3)
+    """
+    return summarize_rows(read_csv(metrics_csv))

@@ -1,0 +1,51 @@
+"""Names, colours and columns of the evaluation report: the paper's method and stage labels and the
+columns of ``metrics.csv`` / ``sweep.csv`` / ``options.csv``."""
+from __future__ import annotations
+
+from ..pipeline import STAGES
+
+#: method key -> label in tables and plots (the paper's names)
+METHOD_LABELS = {
+    "full": "Full ray cast",
+    "recnn": "RecNN alone",
+    "las": "LAS",
+    "iml": "IML + RecNN",
+    "imls": "IML/S + RecNN",
+    "imls_fill": "IML/S mask + fill + RecNN",
+    "blue_noise": "blue noise + decoder + RecNN",
+    "iml_selective": "IML IM, selectively rendered",
+}
+METHOD_ORDER = ("full", "recnn", "las", "iml", "imls", "imls_fill", "blue_noise")
+STAGE_LABELS = {
+    "low_res_render": "low-res render",
+    "render": "render",
+    "importance": "importance",
+    "selective_render": "selective render",
+    "decoder": "decoder",
+    "recnn": "RecNN",
+}
+# colours of the paper's time-breakdown figure: rendering blue/green, importance orange, RecNN red
+STAGE_COLORS = {
+    "low_res_render": "#1f77b4",
+    "render": "#6baed6",
+    "importance": "#ff7f0e",
+    "selective_render": "#2ca02c",
+    "decoder": "#9467bd",
+    "recnn": "#d62728",
+}
+METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "las": "#2ca02c", "iml": "#ff7f0e",
+                 "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f"}
+
+#: columns of metrics.csv, in order
+METRIC_COLUMNS = (
+    ["view", "row", "method"]
+    + [f"{s}_ms" for s in STAGES]
+    + ["total_ms", "ipr", "c_share", "rendered_pixels", "psnr", "ssim"]
+)
+SWEEP_COLUMNS = ["view", "row", "method", "setting", "value"] + METRIC_COLUMNS[3:]
+#: columns of options.csv (IML/S network stages under each inference option, mean over views)
+OPTION_COLUMNS = ["option", "first_call_s", "importance_ms", "selective_render_ms", "decoder_ms", "recnn_ms",
+                  "networks_ms", "total_ms", "psnr", "error"]
+
+
+MASK_LABELS = {"ims": "IMS (from the view)", "iml": "IML (from the C-Image)", "blue_noise": "blue noise (untrained)"}
