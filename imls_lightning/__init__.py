@@ -1,3 +1,72 @@
-"""imls-lightning: Importance Mask Learning (IML) and Synthesis (IMS) for RecNN volume rendering."""
+"""imls-lightning: Importance Mask Learning (IML) and Synthesis (IMS) for RecNN volume rendering.
+
+The small public API, importable from the package itself::
+
+    from imls_lightning import IMLSRenderer
+    renderer = IMLSRenderer.from_checkpoints("ims.ckpt")   # IMS + IML decoder + RecNN + scene
+    image, timings = renderer.render(view)                 # view: 9 floats (eye, lookAt, up)
+
+Every name in :data:`__all__` lives in one home module (see :data:`HOMES`) and is imported from
+there on first use (PEP 562 module ``__getattr__``), so ``import imls_lightning`` stays cheap: it
+loads no torch, and no module of the package imports this one, so it can take part in no cycle.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
+
+#: public name -> the module it lives in (its one home)
+HOMES: dict[str, str] = {
+    # inference methods (imls_lightning.evaluate measures these) and their options
+    "IMLSRenderer": "imls_lightning.pipeline",
+    "FullRayCast": "imls_lightning.pipeline",
+    "RecNNAlone": "imls_lightning.pipeline",
+    "IMLPlusRecNN": "imls_lightning.pipeline",
+    "LASMethod": "imls_lightning.pipeline",
+    "Method": "imls_lightning.pipeline",
+    "NetOptions": "imls_lightning.pipeline",
+    "time_method": "imls_lightning.pipeline",
+    "pick_device": "imls_lightning.pipeline",
+    "AdaptiveIMLSRenderer": "imls_lightning.adaptive.renderer",
+    "ExportedIMLSRenderer": "imls_lightning.export",
+    "export_renderer": "imls_lightning.export",
+    # networks
+    "IMLNet": "imls_lightning.models.iml",
+    "IMSGenerator": "imls_lightning.models.ims",
+    "IMSDiscriminator": "imls_lightning.models.ims",
+    "EnhanceNet": "imls_lightning.models.enhancenet",
+    "FoVolNet": "imls_lightning.models.fovolnet",
+    "UNet": "imls_lightning.models.unet",
+    # LightningModules and checkpoints
+    "IMLTask": "imls_lightning.tasks.iml",
+    "IMSTask": "imls_lightning.tasks.ims",
+    "RecNNTask": "imls_lightning.tasks.recnn",
+    "LASTask": "imls_lightning.tasks.las",
+    "load_task": "imls_lightning.tasks.base",
+    # sampling pattern, compaction, importance
+    "SamplingPattern": "imls_lightning.patterns",
+    "build_pattern": "imls_lightning.patterns",
+    "compact": "imls_lightning.compaction",
+    "decompact": "imls_lightning.compaction",
+    "normalize_importance": "imls_lightning.importance",
+    # the ORP search (torch-free)
+    "ORPSearch": "imls_lightning.orp.search",
+}
+
+__all__ = sorted(HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name from its home module on first use (and keep it here)."""
+    home = HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
