@@ -47,20 +47,8 @@ from .plots import (
     plot_stage_breakdown,
     save_figure,
 )
-from .tables import (
-    equal_share_markdown,
-    fmt,
-    fmt_pct,
-    latency_table,
-    md_table,
-    options_table,
-    quality_table,
-    speedup,
-    speedup_table,
-    sweep_label,
-    sweep_points,
-    sweep_table,
-)
+from .tables import (equal_share_markdown, fmt, fmt_pct, latency_table, md_table, options_table, quality_table,
+                     speedup, speedup_table, sweep_label, sweep_points, sweep_table)
 
 __all__ = [
     "METHOD_LABELS", "METHOD_ORDER", "METRIC_COLUMNS", "SWEEP_COLUMNS", "OPTION_COLUMNS", "STAGE_LABELS",
