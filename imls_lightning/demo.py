@@ -206,7 +206,8 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
         las = stage("LAS", [*train, "model=las", *train_common, *override_list(cfg, "stages.las")])
 
     ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={runs}", f"checkpoints.ims={ims}",
-          f"checkpoints.recnn={recnn}", f"progress={bool(cfg.progress)}", "reuse=true", *override_list(cfg, "evaluate")]
+          f"checkpoints.recnn={recnn}", f"checkpoints.iml={iml}", f"progress={bool(cfg.progress)}", "reuse=true",
+          *override_list(cfg, "evaluate")]
     if las:
         ev.append(f"checkpoints.las={las}")
     if blue:

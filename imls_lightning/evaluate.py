@@ -236,6 +236,8 @@ def load_networks(s: Settings, resolution: int) -> Networks:
         iml, iml_source = it.iml, s.iml
     else:
         iml, iml_source = ims.iml, f"{s.ims} (the IML its labels came from)"
+        if float(ims.hparams.get("decoder_lr", 0.0)) > 0:
+            iml_source += ", its decoder fine-tuned on the IMS's masks (pass checkpoints.iml= for the IML's own)"
     las = None
     if s.las:
         las = load_task(s.las, expect="LASTask", what="checkpoints.las")

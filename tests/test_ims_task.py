@@ -16,6 +16,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
@@ -27,7 +28,7 @@ from imls_lightning.models.ims import im_to_target
 from imls_lightning.patterns import build_pattern, plastic_rank_pattern
 from imls_lightning.tasks.base import load_task, psnr_per_image
 from imls_lightning.tasks.iml import IMLTask
-from imls_lightning.tasks.ims import IMSTask, loss_config, pim_to_target
+from imls_lightning.tasks.ims import IMSTask, loss_config, pim_to_target, scaled_pim_im
 from imls_lightning.tasks.recnn import RecNNTask
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -244,6 +245,38 @@ def test_smoke_manual_optimization_300_steps_no_nan():
     assert math.isfinite(float(tr.callback_metrics["val/im_error"]))
 
 
+def test_decoder_finetuning_trains_only_the_decoder_on_the_ims_masks():
+    """decoder_lr > 0: the decoder moves (and only it of the frozen passengers), its loss is the IML's
+    end-to-end loss on the generator's own hard masks, and it falls; decoder_lr = 0 keeps it frozen."""
+    torch.manual_seed(0)
+    loss = {"mse": 1.0, "perceptual": 0.0, "adversarial": 0.0}
+    frozen = tiny_task(target="pim", loss=loss)
+    assert not any(p.requires_grad for p in frozen.iml.parameters()) and len(frozen.configure_optimizers()) == 2
+    task = tiny_task(target="pim", loss=loss, decoder_lr=1e-2)
+    assert task.finetunes_decoder and len(task.configure_optimizers()) == 3
+    assert all(p.requires_grad for p in task.iml.decoder.parameters())
+    before = {k: v.clone() for k, v in task.state_dict().items() if k.startswith(("iml.", "recnn."))}
+    rec = StepRecorder()
+    tr = quiet_trainer(max_steps=3 * 60, check_val_every_n_epoch=100, callbacks=[rec])
+    tr.fit(task, loader(16, batch_size=8, shuffle=True), loader(8, seed=1))
+    after = task.state_dict()
+    moved = {k for k, v in before.items() if not torch.equal(v, after[k])}
+    assert moved and all(k.startswith("iml.decoder.") for k in moved), sorted(moved)[:5]
+    dec = np.array([s["train/decoder_loss_step"] for s in rec.steps])
+    assert np.isfinite(dec).all() and dec[-10:].mean() < dec[:10].mean()
+    # the loss is the IML's end-to-end loss on the masks scaled_pim_im makes (direct computation)
+    batch = next(iter(loader(4, seed=2)))
+    torch.manual_seed(1)
+    with torch.no_grad():
+        got = task.decoder_loss(task.generator(batch["view"]), batch)
+        torch.manual_seed(1)
+        u = task._random_means(4, "cpu")
+        im = scaled_pim_im(task, task.generator(batch["view"]), u).float()
+        c_rec = task.iml.decoder(im * batch["c"], im)
+        want = 0.5 * F.mse_loss(c_rec, batch["c"]) + 0.5 * F.mse_loss(task.recnn(c_rec), batch["fr"])
+    assert torch.allclose(got, want, rtol=1e-5)
+
+
 def test_smoke_short_run_with_the_real_perceptual_loss():
     """Default perceptual loss (HED VGG16, relu1_2..relu4_3) + adversarial 0.01 at n = 32."""
     pytest.importorskip("h5py")
@@ -373,6 +406,9 @@ def test_checkpoint_round_trip_gives_identical_masks(tmp_path, target):
         ({"loss": {"perceptual": {"weight": 1.0, "backbone": "vgg16", "weights": "/nonexistent/vgg16.pth"}}}, "loss.perceptual.weights=/nonexistent"),
         ({"betas": [0.5, 1.0]}, "model.betas"),
         ({"lr": 0.0}, "model.lr=0.0"),
+        ({"decoder_lr": -1e-3, "target": "pim"}, "model.decoder_lr=-0.001"),
+        ({"decoder_lr": float("nan"), "target": "pim"}, "model.decoder_lr=nan"),
+        ({"decoder_lr": 1e-3, "target": "im"}, "needs model.target=pim"),
     ],
 )
 def test_exception_bad_settings(kw, match):

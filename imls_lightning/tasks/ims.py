@@ -32,6 +32,15 @@ rendering of those C-Image pixels -> IML decoder -> RecNN. The RecNN comes from 
 when the IML was trained end-to-end, otherwise from ``recnn.checkpoint`` (the off-the-shelf case);
 without either the FR metrics are skipped with a one-time warning.
 
+Decoder fine-tuning (beyond the paper, ``model.decoder_lr > 0``; needs ``target=pim``). The IML
+decoder was trained on the IML's own masks, which the IMS only approximates from the view. With
+``decoder_lr > 0`` the decoder (not the encoder, not the RecNN) is trained further, beside the
+generator, on the hard masks the generator makes at a random mean value per view (drawn from the
+IML's ``mean_range``, else its mean), with the IML's end-to-end loss
+``compaction_weight * MSE(C', C) + image_weight * MSE(RecNN(C'), FR)`` (``MSE(C', C)`` alone without a
+RecNN). The product path then runs the decoder that was trained for the masks it will get; the
+fine-tuned weights are stored in the IMS checkpoint. ``decoder_lr = 0`` (default) keeps it frozen.
+
 Logged under ``{prefix}`` = ``train`` | ``val`` | ``test``:
 
 * train: ``loss_g`` (weighted generator loss), the active unweighted terms ``bce``, ``mse``,
@@ -270,6 +279,7 @@ class IMSTask(ImlsTask):
         labels: Optional[str] = None,
         scene: Optional[Mapping] = None,
         renderer: Optional[Mapping] = None,
+        decoder_lr: float = 0.0,
         **_: Any,
     ):
         super().__init__()
@@ -277,6 +287,10 @@ class IMSTask(ImlsTask):
             raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
         if not (isinstance(lr, (int, float)) and lr > 0 and math.isfinite(lr)):
             raise InputError(f"model.lr={lr}: expected a positive number")
+        if not (isinstance(decoder_lr, (int, float)) and not isinstance(decoder_lr, bool) and decoder_lr >= 0 and math.isfinite(decoder_lr)):
+            raise InputError(f"model.decoder_lr={decoder_lr}: expected a number >= 0 (0: the IML decoder stays frozen)")
+        if decoder_lr > 0 and target != "pim":
+            raise InputError(f"model.decoder_lr={decoder_lr}: fine-tuning the decoder on the IMS's masks needs model.target=pim")
         betas = tuple(float(b) for b in to_plain(betas))
         if len(betas) != 2 or not all(0.0 <= b < 1.0 for b in betas):
             raise InputError(f"model.betas={list(betas)}: expected two numbers in [0, 1)")
@@ -294,6 +308,7 @@ class IMSTask(ImlsTask):
             "iml_checkpoint_sha256": iml_checkpoint_sha256, "labels": None if labels is None else str(labels),
             # the scene and renderer the IMS was trained on: IMLSRenderer.from_checkpoints needs nothing else
             "scene": _plain_json(scene) if scene else None, "renderer": _plain_json(renderer) if renderer else None,
+            "decoder_lr": float(decoder_lr),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
@@ -307,6 +322,8 @@ class IMSTask(ImlsTask):
         with config_keys({"base_channels": "model.disc_base_channels", "max_channels": "model.disc_max_channels"}):
             self.discriminator = IMSDiscriminator(n, base_channels=disc_base_channels, max_channels=disc_max_channels)
         self.iml = build_iml_net(iml_hparams, self.pattern).requires_grad_(False)
+        if decoder_lr > 0:
+            self.iml.decoder.requires_grad_(True)
         self.recnn = None
         if recnn_hparams:
             if not _same_pattern(recnn_hparams, self.pattern, int(fr_size)):
@@ -323,8 +340,12 @@ class IMSTask(ImlsTask):
     # -- accessors ----------------------------------------------------------------------------
     @property
     def decoder(self) -> torch.nn.Module:
-        """The IML decoder (PR-C-Image -> C-Image), frozen."""
+        """The IML decoder (PR-C-Image -> C-Image): frozen, or fine-tuned on the IMS's masks (``decoder_lr > 0``)."""
         return self.iml.decoder
+
+    @property
+    def finetunes_decoder(self) -> bool:
+        return float(self.hparams.get("decoder_lr", 0.0)) > 0
 
     @property
     def P(self) -> torch.Tensor:
@@ -411,7 +432,7 @@ class IMSTask(ImlsTask):
             pattern=cfg.pattern, fr_size=res, iml_hparams=dict(iml_task.hparams), target=m.get("target", "im"),
             layers=m.get("layers", 8), base_channels=m.get("base_channels", 32), max_channels=m.get("max_channels", 512),
             disc_base_channels=m.get("disc_base_channels", 32), disc_max_channels=m.get("disc_max_channels", 256),
-            loss=m.get("loss"), lr=m.get("lr", 1e-3), betas=m.get("betas", (0.5, 0.999)),
+            loss=m.get("loss"), lr=m.get("lr", 1e-3), betas=m.get("betas", (0.5, 0.999)), decoder_lr=m.get("decoder_lr", 0.0),
             recnn_hparams=recnn_hparams, recnn_source=source, iml_checkpoint=str(Path(ck).expanduser().resolve()),
             iml_checkpoint_sha256=labels.name[len("iml-"):], labels=str(labels),
             scene=to_plain(cfg.scene), renderer=to_plain(cfg.get("renderer")) if cfg.get("renderer") is not None else None,
@@ -513,10 +534,33 @@ class IMSTask(ImlsTask):
         lr, betas = self.hparams.lr, tuple(self.hparams.betas)
         opt_g = torch.optim.Adam(self.generator.parameters(), lr=lr, betas=betas)
         opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=lr, betas=betas)
-        return [opt_g, opt_d]
+        if not self.finetunes_decoder:
+            return [opt_g, opt_d]
+        return [opt_g, opt_d, torch.optim.Adam(self.iml.decoder.parameters(), lr=float(self.hparams.decoder_lr))]
+
+    def _random_means(self, n: int, device) -> torch.Tensor:
+        """``(n,)`` mean values for decoder fine-tuning: uniform in the IML's ``mean_range``, else its mean."""
+        h = self.hparams.iml_hparams
+        lo, hi = h.get("mean_range") or (float(self.iml.mean), float(self.iml.mean))
+        return float(lo) + (float(hi) - float(lo)) * torch.rand(n, device=device)
+
+    def decoder_loss(self, g: torch.Tensor, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The IML's end-to-end loss of the decoder on the generator's hard masks ``g`` (detached) at
+        random mean values: what :attr:`decoder` is fine-tuned on."""
+        c = batch["c"]
+        with torch.no_grad():
+            im = scaled_pim_im(self, g.detach(), self._random_means(c.shape[0], c.device)).to(c.dtype)
+        c_rec = self.iml.decoder(im * c, im)
+        comp = torch.nn.functional.mse_loss(c_rec.float(), c.float())
+        if self.recnn is None or "fr" not in batch:
+            return comp
+        h = self.hparams.iml_hparams
+        img = torch.nn.functional.mse_loss(self.recnn(c_rec).float(), batch["fr"].float())
+        return float(h.get("compaction_weight", 0.5)) * comp + float(h.get("image_weight", 0.5)) * img
 
     def training_step(self, batch, batch_idx):
-        opt_g, opt_d = self.optimizers()
+        opts = self.optimizers()
+        opt_g, opt_d = opts[0], opts[1]
         view = batch["view"]
         target = self.make_target(batch).to(view.device)
         bs = view.shape[0]
@@ -551,6 +595,15 @@ class IMSTask(ImlsTask):
         self.log("train/loss_g", loss_g.detach(), prog_bar=True, **log)
         for k, v in terms.items():
             self.log(f"train/{k}", v.detach(), **log)
+        if self.finetunes_decoder:
+            opt_dec = opts[2]
+            self.toggle_optimizer(opt_dec)
+            loss_dec = self.decoder_loss(fake, batch)
+            opt_dec.zero_grad(set_to_none=True)
+            self.manual_backward(loss_dec)
+            opt_dec.step()
+            self.untoggle_optimizer(opt_dec)
+            self.log("train/decoder_loss", loss_dec.detach(), **log)
         return loss_g.detach()
 
     # -- evaluation ----------------------------------------------------------------------------
