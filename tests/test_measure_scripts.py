@@ -98,3 +98,57 @@ def test_measure_pixel_check_script(tmp_path):
     spec.loader.exec_module(mod)
     out = mod.main(["--resolution", "64", "--views", "3", "--repeats", "5", "--cache-dir", str(tmp_path)])
     assert out["check_ms"] > 0 and out["ratio"] > 20, out
+
+
+def _ims_gap_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ims_gap", ROOT / "scripts" / "ims_gap.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_ims_gap_object_oracle_against_a_direct_loop():
+    torch = pytest.importorskip("torch")
+    mod = _ims_gap_module()
+    g = torch.Generator().manual_seed(0)
+    valid = torch.ones(6, 6, dtype=torch.bool)
+    obj = torch.rand(2, 1, 6, 6, generator=g) > 0.7
+    bg = ~obj
+    P = torch.rand(1, 1, 6, 6, generator=g)
+    got = mod.object_oracle(obj, bg, P, valid, 0.5)
+    for i in range(2):
+        frac = max(0.5 * 36 - int(obj[i].sum()), 0) / max(int(bg[i].sum()), 1)
+        want = obj[i] | (bg[i] & (P[0] < frac))
+        assert torch.equal(got[i].bool(), want)
+    assert got.dtype == torch.float32
+
+
+def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
+    """The script's IML rows equal the evaluation's equal-share rows on the same views (one formula),
+    and it prints the agreement and the gap tables."""
+    torch = pytest.importorskip("torch")
+    from data_gen.cache import ViewImageCache
+    from imls_lightning.baselines import equal_share_rows
+    from imls_lightning.tasks.base import load_task
+
+    mod = _ims_gap_module()
+    fr_size = int(load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims").hparams["fr_size"])
+    cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
+                     if ViewImageCache.open(p.parent).images.shape[1] == fr_size)
+    out = tmp_path / "gap.json"
+    assert mod.main([str(tiny_checkpoints["ims_pim"]), str(cache_dir), "--views", "4", "--shares", "0.2", "1.0",
+                     "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "PIM' correlation" in text and "| 0.20 | ims |" in text and "| 1.00 | oracle |" in text
+    data = json.loads(out.read_text())
+    assert len(data["rows"]) == 6 and all(np.isfinite(r["fr_psnr"]) for r in data["rows"])
+    with torch.no_grad():
+        ims = load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims").eval()
+        batch = mod.load_views(ViewImageCache.open(cache_dir), ims.pattern, "test", 4)
+        rows = equal_share_rows(batch["c"], batch["fr"], batch["view"], ims.recnn, iml=ims.iml, ims_task=ims, shares=[0.2])
+    want = next(r for r in rows if r["mask"] == "iml" and r["reconstruction"] == "decoder")
+    got = next(r for r in data["rows"] if r["mask"] == "iml" and r["share"] == 0.2)
+    assert got["fr_psnr"] == pytest.approx(float(np.mean(want["psnr"])), abs=1e-4)
+    assert got["density_object"] == pytest.approx(want["density_object"], abs=1e-6)
