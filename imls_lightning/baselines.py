@@ -103,8 +103,9 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
         views: ``(B, 9)`` views (for the IMS mask) or ``None``.
         recnn: the RecNN, the same for every row.
         iml: the :class:`~imls_lightning.models.iml.IMLNet` whose encoder gives the IML mask and
-            whose decoder rebuilds the IML and IMS masks' pixels (``None``: no learned rows).
-        ims_task: an ``IMSTask`` trained with ``target=pim`` (its PIM' is rescaled to each share).
+            whose decoder rebuilds its pixels (``None``: no IML rows).
+        ims_task: an ``IMSTask`` trained with ``target=pim`` (its PIM' is rescaled to each share); its
+            own decoder (the IML's, or fine-tuned on its masks) rebuilds the IMS masks' pixels.
         blue: an ``IMLNet`` trained with ``importance="uniform"`` (its decoder is the one trained
             for blue-noise masks), or ``None`` (blue-noise masks get the fill only).
         shares: C-Image shares.
@@ -134,7 +135,8 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
         sources["iml"] = (iml_mask, iml.decoder)
     if ims_task is not None and views is not None and ims_task.target == "pim":
         g = ims_task.generator(views.to(c.device).float()).float()
-        sources["ims"] = (lambda u: ims_task.output_to_im_at(g, u.to(c.device)), iml.decoder if iml is not None else None)
+        # the product's decoder: the IML's, or the one fine-tuned on the IMS's masks (model.decoder_lr > 0)
+        sources["ims"] = (lambda u: ims_task.output_to_im_at(g, u.to(c.device)), ims_task.decoder)
     sources["blue_noise"] = (lambda u: u.to(c.device).view(-1, 1, 1, 1) > P, blue.decoder if blue is not None else None)
 
     rows: list[dict[str, Any]] = []

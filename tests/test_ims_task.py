@@ -409,6 +409,7 @@ def test_checkpoint_round_trip_gives_identical_masks(tmp_path, target):
         ({"decoder_lr": -1e-3, "target": "pim"}, "model.decoder_lr=-0.001"),
         ({"decoder_lr": float("nan"), "target": "pim"}, "model.decoder_lr=nan"),
         ({"decoder_lr": 1e-3, "target": "im"}, "needs model.target=pim"),
+        ({"decoder_lr": 1e-3, "target": "pim", "decoder_every": 0}, "model.decoder_every=0"),
     ],
 )
 def test_exception_bad_settings(kw, match):

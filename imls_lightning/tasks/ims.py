@@ -40,6 +40,8 @@ IML's ``mean_range``, else its mean), with the IML's end-to-end loss
 ``compaction_weight * MSE(C', C) + image_weight * MSE(RecNN(C'), FR)`` (``MSE(C', C)`` alone without a
 RecNN). The product path then runs the decoder that was trained for the masks it will get; the
 fine-tuned weights are stored in the IMS checkpoint. ``decoder_lr = 0`` (default) keeps it frozen.
+A decoder step costs several generator steps (the decoder and the RecNN run forward and backward), so
+``decoder_every = k`` takes one every ``k`` batches.
 
 Logged under ``{prefix}`` = ``train`` | ``val`` | ``test``:
 
@@ -280,6 +282,7 @@ class IMSTask(ImlsTask):
         scene: Optional[Mapping] = None,
         renderer: Optional[Mapping] = None,
         decoder_lr: float = 0.0,
+        decoder_every: int = 1,
         **_: Any,
     ):
         super().__init__()
@@ -289,6 +292,8 @@ class IMSTask(ImlsTask):
             raise InputError(f"model.lr={lr}: expected a positive number")
         if not (isinstance(decoder_lr, (int, float)) and not isinstance(decoder_lr, bool) and decoder_lr >= 0 and math.isfinite(decoder_lr)):
             raise InputError(f"model.decoder_lr={decoder_lr}: expected a number >= 0 (0: the IML decoder stays frozen)")
+        if isinstance(decoder_every, bool) or not isinstance(decoder_every, int) or decoder_every < 1:
+            raise InputError(f"model.decoder_every={decoder_every}: expected an integer >= 1 (a decoder step every that many batches)")
         if decoder_lr > 0 and target != "pim":
             raise InputError(f"model.decoder_lr={decoder_lr}: fine-tuning the decoder on the IMS's masks needs model.target=pim")
         betas = tuple(float(b) for b in to_plain(betas))
@@ -308,7 +313,7 @@ class IMSTask(ImlsTask):
             "iml_checkpoint_sha256": iml_checkpoint_sha256, "labels": None if labels is None else str(labels),
             # the scene and renderer the IMS was trained on: IMLSRenderer.from_checkpoints needs nothing else
             "scene": _plain_json(scene) if scene else None, "renderer": _plain_json(renderer) if renderer else None,
-            "decoder_lr": float(decoder_lr),
+            "decoder_lr": float(decoder_lr), "decoder_every": int(decoder_every),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
@@ -433,6 +438,7 @@ class IMSTask(ImlsTask):
             layers=m.get("layers", 8), base_channels=m.get("base_channels", 32), max_channels=m.get("max_channels", 512),
             disc_base_channels=m.get("disc_base_channels", 32), disc_max_channels=m.get("disc_max_channels", 256),
             loss=m.get("loss"), lr=m.get("lr", 1e-3), betas=m.get("betas", (0.5, 0.999)), decoder_lr=m.get("decoder_lr", 0.0),
+            decoder_every=m.get("decoder_every", 1),
             recnn_hparams=recnn_hparams, recnn_source=source, iml_checkpoint=str(Path(ck).expanduser().resolve()),
             iml_checkpoint_sha256=labels.name[len("iml-"):], labels=str(labels),
             scene=to_plain(cfg.scene), renderer=to_plain(cfg.get("renderer")) if cfg.get("renderer") is not None else None,
@@ -595,7 +601,7 @@ class IMSTask(ImlsTask):
         self.log("train/loss_g", loss_g.detach(), prog_bar=True, **log)
         for k, v in terms.items():
             self.log(f"train/{k}", v.detach(), **log)
-        if self.finetunes_decoder:
+        if self.finetunes_decoder and batch_idx % int(self.hparams.get("decoder_every", 1)) == 0:
             opt_dec = opts[2]
             self.toggle_optimizer(opt_dec)
             loss_dec = self.decoder_loss(fake, batch)
