@@ -122,7 +122,11 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.views < 1 or not all(0 < s <= 1 for s in a.shares):
         ap.error("--views must be >= 1 and every --shares value in (0, 1]")
-    torch.set_grad_enabled(False)
+    with torch.no_grad():  # not set_grad_enabled(False): main() is also called in-process (tests)
+        return _report(a, ap)
+
+
+def _report(a: argparse.Namespace, ap: argparse.ArgumentParser) -> int:
     ims = load_task(a.ims_checkpoint, expect="IMSTask", what="ims_checkpoint").eval()
     if ims.target != "pim" or ims.recnn is None:
         ap.error("ims_checkpoint: needs an IMS trained with model.target=pim that carries a RecNN")

@@ -140,6 +140,7 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     out = tmp_path / "gap.json"
     assert mod.main([str(tiny_checkpoints["ims_pim"]), str(cache_dir), "--views", "4", "--shares", "0.2", "1.0",
                      "--json", str(out)]) == 0
+    assert torch.is_grad_enabled()  # the script leaves the process's autograd state as it found it
     text = capsys.readouterr().out
     assert "PIM' correlation" in text and "| 0.20 | ims |" in text and "| 1.00 | oracle |" in text
     data = json.loads(out.read_text())
