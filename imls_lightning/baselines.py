@@ -35,7 +35,7 @@ from .models.pull_push import pull_push_inpaint
 from .metrics import psnr_per_image
 from .tasks.iml import background_mask
 
-__all__ = ["SHARES", "mask_at_share", "equal_share_rows", "summarize_equal_share"]
+__all__ = ["SHARES", "mask_at_share", "iml_pim_at", "equal_share_rows", "summarize_equal_share"]
 
 #: the C-Image shares every report compares at (the issue's 10 %, 20 % and 40 % of C)
 SHARES = (0.1, 0.2, 0.4)
@@ -83,6 +83,15 @@ def mask_at_share(mask_at: Callable[[torch.Tensor], torch.Tensor], share: float,
     return (mask_at(hi.float()).bool() & valid.to(torch.bool)).float()
 
 
+def iml_pim_at(iml: torch.nn.Module, pim: torch.Tensor, u: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """PIM' of the IML ``iml``'s encoder output ``pim (B, 1, n, n)`` normalized per image to its own mean
+    value ``u (B,)`` (the IML's ``lower`` and ``delta``), over the ``valid (n, n)`` pixels."""
+    from .importance import normalize_importance
+
+    lower, delta = iml.normalization.lower, iml.normalization.delta
+    return torch.cat([normalize_importance(pim[i:i + 1], float(u[i]), lower, delta, valid) for i in range(pim.shape[0])])
+
+
 def _densities(im: torch.Tensor, c: torch.Tensor, valid: torch.Tensor) -> tuple[float, float]:
     bg = background_mask(c) & valid
     obj = ~background_mask(c) & valid
@@ -126,11 +135,9 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
     sources: dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.nn.Module | None]] = {}
     if iml is not None and iml.encoder is not None:
         pim, _ = iml.encode(c)
-        lower, delta = iml.normalization.lower, iml.normalization.delta
-        from .importance import normalize_importance
 
         def iml_mask(u: torch.Tensor) -> torch.Tensor:
-            return torch.cat([normalize_importance(pim[i:i + 1], float(u[i]), lower, delta, valid) for i in range(B)]) > P
+            return iml_pim_at(iml, pim, u, valid) > P
 
         sources["iml"] = (iml_mask, iml.decoder)
     if ims_task is not None and views is not None and ims_task.target == "pim":

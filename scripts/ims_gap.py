@@ -24,9 +24,8 @@ import numpy as np
 import torch
 
 from data_gen.cache import ViewImageCache
-from imls_lightning.baselines import mask_at_share
+from imls_lightning.baselines import iml_pim_at, mask_at_share
 from imls_lightning.data import ViewImageDataset
-from imls_lightning.importance import normalize_importance
 from imls_lightning.metrics import psnr_from_mse, psnr_per_image
 from imls_lightning.tasks.base import load_task
 from imls_lightning.tasks.iml import background_mask
@@ -47,10 +46,8 @@ def load_views(cache: ViewImageCache, pattern, split: str, count: int) -> dict[s
 def iml_pim(iml, c: torch.Tensor, mean: float) -> torch.Tensor:
     """The IML's PIM' of C-Images ``c`` at ``mean``, clamped to [0, 1] (what the IMS regresses)."""
     n = c.shape[-1]
-    valid = iml.valid.bool().view(n, n)
     pim, _ = iml.encode(c)
-    return torch.cat([normalize_importance(pim[i:i + 1], mean, iml.normalization.lower, iml.normalization.delta, valid)
-                      for i in range(c.shape[0])]).clamp(0, 1)
+    return iml_pim_at(iml, pim, torch.full((c.shape[0],), mean), iml.valid.bool().view(n, n)).clamp(0, 1)
 
 
 def pim_agreement(ims, batch: dict[str, torch.Tensor]) -> dict[str, float]:
@@ -82,8 +79,7 @@ def gap_rows(ims, batch: dict[str, torch.Tensor], shares) -> list[dict]:
     g = ims.generator(views).float()
 
     def iml_mask(u):
-        return torch.cat([normalize_importance(pim[i:i + 1], float(u[i]), iml.normalization.lower, iml.normalization.delta, valid)
-                          for i in range(B)]) > P
+        return iml_pim_at(iml, pim, u, valid) > P
 
     rows = []
     for share in shares:

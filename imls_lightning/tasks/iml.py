@@ -44,6 +44,26 @@ def background_mask(c_image: torch.Tensor) -> torch.Tensor:
     return c_image.amax(dim=1, keepdim=True) < BACKGROUND_LEVEL
 
 
+def end_to_end_loss(c_rec: torch.Tensor, c: torch.Tensor, fr_pred: Optional[torch.Tensor] = None,
+                    fr: Optional[torch.Tensor] = None, compaction_weight: float = 0.5,
+                    image_weight: float = 0.5) -> tuple[torch.Tensor, torch.Tensor, Optional[torch.Tensor]]:
+    """The IML's training loss: ``MSE(C', C)`` alone (standalone, no RecNN), or
+    ``compaction_weight * MSE(C', C) + image_weight * MSE(RecNN(C'), FR)`` (end to end; paper 0.5 / 0.5).
+
+    Returns ``(loss, compaction term, image term or None)``.
+
+    Example:
+        >>> c = torch.zeros(1, 3, 4, 4); fr = torch.zeros(1, 3, 8, 8)
+        >>> end_to_end_loss(c + 0.1, c, fr + 0.3, fr)[0].item() == 0.5 * 0.1**2 + 0.5 * 0.3**2
+        True
+    """
+    comp = F.mse_loss(c_rec, c)
+    if fr_pred is None:
+        return comp, comp, None
+    img = F.mse_loss(fr_pred, fr)
+    return compaction_weight * comp + image_weight * img, comp, img
+
+
 def iml_net_from_hparams(h: Mapping, pattern) -> IMLNet:
     """The :class:`IMLNet` of an ``IMLTask`` with hyperparameters ``h`` (one place for the defaults:
     checkpoints written before a hyperparameter existed get the behaviour they were trained with)."""
@@ -185,14 +205,12 @@ class IMLTask(ImlsTask):
             out = self.iml(c, hard=hard)
         finally:
             self.iml.mean = trained_mean
-        comp = F.mse_loss(out.c_recon, c)
-        loss = comp
         bs = c.shape[0]
         on_step = prefix == "train"
-        if self.recnn is not None:
-            fr_pred = self.recnn(out.c_recon)
-            img = F.mse_loss(fr_pred, batch["fr"])
-            loss = self.hparams.compaction_weight * comp + self.hparams.image_weight * img
+        fr_pred = self.recnn(out.c_recon) if self.recnn is not None else None
+        loss, comp, img = end_to_end_loss(out.c_recon, c, fr_pred, batch.get("fr"), self.hparams.compaction_weight,
+                                    self.hparams.image_weight)
+        if fr_pred is not None:
             self.log(f"{prefix}/image_loss", img, batch_size=bs, on_step=False, on_epoch=True)
             if prefix != "train":
                 self.log_image_metrics(f"{prefix}/fr", fr_pred, batch["fr"], prog_bar=True)

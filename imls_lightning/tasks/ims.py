@@ -79,7 +79,7 @@ from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
 from ..patterns import build_pattern
 from ..metrics import psnr_per_image
 from .base import ImlsTask, load_task
-from .iml import iml_net_from_hparams
+from .iml import end_to_end_loss, iml_net_from_hparams
 from .recnn import RecNNTask
 
 __all__ = ["IMSTask", "TARGETS", "loss_config", "build_criterion", "pim_to_target", "build_iml_net", "scaled_pim_im"]
@@ -557,12 +557,10 @@ class IMSTask(ImlsTask):
         with torch.no_grad():
             im = scaled_pim_im(self, g.detach(), self._random_means(c.shape[0], c.device)).to(c.dtype)
         c_rec = self.iml.decoder(im * c, im)
-        comp = torch.nn.functional.mse_loss(c_rec.float(), c.float())
-        if self.recnn is None or "fr" not in batch:
-            return comp
-        h = self.hparams.iml_hparams
-        img = torch.nn.functional.mse_loss(self.recnn(c_rec).float(), batch["fr"].float())
-        return float(h.get("compaction_weight", 0.5)) * comp + float(h.get("image_weight", 0.5)) * img
+        end_to_end = self.recnn is not None and "fr" in batch
+        fr_pred, fr = (self.recnn(c_rec).float(), batch["fr"].float()) if end_to_end else (None, None)
+        weights = {k: float(v) for k, v in self.hparams.iml_hparams.items() if k in ("compaction_weight", "image_weight")}
+        return end_to_end_loss(c_rec.float(), c.float(), fr_pred, fr, **weights)[0]
 
     def training_step(self, batch, batch_idx):
         opts = self.optimizers()
