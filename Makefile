@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # pytest-timeout guards against a hung VTK/numba worker in CI
 PYTEST_ARGS ?=
 
-.PHONY: setup test test-all demo bench clean lint
+.PHONY: setup test test-all demo bench bench-paper clean lint
 
 setup: $(STAMP)
 
@@ -33,6 +33,12 @@ demo: setup
 
 bench: setup
 	$(PY) -m imls_lightning.bench
+
+# the paper's scale (512^2 FR, 256^2 C, half-voxel sampling): hours on 2 cores; resumable, so run it
+# in the background and look at benchmarks/paper_scale.log; results in benchmarks/paper_scale.*
+bench-paper: setup
+	mkdir -p benchmarks
+	$(PY) -m imls_lightning.bench_paper 2>&1 | tee -a benchmarks/paper_scale.log
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

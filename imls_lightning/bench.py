@@ -52,6 +52,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
+from .report import atomic_write_text as atomic_write
+from .report.tables import fmt, md_table
+from .report.tables import fmt_pct as pct
+from .report.tables import speedup as ratio
 from .demo import StageFailed, check_scene_overrides, dry_stage, override_list, run_stage, split_scene_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,48 +86,11 @@ def args_hash(args: Sequence[str], length: int = 8) -> str:
     return hashlib.sha1("\x00".join(args).encode()).hexdigest()[:length]
 
 
-def atomic_write(path: Path, text: str) -> Path:
-    """Write ``text`` through a temporary file in the same folder and a rename (never half-written)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
-
-
 def _finite(x: Any) -> bool:
     try:
         return math.isfinite(float(x))
     except (TypeError, ValueError):
         return False
-
-
-def fmt(x: Any, digits: int = 2, suffix: str = "") -> str:
-    return f"{float(x):.{digits}f}{suffix}" if _finite(x) else "–"
-
-
-def pct(x: Any, digits: int = 1) -> str:
-    return f"{100 * float(x):.{digits}f}%" if _finite(x) else "–"
-
-
-def ratio(slow: Any, fast: Any) -> str:
-    """The paper's speed-up ``slow / fast`` as ``2.07×``."""
-    if not (_finite(slow) and _finite(fast)) or float(fast) <= 0:
-        return "–"
-    return f"{float(slow) / float(fast):.2f}×"
-
-
-def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """GitHub Markdown table, first column left-aligned, the others right-aligned."""
-    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join(["---"] + ["---:"] * (len(header) - 1)) + " |"]
-    lines += ["| " + " | ".join(str(c).replace("|", "\\|") for c in r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def hms(seconds: Any) -> str:

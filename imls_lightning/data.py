@@ -35,7 +35,7 @@ from data_gen.errors import InputError
 
 from .compaction import compact
 from .config import to_plain
-from .patterns import SamplingPattern, build_pattern
+from .patterns import SamplingPattern, build_pattern, crop_pattern
 
 ALL_FIELDS = ("view", "fr", "pr", "c")
 
@@ -51,6 +51,7 @@ class ViewImageDataset(Dataset):
         fields: Iterable[str] = ALL_FIELDS,
         low_res_path: str | Path | None = None,
         labels_path: str | Path | None = None,
+        crop: int | None = None,
     ):
         self.cache_path = Path(cache_path)
         self.rows = np.asarray(rows, dtype=np.int64)
@@ -59,6 +60,11 @@ class ViewImageDataset(Dataset):
         self.low_res_path = Path(low_res_path) if low_res_path else None
         self.labels_path = Path(labels_path) if labels_path else None
         self._cache = self._low = self._labels = None
+        # patch training: a random grid-aligned crop x crop window of every FR-Image, and its C-Image
+        self.crop = int(crop) if crop else None
+        self.crop_pattern = crop_pattern(pattern, self.crop) if self.crop else None
+        if self.crop and (low_res_path or labels_path):
+            raise InputError("data.crop: the LAS low-resolution images and the IMS labels are whole images; train LAS and IMS with data.crop=null")
 
     def _open(self):
         from data_gen.cache import ViewImageCache
@@ -83,18 +89,30 @@ class ViewImageDataset(Dataset):
         row = int(self.rows[i])
         out: dict[str, Any] = {"index": row, "view": torch.from_numpy(np.asarray(cache.views[row], np.float32))}
         img = torch.from_numpy(np.array(cache.images[row])).permute(2, 0, 1).float().div_(255.0)
+        pattern = self.pattern
+        if self.crop:
+            img, pattern = self._random_crop(img), self.crop_pattern
         if "fr" in self.fields:
             out["fr"] = img
         if "pr" in self.fields:
-            out["pr"] = img * self.pattern.mask.to(img.dtype)
+            out["pr"] = img * pattern.mask.to(img.dtype)
         if "c" in self.fields:
-            out["c"] = compact(img[None], self.pattern.indices, self.pattern.c_size)[0]
+            out["c"] = compact(img[None], pattern.indices, pattern.c_size)[0]
         if self._low is not None:
             out["low"] = torch.from_numpy(np.array(self._low.images[row])).permute(2, 0, 1).float().div_(255.0)
         if self._labels is not None:
             out["im"] = torch.from_numpy(self._labels.im(row)).float()[None]
             out["pim"] = torch.from_numpy(self._labels.pim(row)).float()[None]
         return out
+
+
+    def _random_crop(self, img: torch.Tensor) -> torch.Tensor:
+        """A ``crop x crop`` window starting on the pattern's grid (a multiple of its factor), so the
+        window's pattern pixels are exactly :attr:`crop_pattern`'s."""
+        step = int(self.pattern.param_dict.get("factor", 1))
+        m, c = img.shape[-1], self.crop
+        y, x = (int(v) * step for v in torch.randint(0, (m - c) // step + 1, (2,)))
+        return img[:, y : y + c, x : x + c].contiguous()
 
 
 #: smallest FR-Image side the training metrics accept: SSIM's Gaussian window (sigma 1.5, 11 pixels)
@@ -126,6 +144,10 @@ class ImlsDataModule(L.LightningDataModule):
         fields: which of ``view, fr, pr, c`` to yield.
         low_res: also yield ``low``, a render of the same views at this resolution (LAS).
         labels: a directory of IML labels (``im``, ``pim``) made by :mod:`imls_lightning.labels`.
+        crop: train on random ``crop x crop`` windows of the FR-Images (and their C-Images) instead of
+            whole images: ``data.crop``, for the fully convolutional RecNN and IML at paper scale.
+            Validation and test batches stay whole. Needs a shift-invariant pattern
+            (:func:`~imls_lightning.patterns.crop_pattern`).
     """
 
     def __init__(
@@ -138,6 +160,7 @@ class ImlsDataModule(L.LightningDataModule):
         low_res: int | None = None,
         labels: str | Path | None = None,
         progress: bool = True,
+        crop: int | None = None,
     ):
         super().__init__()
         self.scene_cfg = to_plain(scene)
@@ -160,6 +183,11 @@ class ImlsDataModule(L.LightningDataModule):
                              f"{_smallest_resolution(pattern)} (the SSIM metric's 11-pixel Gaussian window needs images of "
                              f"at least {MIN_RESOLUTION}x{MIN_RESOLUTION}, and the sampling pattern must fit)")
         self.pattern = pattern if isinstance(pattern, SamplingPattern) else build_pattern(to_plain(pattern), self.fr_size)
+        self.crop = int(crop) if crop else None
+        if self.crop:
+            crop_pattern(self.pattern, self.crop)  # refuses what cannot be cropped, in one line
+            if self.crop < MIN_RESOLUTION:
+                raise InputError(f"data.crop={self.crop}: too small to train on; expected >= {MIN_RESOLUTION} or null")
         self.cache_path: Path | None = None
         self.low_res_path: Path | None = None
         self._datasets: dict[str, ViewImageDataset] = {}
@@ -193,7 +221,8 @@ class ImlsDataModule(L.LightningDataModule):
             raise InputError(f"cache {self.cache_path}: images are {cache.images.shape[1]}^2, expected data.resolution={self.fr_size}")
         for split in ("train", "val", "test"):
             self._datasets[split] = ViewImageDataset(
-                self.cache_path, cache.splits[split], self.pattern, self.fields, self.low_res_path, self.labels
+                self.cache_path, cache.splits[split], self.pattern, self.fields, self.low_res_path, self.labels,
+                crop=self.crop if split == "train" else None,
             )
 
     def dataset(self, split: str) -> ViewImageDataset:

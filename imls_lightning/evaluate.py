@@ -35,6 +35,7 @@ Python:
 """
 from __future__ import annotations
 
+import json
 import math
 import sys
 from dataclasses import dataclass, field
@@ -134,6 +135,7 @@ class Settings:
     epsilon_db: float = 1.0
     orp_max_views: int | None = 30
     shares: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.4])
+    timed_views: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -145,6 +147,8 @@ class Settings:
             "las_ipr": self.las_ipr, "las_iprs": self.las_iprs, "mean_values": self.mean_values,
             "sweep_views": self.sweep_views, "grid_views": self.grid_views, "orp": self.orp,
             "epsilon_db": self.epsilon_db, "orp_max_views": self.orp_max_views, "shares": self.shares,
+            # only when set: evaluations made before the key existed keep their directories
+            **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
         }
 
 
@@ -189,6 +193,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         epsilon_db=_floats(cfg, "epsilon_db", 0.0, 100.0)[0] if cfg.get("epsilon_db") is not None else 1.0,
         orp_max_views=_int(cfg, "orp_max_views", 1, allow_none=True),
         shares=_floats(cfg, "shares", 0.0, 1.0, lo_open=True) if cfg.get("shares") is not None else [],
+        timed_views=_int(cfg, "timed_views", 1, allow_none=True),
     )
 
 
@@ -471,6 +476,11 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     # -- main loop -----------------------------------------------------------------------------
     grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()
     sweep_pos = [int(positions[i]) for i in spaced(len(positions), s.sweep_views)]
+    # latency on timed_views of the evaluated views (repeats runs each), quality on all of them
+    timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views))
+    if len(timed_pos) < len(positions):
+        notes.append(f"Latency: stage times on {len(timed_pos)} of the {len(positions)} evaluated views (evenly spaced, "
+                     f"median of {s.repeats} runs each); PSNR and SSIM on all {len(positions)}.")
     rows: list[dict[str, Any]] = []
     grid: dict[int, dict[str, Any]] = {}
     for p in _bar(positions, len(positions), f"evaluate {scene.name}", s.progress):
@@ -479,8 +489,11 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
         if p in grid_pos:
             grid[p] = {"truth": truth}
+        timed = p in timed_pos
         for name in order:
-            fields, image, info = measure(methods[name], view, truth, s.repeats, s.warmup)
+            fields, image, info = measure(methods[name], view, truth, s.repeats if timed else 1, s.warmup if timed else 0)
+            if not timed:  # one untimed run: its image counts, its stage times do not
+                fields.update({k: None for k in fields if k.endswith("_ms")})
             rows.append({"view": p, "row": r, "method": name, **fields})
             if p in grid_pos:
                 grid[p][name] = image
@@ -506,6 +519,13 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     plain = {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
     plain.update(checkpoints=to_plain(cfg.checkpoints), settings=s.hashed(), output_dir=str(out))
     rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)))
+    orp_summary = _orp_summary(orp_result, s) if orp_result is not None else None
+    # the machine-readable results the benchmarks collect (make bench-paper)
+    rep.atomic_write_text(out / "summary.json", json.dumps({
+        "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
+        "sample_distance_voxels": _sample_distance_voxels(scene, rcfg), "imls_mean": imls_mean, "orp": orp_summary,
+        "las_ipr": las_ipr_used, "views": len(positions), "timed_views": len(timed_pos), "methods": rep.summarize_rows(rows),
+        "equal_share": equal_share}, indent=1, default=float))
     ctx = rep.ReportContext(
         out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,
         pattern=pattern.summary(), renderer=str(rcfg.get("name")), views=s.views, positions=[int(p) for p in positions],
@@ -514,7 +534,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         iml_mean=float(nets.iml.mean), rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, order=order,
         sweep_positions=sweep_pos, grid=grid, pattern_obj=pattern, notes=notes, las_ipr=las_ipr_used,
         machine=rep.machine_info(str(device)), command=command or _command(), cache=str(cache.path),
-        orp=_orp_summary(orp_result, s) if orp_result is not None else None, equal_share=equal_share,
+        orp=orp_summary, equal_share=equal_share,
     )
     return rep.write_report(ctx)
 
@@ -526,6 +546,16 @@ def _loader(cache, rows, pattern, batch_size: int = 16):
 
     ds = ViewImageDataset(cache.path, np.asarray(rows), pattern, fields=("view", "fr", "c"))
     return DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=0)
+
+
+def _sample_distance_voxels(scene, renderer_cfg) -> float | None:
+    """The scene's ray-marching step in voxels (:func:`data_gen.scene.voxel_size`), for the reports."""
+    from data_gen.scene import voxel_size
+
+    try:
+        return float(scene.sample_distance) / float(voxel_size(scene.volume))
+    except (AttributeError, TypeError, ValueError, ZeroDivisionError):
+        return None
 
 
 def _product_orp(s: Settings, cfg, cache, nets: Networks, pattern, device):

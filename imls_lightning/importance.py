@@ -242,10 +242,21 @@ class RejectionSampling(nn.Module):
     def forward(self, pim_norm: torch.Tensor, hard: Optional[bool] = None) -> torch.Tensor:
         if hard is None:
             hard = not self.training
+        P = self.window(pim_norm.shape[-2], pim_norm.shape[-1])
         if hard:
-            m = hard_rejection_sample(pim_norm, self.P)
+            m = hard_rejection_sample(pim_norm, P)
             return m.to(torch.float64 if pim_norm.dtype == torch.float64 else torch.float32)
-        return soft_rejection_sample(pim_norm, self.P, self._alpha)
+        return soft_rejection_sample(pim_norm, P, self._alpha)
+
+    def window(self, h: int, w: int) -> torch.Tensor:
+        """``P`` for an ``h x w`` input: ``P`` itself, or its top-left window for a training crop (a
+        window of the low-discrepancy rank pattern is itself well spread)."""
+        H, W = self.P.shape
+        if (h, w) == (H, W):
+            return self.P
+        if h > H or w > W:
+            raise ValueError(f"RejectionSampling: input {h}x{w} is larger than the rank pattern P {H}x{W}")
+        return self.P[:h, :w]
 
     def extra_repr(self) -> str:
         return f"size={tuple(self.P.shape)}, alpha={self._alpha}"

@@ -45,6 +45,7 @@ __all__ = [
     "plastic_rank_pattern",
     "build_pattern",
     "c_pixels_to_fr",
+    "crop_pattern",
     "FOVEAL_FORMULATIONS",
     "FOVOLNET_DEFAULT_BASE",
     "FOVOLNET_DEFAULT_SIGMA",
@@ -764,6 +765,32 @@ def build_pattern(cfg: Mapping, fr_size: int) -> SamplingPattern:
             seed=cfg.get("seed", 0),
         )
     raise InputError(f"pattern.kind={kind!r}: expected one of {', '.join(_KINDS)}")
+
+
+def crop_pattern(pattern: SamplingPattern, crop: int) -> SamplingPattern:
+    """The pattern of a ``crop x crop`` window of the FR-Image, for patch training (``data.crop``).
+
+    Only shift-invariant patterns have one pattern for every window: the full pattern, and the
+    downsampling pattern for windows that start on its grid (multiples of the factor) with a side
+    divisible by the factor. The foveal pattern's density depends on the position, so a crop of it
+    is not the same pattern: refused.
+
+    Example:
+        >>> crop_pattern(downsample_pattern(16, 2), 8).summary()
+        'downsample 8->4: K=16 (100.0% of C, 25.0% of FR), factor=2, offset=0'
+    """
+    c = _pos_int(crop, "data.crop")
+    if c > pattern.fr_size:
+        raise InputError(f"data.crop={c}: larger than the FR-Image ({pattern.fr_size}^2); choose a crop <= {pattern.fr_size} or null")
+    if pattern.kind == "full":
+        return full_pattern(c)
+    if pattern.kind == "downsample":
+        f = int(pattern.param_dict["factor"])
+        if c % f:
+            raise InputError(f"data.crop={c}: not a multiple of the downsampling factor {f}")
+        return downsample_pattern(c, f)
+    raise InputError(f"data.crop={c}: the {pattern.kind} pattern changes with the position in the image, so its crops are "
+                     "not the same pattern; train it on whole images (data.crop=null)")
 
 
 def c_pixels_to_fr(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch.Tensor:

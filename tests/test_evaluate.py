@@ -267,3 +267,34 @@ def test_write_report_with_options_and_without_sweeps(run, tmp_path):
     assert (tmp_path / "options.png").is_file() and (tmp_path / "latency_vs_psnr.png").is_file()
     _, back = _rows(tmp_path / "options.csv")
     assert [r["option"] for r in back] == ["baseline", "half", "compile"] and back[2]["error"].startswith("RuntimeError")
+
+
+def test_summary_json_has_what_the_benchmarks_collect(run):
+    import json
+
+    s = json.loads((run["out"] / "summary.json").read_text())
+    assert (s["scene"], s["recnn"], s["fr_size"], s["c_size"]) == ("tiny", "enhancenet", 32, 16)
+    assert s["views"] == s["timed_views"] == 2 and s["sample_distance_voxels"] > 0
+    assert set(METHOD_ORDER) <= set(s["methods"]) and s["orp"] is not None and s["equal_share"]
+    # the same numbers as the report's metrics.csv
+    assert s["methods"]["imls"]["psnr"] == pytest.approx(summary(run["out"] / "metrics.csv")["imls"]["psnr"])
+    # and make bench-paper's CSV row from it (imls_lightning.bench_paper)
+    from imls_lightning.bench_paper import CSV_COLUMNS, csv_row, read_summary
+
+    row = csv_row(read_summary(run["report"]))
+    assert tuple(row) == CSV_COLUMNS and all(math.isfinite(float(row[k])) for k in ("psnr_imls_db", "imls_ms", "speedup", "las_ms"))
+
+
+def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):
+    from imls_lightning.evaluate import evaluate
+
+    report = evaluate(_compose(*_args(run["ck"], "max_views=3", "timed_views=1", "orp=false", "shares=null",
+                                      f"output_dir={tmp_path / 'eval'}")))
+    _, rows = _rows(report.parent / "metrics.csv")
+    assert len({r["view"] for r in rows}) == 3 and all(math.isfinite(float(r["psnr"])) for r in rows)
+    timed = {r["view"] for r in rows if r["total_ms"] != ""}
+    assert len(timed) == 1, timed
+    assert all(r[f"{s}_ms"] == "" for r in rows if r["view"] not in timed for s in STAGES)
+    assert "Latency: stage times on 1 of the 3 evaluated views" in report.read_text()
+    with pytest.raises(InputError, match="timed_views=0"):
+        evaluate(_compose(*_args(run["ck"], "timed_views=0")))

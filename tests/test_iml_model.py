@@ -290,3 +290,21 @@ def test_invalid_hyperparameters_refused():
         IMLNet(8, P, depth=2, base_channels=2, decoder="unet")
     with pytest.raises(InputError, match="importance"):
         IMLNet(8, P, depth=2, base_channels=2, importance="random")
+
+
+# --- training crops (data.crop) -----------------------------------------------------------------
+def test_imlnet_crop_smoke_runs_on_a_smaller_c_image_with_the_window_of_p():
+    net = small_iml(16).eval()
+    c = torch.rand(2, 3, 8, 8)
+    out = net(c, hard=True)
+    assert out.im.shape == (2, 1, 8, 8) and out.c_recon.shape == (2, 3, 8, 8)
+    assert torch.equal(out.im.bool(), out.pim_norm > net.sampling.P[:8, :8])
+    assert torch.isfinite(out.c_recon).all()
+
+
+def test_imlnet_crop_exception_with_padding():
+    valid = torch.ones(16, 16, dtype=torch.bool)
+    valid[-1, -4:] = False  # a pattern with padding: a crop would not know where its pixels are
+    net = small_iml(16, valid=valid)
+    with pytest.raises(ValueError, match=r"IMLNet: expected a C-Image \(B, 3, 16, 16\), got"):
+        net(torch.rand(1, 3, 8, 8))

@@ -222,3 +222,17 @@ def test_invalid_lower_delta_and_P_are_refused():
         RejectionSampling(torch.rand(2, 2, 2))
     with pytest.raises(InputError, match="P"):
         RejectionSampling(torch.full((2, 2), 2.0))
+
+
+def test_rejection_sampling_window_smoke_crop_uses_the_top_left_of_p():
+    P = torch.rand(8, 8)
+    rs = RejectionSampling(P, alpha=5.0)
+    assert rs.window(8, 8) is rs.P
+    x = torch.rand(2, 1, 4, 4)
+    torch.testing.assert_close(rs(x, hard=False), torch.sigmoid(5.0 * (x - P[:4, :4])))
+    assert torch.equal(rs(x, hard=True).bool(), x > P[:4, :4])
+
+
+def test_rejection_sampling_window_exception_larger_than_p():
+    with pytest.raises(ValueError, match="larger than the rank pattern"):
+        RejectionSampling(torch.rand(4, 4))(torch.rand(1, 1, 8, 8))

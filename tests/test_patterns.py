@@ -282,3 +282,27 @@ def test_sampling_pattern_contract_checks():
         SamplingPattern("x", 4, 2, torch.tensor([3, 1]))
     with pytest.raises(ValueError, match="out of range"):
         SamplingPattern("x", 4, 2, torch.tensor([0, 16]))
+
+
+# --- crop_pattern: the pattern of a training crop (data.crop) -----------------------------------
+@pytest.mark.parametrize("factor", [2, 3])
+def test_crop_pattern_smoke_is_the_window_of_the_full_pattern_at_grid_offsets(factor):
+    m, c = 12 * factor, 4 * factor
+    full = downsample_pattern(m, factor)
+    crop = pat.crop_pattern(full, c)
+    assert (crop.kind, crop.fr_size, crop.c_size) == ("downsample", c, c // factor)
+    for y, x in [(0, 0), (factor, 2 * factor), (m - c, m - c)]:
+        assert torch.equal(full.mask[y:y + c, x:x + c], crop.mask), (y, x)
+    assert pat.crop_pattern(full_pattern(8), 4).count == 16
+
+
+@pytest.mark.parametrize("crop, needle", [(7, "not a multiple of the downsampling factor 2"), (40, "larger than the FR-Image"),
+                                          (0, "data.crop")])
+def test_crop_pattern_exception_bad_size(crop, needle):
+    with pytest.raises(InputError, match=needle):
+        pat.crop_pattern(downsample_pattern(32, 2), crop)
+
+
+def test_crop_pattern_exception_foveal_refused():
+    with pytest.raises(InputError, match="foveal pattern changes with the position"):
+        pat.crop_pattern(foveal_pattern(32, 16), 16)

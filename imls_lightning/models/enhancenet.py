@@ -171,11 +171,21 @@ class EnhanceNet(nn.Module):
         self.register_buffer("Wy", bicubic_matrix(self.c_size, self.fr_size, f, oy), persistent=False)
         self.register_buffer("Wx", bicubic_matrix(self.c_size, self.fr_size, f, ox), persistent=False)
 
+    def _matrices(self, h: int, w: int, device) -> tuple[torch.Tensor, torch.Tensor]:
+        """The bicubic matrices for an ``h x w`` C-Image: the buffers at ``n x n``; for a training crop
+        (same factor and offset, aligned to the grid) built on the fly."""
+        n, f = self.c_size, self.factor
+        if (h, w) == (n, n):
+            return self.Wy, self.Wx
+        oy, ox = self.offset
+        return (bicubic_matrix(h, h * f, f, oy).to(device), bicubic_matrix(w, w * f, f, ox).to(device))
+
     def bicubic(self, c_image: torch.Tensor) -> torch.Tensor:
-        """The bicubic skip alone: ``(B, 3, n, n) -> (B, 3, m, m)`` (float32, autocast off)."""
+        """The bicubic skip alone: ``(B, 3, h, w) -> (B, 3, f h, f w)`` (float32, autocast off)."""
+        Wy, Wx = self._matrices(c_image.shape[-2], c_image.shape[-1], c_image.device)
         with torch.autocast(device_type=c_image.device.type, enabled=False):
             x = c_image if c_image.dtype in (torch.float32, torch.float64) else c_image.float()
-            return self.Wy.to(x.dtype) @ x @ self.Wx.to(x.dtype).T
+            return Wy.to(x.dtype) @ x @ Wx.to(x.dtype).T
 
     def residual(self, c_image: torch.Tensor) -> torch.Tensor:
         """The learned residual path: ``(B, 3, n, n) -> (B, 3, m, m)``."""
@@ -187,9 +197,11 @@ class EnhanceNet(nn.Module):
         return self.conv_out(h)
 
     def forward(self, c_image: torch.Tensor) -> torch.Tensor:
+        """``(B, 3, n, n) -> (B, 3, m, m)``; fully convolutional, so a grid-aligned crop ``(B, 3, h, w)``
+        of a C-Image gives the matching ``(B, 3, f h, f w)`` crop of the FR-Image (patch training)."""
         n = self.c_size
-        if c_image.dim() != 4 or tuple(c_image.shape[1:]) != (3, n, n):
-            raise ValueError(f"EnhanceNet: expected a C-Image (B, 3, {n}, {n}), got {tuple(c_image.shape)}")
+        if c_image.dim() != 4 or c_image.shape[1] != 3 or c_image.shape[-1] < 1 or c_image.shape[-2] < 1:
+            raise ValueError(f"EnhanceNet: expected a C-Image (B, 3, {n}, {n}) or a crop (B, 3, h, w), got {tuple(c_image.shape)}")
         return self.residual(c_image) + self.bicubic(c_image)
 
     def extra_repr(self) -> str:

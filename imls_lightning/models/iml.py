@@ -288,8 +288,13 @@ class IMLNet(nn.Module):
 
     def _check(self, c_image: torch.Tensor) -> None:
         n = self.c_size
-        if c_image.dim() != 4 or tuple(c_image.shape[1:]) != (3, n, n):
-            raise ValueError(f"IMLNet: expected a C-Image (B, 3, {n}, {n}), got {tuple(c_image.shape)}")
+        if c_image.dim() == 4 and tuple(c_image.shape[1:]) == (3, n, n):
+            return
+        # a training crop (data.crop): only where every C-pixel is a pattern pixel (no padding to place)
+        crop = c_image.dim() == 4 and c_image.shape[1] == 3 and 1 <= c_image.shape[-2] <= n and 1 <= c_image.shape[-1] <= n
+        if not (crop and self._all_valid):
+            raise ValueError(f"IMLNet: expected a C-Image (B, 3, {n}, {n})"
+                             f"{' or a crop (B, 3, h, w), h, w <= ' + str(n) if self._all_valid else ''}, got {tuple(c_image.shape)}")
 
     def encode(self, c_image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(pim, pim_norm)``, each ``(B, 1, n, n)`` float32."""

@@ -18,7 +18,7 @@ def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]], align: str | 
     sep = ["---" if a == "l" else "---:" for a in align]
     lines = ["| " + " | ".join(str(h) for h in header) + " |", "| " + " | ".join(sep) + " |"]
     for r in rows:
-        lines.append("| " + " | ".join(str(c) for c in r) + " |")
+        lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in r) + " |")
     return "\n".join(lines)
 
 
@@ -69,11 +69,15 @@ def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:
                      "background / object"], rows, "llrrrrrrrr")
 
 
-def speedup(slow_ms: float, fast_ms: float) -> str:
-    """``slow / fast`` as ``2.07×`` (the paper's speed-up)."""
-    if not (math.isfinite(slow_ms) and math.isfinite(fast_ms)) or fast_ms <= 0:
+def speedup(slow_ms: Any, fast_ms: Any) -> str:
+    """``slow / fast`` as ``2.07×`` (the paper's speed-up); missing or non-positive -> an en dash."""
+    try:
+        slow, fast = float(slow_ms), float(fast_ms)
+    except (TypeError, ValueError):
         return "–"
-    return f"{slow_ms / fast_ms:.2f}×"
+    if not (math.isfinite(slow) and math.isfinite(fast)) or fast <= 0:
+        return "–"
+    return f"{slow / fast:.2f}×"
 
 
 def latency_table(summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str], reference: str | None = "recnn") -> str:

@@ -185,7 +185,8 @@ class IMLTask(ImlsTask):
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
-        return {"fields": ("view", "fr", "c")}
+        # fully convolutional: trains on random patch crops when data.crop is set (paper scale)
+        return {"fields": ("view", "fr", "c"), "crop": cfg.data.get("crop")}
 
     # -- steps --------------------------------------------------------------------------------
     def train(self, mode: bool = True):
@@ -216,8 +217,10 @@ class IMLTask(ImlsTask):
                 self.log_image_metrics(f"{prefix}/fr", fr_pred, batch["fr"], prog_bar=True)
         with torch.no_grad():
             hard_im = out.im.detach() if hard else self.iml.sample(out.pim_norm.detach(), hard=True)
-            ipr = hard_im.flatten(1).sum(1) / float(self.pattern.fr_size**2)
-            share = hard_im.flatten(1).sum(1) / float(self.pattern.count)
+            # a training crop (data.crop) holds only pattern pixels: its share is over its own pixels
+            whole = tuple(hard_im.shape[-2:]) == (self.pattern.c_size, self.pattern.c_size)
+            share = hard_im.flatten(1).sum(1) / float(self.pattern.count if whole else hard_im[0, 0].numel())
+            ipr = share * self.pattern.sampling_ratio
         self.log(f"{prefix}/loss", loss, batch_size=bs, prog_bar=True, on_step=on_step, on_epoch=True)
         self.log(f"{prefix}/compaction_loss", comp, batch_size=bs, on_step=False, on_epoch=True)
         self.log(f"{prefix}/ipr", ipr.mean(), batch_size=bs, prog_bar=True, on_step=False, on_epoch=True)

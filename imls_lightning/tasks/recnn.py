@@ -47,7 +47,8 @@ class RecNNTask(ImlsTask):
         net: the ``recnn.net`` config (``_target_`` + hyperparameters of the ``nn.Module``).
         pattern: the ``pattern`` config node.
         fr_size: FR-Image side ``m`` (``data.resolution``).
-        loss: ``"l1"`` or ``"mse"``; ``ssim_weight`` adds ``w * (1 - SSIM)``.
+        loss: ``"mse"`` or ``"l1"`` (l1 collapses EnhanceNet's residual to zero: see conf/model/recnn.yaml);
+            ``ssim_weight`` adds ``w * (1 - SSIM)``.
         lr: Adam learning rate.
     """
 
@@ -56,7 +57,7 @@ class RecNNTask(ImlsTask):
         net: Mapping,
         pattern: Mapping,
         fr_size: int,
-        loss: str = "l1",
+        loss: str = "mse",
         ssim_weight: float = 0.0,
         lr: float = 1e-3,
         recnn_name: str = "recnn",
@@ -81,7 +82,8 @@ class RecNNTask(ImlsTask):
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
-        return {"fields": ("view", "fr", "c")}
+        # fully convolutional: trains on random patch crops when data.crop is set (paper scale)
+        return {"fields": ("view", "fr", "c"), "crop": cfg.data.get("crop")}
 
     def forward(self, c_image: torch.Tensor) -> torch.Tensor:
         return self.net(c_image)

@@ -1,0 +1,73 @@
+"""The DataModule's patch crops (``data.crop``): what the RecNN and the IML train on at paper scale."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from data_gen.errors import InputError
+from imls_lightning.data import ImlsDataModule
+from imls_lightning.patterns import downsample_pattern
+
+
+@pytest.fixture(scope="module")
+def tiny_cfg(tmp_path_factory):
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(Path(__file__).resolve().parents[1] / "conf"), version_base="1.3", job_name="test_data"):
+        cfg = compose("train", overrides=["scene=tiny", "data=tiny", "renderer=numba", "model=recnn",
+                                          f"data.cache_dir={tmp_path_factory.mktemp('cache')}"])
+    return cfg
+
+
+def _dm(cfg, **kw):
+    return ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=cfg.pattern, progress=False, **kw)
+
+
+def test_crop_smoke_train_batches_are_grid_aligned_windows(tiny_cfg):
+    dm = _dm(tiny_cfg, fields=("view", "fr", "c"), crop=16)
+    dm.setup()
+    torch.manual_seed(0)
+    item = dm.dataset("train")[0]
+    assert item["fr"].shape == (3, 16, 16) and item["c"].shape == (3, 8, 8)
+    # the crop's C-Image is exactly the crop's downsampling-pattern pixels (fr[::2, ::2])
+    assert torch.equal(item["c"], item["fr"][:, ::2, ::2])
+    # and the window is one of the full image's, starting on the pattern's grid
+    full = torch.from_numpy(dm.dataset("train")._open().images[int(item["index"])].copy()).permute(2, 0, 1).float() / 255
+    hits = [(y, x) for y in range(0, 17, 2) for x in range(0, 17, 2) if torch.equal(full[:, y:y + 16, x:x + 16], item["fr"])]
+    assert hits, "the crop is not a grid-aligned window of the FR-Image"
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["fr"].shape[-2:] == (16, 16) and batch["c"].shape[-2:] == (8, 8)
+
+
+def test_crop_validation_and_test_stay_whole(tiny_cfg):
+    dm = _dm(tiny_cfg, fields=("fr", "c"), crop=16)
+    dm.setup()
+    for split in ("val", "test"):
+        item = dm.dataset(split)[0]
+        assert item["fr"].shape == (3, 32, 32) and item["c"].shape == (3, 16, 16)
+
+
+@pytest.mark.parametrize("kw, needle", [({"crop": 7}, "not a multiple"), ({"crop": 64}, "larger than the FR-Image"),
+                                        ({"crop": 4}, "too small to train on")])
+def test_crop_exception_bad_value(tiny_cfg, kw, needle):
+    with pytest.raises(InputError, match=needle):
+        _dm(tiny_cfg, **kw)
+
+
+def test_crop_exception_foveal_pattern(tiny_cfg):
+    from omegaconf import OmegaConf
+
+    with pytest.raises(InputError, match="foveal pattern changes with the position"):
+        ImlsDataModule(scene=tiny_cfg.scene, data=tiny_cfg.data, renderer=tiny_cfg.renderer,
+                       pattern=OmegaConf.create({"kind": "foveal", "c_size_ratio": 0.5}), crop=16)
+
+
+def test_crop_exception_with_labels_or_low_res(tiny_cfg, tmp_path):
+    from imls_lightning.data import ViewImageDataset
+
+    with pytest.raises(InputError, match="train LAS and IMS with data.crop=null"):
+        ViewImageDataset(tmp_path, [0], downsample_pattern(32, 2), labels_path=tmp_path, crop=16)
