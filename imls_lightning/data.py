@@ -144,6 +144,8 @@ class ImlsDataModule(L.LightningDataModule):
         fields: which of ``view, fr, pr, c`` to yield.
         low_res: also yield ``low``, a render of the same views at this resolution (LAS).
         labels: a directory of IML labels (``im``, ``pim``) made by :mod:`imls_lightning.labels`.
+        labels_from: an IML checkpoint: label the cache with it first (once, kept beside the cache;
+            :func:`imls_lightning.labels.ensure_labels` with ``labels_options``) and yield its labels.
         crop: train on random ``crop x crop`` windows of the FR-Images (and their C-Images) instead of
             whole images: ``data.crop``, for the fully convolutional RecNN and IML at paper scale.
             Validation and test batches stay whole. Needs a shift-invariant pattern
@@ -161,6 +163,8 @@ class ImlsDataModule(L.LightningDataModule):
         labels: str | Path | None = None,
         progress: bool = True,
         crop: int | None = None,
+        labels_from: str | Path | None = None,
+        labels_options: Mapping[str, Any] | None = None,
     ):
         super().__init__()
         self.scene_cfg = to_plain(scene)
@@ -172,6 +176,10 @@ class ImlsDataModule(L.LightningDataModule):
         self.fields = tuple(fields)
         self.low_res = int(low_res) if low_res else None
         self.labels = Path(labels) if labels else None
+        if labels and labels_from:
+            raise InputError("ImlsDataModule: give labels (a label directory) or labels_from (an IML checkpoint), not both")
+        self.labels_from = str(labels_from) if labels_from else None
+        self.labels_options = dict(labels_options or {})
         self.progress = progress
         self.batch_size = int(self.data_cfg.get("batch_size", 8))
         self.loader_workers = int(self.data_cfg.get("loader_workers", 0))
@@ -206,6 +214,10 @@ class ImlsDataModule(L.LightningDataModule):
         self.cache_path = Path(ensure_cache(scene, self.data_cfg, self.renderer_cfg, progress=self.progress))
         if self.low_res:
             self.low_res_path = Path(ensure_cache(scene, self._low_res_data_cfg(), self.renderer_cfg, progress=self.progress))
+        if self.labels_from:
+            from .labels import ensure_labels
+
+            self.labels = Path(ensure_labels(self.cache_path, self.labels_from, progress=self.progress, **self.labels_options))
 
     def prepare_data(self) -> None:
         # rank 0 only under DDP: render whatever is missing

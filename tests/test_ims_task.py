@@ -504,10 +504,14 @@ def test_from_config_end_to_end_iml_brings_its_recnn(tmp_path, checkpoints, caps
     for a, b in zip(task.iml.state_dict().values(), iml.iml.state_dict().values()):
         assert torch.equal(a, b)
     assert not any(p.requires_grad for p in task.iml.parameters()) and not any(p.requires_grad for p in task.recnn.parameters())
+    # the task only records where the labels go; the DataModule makes them (data flows forward)
     labels = Path(task.hparams.labels)
-    assert labels.parent.name == "labels" and (labels / "meta.json").is_file()
-    assert IMSTask.datamodule_kwargs(cfg) == {"fields": ("view", "fr", "c"), "labels": str(labels)}
+    assert labels.parent.name == "labels" and not labels.exists()
+    kw = IMSTask.datamodule_kwargs(cfg)
+    assert kw["fields"] == ("view", "fr", "c") and kw["labels_from"] == str(checkpoints["e2e"])
     dm = build_datamodule(cfg, IMSTask)
+    dm.prepare_data()
+    assert dm.labels == labels and (labels / "meta.json").is_file()
     tr = quiet_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=1)
     tr.fit(task, datamodule=dm)
     assert bool(task.view_norm_fitted)

@@ -230,10 +230,6 @@ def _same_pattern(hp: Mapping, pattern, fr_size: int) -> bool:
         return False
 
 
-# labels made in from_config, found again by datamodule_kwargs without hashing the checkpoint twice
-_LABELS_MEMO: dict[str, Path] = {}
-
-
 class IMSTask(ImlsTask):
     """LightningModule of the IMS GAN (generator + discriminator) with the frozen IML decoder and
     RecNN for the final-image metrics.
@@ -382,26 +378,6 @@ class IMSTask(ImlsTask):
 
     # -- construction from the training config ------------------------------------------------
     @classmethod
-    def labels_for_config(cls, cfg, progress: bool = True) -> Path:
-        """Render the cache if missing, then make the IML labels if missing; returns the label dir."""
-        from data_gen.cache import ensure_cache
-        from data_gen.scene import build_scene
-
-        from ..labels import ensure_labels
-
-        ck = cfg.iml.get("checkpoint") if cfg.get("iml") is not None else None
-        if not ck:
-            raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
-        key = json.dumps([to_plain(cfg.scene), to_plain(cfg.data), to_plain(cfg.renderer), str(ck)], sort_keys=True, default=str)
-        if key in _LABELS_MEMO and _LABELS_MEMO[key].is_dir():
-            return _LABELS_MEMO[key]
-        cache = ensure_cache(build_scene(cfg.scene), cfg.data, cfg.renderer, progress=progress)
-        m = cfg.model
-        out = ensure_labels(cache, ck, batch_size=int(m.get("labels_batch_size", 16)), device=m.get("labels_device", "auto"), progress=progress)
-        _LABELS_MEMO[key] = out
-        return out
-
-    @classmethod
     def from_config(cls, cfg) -> "IMSTask":
         if cfg.get("iml") is None or not cfg.iml.get("checkpoint"):
             raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
@@ -432,7 +408,13 @@ class IMSTask(ImlsTask):
             print("[ims] no RecNN (standalone IML and no recnn.checkpoint): the final FR PSNR/SSIM metrics are skipped", flush=True)
         m = cfg.model
         criterion = build_criterion(m.get("loss"))  # a missing perceptual backbone fails before any labelling
-        labels = cls.labels_for_config(cfg)
+        # the labels themselves are made by the DataModule (datamodule_kwargs); here only their provenance
+        from data_gen.cache import cache_path_for
+        from data_gen.scene import build_scene
+
+        from ..labels import labels_path_for
+
+        labels = labels_path_for(cache_path_for(build_scene(cfg.scene), cfg.data, cfg.renderer), ck)
         task = cls(
             pattern=cfg.pattern, fr_size=res, iml_hparams=dict(iml_task.hparams), target=m.get("target", "im"),
             layers=m.get("layers", 8), base_channels=m.get("base_channels", 32), max_channels=m.get("max_channels", 512),
@@ -451,7 +433,10 @@ class IMSTask(ImlsTask):
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
-        return {"fields": ("view", "fr", "c"), "labels": str(cls.labels_for_config(cfg))}
+        # the DataModule labels the cache with the IML (once; imls_lightning.labels) and yields im / pim
+        m = cfg.model
+        return {"fields": ("view", "fr", "c"), "labels_from": str(cfg.iml.checkpoint),
+                "labels_options": {"batch_size": int(m.get("labels_batch_size", 16)), "device": m.get("labels_device", "auto")}}
 
     # -- the mask -------------------------------------------------------------------------------
     def make_target(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
