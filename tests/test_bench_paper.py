@@ -105,7 +105,8 @@ def test_report_and_breakdown_plot(tmp_path):
     s = _summary()
     rows = [bp.csv_row(s)]
     text = bp.report_markdown(rows, [s], partial=True, stage_minutes={"ct_head, enhancenet": 61.0}, command="cmd",
-                              machine={"cpu": "test"})
+                              machine={"cpu": "test"}, settings={"enhancenet": {"recnn": ["data.crop=128"], "las": None}})
+    assert "| enhancenet | recnn | `data.crop=128` |" in text and "| enhancenet | las | skipped |" in text
     assert "partial" in text and "limit: the ORP's pixels alone" in text and "2.50×" in text
     assert "| 33.00 | 31.00 | 2.00 dB | 3.00 dB |" in text  # decoder − fill, mask − blue noise
     assert "Flame" in text  # the paper's figures beside ours
