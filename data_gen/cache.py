@@ -77,6 +77,7 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import atomic_json, atomic_npy, atomic_write, fsync_dir
 from .errors import InputError
 from .renderers import make_renderer, renderer_pixel_settings, renderer_version
 from .scene import Scene, voxel_size
@@ -297,36 +298,8 @@ def _safe_name(name: str) -> str:
 # ---------------------------------------------------------------------------------------------
 # atomic files and the completion log
 # ---------------------------------------------------------------------------------------------
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Write via ``write(file_object)`` to ``<path>.tmp``, fsync, rename over ``path``."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        write(f)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
-
-
 def _atomic_json(path: Path, obj: Any) -> None:
-    _atomic_write(path, lambda f: f.write((json.dumps(obj, indent=1, sort_keys=True, default=_json_default) + "\n").encode()))
-
-
-def _atomic_npy(path: Path, arr: np.ndarray) -> None:
-    _atomic_write(path, lambda f: np.save(f, arr, allow_pickle=False))
+    atomic_json(path, obj, default=_json_default)
 
 
 def _log_line(index: int, crc: int, seconds: float) -> bytes:
@@ -666,7 +639,7 @@ def _initialise(path: Path, settings, manifest, views, splits, m: int, user_dir:
         what = f"data.cache_path={path}" if user_dir else f"cache directory {path}"
         raise InputError(f"{what}: not a cache (no {MANIFEST}) and not empty (holds {', '.join(sorted(foreign)[:3])}); choose an empty or new directory")
     _remove_own_files(path)  # leftovers of an initialisation that was interrupted
-    _atomic_npy(path / VIEWS, views)
+    atomic_npy(path / VIEWS, views)
     _atomic_json(path / SPLITS, {k: v.tolist() for k, v in splits.items()})
     tmp = path / (IMAGES + ".tmp")
     # a sparse file: only the header is written now; each view's pixels land in place later
@@ -676,7 +649,7 @@ def _initialise(path: Path, settings, manifest, views, splits, m: int, user_dir:
         os.fsync(f.fileno())
     os.replace(tmp, path / IMAGES)
     (path / LOG).write_bytes(b"")
-    _atomic_npy(path / SECONDS, np.full(len(views), np.nan, np.float32))
+    atomic_npy(path / SECONDS, np.full(len(views), np.nan, np.float32))
     _atomic_json(path / MANIFEST, manifest)
 
 
@@ -740,7 +713,7 @@ def _repair_metadata(path: Path, views: np.ndarray, splits: dict[str, np.ndarray
     stored = _load_npy(path / VIEWS)
     if stored is None or stored.shape != views.shape or not np.array_equal(stored, views):
         _warn(f"cache {path}: {VIEWS} is missing, truncated or changed; rewriting it from the settings")
-        _atomic_npy(path / VIEWS, views)
+        atomic_npy(path / VIEWS, views)
     want = {k: v.tolist() for k, v in splits.items()}
     try:
         ok = json.loads((path / SPLITS).read_text()) == want
@@ -1027,7 +1000,7 @@ def _finish(path: Path, manifest: dict, n: int, run: dict | None) -> None:
     k = int(done.sum())
     if run is None and manifest.get("complete") == k and (path / SECONDS).is_file():
         return  # nothing changed: leave the files alone
-    _atomic_npy(path / SECONDS, sec)
+    atomic_npy(path / SECONDS, sec)
     manifest["complete"] = k
     manifest["updated"] = _now()
     if run is not None:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write
 from .errors import InputError
 
 
@@ -84,10 +85,7 @@ def write_contact_sheet(cache, out: str | Path | None = None, num: int = 24, thu
         draw.text((x + 3, y + 1), f"#{i} {split}", fill=colours.get(split, (255, 255, 255)))
     path = Path(out) if out else c.path / "contact_sheet.png"
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        sheet.save(tmp, format="PNG")
-        tmp.replace(path)
+        atomic_write(path, lambda f: sheet.save(f, format="PNG"))
     except OSError as err:
         raise InputError(f"contact_sheet={out}: cannot write {path} ({err.strerror or err})") from None
     return path

@@ -46,6 +46,7 @@ from typing import Any, Iterator
 import numpy as np
 import torch
 
+from data_gen.atomic import atomic_json, fsync_dir
 from data_gen.errors import InputError
 
 from .compaction import compact
@@ -55,32 +56,6 @@ __all__ = ["ensure_labels", "labels_path_for", "ImportanceLabels", "LABELS_FORMA
 
 LABELS_FORMAT = 1
 META, IM, PIM, CHUNKS, LOCK = "meta.json", "im.npy", "pim.npy", "chunks", ".lock"
-
-
-# ---------------------------------------------------------------------------------------------
-# small file helpers (atomic writes, as in data_gen.cache)
-# ---------------------------------------------------------------------------------------------
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write((json.dumps(obj, indent=1, sort_keys=True) + "\n").encode())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
 
 
 def _now() -> str:
@@ -298,11 +273,11 @@ def _initialise(out: Path, meta: dict, N: int, n: int, packed_cols: int) -> None
             os.fsync(f.fileno())
         os.replace(tmp, out / name)
     meta = dict(meta, created=_now())
-    _atomic_json(out / META, meta)
+    atomic_json(out / META, meta)
 
 
 def _write_marker(out: Path, a: int, b: int, im_rows: np.ndarray, pim_rows: np.ndarray) -> None:
-    _atomic_json(out / CHUNKS / _chunk_name(a, b), {"rows": [a, b], "crc_im": _crc(im_rows), "crc_pim": _crc(pim_rows)})
+    atomic_json(out / CHUNKS / _chunk_name(a, b), {"rows": [a, b], "crc_im": _crc(im_rows), "crc_pim": _crc(pim_rows)})
 
 
 def _complete(out: Path, meta: dict, cache, pattern) -> None:
@@ -317,7 +292,7 @@ def _complete(out: Path, meta: dict, cache, pattern) -> None:
         stats[split] = {"ipr": _stats(bits[rows] / m2), "c_share": _stats(bits[rows] / float(pattern.count))}
     stats["all"] = {"ipr": _stats(bits / m2), "c_share": _stats(bits / float(pattern.count))}
     meta = dict(meta, complete=True, finished=_now(), counts=counts, stats=stats)
-    _atomic_json(out / META, meta)
+    atomic_json(out / META, meta)
 
 
 # ---------------------------------------------------------------------------------------------

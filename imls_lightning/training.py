@@ -169,10 +169,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
     }
     if trainer.is_global_zero and not fast:
-        tmp = result_file.with_suffix(".tmp")
-        run_dir.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(result, indent=2, default=str))
-        tmp.replace(result_file)
+        from data_gen.atomic import atomic_json
+
+        atomic_json(result_file, result, indent=2, sort_keys=False)
     return result
 
 

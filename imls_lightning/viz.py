@@ -75,9 +75,6 @@ def image_grid(
 
 def save_image(img: Image.Image, path: str | Path) -> Path:
     """Save atomically (temp file + rename) and return the path."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    img.save(tmp, format="PNG")
-    tmp.replace(p)
-    return p
+    from data_gen.atomic import atomic_write
+
+    return atomic_write(path, lambda f: img.save(f, format="PNG"))

@@ -9,12 +9,12 @@ cheap (the sweeper plugin imports :data:`JOB_FILE`).
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from data_gen.atomic import atomic_json
 from data_gen.errors import InputError
 
 from .overrides import ims_overrides_for
@@ -25,10 +25,7 @@ STAGES = ("iml", "recnn")  # orp_job.stage: the IML job (default) or the sweep's
 
 
 def _write_json(path: Path, data: Mapping[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str))
-    tmp.replace(path)
+    atomic_json(path, data, indent=2, sort_keys=False)
 
 
 def _hydra_job() -> tuple[Path | None, list[str] | None]:

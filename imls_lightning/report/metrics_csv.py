@@ -3,30 +3,15 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from data_gen.atomic import atomic_write_text  # noqa: F401  (the report's writer; its one home is data_gen.atomic)
+
 from ..pipeline import STAGES
 from .names import METHOD_LABELS, METRIC_COLUMNS
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and a rename (never half-written)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        tmp.replace(p)
-    finally:
-        tmp.unlink(missing_ok=True)  # a failed write leaves nothing half-written behind
-    return p
 
 
 def _csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
