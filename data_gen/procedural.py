@@ -35,6 +35,7 @@ from typing import Callable
 
 import numpy as np
 
+from .atomic import atomic_write
 from .errors import InputError
 from .volume import Volume
 
@@ -366,18 +367,13 @@ def write_procedural_raw(generator: str, dims, path: str | os.PathLike, seed: in
     nbytes = dims[0] * dims[1] * dims[2] * 4
     if path.is_file() and path.stat().st_size == nbytes and not overwrite:
         return path
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    def write(fh) -> None:
+        for z0 in range(0, dims[2], chunk_z):
+            slab = g.fn(dims, seed, z0, min(dims[2], z0 + chunk_z))
+            fh.write(np.ascontiguousarray(slab, dtype="<f4").tobytes())
+
     try:
-        with open(tmp, "wb") as fh:
-            for z0 in range(0, dims[2], chunk_z):
-                slab = g.fn(dims, seed, z0, min(dims[2], z0 + chunk_z))
-                fh.write(np.ascontiguousarray(slab, dtype="<f4").tobytes())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        atomic_write(path, write, unique=True)
     except PermissionError as err:
         raise InputError(f"path={path}: cannot write ({err.strerror})") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path

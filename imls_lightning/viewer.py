@@ -458,16 +458,9 @@ class Viewer:
             raise InputError(f"screenshot={path}: expected a .png path")
         if out.is_dir():
             raise InputError(f"screenshot={path}: is a directory, expected a .png file path")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".png.tmp", dir=out.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                self.fig.savefig(f, format="png", dpi=self.fig.dpi)
-            os.replace(tmp, out)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return out
+        from data_gen.atomic import atomic_write
+
+        return atomic_write(out, lambda f: self.fig.savefig(f, format="png", dpi=self.fig.dpi), unique=True)
 
     def show(self) -> None:
         """Open the window and run the GUI loop until it is closed (``q``)."""

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -181,13 +180,11 @@ class MeanLabels:
 
     def save(self, path: str | Path) -> Path:
         """Write atomically (temporary name + rename)."""
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.stem}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, rows=self.rows, views=self.views, u=self.u, met=self.met, gap_db=self.gap_db,
-                 psnr_ref=self.psnr_ref, complexity=self.complexity, meta=np.asarray(json.dumps(self.meta)))
-        tmp.replace(p)
-        return p
+        from data_gen.atomic import atomic_write
+
+        return atomic_write(path, lambda f: np.savez(
+            f, rows=self.rows, views=self.views, u=self.u, met=self.met, gap_db=self.gap_db, psnr_ref=self.psnr_ref,
+            complexity=self.complexity, meta=np.asarray(json.dumps(self.meta))), unique=True)
 
     @classmethod
     def load(cls, path: str | Path) -> "MeanLabels":

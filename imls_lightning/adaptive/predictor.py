@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -108,12 +107,9 @@ class MeanPredictor(nn.Module):
 
     def save(self, path: str | Path) -> Path:
         """State dict + hyperparameters, loadable with ``torch.load(weights_only=True)``; atomic."""
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-        torch.save({"hparams": self.hparams(), "state_dict": self.state_dict()}, tmp)
-        tmp.replace(p)
-        return p
+        from data_gen.atomic import atomic_write
+
+        return atomic_write(path, lambda f: torch.save({"hparams": self.hparams(), "state_dict": self.state_dict()}, f), unique=True)
 
     @classmethod
     def load(cls, path: str | Path, margin: float | None = None) -> "MeanPredictor":
