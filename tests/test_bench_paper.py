@@ -123,4 +123,4 @@ def test_cli_dry_run_prints_every_stage_command():
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
     assert len(lines) == 7 and lines[0].startswith("python -m data_gen scene=ct_head data=paper_cpu")
-    assert "data.crop=128" in lines[1] and "timed_views=8" in lines[-1]
+    assert "data.crop=128" in lines[1] and "timed_views=6" in lines[-1]
