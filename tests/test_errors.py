@@ -14,7 +14,7 @@ def test_group_choices_listed_in_one_line():
     with pytest.raises(InputError, match=r"^scene=no_such_scene: no such scene; expected one of ct_head, .*, tiny$") as e:
         check_group_choices(CONF, ["data=tiny", "scene=no_such_scene"])
     assert "\n" not in str(e.value)
-    with pytest.raises(InputError, match=r"^data=huge: no such data; expected one of bench, default, small, tiny$"):
+    with pytest.raises(InputError, match=r"^data=huge: no such data; expected one of bench, default, paper_cpu, small, tiny$"):
         check_group_choices(CONF, ["+data=huge"])
     with pytest.raises(InputError, match="scene=nope"):
         check_group_choices(CONF, ["-m", "scene=tiny,nope"])

@@ -285,7 +285,7 @@ def test_invalid_hyperparameters_refused():
     with pytest.raises(InputError, match="c_size"):
         IMLRecNN(net, EnhanceNet(grid_pattern(4, 2), channels=2, blocks=0))
     with pytest.raises(ValueError):
-        net(torch.rand(1, 3, 4, 4))
+        net(torch.rand(1, 3, 16, 16))  # larger than the C-Image (a smaller one is a training crop)
     with pytest.raises(InputError, match="decoder"):
         IMLNet(8, P, depth=2, base_channels=2, decoder="unet")
     with pytest.raises(InputError, match="importance"):

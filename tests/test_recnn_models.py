@@ -83,7 +83,7 @@ def test_enhancenet_refuses_non_grid_patterns():
     with pytest.raises(InputError, match="downsampling pattern"):
         EnhanceNet(random_pattern(8, 4, 12), channels=2, blocks=0)  # fewer pixels than n*n
     with pytest.raises(ValueError):
-        EnhanceNet(grid_pattern(4, 2), channels=2, blocks=0)(torch.rand(1, 3, 5, 5))
+        EnhanceNet(grid_pattern(4, 2), channels=2, blocks=0)(torch.rand(1, 1, 5, 5))  # not RGB (any size is a crop)
 
 
 def test_enhancenet_bf16_autocast_finite_and_float32_skip():
