@@ -289,12 +289,18 @@ def update_section(benchmarks_md: Path, text: str) -> Path:
     return atomic_write_text(benchmarks_md, new)
 
 
+def orp_cell(row: Mapping[str, Any]) -> str:
+    """The ORP's C-share, or "none" with the share IML/S ran at when no mean met ε."""
+    found = math.isfinite(_num(row.get("mean")))
+    return fmt_pct(_num(row.get("c_share"))) if found else f"none (ran at {fmt_pct(_num(row.get('c_share')))})"
+
+
 def section_text(rows: Sequence[Mapping[str, Any]], partial: bool) -> str:
     lines = ["## Paper scale (512² FR, 256² C, half-voxel sampling)" + (" — partial" if partial else ""), "",
              "`make bench-paper`; details, per-stage breakdown and the paper's figures in "
              "[benchmarks/paper_scale.md](benchmarks/paper_scale.md), rows in `benchmarks/paper_scale.csv`.", ""]
     lines.append(md_table(["scene", "RecNN", "ORP C-share", "IML/S PSNR (gap)", "RecNN alone (ms)", "IML/S + RecNN (ms)", "speed-up", "LAS (ms, PSNR)"],
-                          [[r["scene"], r["recnn"], fmt_pct(_num(r.get("c_share"))), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
+                          [[r["scene"], r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
                             fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
                             f"{fmt(r.get('las_ms'), 1)}, {fmt(r.get('las_psnr_db'))} dB"] for r in rows]))
     return "\n".join(lines)

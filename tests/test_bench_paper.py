@@ -114,7 +114,8 @@ def test_report_and_breakdown_plot(tmp_path):
     assert "**40.00**" in lim and "12.50×" in lim
     png = bp.plot_breakdown([s, _summary("mri_head")], tmp_path / "b.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "speed-up" in bp.section_text(rows, partial=False)
+    assert "speed-up" in bp.section_text(rows, partial=False) and "| 30.0% |" in bp.section_text(rows, partial=False)
+    assert bp.orp_cell({"mean": "", "c_share": "0.2"}) == "none (ran at 20.0%)"
 
 
 def test_cli_dry_run_prints_every_stage_command():
