@@ -38,7 +38,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
-from .demo import StageFailed, demo, override_list, split_scene_overrides
+from .demo import demo, override_list, run_pipeline, split_scene_overrides
 from .report import atomic_write_text, md_table
 from .report.tables import equal_share_markdown, fmt, fmt_pct, speedup
 
@@ -364,13 +364,7 @@ _SCENE_OVERRIDES: list[str] = []
 @cli_errors
 def _main(cfg: DictConfig) -> None:
     command = "python -m imls_lightning.bench_paper " + " ".join(sys.argv[1:] + _SCENE_OVERRIDES)
-    try:
-        path = bench_paper(cfg, _SCENE_OVERRIDES, command.strip())
-    except StageFailed as err:
-        print(f"error: {err}", file=sys.stderr, flush=True)
-        sys.exit(1)
-    if path is not None:
-        print(path, flush=True)
+    run_pipeline(lambda: bench_paper(cfg, _SCENE_OVERRIDES, command.strip()))
 
 
 def main() -> None:

@@ -228,13 +228,19 @@ _SCENE_OVERRIDES: list[str] = []
 @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="demo")
 @cli_errors
 def _main(cfg: DictConfig) -> None:
+    run_pipeline(lambda: demo(cfg, _SCENE_OVERRIDES))
+
+
+def run_pipeline(body) -> None:
+    """A pipeline CLI's body: run ``body()``; a failed stage exits 1 with its one-line message, and
+    the result (a report's path, None on a dry run) is the last line of stdout."""
     try:
-        report = demo(cfg, _SCENE_OVERRIDES)
+        result = body()
     except StageFailed as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         sys.exit(1)
-    if report is not None:
-        print(report, flush=True)
+    if result is not None:
+        print(result, flush=True)
 
 
 def main() -> None:

@@ -170,6 +170,7 @@ class EnhanceNet(nn.Module):
             self.conv_out.bias.zero_()
         self.register_buffer("Wy", bicubic_matrix(self.c_size, self.fr_size, f, oy), persistent=False)
         self.register_buffer("Wx", bicubic_matrix(self.c_size, self.fr_size, f, ox), persistent=False)
+        self._crop_matrices: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}  # data.crop sizes
 
     def _matrices(self, h: int, w: int, device) -> tuple[torch.Tensor, torch.Tensor]:
         """The bicubic matrices for an ``h x w`` C-Image: the buffers at ``n x n``; for a training crop
@@ -177,8 +178,13 @@ class EnhanceNet(nn.Module):
         n, f = self.c_size, self.factor
         if (h, w) == (n, n):
             return self.Wy, self.Wx
-        oy, ox = self.offset
-        return (bicubic_matrix(h, h * f, f, oy).to(device), bicubic_matrix(w, w * f, f, ox).to(device))
+        key = (h, w, str(device))
+        cached = self._crop_matrices.get(key)
+        if cached is None:  # built once per crop size, not on every training step
+            oy, ox = self.offset
+            cached = (bicubic_matrix(h, h * f, f, oy).to(device), bicubic_matrix(w, w * f, f, ox).to(device))
+            self._crop_matrices[key] = cached
+        return cached
 
     def bicubic(self, c_image: torch.Tensor) -> torch.Tensor:
         """The bicubic skip alone: ``(B, 3, h, w) -> (B, 3, f h, f w)`` (float32, autocast off)."""
