@@ -56,6 +56,7 @@ from numba import njit, prange
 from .camera import camera_basis, validate_view
 from .errors import InputError
 from .scene import Scene
+from .validate import check_integer
 
 #: entries of the transfer-function lookup table over normalized scalars [0, 1]
 LUT_SIZE = 4096
@@ -579,16 +580,6 @@ def transfer_lut(scene: Scene, size: int = LUT_SIZE) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([tf.rgb(x), a[:, None]], axis=1), dtype=np.float64)
 
 
-def _check_threads(threads) -> int:
-    try:
-        t = int(threads)
-    except (TypeError, ValueError):
-        raise InputError(f"renderer.threads={threads!r}: expected an integer >= 0 (0 = all cores)") from None
-    if t < 0:
-        raise InputError(f"renderer.threads={threads}: expected an integer >= 0 (0 = all cores)")
-    return t
-
-
 class NumbaRenderer:
     """Compiled CPU ray caster with VTK's scene model; casts any subset of a frame's rays.
 
@@ -616,7 +607,7 @@ class NumbaRenderer:
 
     def __init__(self, scene: Scene, threads: int = 0, warmup: bool = True):
         self.scene = scene
-        self.threads = _check_threads(threads)
+        self.threads = check_integer(threads, "renderer.threads", 0, what="an integer >= 0 (0 = all cores)")
         vol = scene.volume
         data = vol.data
         if not (isinstance(data, np.ndarray) and data.flags.c_contiguous):
@@ -707,7 +698,7 @@ class NumbaRenderer:
     def render(self, view, resolution: int) -> np.ndarray:
         """Full frame ``(m, m, 3)`` uint8, row 0 at the top."""
         validate_view(view)
-        m = _check_resolution(resolution)
+        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
         pix = self._all_pixels.get(m)
         if pix is None:
             pix = self._all_pixels.setdefault(m, np.arange(m * m, dtype=np.int64))
@@ -722,7 +713,7 @@ class NumbaRenderer:
         from .camera import validate_pixels
 
         validate_view(view)
-        m = _check_resolution(resolution)
+        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
         pix = validate_pixels(pixels, m)
         if pix.shape[0] == 0:
             self.last_render_seconds = 0.0
@@ -732,12 +723,6 @@ class NumbaRenderer:
 
     def close(self) -> None:  # same interface as VTKRenderer
         pass
-
-
-def _check_resolution(resolution) -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or int(resolution) <= 0:
-        raise InputError(f"resolution={resolution!r}: expected a positive integer")
-    return int(resolution)
 
 
 __all__ = ["NumbaRenderer", "clipping_range", "ray_hit_mask", "transfer_lut",

@@ -44,6 +44,7 @@ import numpy as np
 from .camera import validate_view
 from .errors import InputError
 from .scene import Scene
+from .validate import check_integer
 
 # Prefer a headless EGL window; VTK otherwise tries X first and warns when there is no display.
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
@@ -186,7 +187,7 @@ class VTKRenderer:
 
     def _set_camera(self, view, resolution) -> np.ndarray:
         v = validate_view(view)
-        m = _check_resolution(resolution)
+        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
         from .render_numba import clipping_range
 
         w = m + 2 * self._margin
@@ -371,7 +372,7 @@ class VTKRenderer:
         if self._mapper_kind != "fixed_point":
             raise InputError("renderer.mapper=gpu: render_pixels needs the fixed_point mapper (or renderer=numba)")
         v = validate_view(view)
-        m = _check_resolution(resolution)
+        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
         pix = validate_pixels(pixels, m)
         if pix.shape[0] == 0:
             self.last_render_seconds = 0.0
@@ -407,9 +408,3 @@ class VTKRenderer:
 
     def close(self) -> None:
         self._window.Finalize()
-
-
-def _check_resolution(resolution) -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or int(resolution) <= 0:
-        raise InputError(f"resolution={resolution!r}: expected a positive integer")
-    return int(resolution)

@@ -21,6 +21,7 @@ from typing import Any, Callable
 
 from .errors import InputError
 from .scene import Scene
+from .validate import check_integer, check_mapping
 
 # keys of the renderer node that never change the pixels (how fast, not what)
 NON_PIXEL_KEYS = frozenset({"threads"})
@@ -29,27 +30,12 @@ NON_PIXEL_KEYS = frozenset({"threads"})
 def _plain(cfg) -> dict[str, Any]:
     if cfg is None:
         return {"name": "vtk"}
-    try:
-        from omegaconf import DictConfig, OmegaConf
-
-        if isinstance(cfg, DictConfig):
-            return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
-    except ImportError:  # pragma: no cover
-        pass
-    if not isinstance(cfg, Mapping):
-        raise InputError(f"renderer: expected a mapping of renderer settings, got {type(cfg).__name__}")
-    return dict(cfg)
+    return check_mapping(cfg, "renderer", "a mapping of renderer settings")
 
 
 def _threads(cfg: Mapping[str, Any], threads: int | None) -> int:
     t = cfg.get("threads", 0) if threads is None else threads
-    try:
-        t = int(t or 0)
-    except (TypeError, ValueError):
-        raise InputError(f"renderer.threads={t}: expected an integer >= 0 (0 = automatic)") from None
-    if t < 0:
-        raise InputError(f"renderer.threads={t}: expected an integer >= 0 (0 = automatic)")
-    return t
+    return check_integer(t or 0, "renderer.threads", 0, what="an integer >= 0 (0 = automatic)")
 
 
 def _make_vtk(scene: Scene, cfg: Mapping[str, Any], threads: int):

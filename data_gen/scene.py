@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
+from .validate import check_mapping
 from .volume import Volume
 
 
@@ -281,17 +282,8 @@ def register_resolvers() -> None:
 
 def _plain(cfg) -> dict[str, Any]:
     """DictConfig or Mapping -> plain (resolved) dict."""
-    try:
-        from omegaconf import DictConfig, OmegaConf
-
-        if isinstance(cfg, DictConfig):
-            register_resolvers()
-            return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
-    except ImportError:  # pragma: no cover - omegaconf is a dependency
-        pass
-    if not isinstance(cfg, Mapping):
-        raise InputError(f"scene: expected a mapping of scene settings, got {type(cfg).__name__}")
-    return dict(cfg)
+    register_resolvers()  # the volume-name interpolation resolves while the node is converted
+    return check_mapping(cfg, "scene", "a mapping of scene settings")
 
 
 def _restrict(points: np.ndarray, lo: float, hi: float) -> np.ndarray:

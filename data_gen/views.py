@@ -21,6 +21,7 @@ import numpy as np
 
 from .camera import validate_view
 from .errors import InputError
+from .validate import check_integer, check_number, check_numbers, expected
 
 # Independent random streams derived from the one user seed.
 _STREAM_TRAIN, _STREAM_SPLIT, _STREAM_TEST = 0, 1, 2
@@ -31,9 +32,10 @@ def _rng(seed: int, stream: int) -> np.random.Generator:
 
 
 def _check_distance(camera_distance) -> tuple[float, float]:
-    lo, hi = (float(c) for c in camera_distance)
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= hi):
-        raise InputError(f"scene.camera_distance={list(camera_distance)}: expected [min, max] with 0 < min <= max")
+    what = "[min, max] with 0 < min <= max"
+    lo, hi = check_numbers(camera_distance, "scene.camera_distance", 2, lo=0, lo_open=True, what=what)
+    if lo > hi:
+        raise expected("scene.camera_distance", camera_distance, what)
     return lo, hi
 
 
@@ -70,9 +72,9 @@ def sample_training_views(
         >>> v.shape, bool(np.all((np.linalg.norm(v[:, :3], axis=1) >= 2.5)))
         ((4, 9), True)
     """
-    n = _check_count("data.num_views", num_views, minimum=1)
+    n = check_integer(num_views, "data.num_views", 1)
     lo, hi = _check_distance(camera_distance)
-    jitter = _check_jitter(lookat_jitter)
+    jitter = check_lookat_jitter(lookat_jitter)
     rng = _rng(seed, _STREAM_TRAIN)
     direction = unit_vectors(rng.normal(size=(n, 3)))
     radius = rng.uniform(lo, hi, size=(n, 1))
@@ -102,10 +104,8 @@ def split_train_val(num_views: int, *, val_fraction: float = 0.1, seed: int = 0)
         >>> len(s["train"]), len(s["val"])
         (18, 2)
     """
-    n = _check_count("data.num_views", num_views, minimum=1)
-    f = float(val_fraction)
-    if not (0.0 <= f < 1.0):
-        raise InputError(f"data.val_fraction={val_fraction}: expected a number in [0, 1)")
+    n = check_integer(num_views, "data.num_views", 1)
+    f = check_val_fraction(val_fraction)
     n_val = int(round(n * f))
     if f > 0 and n >= 2:
         n_val = max(n_val, 1)
@@ -138,9 +138,9 @@ def exploration_trajectory(
         >>> p.shape, float(np.abs(np.diff(p[:, :3], axis=0)).max()) < 0.3
         ((120, 9), True)
     """
-    t_n = _check_count("data.test_views", num_views, minimum=1)
+    t_n = check_integer(num_views, "data.test_views", 1)
     lo, hi = _check_distance(camera_distance)
-    jitter = _check_jitter(lookat_jitter)
+    jitter = check_lookat_jitter(lookat_jitter)
     rng = _rng(seed, _STREAM_TEST)
     ph = rng.uniform(0, 2 * np.pi, size=8)
     s = np.linspace(0.0, 1.0, t_n)  # path parameter
@@ -196,22 +196,25 @@ def validate_views(views: np.ndarray, *, name: str = "view") -> np.ndarray:
     return v
 
 
-def _check_count(name: str, value, minimum: int) -> int:
-    try:
-        n = int(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}={value}: expected an integer >= {minimum}") from None
-    if n != value or n < minimum:
-        raise InputError(f"{name}={value}: expected an integer >= {minimum}")
-    return n
+def check_val_fraction(value) -> float:
+    """``data.val_fraction``: the share of the views held out for validation, a number in ``[0, 1)``.
+
+    Example:
+        >>> check_val_fraction(0.1)
+        0.1
+    """
+    return check_number(value, "data.val_fraction", 0, 1, hi_open=True)
 
 
-def _check_jitter(value) -> float:
-    j = float(value)
-    if not (np.isfinite(j) and j >= 0):
-        raise InputError(f"data.lookat_jitter={value}: expected a number >= 0 (normalized units)")
-    return j
+def check_lookat_jitter(value) -> float:
+    """``data.lookat_jitter``: the radius of the look-at ball, a finite number >= 0 (normalized units).
+
+    Example:
+        >>> check_lookat_jitter(0.1)
+        0.1
+    """
+    return check_number(value, "data.lookat_jitter", 0, what="a number >= 0 (normalized units)")
 
 
 __all__ = ["sample_training_views", "split_train_val", "exploration_trajectory", "load_views_file", "validate_views",
-           "unit_vectors", "orthogonal_up"]
+           "unit_vectors", "orthogonal_up", "check_lookat_jitter", "check_val_fraction"]

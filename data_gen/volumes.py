@@ -41,6 +41,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import InputError
+from .validate import check_numbers
 from .volume import Volume
 
 #: dtype names of the Open SciVis ``.raw`` convention -> little-endian numpy dtypes
@@ -81,26 +82,14 @@ def _extension(path: Path) -> str:
     return "".join(path.suffixes[-2:]).lower() or "(none)"
 
 
-def _check_spacing(spacing: Any, what: str) -> tuple[float, float, float]:
+def _check_spacing(spacing: Any, key: str) -> tuple[float, float, float]:
     """Three positive finite numbers (a single number means isotropic)."""
-    try:
-        vals = [float(spacing)] * 3 if np.ndim(spacing) == 0 else [float(s) for s in spacing]
-    except (TypeError, ValueError):
-        raise InputError(f"{what}={spacing!r}: expected three positive numbers (sx, sy, sz)") from None
-    if len(vals) != 3 or not all(np.isfinite(s) and s > 0 for s in vals):
-        raise InputError(f"{what}={list(spacing) if np.ndim(spacing) else spacing}: expected three positive numbers (sx, sy, sz)")
-    return (vals[0], vals[1], vals[2])
+    return check_numbers(spacing, key, 3, lo=0, lo_open=True, broadcast=True,
+                         what="three positive numbers (sx, sy, sz)")
 
 
-def _check_dims(dims: Any, what: str) -> tuple[int, int, int]:
-    try:
-        vals = [int(d) for d in dims]
-        ok = len(vals) == 3 and all(float(d) == int(d) for d in dims) and all(v >= 2 for v in vals)
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise InputError(f"{what}={dims!r}: expected three integers (x, y, z), each >= 2")
-    return (vals[0], vals[1], vals[2])
+def _check_dims(dims: Any, key: str) -> tuple[int, int, int]:
+    return check_numbers(dims, key, 3, lo=2, integer=True, what="three integers (x, y, z), each >= 2")
 
 
 def _check_dtype(dtype: Any, what: str) -> np.dtype:

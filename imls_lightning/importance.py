@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from data_gen.errors import InputError
+from data_gen.validate import check_number
 
 __all__ = [
     "check_mean",
@@ -46,24 +47,12 @@ MEAN_RANGE = (0.01, 1.0)
 
 def check_mean(mean: float, name: str = "mean") -> float:
     """Validate the prescribed mean value ``u`` (paper: a number in ``[0.01, 1]``)."""
-    try:
-        u = float(mean)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}={mean!r}: expected a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]") from None
-    if not (MEAN_RANGE[0] <= u <= MEAN_RANGE[1]):
-        raise InputError(f"{name}={mean}: expected a number in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
-    return u
+    return check_number(mean, name, MEAN_RANGE[0], MEAN_RANGE[1])
 
 
 def check_alpha(alpha: float, name: str = "alpha") -> float:
     """Validate the sigmoid steepness ``alpha`` (positive and finite)."""
-    try:
-        a = float(alpha)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}={alpha!r}: expected a positive finite number") from None
-    if not (a > 0 and math.isfinite(a)):
-        raise InputError(f"{name}={alpha}: expected a positive finite number")
-    return a
+    return check_number(alpha, name, 0, lo_open=True, what="a positive finite number")
 
 
 def _check_lower_delta(mean: float, lower: float, delta: float) -> tuple[float, float]:

@@ -9,7 +9,8 @@ them, in raster order, into the ``n x n`` C-Image (zero padded past the pattern'
 * :func:`foveal_pattern` - foveated rendering (FoVolNet): blue noise thresholded against a Gaussian
   modulation surface around a fixed centre; dense in the fovea, sparse in the periphery.
 * :func:`full_pattern` - every pixel (``c_size = fr_size``), for tests and upper bounds.
-* :func:`blue_noise` - void-and-cluster blue-noise ranks (Ulichney 1993), procedural and seeded.
+* :func:`blue_noise` - void-and-cluster blue-noise ranks (Ulichney 1993), procedural and seeded
+  (from :mod:`imls_lightning.rank_patterns`, re-exported here, like the next one).
 * :func:`plastic_rank_pattern` - the LAS rank map P (R2 / plastic sequence, rank of first visit).
 * :func:`build_pattern` - the above from the Hydra ``pattern`` node; :func:`c_pixels_to_fr` maps a
   C-Image mask (e.g. the IM) to the FR raster indices the selective renderer must cast.
@@ -20,18 +21,19 @@ Pixel conventions follow ``docs/ARCHITECTURE.md``: row 0 at the top, flat raster
 """
 from __future__ import annotations
 
-import functools
 import hashlib
 import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import torch
 
 from data_gen.errors import InputError
+from data_gen.validate import check_integer, check_number
+
+from .rank_patterns import PLASTIC_G, blue_noise, blue_noise_ranks, plastic_rank_pattern
 
 log = logging.getLogger(__name__)
 
@@ -139,29 +141,6 @@ class SamplingPattern:
 
 
 # --------------------------------------------------------------------------------------------
-# input checks (one-line InputErrors naming the config key)
-# --------------------------------------------------------------------------------------------
-
-
-def _pos_int(value, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < minimum:
-        raise InputError(f"{name}={value!r}: expected an integer >= {minimum}")
-    return int(value)
-
-
-def _finite_float(value, name: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}={value!r}: expected a number") from None
-    bad = not math.isfinite(v) or (lo is not None and (v <= lo if lo_open else v < lo)) or (hi is not None and v > hi)
-    if bad:
-        rng = f"{'(' if lo_open else '['}{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
-        raise InputError(f"{name}={value!r}: expected a finite number in {rng}")
-    return v
-
-
-# --------------------------------------------------------------------------------------------
 # full and downsampling patterns
 # --------------------------------------------------------------------------------------------
 
@@ -173,7 +152,7 @@ def full_pattern(fr_size: int) -> SamplingPattern:
         >>> full_pattern(4).count
         16
     """
-    m = _pos_int(fr_size, "fr_size")
+    m = check_integer(fr_size, "fr_size", 1, strict=True)
     return SamplingPattern("full", m, m, torch.arange(m * m, dtype=torch.long), ())
 
 
@@ -200,8 +179,8 @@ def downsample_pattern(fr_size: int, factor: int) -> SamplingPattern:
         >>> downsample_pattern(6, 3).indices.tolist()
         [7, 10, 25, 28]
     """
-    m = _pos_int(fr_size, "fr_size")
-    f = _pos_int(factor, "pattern.factor")
+    m = check_integer(fr_size, "fr_size", 1, strict=True)
+    f = check_integer(factor, "pattern.factor", 1, strict=True)
     if m % f:
         raise InputError(f"pattern.factor={f}: the FR size {m} is not divisible by it (choose a factor that divides {m})")
     n = m // f
@@ -211,222 +190,6 @@ def downsample_pattern(fr_size: int, factor: int) -> SamplingPattern:
     return SamplingPattern("downsample", m, n, idx, (("factor", f), ("offset", o)))
 
 
-# --------------------------------------------------------------------------------------------
-# blue noise: void-and-cluster (Ulichney 1993) with a compiled, toroidal, incremental energy
-# --------------------------------------------------------------------------------------------
-
-_VAC_SIGMA = 1.5  # Ulichney's Gaussian std (pixels)
-_VAC_RADIUS = 6  # kernel support 4 sigma: the cut-off tail is < 4e-4 of the peak
-_VAC_TILE = 16  # tiles keep per-tile extrema so a step costs O(r^2 + tiles), not O(N)
-_VAC_DENSITY = 0.1  # density of the initial binary pattern (Ulichney's suggestion)
-_VAC_JITTER = 1e-9  # seeded tie-breaker far below any real energy difference
-
-
-@numba.njit(cache=True)
-def _vac_flip(energy, pattern, p, w, h, kern, r, sign):
-    # add (sign=+1) or remove (sign=-1) the wrapped Gaussian of pixel p; toroidal like the tile
-    y = p // w
-    x = p - y * w
-    for dy in range(-r, r + 1):
-        row = ((y + dy) % h) * w
-        for dx in range(-r, r + 1):
-            energy[row + (x + dx) % w] += sign * kern[dy + r, dx + r]
-    pattern[p] = 1 if sign > 0 else 0
-
-
-@numba.njit(cache=True)
-def _vac_tile(energy, pattern, w, h, t_size, ntc, t, want, val, idx):
-    # want=1: max energy among ones (tightest cluster); want=0: min energy among zeros (largest void)
-    ty = t // ntc
-    tx = t - ty * ntc
-    y1 = min((ty + 1) * t_size, h)
-    x1 = min((tx + 1) * t_size, w)
-    best = -np.inf if want == 1 else np.inf
-    bi = -1
-    for y in range(ty * t_size, y1):
-        for x in range(tx * t_size, x1):
-            p = y * w + x
-            if pattern[p] == want:
-                e = energy[p]
-                if (want == 1 and e > best) or (want == 0 and e < best):
-                    best = e
-                    bi = p
-    val[t] = best
-    idx[t] = bi
-
-
-@numba.njit(cache=True)
-def _vac_row(val, idx, ntc, ty, want, rval, ridx):
-    # best of one row of tiles: a two-level max/min so a global query costs O(rows), not O(tiles)
-    best = -np.inf if want == 1 else np.inf
-    bi = -1
-    for t in range(ty * ntc, (ty + 1) * ntc):
-        if idx[t] >= 0 and ((want == 1 and val[t] > best) or (want == 0 and val[t] < best)):
-            best = val[t]
-            bi = idx[t]
-    rval[ty] = best
-    ridx[ty] = bi
-
-
-@numba.njit(cache=True)
-def _vac_best(rval, ridx, want):
-    best = -np.inf if want == 1 else np.inf
-    bi = -1
-    for ty in range(rval.shape[0]):
-        if ridx[ty] >= 0 and ((want == 1 and rval[ty] > best) or (want == 0 and rval[ty] < best)):
-            best = rval[ty]
-            bi = ridx[ty]
-    return bi
-
-
-@numba.njit(cache=True)
-def _vac_distinct(c, r, size, t_size, n_tiles, out):
-    # distinct tile coordinates covered by [c - r, c + r] on a ring of `size` pixels
-    cnt = 0
-    for d in range(-r, r + 1):
-        t = ((c + d) % size) // t_size
-        seen = False
-        for j in range(cnt):
-            if out[j] == t:
-                seen = True
-                break
-        if not seen:
-            out[cnt] = t
-            cnt += 1
-    return cnt
-
-
-@numba.njit(cache=True)
-def _vac_refresh(energy, pattern, p, w, h, r, t_size, ntr, ntc, rows, cols, want, val, idx, rval, ridx):
-    # recompute the tiles the flipped pixel's kernel window touched, then their tile rows
-    y = p // w
-    x = p - y * w
-    nr = _vac_distinct(y, r, h, t_size, ntr, rows)
-    nc = _vac_distinct(x, r, w, t_size, ntc, cols)
-    for i in range(nr):
-        for j in range(nc):
-            _vac_tile(energy, pattern, w, h, t_size, ntc, rows[i] * ntc + cols[j], want, val, idx)
-        _vac_row(val, idx, ntc, rows[i], want, rval, ridx)
-
-
-@numba.njit(cache=True)
-def _vac_init_stats(energy, pattern, w, h, t_size, ntr, ntc, want, val, idx, rval, ridx):
-    for t in range(ntr * ntc):
-        _vac_tile(energy, pattern, w, h, t_size, ntc, t, want, val, idx)
-    for ty in range(ntr):
-        _vac_row(val, idx, ntc, ty, want, rval, ridx)
-
-
-@numba.njit(cache=True)
-def _vac_ranks(h, w, initial, jitter, kern, r, t_size):
-    n_pix = h * w
-    ntr = (h + t_size - 1) // t_size
-    ntc = (w + t_size - 1) // t_size
-    nt = ntr * ntc
-    rows = np.empty(2 * r + 1, np.int64)
-    cols = np.empty(2 * r + 1, np.int64)
-    v1 = np.empty(nt)
-    i1 = np.empty(nt, np.int64)
-    v0 = np.empty(nt)
-    i0 = np.empty(nt, np.int64)
-    rv1 = np.empty(ntr)
-    ri1 = np.empty(ntr, np.int64)
-    rv0 = np.empty(ntr)
-    ri0 = np.empty(ntr, np.int64)
-
-    energy = jitter.copy()
-    pattern = np.zeros(n_pix, np.uint8)
-    n_ones = 0
-    for p in range(n_pix):
-        if initial[p]:
-            _vac_flip(energy, pattern, p, w, h, kern, r, 1.0)
-            n_ones += 1
-
-    # 1. relax the initial pattern: move the tightest cluster into the largest void until stable
-    if 0 < n_ones < n_pix:
-        _vac_init_stats(energy, pattern, w, h, t_size, ntr, ntc, 1, v1, i1, rv1, ri1)
-        _vac_init_stats(energy, pattern, w, h, t_size, ntr, ntc, 0, v0, i0, rv0, ri0)
-        for _ in range(4 * n_ones + 64):
-            c = _vac_best(rv1, ri1, 1)
-            _vac_flip(energy, pattern, c, w, h, kern, r, -1.0)
-            _vac_refresh(energy, pattern, c, w, h, r, t_size, ntr, ntc, rows, cols, 1, v1, i1, rv1, ri1)
-            _vac_refresh(energy, pattern, c, w, h, r, t_size, ntr, ntc, rows, cols, 0, v0, i0, rv0, ri0)
-            v = _vac_best(rv0, ri0, 0)
-            _vac_flip(energy, pattern, v, w, h, kern, r, 1.0)
-            _vac_refresh(energy, pattern, v, w, h, r, t_size, ntr, ntc, rows, cols, 1, v1, i1, rv1, ri1)
-            _vac_refresh(energy, pattern, v, w, h, r, t_size, ntr, ntc, rows, cols, 0, v0, i0, rv0, ri0)
-            if v == c:
-                break
-    proto_pattern = pattern.copy()
-    proto_energy = energy.copy()
-    rank = np.empty(n_pix, np.int64)
-
-    # 2. ranks below the prototype: remove tightest clusters one by one
-    _vac_init_stats(energy, pattern, w, h, t_size, ntr, ntc, 1, v1, i1, rv1, ri1)
-    for k in range(n_ones - 1, -1, -1):
-        c = _vac_best(rv1, ri1, 1)
-        rank[c] = k
-        _vac_flip(energy, pattern, c, w, h, kern, r, -1.0)
-        _vac_refresh(energy, pattern, c, w, h, r, t_size, ntr, ntc, rows, cols, 1, v1, i1, rv1, ri1)
-
-    # 3. ranks above: fill the largest void one by one. Past half density Ulichney switches to
-    # "tightest cluster of zeros"; with a linear filter that is argmax(sum(kernel) - E) over the
-    # zeros = argmin E over the zeros, i.e. the same step, so one loop covers both phases.
-    pattern = proto_pattern
-    energy = proto_energy
-    _vac_init_stats(energy, pattern, w, h, t_size, ntr, ntc, 0, v0, i0, rv0, ri0)
-    for k in range(n_ones, n_pix):
-        v = _vac_best(rv0, ri0, 0)
-        rank[v] = k
-        _vac_flip(energy, pattern, v, w, h, kern, r, 1.0)
-        _vac_refresh(energy, pattern, v, w, h, r, t_size, ntr, ntc, rows, cols, 0, v0, i0, rv0, ri0)
-    return rank
-
-
-@functools.lru_cache(maxsize=16)
-def _blue_noise_ranks(h: int, w: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(np.random.SeedSequence([seed, h, w]))
-    n_pix = h * w
-    n_init = min(n_pix, max(1, int(round(_VAC_DENSITY * n_pix))))
-    initial = np.zeros(n_pix, np.uint8)
-    initial[rng.choice(n_pix, size=n_init, replace=False)] = 1
-    jitter = rng.random(n_pix) * _VAC_JITTER
-    d = np.arange(-_VAC_RADIUS, _VAC_RADIUS + 1, dtype=np.float64)
-    kern = np.exp(-(d[:, None] ** 2 + d[None, :] ** 2) / (2.0 * _VAC_SIGMA**2))
-    rank = _vac_ranks(h, w, initial, jitter, kern, _VAC_RADIUS, _VAC_TILE)
-    rank = rank.reshape(h, w)
-    rank.setflags(write=False)
-    return rank
-
-
-def blue_noise(size: int | tuple[int, int], seed: int = 0) -> torch.Tensor:
-    """Blue-noise threshold map by void-and-cluster (Ulichney 1993), procedural and deterministic.
-
-    Every pixel gets a distinct rank ``0 .. N-1`` (``N = H*W``); ``map < t`` keeps
-    ``ceil(t*N)`` pixels that are evenly spread at every density, with little low-frequency
-    energy. The Gaussian energy (std 1.5 px, support 13x13) wraps around the borders (toroidal),
-    so the tile repeats seamlessly. It is updated incrementally in compiled code: each step costs
-    O(kernel + tiles) instead of a full O(N log N) FFT filtering, and a 512^2 map takes about a
-    second. Results are cached in memory per ``(size, seed)``.
-
-    Args:
-        size: ``n`` for ``n x n`` or ``(H, W)``.
-        seed: seed of the initial random pattern (and of a 1e-9 tie-breaking jitter).
-
-    Returns:
-        ``(H, W)`` float64 ranks normalized to ``[0, 1)``: ``rank / N``, each value exactly once.
-
-    Example:
-        >>> bn = blue_noise(16, seed=3)
-        >>> bn.shape, float(bn.min()), bool((bn < 0.25).sum() == 64)
-        (torch.Size([16, 16]), 0.0, True)
-    """
-    h, w = (size, size) if isinstance(size, (int, np.integer)) else tuple(size)
-    h = _pos_int(h, "blue_noise size")
-    w = _pos_int(w, "blue_noise size")
-    seed = _pos_int(seed, "pattern.seed", minimum=0)
-    ranks = _blue_noise_ranks(h, w, seed)
-    return torch.from_numpy(ranks.astype(np.float64) / float(h * w))
 
 
 # --------------------------------------------------------------------------------------------
@@ -450,13 +213,13 @@ def _check_formulation(formulation: str) -> str:
 def _resolve_base(base, formulation: str) -> float:
     if base is None:  # the formulation's own default: FoVolNet's 0.07, the paper's surface has none
         return FOVOLNET_DEFAULT_BASE if formulation == "fovolnet" else 0.0
-    return _finite_float(base, "pattern.base", 0.0, 1.0)
+    return check_number(base, "pattern.base", 0.0, 1.0)
 
 
 def _check_center(center) -> tuple[float, float]:
     if not isinstance(center, (Sequence, np.ndarray, torch.Tensor)) or isinstance(center, str) or len(center) != 2:
         raise InputError(f"pattern.center={center!r}: expected two numbers [x, y] in [0, 1] (image width/height units)")
-    return (_finite_float(center[0], "pattern.center[0]", 0.0, 1.0), _finite_float(center[1], "pattern.center[1]", 0.0, 1.0))
+    return (check_number(center[0], "pattern.center[0]", 0.0, 1.0), check_number(center[1], "pattern.center[1]", 0.0, 1.0))
 
 
 def _radius2(m: int, center: tuple[float, float]) -> np.ndarray:
@@ -506,9 +269,9 @@ def foveal_surface(
         >>> bool(p[32, 32] > 0.99), bool(abs(float(p[0, 0]) - 0.07) < 1e-6)
         (True, True)
     """
-    m = _pos_int(fr_size, "fr_size")
+    m = check_integer(fr_size, "fr_size", 1, strict=True)
     formulation = _check_formulation(formulation)
-    sigma = _finite_float(sigma, "pattern.sigma", 0.0, lo_open=True)
+    sigma = check_number(sigma, "pattern.sigma", 0.0, lo_open=True)
     b = _resolve_base(base, formulation)
     p = _surface(_radius2(m, _check_center(center)), sigma, formulation, b)
     return torch.from_numpy(p.reshape(m, m))
@@ -571,14 +334,14 @@ def foveal_pattern(
         >>> p.count <= 32 * 32, p.fill_ratio > 0.99
         (True, True)
     """
-    m = _pos_int(fr_size, "fr_size")
-    n = _pos_int(c_size, "pattern.c_size")
+    m = check_integer(fr_size, "fr_size", 1, strict=True)
+    n = check_integer(c_size, "pattern.c_size", 1, strict=True)
     formulation = _check_formulation(formulation)
     b = _resolve_base(base, formulation)
     ctr = _check_center(center)
-    seed = _pos_int(seed, "pattern.seed", minimum=0)
+    seed = check_integer(seed, "pattern.seed", 0, strict=True)
     cap = n * n
-    u = _blue_noise_ranks(m, m, seed).reshape(-1).astype(np.float64) / float(m * m)
+    u = blue_noise_ranks(m, m, seed).reshape(-1).astype(np.float64) / float(m * m)
     r2 = _radius2(m, ctr)
     grows = formulation == "fovolnet"  # K grows with sigma (fovolnet) or shrinks (paper)
 
@@ -615,7 +378,7 @@ def foveal_pattern(
                     break
         sig = s
     else:
-        sig = _finite_float(sigma, "pattern.sigma", 0.0, lo_open=True)
+        sig = check_number(sigma, "pattern.sigma", 0.0, lo_open=True)
         k = count(sig)
         if k > cap:
             hint = foveal_pattern(m, n, None, formulation=formulation, base=b, center=ctr, seed=seed).param_dict["sigma"]
@@ -638,82 +401,6 @@ def foveal_pattern(
     return pat
 
 
-# --------------------------------------------------------------------------------------------
-# plastic (R2) rank pattern P of LAS
-# --------------------------------------------------------------------------------------------
-
-
-def _plastic_constant() -> float:
-    # real root of x^3 = x + 1 by Newton's method, as LAS computes it (1.32471795724474...)
-    x = 1.0
-    for _ in range(20):
-        x = x - (x**3 - x - 1.0) / (3.0 * x**2 - 1.0)
-    return x
-
-
-PLASTIC_G = _plastic_constant()
-
-
-@functools.lru_cache(maxsize=8)
-def _plastic_ranks(h: int, w: int) -> np.ndarray:
-    a1 = 1.0 / PLASTIC_G
-    a2 = math.pow(1.0 / PLASTIC_G, 2)
-    n_pix = h * w
-    rank = np.zeros(n_pix, np.int64)
-    filled = 0
-    start = 1  # LAS's sample(i) uses (i + 1): the first point is k = 1
-    chunk = max(4096, 2 * n_pix)  # the sequence covers all pixels after ~2 N points
-    while filled < n_pix:
-        k = np.arange(start, start + chunk, dtype=np.float64)
-        x = np.mod(0.5 + a1 * k, 1.0)
-        y = np.mod(0.5 + a2 * k, 1.0)
-        flat = np.floor(h * y).astype(np.int64) * w + np.floor(w * x).astype(np.int64)
-        pix, first = np.unique(flat, return_index=True)  # first visit of each pixel in this chunk
-        new = rank[pix] == 0
-        pix = pix[new][np.argsort(first[new], kind="stable")]
-        rank[pix] = filled + 1 + np.arange(pix.size)
-        filled += pix.size
-        start += chunk
-    rank = rank.reshape(h, w)
-    rank.setflags(write=False)
-    return rank
-
-
-def plastic_rank_pattern(size: int | tuple[int, int]) -> torch.Tensor:
-    """The LAS rank pattern P: R2 (plastic) sequence, rank of first visit.
-
-    Point ``k = 1, 2, ...`` of the sequence is ``(x, y) = frac(0.5 + k * (1/g, 1/g^2))`` with the
-    plastic constant ``g`` (real root of ``x^3 = x + 1``, ``1.3247179572447...``; DESIGN's
-    ``1.32471795724`` is this constant to 11 decimals, LAS solves for it in double precision, as we
-    do). It falls on pixel ``(col, row) = (floor(x * W), floor(y * H))``; ``P = rank of the first
-    visit / (W * H)``. The sequence continues until every pixel was visited (about ``2 W H`` points).
-
-    Checked against LAS's public code (shamanDevel/AdaptiveSampling, ``network/sampling/plastic.py``):
-    ``alpha_j = (1/g)^(j+1)`` with g from Newton's method; the first point uses index 1
-    (``sample(i)`` evaluates ``(i + 1) * alpha``); ranks start at 1, so ``P`` is in ``(0, 1]``.
-    LAS's ``fill_image((W, H))`` indexes its array as ``[floor(W x), floor(H y)]``, i.e. the first
-    sequence component runs along array axis 0 (rows when the map is read as an image); here, as
-    DESIGN states, ``x`` runs along the columns, so for square sizes ``P`` equals the transpose
-    of LAS's stored map. Both are the same low-discrepancy order; only the orientation differs.
-
-    Vectorized in chunks with numpy (a 512^2 map takes ~0.1 s) and cached per size.
-
-    Args:
-        size: ``n`` for ``n x n`` or ``(H, W)``.
-
-    Returns:
-        ``(H, W)`` float32 in ``(0, 1]``, each value ``k / (W*H)``, ``k = 1..W*H``, exactly once.
-
-    Example:
-        >>> p = plastic_rank_pattern(4)
-        >>> sorted((p * 16).round().int().flatten().tolist()) == list(range(1, 17))
-        True
-    """
-    h, w = (size, size) if isinstance(size, (int, np.integer)) else tuple(size)
-    h = _pos_int(h, "plastic pattern size")
-    w = _pos_int(w, "plastic pattern size")
-    ranks = _plastic_ranks(h, w)
-    return torch.from_numpy((ranks.astype(np.float64) / float(h * w)).astype(np.float32))
 
 
 # --------------------------------------------------------------------------------------------
@@ -742,7 +429,7 @@ def build_pattern(cfg: Mapping, fr_size: int) -> SamplingPattern:
     if not isinstance(cfg, Mapping) and not hasattr(cfg, "get"):
         raise InputError(f"pattern={cfg!r}: expected a config node with a 'kind' key")
     kind = cfg.get("kind")
-    m = _pos_int(fr_size, "fr_size")
+    m = check_integer(fr_size, "fr_size", 1, strict=True)
     if kind == "full":
         return full_pattern(m)
     if kind == "downsample":
@@ -750,7 +437,7 @@ def build_pattern(cfg: Mapping, fr_size: int) -> SamplingPattern:
     if kind == "foveal":
         c_size = cfg.get("c_size")
         if c_size is None:
-            ratio = _finite_float(cfg.get("c_size_ratio", 0.5), "pattern.c_size_ratio", 0.0, lo_open=True)
+            ratio = check_number(cfg.get("c_size_ratio", 0.5), "pattern.c_size_ratio", 0.0, lo_open=True)
             c_size = max(1, int(round(m * ratio)))
         center = cfg.get("center", (0.5, 0.5))
         if center is not None and not isinstance(center, (Sequence, np.ndarray, torch.Tensor)):
@@ -779,7 +466,7 @@ def crop_pattern(pattern: SamplingPattern, crop: int) -> SamplingPattern:
         >>> crop_pattern(downsample_pattern(16, 2), 8).summary()
         'downsample 8->4: K=16 (100.0% of C, 25.0% of FR), factor=2, offset=0'
     """
-    c = _pos_int(crop, "data.crop")
+    c = check_integer(crop, "data.crop", 1, strict=True)
     if c > pattern.fr_size:
         raise InputError(f"data.crop={c}: larger than the FR-Image ({pattern.fr_size}^2); choose a crop <= {pattern.fr_size} or null")
     if pattern.kind == "full":

@@ -16,6 +16,7 @@ from omegaconf import OmegaConf
 
 import data_gen  # noqa: F401
 from data_gen.cache import LOG, ViewImageCache, cache_path_for, read_log, render_cache
+from data_gen.cache_log import forget_checked
 from data_gen.errors import InputError
 from data_gen.renderers import make_renderer
 from data_gen.scene import build_scene
@@ -154,9 +155,7 @@ def test_changed_pixels_refused_on_open_and_rerendered(tmp_path, tiny_scene, cap
     a[1] = 255
     a.flush()
     del a
-    from data_gen import cache as cache_mod
-
-    cache_mod._CHECKED.clear()  # as a new process would
+    forget_checked()  # as a new process would
     with pytest.raises(InputError, match=r"pixels of 1 view\(s\) do not match their checksums \(rows 1;") as e:
         ViewImageCache.open(path)
     assert "\n" not in str(e.value)
@@ -166,7 +165,7 @@ def test_changed_pixels_refused_on_open_and_rerendered(tmp_path, tiny_scene, cap
     assert rep.rendered == 1 and rep.already_done == 15
     warnings = [ln for ln in err.splitlines() if ln.startswith("warning:")]
     assert len(warnings) == 1 and "do not match their checksums (rows 1)" in warnings[0]
-    cache_mod._CHECKED.clear()
+    forget_checked()
     np.testing.assert_array_equal(np.asarray(ViewImageCache.open(path).images), ref)
 
 
@@ -188,9 +187,7 @@ def test_truncated_images_are_repaired(tmp_path, tiny_scene, capsys):
     ref = np.array(ViewImageCache.open(path).images)
     size = (path / "images.npy").stat().st_size
     os.truncate(path / "images.npy", size - 6 * 24 * 24 * 3)  # views 10..15 lose their pixels
-    from data_gen import cache as cache_mod
-
-    cache_mod._CHECKED.clear()
+    forget_checked()
     with pytest.raises(InputError, match="damaged or unreadable") as e:
         ViewImageCache.open(path)
     assert "\n" not in str(e.value)
@@ -281,7 +278,7 @@ def test_complete_cache_on_read_only_mount_is_read_without_writing(tmp_path, tin
     before = {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in path.iterdir()}
     monkeypatch.setattr(cache_mod, "_dir_writable", lambda p: False)  # root ignores chmod: as on a ro mount
     monkeypatch.setattr(cache_mod, "_prepare_dir", lambda *a: pytest.fail("wrote into a read-only cache"))
-    cache_mod._CHECKED.clear()
+    forget_checked()
     rep = render_cache(tiny_scene, d, VTK, progress=False)
     assert rep.path == path and rep.rendered == 0 and rep.already_done == 16
     assert {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in path.iterdir()} == before
@@ -291,11 +288,11 @@ def test_orphaned_worker_exits_when_its_parent_dies(tmp_path):
     """A render worker whose parent is SIGKILLed before its setup arrived must exit (issue 17, 7)."""
     code = (
         "import multiprocessing as mp, os, sys, time\n"
-        "from data_gen.cache import _worker_main\n"
+        "from data_gen.cache_workers import worker_main\n"
         "if __name__ == '__main__':\n"
         "    ctx = mp.get_context('spawn')\n"
         "    setup, tasks, results = ctx.Queue(), ctx.Queue(), ctx.Queue()\n"
-        "    p = ctx.Process(target=_worker_main, args=(setup, os.getpid(), tasks, results))\n"
+        "    p = ctx.Process(target=worker_main, args=(setup, os.getpid(), tasks, results))\n"
         "    p.start()\n"
         "    print(p.pid, flush=True)\n"
         "    time.sleep(600)\n"

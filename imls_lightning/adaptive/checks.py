@@ -1,25 +1,17 @@
-"""Validation helpers shared by the modules of :mod:`imls_lightning.adaptive`."""
+"""Validation helpers shared by the modules of :mod:`imls_lightning.adaptive`.
+
+``check_integer`` is :func:`data_gen.validate.check_integer` (the generic validators' one home),
+re-exported here for the modules of the package.
+"""
 from __future__ import annotations
 
 from typing import Any
 
-from data_gen.errors import InputError, finite_number
+from data_gen.validate import check_integer, check_number
 
 from ..importance import MEAN_RANGE
 
-
-def check_integer(value: Any, key: str, lo: int, hi: int | None = None) -> int:
-    """An integer in ``[lo, hi]`` (``hi=None``: no upper bound), else a one-line :class:`InputError` naming ``key``.
-
-    Example:
-        >>> check_integer(3.0, "steps", 1, 60)
-        3
-    """
-    what = f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}"
-    x = finite_number(value, key, what)
-    if x != int(x) or x < lo or (hi is not None and x > hi):
-        raise InputError(f"{key}={value!r}: expected {what}")
-    return int(x)
+__all__ = ["check_integer", "check_epsilon", "clamp_mean"]
 
 
 def check_epsilon(epsilon_db: Any, key: str = "epsilon_db") -> float:
@@ -29,10 +21,7 @@ def check_epsilon(epsilon_db: Any, key: str = "epsilon_db") -> float:
         >>> check_epsilon(1)
         1.0
     """
-    eps = finite_number(epsilon_db, key, "a finite number of dB >= 0")
-    if eps < 0:
-        raise InputError(f"{key}={epsilon_db!r}: expected a finite number of dB >= 0")
-    return eps
+    return check_number(epsilon_db, key, 0, what="a finite number of dB >= 0")
 
 
 def clamp_mean(u: float) -> float:

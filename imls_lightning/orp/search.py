@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from data_gen.errors import InputError, boolean, finite_number
+from data_gen.validate import check_integer, check_number
 
 # the paper's range of the mean value (== imls_lightning.importance.MEAN_RANGE; not imported, to
 # keep this module free of torch for the Hydra plugin scan)
@@ -47,13 +48,6 @@ JOB_KEYS = ("epsilon_db", "with_ims", "gap_of", "latency_views", "latency_repeat
 # --------------------------------------------------------------------------------------------
 # settings
 # --------------------------------------------------------------------------------------------
-def _int(value: Any, key: str, lo: int) -> int:
-    x = finite_number(value, key, f"an integer >= {lo}")
-    if x != int(x) or x < lo:
-        raise InputError(f"{key}={value!r}: expected an integer >= {lo}")
-    return int(x)
-
-
 @dataclass(frozen=True)
 class ORPSettings:
     """Validated knobs of the ORP search (see :data:`DEFAULTS` for their meaning).
@@ -87,9 +81,7 @@ class ORPSettings:
                 raise InputError(f"{prefix}{key}: unknown knob of the ORP sweeper (expected one of {sorted(DEFAULTS)})")
             v[key] = val
         p = prefix
-        eps = finite_number(v["epsilon_db"], p + "epsilon_db", "a number of dB >= 0")
-        if eps < 0:
-            raise InputError(f"{p}epsilon_db={v['epsilon_db']}: expected a number of dB >= 0")
+        eps = check_number(v["epsilon_db"], p + "epsilon_db", 0, what="a number of dB >= 0")
         br = v["bracket"]
         if isinstance(br, (str, bytes)) or not isinstance(br, Iterable) or len(list(br)) != 2:
             raise InputError(f"{p}bracket={br!r}: expected two mean values [lo, hi]")
@@ -106,9 +98,7 @@ class ORPSettings:
             raise InputError(f"{p}bracket=[{lo}, {hi}]: the mean value must lie in [{MEAN_RANGE[0]}, {MEAN_RANGE[1]}]")
         if scale == "log" and lo <= 0:
             raise InputError(f"{p}bracket=[{lo}, {hi}]: scale=log needs lo > 0")
-        tol = finite_number(v["tolerance"], p + "tolerance", "a relative width in [0.001, 10]")
-        if not 1e-3 <= tol <= 10:
-            raise InputError(f"{p}tolerance={v['tolerance']}: expected a relative width in [0.001, 10] (0.1 = 10 %)")
+        tol = check_number(v["tolerance"], p + "tolerance", 1e-3, 10, what="a relative width in [0.001, 10] (0.1 = 10 %)")
         gap_of = str(v["gap_of"])
         if gap_of not in GAP_OF:
             raise InputError(f"{p}gap_of={gap_of!r}: expected one of {list(GAP_OF)}")
@@ -125,10 +115,10 @@ class ORPSettings:
         if dev != "auto" and not dev.startswith(("cpu", "cuda")):
             raise InputError(f"{p}device={dev!r}: expected auto, cpu or cuda[:N]")
         return cls(
-            epsilon_db=eps, bracket=(lo, hi), tolerance=tol, k=_int(v["k"], p + "k", 1),
-            max_rounds=_int(v["max_rounds"], p + "max_rounds", 1), scale=scale, param=param,
-            with_ims=with_ims, gap_of=gap_of, latency_views=_int(v["latency_views"], p + "latency_views", 0),
-            latency_repeats=_int(v["latency_repeats"], p + "latency_repeats", 1),
+            epsilon_db=eps, bracket=(lo, hi), tolerance=tol, k=check_integer(v["k"], p + "k", 1),
+            max_rounds=check_integer(v["max_rounds"], p + "max_rounds", 1), scale=scale, param=param,
+            with_ims=with_ims, gap_of=gap_of, latency_views=check_integer(v["latency_views"], p + "latency_views", 0),
+            latency_repeats=check_integer(v["latency_repeats"], p + "latency_repeats", 1),
             latency_renderer=None if rend is None else str(rend), ims_overrides=tuple(ims), device=dev,
         )
 
