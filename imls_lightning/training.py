@@ -1,9 +1,9 @@
 """The body of ``python -m imls_lightning.train``: :func:`train` fits one configured model.
 
-Build the DataModule and the task (``model._target_``), run the Trainer, test the best checkpoint
-on the test trajectory and write the run's ``result.json``. Runs live in
-``runs/<model>-<recnn>-<scene>-<settings hash>/``: running the same settings again resumes from
-``last.ckpt``, or returns at once when that run had finished.
+Build the task (``instantiate`` of the ``model`` node: :func:`build_task`) and the DataModule, run
+the Trainer, test the best checkpoint on the test trajectory and write the run's ``result.json``.
+Runs live in ``runs/<model>-<recnn>-<scene>-<settings hash>/``: running the same settings again
+resumes from ``last.ckpt``, or returns at once when that run had finished.
 
 The command line itself is :mod:`imls_lightning.train` (a thin entry point); this module is kept
 apart from it so that the ORP job (:mod:`imls_lightning.orp`), which trains through :func:`train`
@@ -103,6 +103,24 @@ def cfg_model_name(task) -> str:
     return {"RecNNTask": "recnn", "IMLTask": "iml", "IMSTask": "ims", "LASTask": "las"}.get(type(task).__name__, "?")
 
 
+def build_task(cfg: DictConfig) -> L.LightningModule:
+    """The task of ``cfg.model``: ``hydra.utils.instantiate`` of that node (``_target_``: the task
+    class; every model setting, with its one default, lives in ``conf/model/<name>.yaml``), called
+    with the task's ``config_context(cfg)``: what comes from outside the node (the pattern,
+    ``data.resolution``, the networks of input checkpoints, ...; see
+    :class:`~imls_lightning.tasks.base.ImlsTask`).
+
+    Raises:
+        InputError: one line, from the context (a missing or mismatched checkpoint) or the task.
+    """
+    task_cls = get_class(cfg.model._target_)
+    context = task_cls.config_context(cfg)
+    # the context goes to the call, not into instantiate(): merged into the node, tensors would be
+    # copied into OmegaConf and nested `_target_`s (recnn.net) built; and the task's InputError
+    # reaches the user as it is, not wrapped in Hydra's InstantiationException
+    return instantiate(cfg.model, _partial_=True, _convert_="all")(**context)
+
+
 def build_datamodule(cfg: DictConfig, task_cls) -> L.LightningDataModule:
     from .data import ImlsDataModule
 
@@ -132,9 +150,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         restart = True
 
     L.seed_everything(int(cfg.seed), workers=True)
-    task_cls = get_class(cfg.model._target_)
-    task = task_cls.from_config(cfg) if hasattr(task_cls, "from_config") else instantiate(cfg.model)
-    datamodule = build_datamodule(cfg, task_cls)
+    task = build_task(cfg)
+    datamodule = build_datamodule(cfg, type(task))
     trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg), logger=_loggers(cfg) or False)
 
     ckpt_path = None if fast or restart else _resume_path(cfg, run_dir, task)
@@ -162,7 +179,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     result = {
         "best_checkpoint": str(Path(best).resolve()),
         "best_score": float(score) if score is not None and math.isfinite(float(score)) else None,
-        "monitor": str(cfg.model.get("monitor", "")),
+        "monitor": str(cfg.model.monitor),
         "epochs": int(trainer.current_epoch),
         "train_minutes": round(minutes, 3),
         "test": test_metrics,

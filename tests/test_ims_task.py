@@ -1,9 +1,9 @@
 """IMS training task (imls_lightning.tasks.ims.IMSTask) and its config (conf/model/ims.yaml).
 
 Unit tests run the real task, networks and Lightning Trainer on synthetic (view, label) batches;
-``from_config`` tests use a real VTK cache of the procedural ``tiny`` volume and real IML/RecNN
-checkpoints; the CLI smoke test chains RecNN -> IML end-to-end -> IMS through
-``python -m imls_lightning.train``."""
+the tests of :func:`~imls_lightning.training.build_task` use a real VTK cache of the procedural
+``tiny`` volume and real IML/RecNN checkpoints; the CLI smoke test chains RecNN -> IML end-to-end
+-> IMS through ``python -m imls_lightning.train``."""
 from __future__ import annotations
 
 import math
@@ -30,6 +30,7 @@ from imls_lightning.tasks.base import load_task, psnr_per_image
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask, loss_config, pim_to_target, scaled_pim_im
 from imls_lightning.tasks.recnn import RecNNTask
+from imls_lightning.training import build_task
 
 ROOT = Path(__file__).resolve().parents[1]
 FR = 32
@@ -447,7 +448,7 @@ def test_exception_iml_and_recnn_on_other_patterns():
 
 
 # ------------------------------------------------------------------------------------------
-# from_config: real cache, real checkpoints
+# built from the training config (training.build_task): real cache, real checkpoints
 # ------------------------------------------------------------------------------------------
 
 SCENE = {"name": "tiny", "volume": {"kind": "procedural", "generator": "tiny", "seed": 0}, "transfer_function": {"auto": True}}
@@ -491,11 +492,11 @@ def checkpoints(tmp_path_factory):
     return {"recnn": recnn, "standalone": standalone, "e2e": e2e}
 
 
-def test_from_config_end_to_end_iml_brings_its_recnn(tmp_path, checkpoints, capsys):
+def test_build_task_end_to_end_iml_brings_its_recnn(tmp_path, checkpoints, capsys):
     from imls_lightning.train import build_datamodule
 
     cfg = ims_cfg(tmp_path, checkpoints["e2e"], recnn_ckpt=checkpoints["recnn"])
-    task = IMSTask.from_config(cfg)
+    task = build_task(cfg)
     assert "recnn.checkpoint is ignored" in capsys.readouterr().out
     iml = load_task(checkpoints["e2e"], expect="IMLTask")
     assert task.hparams.recnn_source == "iml.checkpoint"
@@ -525,27 +526,27 @@ def test_from_config_end_to_end_iml_brings_its_recnn(tmp_path, checkpoints, caps
         assert torch.equal(a, b)
 
 
-def test_from_config_standalone_iml_takes_recnn_checkpoint(tmp_path, checkpoints):
-    task = IMSTask.from_config(ims_cfg(tmp_path, checkpoints["standalone"], recnn_ckpt=checkpoints["recnn"], target="pim"))
+def test_build_task_standalone_iml_takes_recnn_checkpoint(tmp_path, checkpoints):
+    task = build_task(ims_cfg(tmp_path, checkpoints["standalone"], recnn_ckpt=checkpoints["recnn"], target="pim"))
     rec = load_task(checkpoints["recnn"], expect="RecNNTask")
     assert task.hparams.recnn_source == "recnn.checkpoint" and task.target == "pim"
     for a, b in zip(task.recnn.state_dict().values(), rec.net.state_dict().values()):
         assert torch.equal(a, b)
-    task = IMSTask.from_config(ims_cfg(tmp_path, checkpoints["standalone"]))
+    task = build_task(ims_cfg(tmp_path, checkpoints["standalone"]))
     assert task.recnn is None and task.hparams.recnn_source is None
 
 
-def test_from_config_exceptions(tmp_path, checkpoints):
+def test_build_task_exceptions(tmp_path, checkpoints):
     with pytest.raises(InputError, match="set iml.checkpoint=<path to an IML .ckpt>"):
-        IMSTask.from_config(ims_cfg(tmp_path, None))
+        build_task(ims_cfg(tmp_path, None))
     with pytest.raises(InputError, match="iml.checkpoint=.*file not found"):
-        IMSTask.from_config(ims_cfg(tmp_path, str(tmp_path / "nope.ckpt")))
+        build_task(ims_cfg(tmp_path, str(tmp_path / "nope.ckpt")))
     with pytest.raises(InputError, match="a RecNNTask checkpoint, expected a IMLTask"):
-        IMSTask.from_config(ims_cfg(tmp_path, checkpoints["recnn"]))
+        build_task(ims_cfg(tmp_path, checkpoints["recnn"]))
     with pytest.raises(InputError, match="choose the recnn/pattern and data.resolution it was trained with"):
-        IMSTask.from_config(ims_cfg(tmp_path, checkpoints["standalone"], pattern=FOVEAL))
+        build_task(ims_cfg(tmp_path, checkpoints["standalone"], pattern=FOVEAL))
     with pytest.raises(InputError, match="a IMLTask checkpoint, expected a RecNNTask"):
-        IMSTask.from_config(ims_cfg(tmp_path, checkpoints["standalone"], recnn_ckpt=checkpoints["standalone"]))
+        build_task(ims_cfg(tmp_path, checkpoints["standalone"], recnn_ckpt=checkpoints["standalone"]))
 
 
 # ------------------------------------------------------------------------------------------

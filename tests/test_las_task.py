@@ -231,16 +231,18 @@ def test_yaml_keys_are_all_task_arguments():
     assert model._target_ == f"{LASTask.__module__}.{LASTask.__qualname__}"
 
 
-def test_from_config_and_datamodule_kwargs():
+def test_build_task_and_datamodule_kwargs():
+    from imls_lightning.training import build_task
+
     cfg = OmegaConf.create({"model": las_yaml(), "data": {"resolution": 128}})
-    task = LASTask.from_config(cfg)
+    task = build_task(cfg)
     assert task.hparams.fr_size == 128 and task.hparams.low_res == 64
     assert task.hparams.recon_channels == cfg.model.recon_channels
     assert task.net.importance_net.net_upscale == 2
     assert LASTask.datamodule_kwargs(cfg) == {"fields": ("view", "fr"), "low_res": 64}
     cfg.data.resolution = 32  # the CPU default 64 does not fit a 32^2 cache
     with pytest.raises(InputError, match=r"^model.low_res=64: .*data.resolution=32"):
-        LASTask.from_config(cfg)
+        build_task(cfg)
 
 
 # ------------------------------------------------------------------------------------------

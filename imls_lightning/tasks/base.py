@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import lightning as L
 import torch
@@ -28,7 +28,30 @@ _TASKS = {
 
 
 class ImlsTask(L.LightningModule):
-    """Base class: checkpoint identity, image-grid hook and metric helpers."""
+    """Base class: checkpoint identity, construction from config, image-grid hook and metric helpers.
+
+    A task is built in two ways. Training instantiates the ``model`` config node
+    (:func:`imls_lightning.training.build_task`): every model setting, its one default in
+    ``conf/model/<name>.yaml``, plus :meth:`config_context`, what comes from outside that node.
+    :func:`load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
+    ``**_`` and ignore it, on purpose: the node's keys for the training run rather than the networks
+    (``name``, ``patience``, ``monitor``, ...) and hyperparameters that older checkpoints saved pass
+    both paths alike, with no list of them to keep in step (``tests/test_task_config.py`` checks
+    that every YAML key is an argument or such a run key, so a typo is not swallowed).
+    """
+
+    @classmethod
+    def config_context(cls, cfg) -> dict[str, Any]:
+        """Constructor arguments from outside the ``model`` node of the training config ``cfg``
+        (the pattern, ``data.resolution``, input checkpoints, ...); none by default."""
+        return {}
+
+    def load_pretrained(self, pretrained: Mapping[str, Mapping[str, torch.Tensor]] | None) -> None:
+        """Load trained weights into submodules, ``{"recnn": state dict, ...}``: the networks a task
+        takes over from input checkpoints. Weights, not hyperparameters: the task's own checkpoints
+        carry them from then on."""
+        for name, state in (pretrained or {}).items():
+            self.get_submodule(name).load_state_dict(state)
 
     @classmethod
     def optional_state_prefixes(cls) -> tuple[str, ...]:

@@ -102,6 +102,7 @@ class IMLTask(ImlsTask):
         mean_range: ``None`` or ``[lo, hi]``: a random mean value per training batch.
         recnn_hparams: hyperparameters of the RecNN task (end-to-end only; taken from its checkpoint).
         finetune_recnn: train the RecNN's weights too.
+        pretrained: ``{"recnn": state dict}``: the trained RecNN's weights (not a hyperparameter).
     """
 
     def __init__(
@@ -125,7 +126,8 @@ class IMLTask(ImlsTask):
         importance: str = "learned",
         straight_through: bool = False,
         mean_range: Any = None,
-        **_: Any,
+        pretrained: Mapping[str, Mapping[str, torch.Tensor]] | None = None,
+        **_: Any,  # run keys of the model node and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
         if mode not in MODES:
@@ -160,28 +162,18 @@ class IMLTask(ImlsTask):
             self.recnn = RecNNTask(**rh).net
             if not finetune_recnn:
                 self.recnn.requires_grad_(False)
+        self.load_pretrained(pretrained)
 
     # -- construction from the training config ------------------------------------------------
     @classmethod
-    def from_config(cls, cfg) -> "IMLTask":
-        m = cfg.model
-        recnn_task = None
-        if m.mode == "end_to_end":
-            if not cfg.recnn.get("checkpoint"):
-                raise InputError("model.mode=end_to_end needs a trained RecNN: set recnn.checkpoint=<path to a RecNN .ckpt>")
-            recnn_task = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
-        task = cls(
-            pattern=cfg.pattern, fr_size=cfg.data.resolution, mode=m.mode, mean=m.mean, alpha=m.alpha,
-            lower=m.lower, delta=m.delta, depth=m.depth, base_channels=m.base_channels,
-            compaction_weight=m.compaction_weight, image_weight=m.image_weight,
-            finetune_recnn=m.finetune_recnn, lr=m.lr, decoder=m.decoder, importance=m.importance,
-            straight_through=m.straight_through, mean_range=m.mean_range,
-            recnn_hparams=dict(recnn_task.hparams) if recnn_task is not None else None,
-            recnn_name=cfg.recnn.name,
-        )
-        if recnn_task is not None:
-            task.recnn.load_state_dict(recnn_task.net.state_dict())
-        return task
+    def config_context(cls, cfg) -> dict:
+        """The pattern, ``data.resolution`` and, end to end, the RecNN of ``recnn.checkpoint`` (its
+        hyperparameters and weights). Without that checkpoint the constructor names the missing key."""
+        context = {"pattern": cfg.pattern, "fr_size": cfg.data.resolution, "recnn_name": cfg.recnn.name}
+        if cfg.model.mode == "end_to_end" and cfg.recnn.get("checkpoint"):
+            rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
+            context.update(recnn_hparams=dict(rt.hparams), pretrained={"recnn": rt.net.state_dict()})
+        return context
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:

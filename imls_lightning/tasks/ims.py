@@ -79,7 +79,7 @@ from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
 from ..patterns import build_pattern
 from ..metrics import psnr_per_image
 from .base import ImlsTask, load_task
-from .iml import end_to_end_loss, iml_net_from_hparams
+from .iml import IMLTask, end_to_end_loss, iml_net_from_hparams
 from .recnn import RecNNTask
 
 __all__ = ["IMSTask", "TARGETS", "loss_config", "build_criterion", "pim_to_target", "build_iml_net", "scaled_pim_im"]
@@ -230,6 +230,48 @@ def _same_pattern(hp: Mapping, pattern, fr_size: int) -> bool:
         return False
 
 
+def _input_iml(cfg, pattern, res: int) -> tuple[str, IMLTask]:
+    """``(iml.checkpoint, its IMLTask)``, trained on ``pattern`` at ``res``.
+
+    Raises:
+        InputError: the key is unset, the file is not an IML checkpoint, or the IML was trained on
+            another pattern or resolution.
+    """
+    if cfg.get("iml") is None or not cfg.iml.get("checkpoint"):
+        raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
+    ck = str(cfg.iml.checkpoint)
+    iml_task = load_task(ck, expect="IMLTask", what="iml.checkpoint")
+    if not _same_pattern(iml_task.hparams, pattern, res):
+        raise InputError(
+            f"iml.checkpoint={ck}: the IML was trained with pattern {iml_task.pattern.summary()} at data.resolution={iml_task.hparams['fr_size']}, "
+            f"this run uses {pattern.summary()}; choose the recnn/pattern and data.resolution it was trained with"
+        )
+    return ck, iml_task
+
+
+def _input_recnn(cfg, iml_task: IMLTask, pattern, res: int) -> tuple[Optional[dict], Optional[dict], Optional[str]]:
+    """The RecNN behind the IMS's final-image metrics: ``(hyperparameters, state dict, source key)``.
+
+    The one inside an end-to-end IML checkpoint (its decoder was trained for it), else
+    ``recnn.checkpoint`` (off-the-shelf), else ``(None, None, None)``: the FR metrics are skipped.
+    """
+    if iml_task.recnn is not None:
+        if cfg.recnn.get("checkpoint"):
+            print("[ims] using the RecNN inside the end-to-end IML checkpoint; recnn.checkpoint is ignored", flush=True)
+        # possibly fine-tuned end to end
+        return iml_task.hparams["recnn_hparams"], iml_task.recnn.state_dict(), "iml.checkpoint"
+    if not cfg.recnn.get("checkpoint"):
+        print("[ims] no RecNN (standalone IML and no recnn.checkpoint): the final FR PSNR/SSIM metrics are skipped", flush=True)
+        return None, None, None
+    rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
+    if not _same_pattern(rt.hparams, pattern, res):
+        raise InputError(
+            f"recnn.checkpoint={cfg.recnn.checkpoint}: the RecNN was trained with pattern {rt.pattern.summary()}, "
+            f"the IML with {pattern.summary()}; use a RecNN trained on the IML's pattern and resolution"
+        )
+    return dict(rt.hparams), rt.net.state_dict(), "recnn.checkpoint"
+
+
 class IMSTask(ImlsTask):
     """LightningModule of the IMS GAN (generator + discriminator) with the frozen IML decoder and
     RecNN for the final-image metrics.
@@ -245,13 +287,17 @@ class IMSTask(ImlsTask):
         recnn_hparams: the RecNN task's hyperparameters (plain), or None (no FR metrics).
         recnn_source: ``"iml.checkpoint"``, ``"recnn.checkpoint"`` or None (provenance).
         iml_checkpoint, iml_checkpoint_sha256, labels: provenance only.
+        pretrained: ``{"iml": state dict, "recnn": state dict}``: the input networks' weights (not
+            hyperparameters).
+        criterion: the generator's loss, already built from ``loss`` (training builds it before any
+            labelling); None: built on first use (:attr:`im_loss`).
 
     Attributes:
         generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
         (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern.
 
     Example:
-        >>> task = IMSTask.from_config(cfg)                      # doctest: +SKIP
+        >>> task = build_task(cfg)  # model=ims iml.checkpoint=...  # doctest: +SKIP
         >>> task.predict_im(torch.tensor([[0, 0, 3, 0, 0, 0, 0, 1, 0.]])).shape  # doctest: +SKIP
         torch.Size([1, 1, 128, 128])
     """
@@ -279,7 +325,9 @@ class IMSTask(ImlsTask):
         renderer: Optional[Mapping] = None,
         decoder_lr: float = 0.0,
         decoder_every: int = 1,
-        **_: Any,
+        pretrained: Optional[Mapping[str, Mapping[str, torch.Tensor]]] = None,
+        criterion: Optional[IMLoss] = None,
+        **_: Any,  # run keys of the model node (name, patience, labels_*, ...) and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
         if target not in TARGETS:
@@ -297,7 +345,7 @@ class IMSTask(ImlsTask):
             raise InputError(f"model.betas={list(betas)}: expected two numbers in [0, 1)")
         lc = loss_config(loss)
         if not iml_hparams:
-            raise InputError("model=ims needs the IML's hyperparameters (iml_hparams); build the task with IMSTask.from_config and iml.checkpoint=<IML .ckpt>")
+            raise InputError("model=ims needs the IML's hyperparameters (iml_hparams); build the task with imls_lightning.training.build_task and iml.checkpoint=<IML .ckpt>")
         self.automatic_optimization = False
         self.save_hyperparameters({
             "pattern": _plain_json(pattern), "fr_size": int(fr_size), "iml_hparams": _plain_json(iml_hparams),
@@ -333,6 +381,9 @@ class IMSTask(ImlsTask):
                     f"(its fr_size={recnn_hparams.get('fr_size')}, pattern={recnn_hparams.get('pattern')}) than the IML"
                 )
             self.recnn = RecNNTask(**dict(recnn_hparams)).net.requires_grad_(False)
+        self.load_pretrained(pretrained)
+        if criterion is not None:
+            self.add_module("_im_loss", criterion)
         self.register_buffer("valid", self.pattern.valid.view(1, 1, n, n).clone(), persistent=False)
         # set once the generator's view normalization was fitted on the training views (checkpointed)
         self.register_buffer("view_norm_fitted", torch.zeros((), dtype=torch.bool))
@@ -362,7 +413,7 @@ class IMSTask(ImlsTask):
         """The generator's image losses (:class:`~imls_lightning.losses.IMLoss`), built on first use.
 
         Lazy on purpose: loading an IMS checkpoint for inference (the IML/S renderer) must not need
-        the perceptual backbone's weight file; training builds it in :meth:`from_config`, before any
+        the perceptual backbone's weight file; training builds it in :meth:`config_context`, before any
         label is made, so a missing backbone fails early there.
         """
         crit = self._modules.get("_im_loss")
@@ -378,36 +429,15 @@ class IMSTask(ImlsTask):
 
     # -- construction from the training config ------------------------------------------------
     @classmethod
-    def from_config(cls, cfg) -> "IMSTask":
-        if cfg.get("iml") is None or not cfg.iml.get("checkpoint"):
-            raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
-        ck = str(cfg.iml.checkpoint)
-        iml_task = load_task(ck, expect="IMLTask", what="iml.checkpoint")
+    def config_context(cls, cfg) -> dict:
+        """Everything from outside the model node: the pattern and resolution, the IML of
+        ``iml.checkpoint`` (hyperparameters, weights, provenance), the RecNN for the final-image
+        metrics, where the labels go, the scene and renderer, and the generator's loss, built here
+        so that a missing perceptual backbone fails before any labelling."""
         res = int(cfg.data.resolution)
         pattern = build_pattern(to_plain(cfg.pattern), res)
-        if not _same_pattern(iml_task.hparams, pattern, res):
-            raise InputError(
-                f"iml.checkpoint={ck}: the IML was trained with pattern {iml_task.pattern.summary()} at data.resolution={iml_task.hparams['fr_size']}, "
-                f"this run uses {pattern.summary()}; choose the recnn/pattern and data.resolution it was trained with"
-            )
-        recnn_hparams, recnn_state, source = None, None, None
-        if iml_task.recnn is not None:
-            # end-to-end IML: its (possibly fine-tuned) RecNN is the one its decoder was trained for
-            recnn_hparams, recnn_state, source = iml_task.hparams["recnn_hparams"], iml_task.recnn.state_dict(), "iml.checkpoint"
-            if cfg.recnn.get("checkpoint"):
-                print("[ims] using the RecNN inside the end-to-end IML checkpoint; recnn.checkpoint is ignored", flush=True)
-        elif cfg.recnn.get("checkpoint"):
-            rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
-            if not _same_pattern(rt.hparams, pattern, res):
-                raise InputError(
-                    f"recnn.checkpoint={cfg.recnn.checkpoint}: the RecNN was trained with pattern {rt.pattern.summary()}, "
-                    f"the IML with {pattern.summary()}; use a RecNN trained on the IML's pattern and resolution"
-                )
-            recnn_hparams, recnn_state, source = dict(rt.hparams), rt.net.state_dict(), "recnn.checkpoint"
-        else:
-            print("[ims] no RecNN (standalone IML and no recnn.checkpoint): the final FR PSNR/SSIM metrics are skipped", flush=True)
-        m = cfg.model
-        criterion = build_criterion(m.get("loss"))  # a missing perceptual backbone fails before any labelling
+        ck, iml_task = _input_iml(cfg, pattern, res)
+        recnn_hparams, recnn_state, source = _input_recnn(cfg, iml_task, pattern, res)
         # the labels themselves are made by the DataModule (datamodule_kwargs); here only their provenance
         from data_gen.cache import cache_path_for
         from data_gen.scene import build_scene
@@ -415,28 +445,25 @@ class IMSTask(ImlsTask):
         from ..labels import labels_path_for
 
         labels = labels_path_for(cache_path_for(build_scene(cfg.scene), cfg.data, cfg.renderer), ck)
-        task = cls(
-            pattern=cfg.pattern, fr_size=res, iml_hparams=dict(iml_task.hparams), target=m.get("target", "im"),
-            layers=m.get("layers", 8), base_channels=m.get("base_channels", 32), max_channels=m.get("max_channels", 512),
-            disc_base_channels=m.get("disc_base_channels", 32), disc_max_channels=m.get("disc_max_channels", 256),
-            loss=m.get("loss"), lr=m.get("lr", 1e-3), betas=m.get("betas", (0.5, 0.999)), decoder_lr=m.get("decoder_lr", 0.0),
-            decoder_every=m.get("decoder_every", 1),
-            recnn_hparams=recnn_hparams, recnn_source=source, iml_checkpoint=str(Path(ck).expanduser().resolve()),
-            iml_checkpoint_sha256=labels.name[len("iml-"):], labels=str(labels),
-            scene=to_plain(cfg.scene), renderer=to_plain(cfg.get("renderer")) if cfg.get("renderer") is not None else None,
-        )
-        task.add_module("_im_loss", criterion)
-        task.iml.load_state_dict(iml_task.iml.state_dict())
+        pretrained = {"iml": iml_task.iml.state_dict()}
         if recnn_state is not None:
-            task.recnn.load_state_dict(recnn_state)
-        return task
+            pretrained["recnn"] = recnn_state
+        return {
+            "pattern": cfg.pattern, "fr_size": res, "iml_hparams": dict(iml_task.hparams), "pretrained": pretrained,
+            "recnn_hparams": recnn_hparams, "recnn_source": source,
+            # the resolved path (the model node's iml_checkpoint is the one given, for the run hash)
+            "iml_checkpoint": str(Path(ck).expanduser().resolve()),
+            "iml_checkpoint_sha256": labels.name[len("iml-"):], "labels": str(labels),
+            "scene": to_plain(cfg.scene), "renderer": to_plain(cfg.get("renderer")) if cfg.get("renderer") is not None else None,
+            "criterion": build_criterion(cfg.model.loss),
+        }
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
         # the DataModule labels the cache with the IML (once; imls_lightning.labels) and yields im / pim
         m = cfg.model
         return {"fields": ("view", "fr", "c"), "labels_from": str(cfg.iml.checkpoint),
-                "labels_options": {"batch_size": int(m.get("labels_batch_size", 16)), "device": m.get("labels_device", "auto")}}
+                "labels_options": {"batch_size": int(m.labels_batch_size), "device": m.labels_device}}
 
     # -- the mask -------------------------------------------------------------------------------
     def make_target(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:

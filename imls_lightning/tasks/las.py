@@ -21,7 +21,6 @@ import torch.nn.functional as F
 
 from data_gen.errors import InputError
 
-from ..config import to_plain
 from ..importance import check_alpha, check_mean, hard_rejection_sample
 from ..models.las import LASNet, LASOutput, las_loss
 from .base import ImlsTask
@@ -127,7 +126,7 @@ class LASTask(ImlsTask):
         heatmap_center: float = 0.5,
         border: int = 0,
         lr: float = 1e-3,
-        **_: Any,
+        **_: Any,  # run keys of the model node and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
         m = _int(fr_size, "data.resolution", 1)
@@ -182,11 +181,9 @@ class LASTask(ImlsTask):
 
     # -- construction from the training config ------------------------------------------------
     @classmethod
-    def from_config(cls, cfg) -> "LASTask":
-        """Build from the composed training config: ``cfg.model`` (every key above) + ``cfg.data.resolution``."""
-        model = dict(to_plain(cfg.model))
-        model.pop("fr_size", None)  # the FR side is the cache's, never a model setting
-        return cls(fr_size=cfg.data.resolution, **model)
+    def config_context(cls, cfg) -> dict:
+        """``fr_size``: the cache's ``data.resolution``, never a model setting; the model node holds the rest."""
+        return {"fr_size": cfg.data.resolution}
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:

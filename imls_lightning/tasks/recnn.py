@@ -61,7 +61,7 @@ class RecNNTask(ImlsTask):
         ssim_weight: float = 0.0,
         lr: float = 1e-3,
         recnn_name: str = "recnn",
-        **_: Any,
+        **_: Any,  # run keys of the model node and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
         if loss not in ("l1", "mse"):
@@ -75,10 +75,9 @@ class RecNNTask(ImlsTask):
         self.net = build_recnn(net, self.pattern)
 
     @classmethod
-    def from_config(cls, cfg) -> "RecNNTask":
-        m = cfg.model
-        return cls(net=cfg.recnn.net, pattern=cfg.pattern, fr_size=cfg.data.resolution, loss=m.loss,
-                   ssim_weight=m.ssim_weight, lr=m.lr, recnn_name=cfg.recnn.name)
+    def config_context(cls, cfg) -> dict:
+        """The network (``recnn.net``), its pattern and ``data.resolution``: the model node holds the rest."""
+        return {"net": cfg.recnn.net, "pattern": cfg.pattern, "fr_size": cfg.data.resolution, "recnn_name": cfg.recnn.name}
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
