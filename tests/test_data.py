@@ -9,6 +9,7 @@ import torch
 from data_gen.errors import InputError
 from imls_lightning.data import ImlsDataModule
 from imls_lightning.patterns import downsample_pattern
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -71,3 +72,56 @@ def test_crop_exception_with_labels_or_low_res(tiny_cfg, tmp_path):
 
     with pytest.raises(InputError, match="train LAS and IMS with data.crop=null"):
         ViewImageDataset(tmp_path, [0], downsample_pattern(32, 2), labels_path=tmp_path, crop=16)
+
+
+# ---- DataModule -------------------------------------------------------------------------------
+def test_smoke_datamodule_yields_every_field(tmp_path):
+    from omegaconf import OmegaConf
+
+    from imls_lightning.compaction import compact
+    from imls_lightning.data import ImlsDataModule
+
+    conf = ROOT / "conf"
+    scene = OmegaConf.load(conf / "scene" / "tiny.yaml")
+    data = OmegaConf.merge(OmegaConf.load(conf / "data" / "default.yaml"), OmegaConf.load(conf / "data" / "tiny.yaml"))
+    data.pop("defaults", None)
+    data.cache_dir = str(tmp_path)
+    pattern = OmegaConf.load(conf / "pattern" / "foveal.yaml")
+    dm = ImlsDataModule(scene, data, {"name": "numba"}, pattern, progress=False, low_res=16)
+    dm.prepare_data()
+    dm.setup()
+    n, m = dm.pattern.c_size, dm.pattern.fr_size
+    batch = next(iter(dm.train_dataloader()))
+    b = batch["fr"].shape[0]
+    assert batch["view"].shape == (b, 9) and batch["fr"].shape == (b, 3, m, m)
+    assert batch["c"].shape == (b, 3, n, n) and batch["pr"].shape == (b, 3, m, m) and batch["low"].shape == (b, 3, 16, 16)
+    torch.testing.assert_close(batch["c"], compact(batch["fr"], dm.pattern.indices, n))
+    off = ~dm.pattern.mask
+    assert float(batch["pr"][..., off].abs().max()) == 0.0
+    assert 0.0 <= float(batch["fr"].min()) and float(batch["fr"].max()) <= 1.0 and float(batch["fr"].max()) > 0.1
+    sizes = {k: len(dm.dataset(k)) for k in ("train", "val", "test")}
+    assert sizes == {"train": int(data.num_views) - int(round(data.num_views * data.val_fraction)),
+                     "val": int(round(data.num_views * data.val_fraction)), "test": int(data.test_views)}
+
+
+def test_exception_datamodule_bad_fields_and_batch_size(tmp_path):
+    from data_gen.errors import InputError
+    from imls_lightning.data import ImlsDataModule
+
+    with pytest.raises(InputError, match="data fields"):
+        ImlsDataModule({}, {"resolution": 32, "batch_size": 2}, {}, {"kind": "full"}, fields=("fr", "nope"))
+    with pytest.raises(InputError, match="data.batch_size"):
+        ImlsDataModule({}, {"resolution": 32, "batch_size": 0}, {}, {"kind": "full"})
+
+
+def test_exception_resolution_too_small_names_the_smallest_that_works():
+    """data.resolution=2 ended in a traceback from SSIM (issue 17, 9)."""
+    from data_gen.errors import InputError
+    from imls_lightning.data import ImlsDataModule
+
+    for m in (1, 2, 5):
+        with pytest.raises(InputError, match=rf"data.resolution={m}: too small to train on; the smallest that works is 6 "):
+            ImlsDataModule({}, {"resolution": m, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
+    with pytest.raises(InputError, match=r"the smallest that works is 8 "):
+        ImlsDataModule({}, {"resolution": 4, "batch_size": 2}, {}, {"kind": "downsample", "factor": 4})
+    ImlsDataModule({}, {"resolution": 6, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})

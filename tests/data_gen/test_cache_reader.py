@@ -1,0 +1,41 @@
+"""data_gen.cache_reader: ViewImageCache, a cache opened for reading and checked."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from data_gen.cache import ViewImageCache, render_cache
+from data_gen.errors import InputError
+
+VTK = {"name": "vtk", "mapper": "fixed_point"}
+
+
+def _data(tmp_path, **kw):
+    d = {"num_views": 10, "test_views": 6, "resolution": 24, "workers": 0, "seed": 0,
+         "cache_dir": str(tmp_path / "cache")}
+    d.update(kw)
+    return d
+
+
+def test_verify_detects_silent_corruption(tmp_path, tiny_scene):
+    path = render_cache(tiny_scene, _data(tmp_path), VTK, progress=False).path
+    with open(path / "images.npy", "r+b") as f:
+        f.seek(-10, os.SEEK_END)
+        f.write(b"\x01" * 10)
+    assert ViewImageCache.open(path, check_pixels=False).verify().tolist() == [15]
+
+
+def test_changed_views_refused_on_open(tmp_path, tiny_scene):
+    path = render_cache(tiny_scene, _data(tmp_path), VTK, progress=False).path
+    v = np.load(path / "views.npy")
+    v[0, 0] += 0.5
+    np.save(path / "views.npy", v)
+    with pytest.raises(InputError, match="changed after rendering"):
+        ViewImageCache.open(path)
+
+
+def test_exception_open_non_cache(tmp_path):
+    with pytest.raises(InputError, match="not a view/image cache"):
+        ViewImageCache.open(tmp_path)

@@ -1,0 +1,175 @@
+"""ORP search: bisection / k-section logic, settings, the Hydra sweeper plugin and a real CLI sweep."""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from data_gen.errors import InputError
+from imls_lightning import orp
+from imls_lightning.orp import ORPSearch, ORPSettings, batched, evaluation_from
+
+ROOT = Path(__file__).resolve().parents[2]
+PY = sys.executable
+
+
+def gap_curve(u_star: float, eps: float = 1.0):
+    """Synthetic monotone PSNR gap (dB): decreasing in u, equal to ``eps`` exactly at ``u_star``."""
+    return lambda u: eps + 3.0 * math.log2(u_star / u)
+
+
+def check_brackets(res, u_star: float, tol: float = 0.1) -> None:
+    """The answer is the smallest passing point, within ``tol`` (relative) above the true threshold."""
+    assert res.found and res.mean == res.bracket[1]
+    lo, hi = res.bracket
+    assert lo < u_star <= hi, (lo, u_star, hi)
+    assert hi <= lo * (1 + tol) + 1e-12
+    assert u_star <= res.mean <= u_star * (1 + tol)
+
+
+# ---- the search ---------------------------------------------------------------------------
+@pytest.mark.parametrize("u_star", [0.0137, 0.137, 0.5, 0.97])
+def test_bisection_finds_the_known_answer(u_star):
+    res = ORPSearch(epsilon_db=1.0, tolerance=0.1).run(batched(gap_curve(u_star)))
+    check_brackets(res, u_star)
+    assert res.stop_reason == "tolerance" and not res.non_monotone
+    assert all(e.status == "ok" for e in res.evaluations)
+    # every point tried is on the right side of the threshold
+    assert all(e.meets(1.0) == (e.u >= u_star) for e in res.evaluations)
+    # bisection in log u over two decades to 10 %: ceil(log2(ln 100 / ln 1.1)) = 6 rounds
+    # (+1 when the answer lies so close to the upper end that only u = 1 itself passes)
+    assert res.rounds == res.jobs == (7 if u_star > 1 / 1.1 else 6)
+
+
+def test_bisection_linear_scale_and_no_solution():
+    res = ORPSearch(tolerance=0.05, scale="linear").run(batched(gap_curve(0.3)))
+    check_brackets(res, 0.3, tol=0.05)
+    assert res.evaluations[0].u == pytest.approx(0.505)  # the linear midpoint of [0.01, 1]
+
+    none = ORPSearch(tolerance=0.1).run(batched(gap_curve(3.0)))  # needs u > 1: no ORP in the bracket
+    assert not none.found and none.mean is None and none.stop_reason == "no_solution"
+    assert none.evaluations[-1].u == 1.0  # the upper end was checked once, last
+
+
+def test_failed_jobs_are_recorded_as_not_meeting_epsilon_and_the_search_goes_on():
+    curve = gap_curve(0.05)
+    kinds = ["raise", "none", "nan", "record"]  # the first four jobs fail, each in its own way
+
+    def job(u):
+        kind = kinds.pop(0) if kinds else None
+        if kind == "raise":
+            raise RuntimeError("CUDA out of memory")
+        if kind == "none":
+            return None
+        if kind == "nan":
+            return {"status": "ok", "gap_db": float("nan")}
+        if kind == "record":
+            return {"status": "failed", "error": "ORPJobError: boom"}
+        return {"status": "ok", "gap_db": curve(u), "psnr_db": {"recnn": 30.0}}
+
+    res = ORPSearch(tolerance=0.1).run(batched(job))
+    failed = [e for e in res.evaluations if e.status == "failed"]
+    assert [e.u for e in failed] == [0.1, 0.31623, 0.56234, 0.74989]  # each failure moves lo up
+    assert failed[0].error == "RuntimeError: CUDA out of memory"
+    assert failed[1].error == "missing result" and "non-finite" in failed[2].error
+    assert failed[3].error == "ORPJobError: boom"
+    assert all(not e.meets(1.0) for e in failed)
+    # these would have passed; counted as failing, the search goes on above them and finds the next passing value
+    assert res.found and res.bracket[0] == 0.74989 and res.mean <= 0.74989 * 1.1
+    assert res.best.record["psnr_db"] == {"recnn": 30.0}
+    assert len(res.evaluations) > len(failed)
+
+
+def test_a_whole_round_failing_is_recorded_too():
+    calls = []
+
+    def objective(us):
+        calls.append(list(us))
+        if len(calls) == 1:
+            raise OSError("launcher down")
+        return [gap_curve(0.2)(u) for u in us]
+
+    res = ORPSearch(k=2).run(objective)
+    first = [e for e in res.evaluations if e.round == 1]
+    assert len(first) == 2 and all(e.status == "failed" and "launcher down" in e.error for e in first)
+    assert res.found and res.mean >= 0.2
+
+
+@pytest.mark.parametrize("u_star", [0.02, 0.137, 0.61])
+@pytest.mark.parametrize("k", [2, 3, 5])
+def test_k_section_agrees_with_bisection(k, u_star):
+    bis = ORPSearch(tolerance=0.1).run(batched(gap_curve(u_star)))
+    ks = ORPSearch(tolerance=0.1, k=k).run(batched(gap_curve(u_star)))
+    check_brackets(bis, u_star)
+    check_brackets(ks, u_star)
+    assert abs(math.log(ks.mean / bis.mean)) <= math.log(1.1)
+    assert ks.rounds < bis.rounds  # the point of k-section: fewer (parallel) rounds
+    assert all(len({e.u for e in ks.evaluations if e.round == r}) <= k for r in range(1, ks.rounds + 1))
+
+
+def test_ask_tell_protocol_and_max_rounds():
+    s = ORPSearch(k=3, max_rounds=2)
+    batch = s.next_batch()
+    assert batch == [0.031623, 0.1, 0.31623]
+    with pytest.raises(RuntimeError, match="tell"):
+        s.next_batch()
+    s.tell([5.0, 0.5, 0.1])  # only 0.1 and 0.31623 pass
+    assert (s.lo, s.hi) == (0.031623, 0.1)
+    second = s.next_batch()
+    assert len(second) == 3 and all(0.031623 < u < 0.1 for u in second)
+    s.tell([5.0, 5.0, 5.0])  # none passes: 0.1 stays the answer, lo moves up
+    assert (s.lo, s.hi) == (second[-1], 0.1)
+    assert s.next_batch() == [] and s.result().stop_reason == "max_rounds" and s.result().mean == 0.1
+    with pytest.raises(RuntimeError, match="pending"):
+        s.tell([1.0])
+
+
+def test_evaluation_from_normalizes_outcomes():
+    assert evaluation_from(0.1, 1, 0.5).meets(1.0)
+    assert not evaluation_from(0.1, 1, 1.5).meets(1.0)
+    assert evaluation_from(0.1, 1, {"gap_db": 0.2, "ipr": 0.1}).record["ipr"] == 0.1
+    assert evaluation_from(0.1, 1, {"ipr": 0.1}).status == "failed"           # no gap
+    assert evaluation_from(0.1, 1, "abc").status == "failed"
+    assert evaluation_from(0.1, 1, float("inf")).status == "failed"
+    e = evaluation_from(0.1, 1, orp.ORPJobError("InputError: model.lr=-1: expected a positive number"))
+    assert e.error == "InputError: model.lr=-1: expected a positive number"
+
+
+@pytest.mark.parametrize("module", ["imls_lightning.orp.search", "imls_lightning.orp"])
+def test_search_imports_no_torch(module):
+    """The search (and the package the Hydra sweeper plugin imports while Hydra scans plugins) loads no torch."""
+    code = f"import sys, {module}; assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)[:5]"
+    p = subprocess.run([PY, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]
+
+
+# ---- settings -----------------------------------------------------------------------------
+@pytest.mark.parametrize("knobs, needle", [
+    ({"epsilon_db": -1}, "sweeper.epsilon_db=-1: expected a number of dB >= 0"),
+    ({"epsilon_db": "abc"}, "sweeper.epsilon_db='abc'"),
+    ({"bracket": [0.5, 0.1]}, "sweeper.bracket=[0.5, 0.1]: expected lo < hi"),
+    ({"bracket": [0.001, 1]}, "must lie in [0.01, 1.0]"),
+    ({"bracket": 0.5}, "sweeper.bracket=0.5: expected two mean values"),
+    ({"tolerance": 0}, "sweeper.tolerance=0"),
+    ({"k": 0}, "sweeper.k=0: expected an integer >= 1"),
+    ({"k": 1.5}, "sweeper.k=1.5"),
+    ({"max_rounds": 0}, "sweeper.max_rounds=0"),
+    ({"scale": "exp"}, "sweeper.scale='exp'"),
+    ({"gap_of": "imls"}, "needs sweeper.with_ims=true"),
+    ({"with_ims": "yes"}, "sweeper.with_ims='yes'"),
+    ({"ims_overrides": ["model.layers"]}, "sweeper.ims_overrides"),
+    ({"latency_renderer": "ospray"}, "sweeper.latency_renderer='ospray'"),
+    ({"device": "tpu"}, "sweeper.device='tpu'"),
+    ({"param": "+model.mean"}, "sweeper.param='+model.mean'"),
+    ({"epsilon": 1}, "sweeper.epsilon: unknown knob"),
+])
+def test_exception_bad_settings_are_one_line_input_errors(knobs, needle):
+    with pytest.raises(InputError) as info:
+        ORPSettings.from_mapping(knobs, prefix="sweeper.")
+    assert needle in str(info.value) and "\n" not in str(info.value)
+
+
+# ---- the real CLI sweep -------------------------------------------------------------------

@@ -1,0 +1,244 @@
+"""End-to-end training through Hydra: the DataModule, RecNN and IML tasks, resume/reuse, errors."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+
+
+def _run(args, tmp, check=True, timeout=300):
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    cmd = [PY, "-m", "imls_lightning.train", *args, "scene=tiny", "data=tiny", "renderer=numba",
+           f"paths.runs_dir={tmp}/runs", f"data.cache_dir={tmp}/cache", "trainer.enable_progress_bar=false"]
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    if check and p.returncode != 0:
+        raise AssertionError(f"exit {p.returncode}\nSTDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-3000:]}")
+    return p
+
+
+def _last_line(p) -> str:
+    return p.stdout.strip().splitlines()[-1]
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("train")
+
+
+@pytest.fixture(scope="module")
+def recnn_ckpt(work):
+    """A real (2-epoch) EnhanceNet run on the tiny scene."""
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], work)
+    ckpt = Path(_last_line(p))
+    assert ckpt.is_file() and ckpt.suffix == ".ckpt"
+    return ckpt
+
+
+def test_failed_run_leaves_no_empty_run_folder(tmp_path):
+    """A failed run left an empty run folder (only Hydra's .hydra/ and log) behind (issue 17, minor)."""
+    p = _run(["model=iml", "model.depth=0"], tmp_path, check=False)
+    _one_line_error(p, "model.depth=0")
+    assert not (tmp_path / "runs").exists() or list((tmp_path / "runs").iterdir()) == []
+
+
+# ---- RecNN ------------------------------------------------------------------------------------
+def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
+    from imls_lightning.tasks.base import load_task
+
+    task = load_task(recnn_ckpt, expect="RecNNTask")
+    again = load_task(recnn_ckpt, expect="RecNNTask")
+    c = torch.rand(2, 3, task.pattern.c_size, task.pattern.c_size)
+    with torch.no_grad():
+        torch.testing.assert_close(task(c), again(c), rtol=0, atol=0)
+    # training changed the weights away from a fresh init
+    fresh = type(task)(**task.hparams)
+    assert any(not torch.equal(a, b) for a, b in zip(task.state_dict().values(), fresh.state_dict().values()))
+    result = json.loads((recnn_ckpt.parent.parent / "result.json").read_text())
+    assert result["epochs"] >= 1 and np.isfinite(result["test"]["test/fr_psnr"])
+
+
+def test_smoke_rerun_reuses_finished_run(work, recnn_ckpt):
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], work)
+    assert Path(_last_line(p)) == recnn_ckpt.resolve()
+    assert "already finished" in p.stdout
+
+
+def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
+    # more epochs = same settings hash (trainer limits do not change the run's identity): resumes.
+    # On a copy of the shared runs, so that the other tests keep their checkpoint.
+    import shutil
+
+    for sub in ("runs", "cache"):
+        shutil.copytree(work / sub, tmp_path / sub)
+    run_dir = tmp_path / "runs" / recnn_ckpt.parent.parent.name
+    (run_dir / "result.json").unlink()
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    assert "resuming from" in p.stdout and str(run_dir / "checkpoints" / "last.ckpt") in p.stdout
+    assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+
+
+def _copy_runs(work, tmp_path, recnn_ckpt) -> Path:
+    import shutil
+
+    for sub in ("runs", "cache"):
+        shutil.copytree(work / sub, tmp_path / sub)
+    return tmp_path / "runs" / recnn_ckpt.parent.parent.name
+
+
+def _truncate(path: Path) -> None:
+    os.truncate(path, path.stat().st_size // 2)
+
+
+def test_truncated_last_ckpt_falls_back_to_newest_intact_checkpoint(work, recnn_ckpt, tmp_path):
+    """A truncated last.ckpt gave a traceback on every rerun (issue 17, 6)."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    (run_dir / "result.json").unlink()
+    _truncate(run_dir / "checkpoints" / "last.ckpt")
+    best = run_dir / "checkpoints" / recnn_ckpt.name
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    warnings = [ln for ln in p.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "last.ckpt: not a loadable checkpoint" in warnings[0] and str(best) in warnings[0], p.stderr[-2000:]
+    assert f"resuming from {best}" in p.stdout
+    assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+
+
+def test_truncated_best_checkpoint_of_finished_run_is_not_trusted(work, recnn_ckpt, tmp_path):
+    """A truncated best checkpoint with result.json beside it was reused (issue 17, 6)."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    best = run_dir / "checkpoints" / recnn_ckpt.name
+    result = json.loads((run_dir / "result.json").read_text())
+    (run_dir / "result.json").write_text(json.dumps({**result, "best_checkpoint": str(best)}))  # the copy's own
+    _truncate(best)
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
+    assert "already finished" not in p.stdout
+    assert any(ln.startswith("warning:") and "training it again" in ln for ln in p.stderr.splitlines()), p.stderr[-2000:]
+    from imls_lightning.config import checkpoint_problem
+
+    assert checkpoint_problem(_last_line(p)) is None
+
+
+def test_exception_resume_checkpoint_of_another_model(work, recnn_ckpt, tmp_path):
+    """resume= with a checkpoint of another model ended in a traceback (issue 17, 11)."""
+    p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=1", "recnn.net.channels=4", "recnn.net.blocks=1",
+              f"resume={recnn_ckpt}"], tmp_path, check=False)  # a channels=8 net resumed into a channels=4 one
+    _one_line_error(p, f"resume={recnn_ckpt}", "do not fit the network")
+
+
+def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
+    """resume=<a text file> ended in a traceback (issue 17, 11); in process (the CLI path is the test above)."""
+    from omegaconf import OmegaConf
+
+    from data_gen.errors import InputError
+    from imls_lightning.tasks.base import load_task
+    from imls_lightning.tasks.iml import IMLTask
+    from imls_lightning.training import _resume_path
+
+    task = load_task(recnn_ckpt, expect="RecNNTask")
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    cut = tmp_path / "cut.ckpt"
+    cut.write_bytes(recnn_ckpt.read_bytes()[:5000])
+    for bad in (text, cut):
+        with pytest.raises(InputError, match=f"^resume={bad}: not a loadable checkpoint"):
+            _resume_path(OmegaConf.create({"resume": str(bad)}), tmp_path, task)
+    with pytest.raises(InputError, match=f"^resume={recnn_ckpt}: is a RecNNTask checkpoint, this run trains a IMLTask"):
+        _resume_path(OmegaConf.create({"resume": str(recnn_ckpt)}), tmp_path, IMLTask({"kind": "downsample", "factor": 2}, 32, depth=2))
+    assert _resume_path(OmegaConf.create({"resume": str(recnn_ckpt)}), tmp_path, task) == str(recnn_ckpt)
+
+
+def test_smoke_fovolnet_fast_dev_run(work):
+    p = _run(["model=recnn", "recnn=fovolnet", "trainer.fast_dev_run=true"], work)
+    ckpt = Path(_last_line(p))
+    assert ckpt.name == "fast_dev_run.ckpt" and ckpt.is_file()
+    from imls_lightning.tasks.base import load_task
+
+    task = load_task(ckpt, expect="RecNNTask")
+    assert task.pattern.kind == "foveal"
+
+
+# ---- IML --------------------------------------------------------------------------------------
+def test_smoke_iml_standalone_and_end_to_end(work, recnn_ckpt):
+    from imls_lightning.tasks.base import load_task
+
+    p = _run(["model=iml", "recnn=enhancenet", "model.mode=standalone", "model.depth=3", "model.base_channels=8",
+              "trainer.max_epochs=1"], work)
+    sa = load_task(Path(_last_line(p)), expect="IMLTask")
+    assert sa.recnn is None  # standalone never builds the RecNN
+    p = _run(["model=iml", "recnn=enhancenet", "model.mode=end_to_end", f"recnn.checkpoint={recnn_ckpt}",
+              "model.depth=3", "model.base_channels=8", "trainer.max_epochs=1"], work)
+    e2e = load_task(Path(_last_line(p)), expect="IMLTask")
+    assert e2e.recnn is not None
+    # frozen by default: the RecNN inside equals the checkpoint it started from
+    rec = load_task(recnn_ckpt, expect="RecNNTask")
+    for (k, a), b in zip(e2e.recnn.state_dict().items(), rec.net.state_dict().values()):
+        torch.testing.assert_close(a, b, msg=k)
+    res = json.loads((Path(_last_line(p)).parent.parent / "result.json").read_text())
+    for key in ("test/ipr", "test/c_share", "test/c_psnr", "test/fr_psnr"):
+        assert np.isfinite(res["test"][key]), key
+
+
+def test_smoke_standalone_decoder_attaches_to_off_the_shelf_recnn(work, recnn_ckpt):
+    """The paper's off-the-shelf case: a decoder trained without the RecNN feeds a separately trained one."""
+    from imls_lightning.models.iml import IMLRecNN
+    from imls_lightning.tasks.base import load_task
+
+    p = _run(["model=iml", "recnn=enhancenet", "model.mode=standalone", "model.depth=3", "model.base_channels=8",
+              "trainer.max_epochs=1"], work)
+    iml = load_task(Path(_last_line(p)), expect="IMLTask")
+    rec = load_task(recnn_ckpt, expect="RecNNTask")
+    assert iml.pattern.fingerprint() == rec.pattern.fingerprint()
+    net = IMLRecNN(iml.iml, rec.net).eval()
+    c = torch.rand(2, 3, iml.pattern.c_size, iml.pattern.c_size)
+    with torch.no_grad():
+        out = net(c, hard=True)
+        im = iml.iml.importance(c, hard=True)
+        direct = rec.net(iml.iml.decode(im * c, im))
+    assert out.shape == (2, 3, iml.pattern.fr_size, iml.pattern.fr_size) and torch.isfinite(out).all()
+    torch.testing.assert_close(out, direct)
+
+
+# ---- errors -----------------------------------------------------------------------------------
+def _one_line_error(p, *needles):
+    assert p.returncode == 2, (p.returncode, p.stderr[-2000:])
+    assert "Traceback" not in p.stderr
+    err = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
+    assert len(err) == 1, p.stderr[-2000:]
+    for n in needles:
+        assert n in err[0], err[0]
+
+
+def test_exception_end_to_end_without_recnn_checkpoint(work):
+    p = _run(["model=iml", "model.mode=end_to_end", "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, "recnn.checkpoint")
+
+
+def test_exception_recnn_checkpoint_of_other_pattern(work, recnn_ckpt):
+    p = _run(["model=iml", "recnn=fovolnet", "model.mode=end_to_end", f"recnn.checkpoint={recnn_ckpt}",
+              "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, "recnn.checkpoint", "pattern")
+
+
+def test_exception_missing_checkpoint_file(work):
+    p = _run(["model=iml", "model.mode=end_to_end", "recnn.checkpoint=/nonexistent/x.ckpt", "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, "recnn.checkpoint=/nonexistent/x.ckpt", "not found")
+
+
+@pytest.mark.parametrize("override,needle", [
+    ("model.mean=0.001", "mean"),
+    ("model.mean=2", "mean"),
+    ("model.alpha=0", "alpha"),
+    ("model.mode=both", "model.mode"),
+    ("model.lr=-1", "model.lr"),
+])
+def test_exception_bad_iml_settings(work, override, needle):
+    p = _run(["model=iml", override, "trainer.fast_dev_run=true"], work, check=False)
+    _one_line_error(p, needle)
