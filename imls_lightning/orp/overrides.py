@@ -2,13 +2,14 @@
 overrides of the IMS training an ORP job runs on its IML (torch-free, used by the sweeper plugin)."""
 from __future__ import annotations
 
+import re
 from typing import Any, Mapping, Sequence
 
 
 def quote_override_value(value: Any) -> str:
     """A value written so that Hydra's override grammar reads it back unchanged.
 
-    Strings are single-quoted (with ``\\`` and ``'`` escaped), lists/dicts recursively, ``None`` is
+    Strings are single-quoted (``'`` escaped, and backslashes only where they precede a quote), lists/dicts recursively, ``None`` is
     ``null``; numbers and booleans as such.
 
     Example:
@@ -25,8 +26,10 @@ def quote_override_value(value: Any) -> str:
         return "{" + ",".join(f"{k}:{quote_override_value(v)}" for k, v in value.items()) + "}"
     if isinstance(value, (list, tuple)):
         return "[" + ",".join(quote_override_value(v) for v in value) + "]"
-    s = str(value)
-    return "'" + s.replace("\\", "\\\\").replace("'", "\\'") + "'"
+    # Hydra reads a backslash literally unless a run of them precedes a quote (an escaped one, or the
+    # closing one): only those runs are doubled, then the quotes escaped
+    s = re.sub(r"(\\+)(?='|$)", lambda m: m.group(1) * 2, str(value))
+    return "'" + s.replace("'", "\\'") + "'"
 
 
 def override_key(text: str) -> str:

@@ -8,8 +8,7 @@ from imls_lightning.orp.overrides import ims_overrides_for, override_key, quote_
 
 
 @pytest.mark.parametrize("value", [None, True, False, 3, -0.25, "plain", "x=y", "it's", "/a b/c.ckpt",
-                                   pytest.param("back\\slash", marks=pytest.mark.xfail(strict=True, reason=(
-                                       "known bug: a lone backslash is doubled, Hydra reads it back as two"))),
+                                   "back\\slash", "end\\", "it\\'s", "two\\\\'q",
                                    [1, "a,b", None], {"a": [1, "x=y"], "b": {"c": False}}])
 def test_quoted_values_read_back_unchanged_by_hydra(value):
     line = f"key={quote_override_value(value)}"
