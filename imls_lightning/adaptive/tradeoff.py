@@ -40,7 +40,7 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
         ``name -> {"psnr": (N,), "ipr": (N,)}`` plus ``"recnn" -> {"psnr": (N,)}`` (the RecNN alone);
         IPR is rendered pixels / FR pixels.
 
-    Example (shapes only; see ``tests/test_adaptive.py``)::
+    Example (shapes only; see ``tests/adaptive/test_tradeoff.py``)::
 
         q = quality_at_means(cache, rows, pattern, iml, recnn, {"fixed": 0.3, "adaptive": u_pred}, ims=ims)
         q["adaptive"]["psnr"].mean(), q["adaptive"]["ipr"].mean()

@@ -3,7 +3,7 @@ bisection / k-section over the mean value (:class:`ORPSearch`, ask/tell or ``run
 (:class:`ORPResult`, one :class:`Evaluation` per mean value tried).
 
 No Hydra and no torch here: the Hydra sweeper plugin (``hydra_plugins/orp_sweeper``) imports this
-module while Hydra scans its plugins (``tests/test_orp.py`` checks that importing it loads no torch).
+module while Hydra scans its plugins (``tests/orp/test_search.py`` checks that importing it loads no torch).
 The search rule is described in :mod:`imls_lightning.orp`.
 """
 from __future__ import annotations
