@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InputError
+from .validate import check_integer
 
 VIEW_FIELDS = ("eye_x", "eye_y", "eye_z", "lookat_x", "lookat_y", "lookat_z", "up_x", "up_y", "up_z")
 
@@ -101,6 +102,24 @@ def ray_box_hits(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tu
     t0 = np.maximum(tmin.max(axis=1), 0.0)
     t1 = tmax.min(axis=1)
     return t0, t1
+
+
+def render_request(view, resolution, pixels=None) -> tuple[np.ndarray, int, np.ndarray | None]:
+    """The validated arguments of a renderer's ``render`` / ``render_pixels`` call, checked alike
+    by every renderer: ``(view (9,) float64, m, pixels int64 (K,) or None)``.
+
+    Raises:
+        InputError: a bad view (:func:`validate_view`), a resolution that is not a positive
+            integer, or bad pixel indices (:func:`validate_pixels`).
+
+    Example:
+        >>> v, m, pix = render_request([0, 0, 3, 0, 0, 0, 0, 1, 0], 4, [0, 15])
+        >>> m, pix.tolist()
+        (4, [0, 15])
+    """
+    v = validate_view(view)
+    m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
+    return v, m, None if pixels is None else validate_pixels(pixels, m)
 
 
 def validate_pixels(pixels, resolution: int, *, name: str = "pixels") -> np.ndarray:

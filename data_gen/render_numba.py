@@ -53,7 +53,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .camera import camera_basis, validate_view
+from .camera import camera_basis, render_request
 from .errors import InputError
 from .scene import Scene
 from .validate import check_integer
@@ -697,8 +697,7 @@ class NumbaRenderer:
 
     def render(self, view, resolution: int) -> np.ndarray:
         """Full frame ``(m, m, 3)`` uint8, row 0 at the top."""
-        validate_view(view)
-        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
+        _, m, _ = render_request(view, resolution)
         pix = self._all_pixels.get(m)
         if pix is None:
             pix = self._all_pixels.setdefault(m, np.arange(m * m, dtype=np.int64))
@@ -710,11 +709,7 @@ class NumbaRenderer:
         Only those rays are cast; the result equals ``render(view, resolution)`` at those pixels
         exactly. An empty ``pixels`` returns ``(0, 3)`` at once.
         """
-        from .camera import validate_pixels
-
-        validate_view(view)
-        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
-        pix = validate_pixels(pixels, m)
+        _, m, pix = render_request(view, resolution, pixels)
         if pix.shape[0] == 0:
             self.last_render_seconds = 0.0
             self.last_rays_marched = 0

@@ -41,10 +41,9 @@ import time
 
 import numpy as np
 
-from .camera import validate_view
+from .camera import render_request
 from .errors import InputError
 from .scene import Scene
-from .validate import check_integer
 
 # Prefer a headless EGL window; VTK otherwise tries X first and warns when there is no display.
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
@@ -186,8 +185,7 @@ class VTKRenderer:
             m.SetNumberOfThreads(int(threads) if threads else vtk.vtkMultiThreader.GetGlobalDefaultNumberOfThreads())
 
     def _set_camera(self, view, resolution) -> np.ndarray:
-        v = validate_view(view)
-        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
+        v, m, _ = render_request(view, resolution)
         from .render_numba import clipping_range
 
         w = m + 2 * self._margin
@@ -367,13 +365,10 @@ class VTKRenderer:
         of pixels covered. An empty ``pixels`` costs nothing.
         """
         from .render_numba import ray_hit_mask
-        from .camera import validate_pixels
 
         if self._mapper_kind != "fixed_point":
             raise InputError("renderer.mapper=gpu: render_pixels needs the fixed_point mapper (or renderer=numba)")
-        v = validate_view(view)
-        m = check_integer(resolution, "resolution", 1, strict=True, what="a positive integer")
-        pix = validate_pixels(pixels, m)
+        v, m, pix = render_request(view, resolution, pixels)
         if pix.shape[0] == 0:
             self.last_render_seconds = 0.0
             self.last_blocked_pixels = 0

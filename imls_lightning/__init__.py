@@ -44,7 +44,7 @@ HOMES: dict[str, str] = {
     "IMSTask": "imls_lightning.tasks.ims",
     "RecNNTask": "imls_lightning.tasks.recnn",
     "LASTask": "imls_lightning.tasks.las",
-    "load_task": "imls_lightning.tasks.base",
+    "load_task": "imls_lightning.checkpoints",
     # sampling pattern, compaction, importance
     "SamplingPattern": "imls_lightning.patterns",
     "build_pattern": "imls_lightning.patterns",

@@ -40,7 +40,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import hydra
 import numpy as np
@@ -51,7 +51,9 @@ import data_gen  # noqa: F401  (registers the scene config resolvers)
 from data_gen.errors import InputError, cli_errors, checked_command_line
 
 from . import report as rep
-from .config import file_hash, register_resolvers, settings_hash, to_plain
+from .checkpoints import check_resolution, check_same_pattern, load_task, require_recnn
+from .checkpoints import check_trained_on as checkpoint_trained_on
+from .config import file_hash, load_checkpoint, register_resolvers, settings_hash, to_plain
 from .pipeline import (
     STAGES,
     FullRayCast,
@@ -217,27 +219,21 @@ class Networks:
 
 def load_networks(s: Settings, resolution: int) -> Networks:
     """Load and cross-check the checkpoints (pattern, resolution) before anything is rendered."""
-    from .tasks.base import load_task
-
     ims = load_task(s.ims, expect="IMSTask", what="checkpoints.ims")
+    check_resolution(ims.hparams, resolution, key="checkpoints.ims", path=s.ims, network="IMS", against="this evaluation uses")
     fr = int(ims.hparams["fr_size"])
-    if fr != resolution:
-        raise InputError(f"checkpoints.ims={s.ims}: trained at data.resolution={fr}, this evaluation uses data.resolution={resolution}; pass data.resolution={fr} (and the data group it was trained with)")
-    fp = ims.pattern.fingerprint()
+    same = dict(against="the IMS", hint="pass checkpoints of the IMS's pattern and data.resolution")
     if s.recnn:
         rt = load_task(s.recnn, expect="RecNNTask", what="checkpoints.recnn")
-        if int(rt.hparams["fr_size"]) != fr or rt.pattern.fingerprint() != fp:
-            raise InputError(f"checkpoints.recnn={s.recnn}: trained on pattern {rt.pattern.summary()} at {rt.hparams['fr_size']}^2, the IMS on {ims.pattern.summary()} at {fr}^2")
+        check_same_pattern(rt.hparams, ims.pattern, key="checkpoints.recnn", path=s.recnn, network="RecNN", **same)
         recnn, recnn_source, recnn_name = rt.net, s.recnn, rt.hparams.get("recnn_name", "recnn")
-    elif ims.recnn is not None:
-        recnn, recnn_source = ims.recnn, f"{s.ims} ({ims.hparams.get('recnn_source') or 'stored'})"
-        recnn_name = (ims.hparams.get("recnn_hparams") or {}).get("recnn_name", "recnn")
     else:
-        raise InputError(f"checkpoints.ims={s.ims}: carries no RecNN (its IML was trained standalone); pass checkpoints.recnn=<RecNN .ckpt>")
+        recnn = require_recnn(ims.recnn, key="checkpoints.ims", path=s.ims, recnn_key="checkpoints.recnn")
+        recnn_source = f"{s.ims} ({ims.hparams.get('recnn_source') or 'stored'})"
+        recnn_name = (ims.hparams.get("recnn_hparams") or {}).get("recnn_name", "recnn")
     if s.iml:
         it = load_task(s.iml, expect="IMLTask", what="checkpoints.iml")
-        if int(it.hparams["fr_size"]) != fr or it.pattern.fingerprint() != fp:
-            raise InputError(f"checkpoints.iml={s.iml}: trained on pattern {it.pattern.summary()} at {it.hparams['fr_size']}^2, the IMS on {ims.pattern.summary()} at {fr}^2")
+        check_same_pattern(it.hparams, ims.pattern, key="checkpoints.iml", path=s.iml, network="IML", **same)
         iml, iml_source = it.iml, s.iml
     else:
         iml, iml_source = ims.iml, f"{s.ims} (the IML its labels came from)"
@@ -246,75 +242,33 @@ def load_networks(s: Settings, resolution: int) -> Networks:
     las = None
     if s.las:
         las = load_task(s.las, expect="LASTask", what="checkpoints.las")
-        if int(las.hparams["fr_size"]) != fr:
-            raise InputError(f"checkpoints.las={s.las}: trained at data.resolution={las.hparams['fr_size']}, the IMS at {fr}")
+        check_resolution(las.hparams, fr, key="checkpoints.las", path=s.las, network="LAS", against="the IMS at",
+                         hint="pass a LAS trained at the IMS's data.resolution")
     blue = None
     if s.blue_noise:
         bt = load_task(s.blue_noise, expect="IMLTask", what="checkpoints.blue_noise")
-        if int(bt.hparams["fr_size"]) != fr or bt.pattern.fingerprint() != fp:
-            raise InputError(f"checkpoints.blue_noise={s.blue_noise}: trained on pattern {bt.pattern.summary()} at {bt.hparams['fr_size']}^2, the IMS on {ims.pattern.summary()} at {fr}^2")
+        check_same_pattern(bt.hparams, ims.pattern, key="checkpoints.blue_noise", path=s.blue_noise, network="IML", **same)
         if bt.hparams.get("importance") != "uniform":
             raise InputError(f"checkpoints.blue_noise={s.blue_noise}: an IML trained with model.importance={bt.hparams.get('importance', 'learned')}; expected model.importance=uniform")
         blue = bt.iml
     return Networks(ims, recnn, iml, las, str(recnn_name), str(recnn_source), str(iml_source), blue)
 
 
-def _diff(a: Any, b: Any, prefix: str = "") -> list[str]:
-    """Dotted keys where two plain configs differ (paths to the same file count as equal)."""
-    if isinstance(a, Mapping) and isinstance(b, Mapping):
-        out: list[str] = []
-        for k in sorted(set(a) | set(b), key=str):
-            out += _diff(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
-        return out
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b):
-        return [] if all(not _diff(x, y) for x, y in zip(a, b)) else [prefix]
-    if a == b:
-        return []
-    if isinstance(a, str) and isinstance(b, str) and prefix.endswith("path"):
-        try:
-            if Path(a).expanduser().resolve() == Path(b).expanduser().resolve():
-                return []
-        except OSError:
-            pass
-    return [prefix]
-
-
 def check_trained_on(cfg: DictConfig, s: Settings) -> None:
     """The scene and renderer of this evaluation must be those the IMS checkpoint was trained on
     (recorded in it); otherwise a one-line error, unless ``allow_mismatch=true``. (The sampling
-    pattern and resolution are checked in :func:`load_networks`.)"""
-    from data_gen.renderers import renderer_pixel_settings
-
-    from .config import load_checkpoint
-
+    pattern and resolution are checked in :func:`load_networks`.) The check itself:
+    :func:`imls_lightning.checkpoints.check_trained_on`."""
     hp = load_checkpoint(s.ims, what="checkpoints.ims")["hyper_parameters"]
     if bool(cfg.get("allow_mismatch", False)):
         return
-    trained_scene, trained_renderer = hp.get("scene"), hp.get("renderer")
-    if trained_scene:
-        diff = _diff(trained_scene, to_plain(cfg.scene))
-        if diff:
-            name = trained_scene.get("name", "?")
-            raise InputError(
-                f"checkpoints.ims={s.ims}: trained on scene={name}, this evaluation uses scene={cfg.scene.get('name')} "
-                f"(scene differs in {', '.join(diff[:3])}{', ...' if len(diff) > 3 else ''}); pass scene={name} "
-                f"(with the overrides it was trained with), or allow_mismatch=true to evaluate it anyway"
-            )
-    if trained_renderer:
-        a, b = renderer_pixel_settings(trained_renderer), renderer_pixel_settings(to_plain(cfg.renderer))
-        if a != b:
-            diff = _diff(a, b)
-            raise InputError(
-                f"checkpoints.ims={s.ims}: trained with renderer={a.get('name')}, this evaluation uses renderer={b.get('name')} "
-                f"(differs in {', '.join(diff[:3])}); pass renderer={a.get('name')}, or allow_mismatch=true to evaluate it anyway"
-            )
+    checkpoint_trained_on(hp, cfg.scene, cfg.renderer, key="checkpoints.ims", path=s.ims, against="this evaluation",
+                          escape="or allow_mismatch=true to evaluate it anyway")
 
 
 def _recnn_name(s: Settings) -> str:
     """The RecNN's config name (``enhancenet``, ``fovolnet``) from the checkpoints' hyper-parameters
     alone, as :func:`load_networks` finds it (no network is built)."""
-    from .config import load_checkpoint
-
     if s.recnn:
         return str(load_checkpoint(s.recnn, what="checkpoints.recnn")["hyper_parameters"].get("recnn_name", "recnn"))
     hp = load_checkpoint(s.ims, what="checkpoints.ims")["hyper_parameters"]

@@ -51,7 +51,8 @@ from torch import nn
 from data_gen.errors import InputError, cli_errors
 
 from .patterns import SamplingPattern
-from .pipeline import IMLSRenderer, NetOptions, load_ims_and_recnn
+from .checkpoints import load_ims_and_recnn, require_recnn, task_path
+from .pipeline import IMLSRenderer, NetOptions
 
 __all__ = ["FORMATS", "IMPredictor", "ExportedIMLSRenderer", "export_renderer", "onnx_available", "main"]
 
@@ -161,9 +162,7 @@ class _OnnxModule(nn.Module):
 # export
 # ---------------------------------------------------------------------------------------------
 def _parts_from_task(task, recnn: nn.Module | None) -> dict[str, nn.Module]:
-    recnn = task.recnn if recnn is None else recnn
-    if recnn is None:
-        raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
+    recnn = require_recnn(task.recnn if recnn is None else recnn, key="ims_checkpoint", path=task_path(task))
     task.eval()
     im = IMPredictor(task.generator, task.target, task.P, task.pattern.valid).eval()
     return {"im": im, "decoder": PackedDecoder(task.decoder).eval(), "recnn": recnn.eval()}

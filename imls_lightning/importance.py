@@ -35,6 +35,8 @@ from data_gen.validate import check_number
 __all__ = [
     "check_mean",
     "check_alpha",
+    "check_ipr",
+    "delegated",
     "normalize_importance",
     "soft_rejection_sample",
     "hard_rejection_sample",
@@ -53,6 +55,16 @@ def check_mean(mean: float, name: str = "mean") -> float:
 def check_alpha(alpha: float, name: str = "alpha") -> float:
     """Validate the sigmoid steepness ``alpha`` (positive and finite)."""
     return check_number(alpha, name, 0, lo_open=True, what="a positive finite number")
+
+
+def check_ipr(ipr: float, name: str = "ipr") -> float:
+    """Validate a target share of sampled pixels (IPR): a number in ``(0, 1]``.
+
+    Example:
+        >>> check_ipr("0.25")
+        0.25
+    """
+    return check_number(ipr, name, 0.0, 1.0, lo_open=True, what="a number in (0, 1]")
 
 
 def _check_lower_delta(mean: float, lower: float, delta: float) -> tuple[float, float]:
@@ -195,6 +207,29 @@ class ImportanceNormalization(nn.Module):
 
     def extra_repr(self) -> str:
         return f"mean={self._mean}, lower={self.lower}, delta={self.delta}"
+
+
+def delegated(sub: str, name: str, settable: bool = False) -> property:
+    """A property that reads (and, when ``settable``, writes) ``self.<sub>.<name>``: a network shows
+    the settings of its normalization / sampling layer (e.g. ``net.mean``) without keeping a copy,
+    and every change goes through that layer's validation.
+
+    Example:
+        >>> class Net(nn.Module):
+        ...     mean = delegated("normalization", "mean", settable=True)
+        ...     def __init__(self):
+        ...         super().__init__()
+        ...         self.normalization = ImportanceNormalization(mean=0.1)
+        >>> net = Net(); net.mean = 0.2; net.normalization.mean
+        0.2
+    """
+    def get(self):
+        return getattr(getattr(self, sub), name)
+
+    def put(self, value) -> None:
+        setattr(getattr(self, sub), name, value)
+
+    return property(get, put if settable else None, doc=f"``{sub}.{name}``" + (" (settable, validated)" if settable else ""))
 
 
 class RejectionSampling(nn.Module):

@@ -166,7 +166,7 @@ def ensure_labels(
     """
     from data_gen.cache import ViewImageCache
 
-    from .tasks.base import load_task
+    from .checkpoints import check_resolution, load_task
 
     if not (isinstance(batch_size, int) and batch_size >= 1):
         raise InputError(f"labels batch_size={batch_size}: expected an integer >= 1")
@@ -179,11 +179,8 @@ def ensure_labels(
     task = load_task(iml_checkpoint, expect="IMLTask", what="iml.checkpoint")
     hp = task.hparams
     m = cache.resolution
-    if int(hp["fr_size"]) != m:
-        raise InputError(
-            f"iml.checkpoint={iml_checkpoint}: the IML was trained at data.resolution={hp['fr_size']} "
-            f"but the cache {cache.path} holds {m}x{m} images; use data.resolution={hp['fr_size']}"
-        )
+    check_resolution(hp, m, key="iml.checkpoint", path=iml_checkpoint, network="IML", against=f"the cache {cache.path} holds",
+                     hint=f"use data.resolution={hp['fr_size']}")
     pattern = task.pattern
     n, N = pattern.c_size, len(cache)
     packed_cols = (n + 7) // 8

@@ -48,6 +48,8 @@ import torch
 from data_gen.camera import validate_view
 from data_gen.errors import InputError
 
+from .checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
+from .importance import check_ipr
 from .patterns import SamplingPattern, c_pixels_to_fr
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
@@ -261,24 +263,6 @@ class IMLPlusRecNN(_PatternMethod):
                              "rendered_pixels": self.pattern.count, "im": im_cpu, **info})
 
 
-def load_ims_and_recnn(ims_checkpoint: str, recnn_checkpoint: str | None = None):
-    """``(IMSTask, RecNN module or None)``: the IMS checkpoint and, when given, a RecNN checkpoint
-    that replaces the RecNN stored in it (checked to use the same sampling pattern).
-
-    Raises:
-        InputError: a missing or wrong checkpoint, or a RecNN of another sampling pattern.
-    """
-    from .tasks.base import load_task
-
-    task = load_task(ims_checkpoint, expect="IMSTask", what="ims_checkpoint")
-    if not recnn_checkpoint:
-        return task, None
-    rt = load_task(recnn_checkpoint, expect="RecNNTask", what="recnn_checkpoint")
-    if rt.pattern.fingerprint() != task.pattern.fingerprint():
-        raise InputError("recnn_checkpoint: trained on another sampling pattern than the IMS/IML checkpoint")
-    return task, rt.net
-
-
 def renderer_for_task(task, scene=None, renderer=None, renderer_cfg=None):
     """``renderer`` if given, else one made for ``scene`` (+ ``renderer_cfg``), by default the scene
     and renderer config the IMS ``task`` was trained on (stored in its checkpoint).
@@ -342,12 +326,10 @@ class IMLSRenderer(_PatternMethod):
         moved to the options' device and prepared in place (share a task between methods only with
         the same options).
         """
-        if mean is not None and task.target != "pim":
-            raise InputError(f"mean={mean}: rescaling the IMS's mask needs an IMS trained with model.target=pim (this one: {task.target})")
+        if mean is not None:
+            require_pim_target(task.hparams, key="mean", path=mean, what="rescaling the IMS's mask")
         opts = opts or NetOptions()
-        recnn = task.recnn if recnn is None else recnn
-        if recnn is None:
-            raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
+        recnn = require_recnn(task.recnn if recnn is None else recnn, key="ims_checkpoint", path=task_path(task))
         device = pick_device(opts.device)
         task.to(device).eval()  # buffers (valid, P) follow the networks
         generator = prepare_net(task.generator, device, opts)
@@ -374,8 +356,6 @@ class IMLSRenderer(_PatternMethod):
             opts: :class:`NetOptions` (device, half, channels_last, compile).
         """
         task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
-        if recnn is None and task.recnn is None:
-            raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
         return cls.from_task(task, renderer_for_task(task, scene, renderer, renderer_cfg), recnn, opts)
 
     def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
@@ -400,42 +380,22 @@ class IMLSRenderer(_PatternMethod):
 
 
 def las_mean_for_ipr(las: torch.nn.Module, raw: torch.Tensor, ipr: float, steps: int = 30) -> torch.Tensor:
-    """Per-image mean ``u`` ``(B, 1, 1, 1)`` at which LAS samples about ``ipr`` of the FR pixels.
-
-    The same bisection as ``LASNet.importance_mask(ipr=...)`` (the normalization is affine in
-    ``u``); :func:`las_mask` with the result gives exactly that method's mask.
+    """Per-image mean ``u`` ``(B, 1, 1, 1)`` at which LAS samples about ``ipr`` of the FR pixels:
+    :meth:`LASNet.mean_for_ipr <imls_lightning.models.las.LASNet.mean_for_ipr>` (the bisection of
+    ``LASNet.importance_mask(ipr=...)``); :func:`las_mask` with the result gives that method's mask.
 
     Args:
         las: a :class:`~imls_lightning.models.las.LASNet`.
         raw: ``(B, 1, m, m)`` the importance net's output.
         ipr: target share of sampled FR pixels in ``(0, 1]``.
     """
-    from .importance import hard_rejection_sample, normalize_importance
-
-    try:
-        target = float(ipr)
-    except (TypeError, ValueError):
-        raise InputError(f"ipr={ipr!r}: expected a number in (0, 1]") from None
-    if not (0.0 < target <= 1.0):
-        raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
-    r = normalize_importance(raw, 1.0, 0.0, las.delta)
-    lo = torch.full((raw.shape[0], 1, 1, 1), max(las.lower, 0.0), device=raw.device, dtype=r.dtype)
-    hi = torch.ones_like(lo)
-    for _ in range(int(steps)):
-        mid = 0.5 * (lo + hi)
-        m = hard_rejection_sample((las.lower + (mid - las.lower) * r).clamp(max=1.0), las.P)
-        below = m.float().mean(dim=(1, 2, 3), keepdim=True) < target
-        lo = torch.where(below, mid, lo)
-        hi = torch.where(below, hi, mid)
-    return hi
+    return las.mean_for_ipr(raw, ipr, steps)
 
 
 def las_mask(las: torch.nn.Module, raw: torch.Tensor, mean: torch.Tensor | float) -> torch.Tensor:
-    """LAS's hard sampling mask ``(B, 1, m, m)`` bool at normalization mean ``mean`` (number or ``(B,1,1,1)``)."""
-    from .importance import hard_rejection_sample, normalize_importance
-
-    r = normalize_importance(raw, 1.0, 0.0, las.delta)
-    return hard_rejection_sample((las.lower + (mean - las.lower) * r).clamp(max=1.0), las.P)
+    """LAS's hard sampling mask ``(B, 1, m, m)`` bool at normalization mean ``mean`` (number or
+    ``(B,1,1,1)``): :meth:`LASNet.mask_at <imls_lightning.models.las.LASNet.mask_at>`."""
+    return las.mask_at(raw, mean)
 
 
 class LASMethod(Method):
@@ -459,14 +419,7 @@ class LASMethod(Method):
         super().__init__(renderer, fr_size, opts)
         self.las = prepare_net(las_net, self.device, self.opts)
         self.low_res = int(low_res)
-        if ipr is not None:
-            try:
-                ipr = float(ipr)
-            except (TypeError, ValueError):
-                raise InputError(f"ipr={ipr!r}: expected a number in (0, 1]") from None
-            if not (0.0 < ipr <= 1.0):
-                raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
-        self.ipr = ipr
+        self.ipr = None if ipr is None else check_ipr(ipr)
 
     def run(self, view) -> RenderResult:
         timer = StageTimer(self.device)

@@ -22,7 +22,8 @@ from data_gen.errors import InputError, checked_command_line, cli_errors
 
 from ..config import register_resolvers
 from ..importance import MEAN_RANGE
-from ..pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, load_ims_and_recnn, pick_device
+from ..checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
+from ..pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, pick_device
 from ..tasks.ims import scaled_pim_im
 from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
@@ -72,19 +73,11 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     s = parse_settings(cfg)
     t_start = time.perf_counter()
     ims, recnn = load_ims_and_recnn(s.ims, s.recnn)
-    if ims.target != "pim":
-        raise InputError(f"ims_checkpoint={s.ims}: its IMS was trained with model.target={ims.target}; the adaptive mean scales "
-                         "the regressed PIM', which needs an IMS trained with model.target=pim")
+    require_pim_target(ims.hparams, path=s.ims, what="the adaptive mean, which scales the regressed PIM',")
     resolution = int(cfg.data.resolution)
-    fr = int(ims.hparams["fr_size"])
-    if fr != resolution:
-        raise InputError(f"data.resolution={resolution}: the IMS checkpoint was trained at {fr}^2; pass the data group it was trained with")
-    trained_scene = (ims.hparams.get("scene") or {}).get("name")
-    if trained_scene and str(cfg.scene.get("name")) != str(trained_scene):
-        raise InputError(f"scene={cfg.scene.get('name')}: the IMS checkpoint was trained on scene {trained_scene}; pass scene={trained_scene}")
-    recnn = recnn if recnn is not None else ims.recnn
-    if recnn is None:
-        raise InputError(f"ims_checkpoint={s.ims}: carries no RecNN (its IML was trained standalone); pass recnn_checkpoint=<RecNN .ckpt>")
+    check_resolution(ims.hparams, resolution, key="ims_checkpoint", path=s.ims, network="IMS")
+    check_trained_on(ims.hparams, cfg.scene, cfg.renderer, key="ims_checkpoint", path=s.ims)
+    recnn = require_recnn(recnn if recnn is not None else ims.recnn, key="ims_checkpoint", path=s.ims)
     device = pick_device(s.device)
     opts = NetOptions(device=str(device))
     iml = ims.iml

@@ -8,14 +8,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
-
+from ..checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
 from ..pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
     NetOptions,
     StageTimer,
-    load_ims_and_recnn,
     pick_device,
     prepare_net,
     renderer_for_task,
@@ -64,13 +62,9 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
 
     def __init__(self, renderer, task, predictor: nn.Module, recnn: nn.Module | None = None,
                  opts: NetOptions | None = None):
-        if task.hparams.get("target") != "pim":
-            raise InputError(f"ims_checkpoint: its IMS was trained with model.target={task.hparams.get('target')}; the adaptive "
-                             "renderer scales the regressed PIM', which needs an IMS trained with model.target=pim")
+        require_pim_target(task.hparams, path=task_path(task), what="the adaptive renderer, which scales the regressed PIM',")
         opts = opts or NetOptions()
-        recnn = task.recnn if recnn is None else recnn
-        if recnn is None:
-            raise InputError("ims_checkpoint carries no RecNN (its IML was standalone): pass recnn_checkpoint=<RecNN .ckpt>")
+        recnn = require_recnn(task.recnn if recnn is None else recnn, key="ims_checkpoint", path=task_path(task))
         device = pick_device(opts.device)
         task.to(device).eval()
         self.task = task

@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning.importance import ImportanceNormalization, RejectionSampling
+from imls_lightning.importance import ImportanceNormalization, RejectionSampling, delegated
 from imls_lightning.models.pull_push import pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
@@ -270,21 +270,8 @@ class IMLNet(nn.Module):
         self.register_buffer("valid", v.to(torch.float32).view(1, 1, n, n), persistent=False)
         self._all_valid = valid is None or bool(v.all())
 
-    @property
-    def mean(self) -> float:
-        return self.normalization.mean
-
-    @mean.setter
-    def mean(self, value: float) -> None:
-        self.normalization.mean = value
-
-    @property
-    def alpha(self) -> float:
-        return self.sampling.alpha
-
-    @alpha.setter
-    def alpha(self, value: float) -> None:
-        self.sampling.alpha = value
+    mean = delegated("normalization", "mean", settable=True)
+    alpha = delegated("sampling", "alpha", settable=True)
 
     def _check(self, c_image: torch.Tensor) -> None:
         n = self.c_size

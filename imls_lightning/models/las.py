@@ -83,9 +83,13 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
+from data_gen.validate import check_integer
 from imls_lightning.importance import (
+    ImportanceNormalization,
     check_alpha,
+    check_ipr,
     check_mean,
+    delegated,
     hard_rejection_sample,
     normalize_importance,
     soft_rejection_sample,
@@ -154,16 +158,6 @@ class _EnhanceBody(nn.Module):
         return self.post(self.blocks(self.pre(x)))
 
 
-def _pos_int(value, name: str, minimum: int = 1) -> int:
-    try:
-        v = int(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}={value!r}: expected an integer >= {minimum}") from None
-    if v != value or v < minimum:
-        raise InputError(f"{name}={value!r}: expected an integer >= {minimum}")
-    return v
-
-
 class LASImportanceNet(nn.Module):
     """Low-res render -> positive importance map at FR resolution (LAS ``NetworkImportanceMap``).
 
@@ -188,17 +182,18 @@ class LASImportanceNet(nn.Module):
     def __init__(self, low_res: int = 64, fr_size: int = 512, in_channels: int = 3, channels: int = 64,
                  blocks: int = 5, border: int = 8, post_upscale: int = 1):
         super().__init__()
-        self.low_res = _pos_int(low_res, "low_res")
-        self.fr_size = _pos_int(fr_size, "fr_size")
-        self.in_channels = _pos_int(in_channels, "in_channels")
-        self.border = _pos_int(border, "border", 0)
-        self.post_upscale = _pos_int(post_upscale, "post_upscale")
+        self.low_res = check_integer(low_res, "low_res", 1)
+        self.fr_size = check_integer(fr_size, "fr_size", 1)
+        self.in_channels = check_integer(in_channels, "in_channels", 1)
+        self.border = check_integer(border, "border", 0)
+        self.post_upscale = check_integer(post_upscale, "post_upscale", 1)
         if self.fr_size % (self.low_res * self.post_upscale):
             raise InputError(
                 f"fr_size={fr_size}: expected a multiple of low_res * post_upscale = {self.low_res * self.post_upscale}"
             )
         self.net_upscale = self.fr_size // (self.low_res * self.post_upscale)
-        self.body = _EnhanceBody(self.in_channels, 1, _pos_int(channels, "channels"), _pos_int(blocks, "blocks", 0),
+        self.body = _EnhanceBody(self.in_channels, 1, check_integer(channels, "channels", 1),
+                                 check_integer(blocks, "blocks", 0),
                                  self.net_upscale)
 
     def forward(self, low_res: torch.Tensor) -> torch.Tensor:
@@ -246,17 +241,17 @@ class LASReconstructionNet(nn.Module):
                  unet_depth: int = 6, unet_channels: int = 64, unet_max_channels: int = 512,
                  inpaint: bool = True, residual: bool = True):
         super().__init__()
-        self.in_channels = _pos_int(in_channels, "in_channels")
+        self.in_channels = check_integer(in_channels, "in_channels", 1)
         self.arch = str(arch)
         self.inpaint = bool(inpaint)
         self.residual = bool(residual)
         if self.arch == "enhancenet":
-            self.net = _EnhanceBody(self.in_channels + 1, self.in_channels, _pos_int(channels, "channels"),
-                                    _pos_int(blocks, "blocks", 0), 1)
+            self.net = _EnhanceBody(self.in_channels + 1, self.in_channels, check_integer(channels, "channels", 1),
+                                    check_integer(blocks, "blocks", 0), 1)
         elif self.arch == "unet":
-            self.net = UNet(self.in_channels + 1, self.in_channels, depth=_pos_int(unet_depth, "unet_depth"),
-                            base_channels=_pos_int(unet_channels, "unet_channels"),
-                            max_channels=_pos_int(unet_max_channels, "unet_max_channels"), norm="none")
+            self.net = UNet(self.in_channels + 1, self.in_channels, depth=check_integer(unet_depth, "unet_depth", 1),
+                            base_channels=check_integer(unet_channels, "unet_channels", 1),
+                            max_channels=check_integer(unet_max_channels, "unet_max_channels", 1), norm="none")
         else:
             raise InputError(f"arch={arch!r}: expected 'enhancenet' or 'unet'")
 
@@ -369,9 +364,8 @@ class LASNet(nn.Module):
         self.reconstruction_net = LASReconstructionNet(in_channels, recon_arch, recon_channels, recon_blocks,
                                                        unet_depth, unet_channels, inpaint=inpaint, residual=residual)
         self.low_res, self.fr_size = self.importance_net.low_res, self.importance_net.fr_size
-        self.delta = float(delta)
-        self.lower = float(lower)
-        self.mean = mean  # validated by the setter
+        # u, l and delta, validated there (and u again on every change); holds no state
+        self.normalization = ImportanceNormalization(mean, lower, delta)
         self.alpha = check_alpha(alpha)
         self.pattern_augment = bool(pattern_augment)
         P = torch.as_tensor(plastic_rank_pattern(self.fr_size), dtype=torch.float32)
@@ -379,22 +373,15 @@ class LASNet(nn.Module):
             raise ValueError(f"plastic_rank_pattern({self.fr_size}) returned shape {tuple(P.shape)}")
         self.register_buffer("P", P)  # persistent: a checkpoint carries the P it was trained with
 
-    @property
-    def mean(self) -> float:
-        return self._mean
-
-    @mean.setter
-    def mean(self, value: float) -> None:
-        u = check_mean(value)
-        if not (0.0 <= self.lower < u):
-            raise InputError(f"lower={self.lower}: expected 0 <= lower < mean ({u})")
-        self._mean = u
+    mean = delegated("normalization", "mean", settable=True)
+    lower = delegated("normalization", "lower")
+    delta = delegated("normalization", "delta")
 
     # -- pieces ---------------------------------------------------------------------------------
 
     def normalize(self, raw: torch.Tensor, mean: Optional[float] = None) -> torch.Tensor:
         """``min(l + I (u - l) / (mean(I) + delta), 1)`` per image, float32. ``(B,1,m,m) -> (B,1,m,m)``."""
-        u = self._mean if mean is None else check_mean(mean)
+        u = self.mean if mean is None else check_mean(mean)
         # LAS clamps at 1: P <= 1, so anything above is "always sample" and only inflates the mean
         return normalize_importance(raw, u, self.lower, self.delta).clamp(max=1.0)
 
@@ -482,28 +469,45 @@ class LASNet(nn.Module):
         return mask[0] if squeeze else mask
 
     def _mask_for_ipr(self, raw: torch.Tensor, ipr: float, steps: int) -> torch.Tensor:
-        try:
-            target = float(ipr)
-        except (TypeError, ValueError):
-            raise InputError(f"ipr={ipr!r}: expected a number in (0, 1]") from None
-        if not (0.0 < target <= 1.0):
-            raise InputError(f"ipr={ipr}: expected a number in (0, 1]")
-        # normalization is affine in u: l + (u - l) r with r = I / (mean(I) + delta)
+        return self.mask_at(raw, self.mean_for_ipr(raw, ipr, steps))
+
+    def mask_at(self, raw: torch.Tensor, mean: torch.Tensor | float) -> torch.Tensor:
+        """Hard mask ``(B, 1, m, m)`` bool of the importance net's output ``raw`` ``(B, 1, m, m)`` at
+        mean ``u`` (a number or ``(B, 1, 1, 1)``).
+
+        The normalization is affine in ``u``: ``l + (u - l) r`` with ``r = I / (mean(I) + delta)``,
+        so one ``r`` serves every ``u`` (:meth:`mean_for_ipr` bisects over it).
+        """
+        return self._affine_mask(normalize_importance(raw, 1.0, 0.0, self.delta), mean)
+
+    def _affine_mask(self, r: torch.Tensor, u: torch.Tensor | float) -> torch.Tensor:
+        return hard_rejection_sample((self.lower + (u - self.lower) * r).clamp(max=1.0), self.P)
+
+    def mean_for_ipr(self, raw: torch.Tensor, ipr: float, steps: int = 30) -> torch.Tensor:
+        """Per-image mean ``u`` ``(B, 1, 1, 1)`` at which :meth:`mask_at` samples about ``ipr`` of
+        the FR pixels (bisection; ``u = 1`` where even that samples fewer).
+
+        Args:
+            raw: ``(B, 1, m, m)`` the importance net's output.
+            ipr: target share of sampled FR pixels in ``(0, 1]``.
+            steps: bisection steps.
+
+        Example:
+            >>> net = LASNet(8, 32, importance_channels=4, importance_blocks=1, importance_border=2,
+            ...              recon_channels=4, recon_blocks=1)
+            >>> net.mean_for_ipr(torch.rand(2, 1, 32, 32), 0.25).shape
+            torch.Size([2, 1, 1, 1])
+        """
+        target = check_ipr(ipr)
         r = normalize_importance(raw, 1.0, 0.0, self.delta)
-        l = self.lower
-
-        def masks(u):
-            return hard_rejection_sample((l + (u - l) * r).clamp(max=1.0), self.P)
-
-        b = raw.shape[0]
-        lo = torch.full((b, 1, 1, 1), max(l, 0.0), device=raw.device, dtype=r.dtype)
+        lo = torch.full((raw.shape[0], 1, 1, 1), max(self.lower, 0.0), device=raw.device, dtype=r.dtype)
         hi = torch.ones_like(lo)
         for _ in range(int(steps)):
             mid = 0.5 * (lo + hi)
-            below = masks(mid).float().mean(dim=(1, 2, 3), keepdim=True) < target
+            below = self._affine_mask(r, mid).float().mean(dim=(1, 2, 3), keepdim=True) < target
             lo = torch.where(below, mid, lo)
             hi = torch.where(below, hi, mid)
-        return masks(hi)
+        return hi
 
     @torch.no_grad()
     def reconstruct(self, samples: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

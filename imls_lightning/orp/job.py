@@ -170,7 +170,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     import torch
 
     from ..pipeline import pick_device
-    from ..tasks.base import load_task
+    from ..checkpoints import check_same_pattern, load_task
     from ..training import train
 
     flag = _plain(cfg.orp_job)
@@ -190,9 +190,8 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     result = train(_with_run_dir(cfg))
     iml_ckpt = result["best_checkpoint"]
     iml_task = load_task(iml_ckpt, expect="IMLTask", what="IML checkpoint")
-    if recnn_alone_task.pattern.fingerprint() != iml_task.pattern.fingerprint():
-        raise InputError(f"recnn.checkpoint={recnn_ckpt}: trained on another sampling pattern/resolution than the IML "
-                         f"({recnn_alone_task.pattern.summary()} vs {iml_task.pattern.summary()})")
+    check_same_pattern(recnn_alone_task.hparams, iml_task.pattern, key="recnn.checkpoint", path=recnn_ckpt, network="RecNN",
+                       against="the IML", hint="use a RecNN trained on the IML's pattern and resolution")
     recnn_iml = iml_task.recnn if iml_task.recnn is not None else recnn_alone_task.net
     recnn_source = "iml.checkpoint" if iml_task.recnn is not None else "recnn.checkpoint"
 

@@ -2,29 +2,18 @@
 
 A task owns one or more ``nn.Module`` networks (from ``imls_lightning.models``), its losses, its
 metrics and its optimizer. Hyperparameters are saved as plain data, so that checkpoints load with
-``torch.load(weights_only=True)`` through :func:`load_task`.
+``torch.load(weights_only=True)`` through :func:`~imls_lightning.checkpoints.load_task`.
 """
 from __future__ import annotations
 
-import importlib
-from pathlib import Path
 from typing import Any, Mapping
 
 import lightning as L
 import torch
 
-from data_gen.errors import InputError
-
-from ..config import load_checkpoint
+# load_task lives in ..checkpoints; imported here too, where callers long found it
+from ..checkpoints import load_task  # noqa: F401
 from ..metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
-
-# tasks that checkpoints may name (never import an arbitrary class from a file)
-_TASKS = {
-    "RecNNTask": "imls_lightning.tasks.recnn",
-    "IMLTask": "imls_lightning.tasks.iml",
-    "IMSTask": "imls_lightning.tasks.ims",
-    "LASTask": "imls_lightning.tasks.las",
-}
 
 
 class ImlsTask(L.LightningModule):
@@ -33,7 +22,7 @@ class ImlsTask(L.LightningModule):
     A task is built in two ways. Training instantiates the ``model`` config node
     (:func:`imls_lightning.training.build_task`): every model setting, its one default in
     ``conf/model/<name>.yaml``, plus :meth:`config_context`, what comes from outside that node.
-    :func:`load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
+    :func:`~imls_lightning.checkpoints.load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
     ``**_`` and ignore it, on purpose: the node's keys for the training run rather than the networks
     (``name``, ``patience``, ``monitor``, ...) and hyperparameters that older checkpoints saved pass
     both paths alike, with no list of them to keep in step (``tests/test_task_config.py`` checks
@@ -69,6 +58,21 @@ class ImlsTask(L.LightningModule):
             kwargs["sync_dist"] = True
         super().log(name, value, *args, **kwargs)
 
+    # -- steps: one body per task (``_step``), run under each stage's prefix -------------------
+    def _step(self, batch: dict[str, torch.Tensor], prefix: str) -> torch.Tensor:
+        """Loss of one batch, logged under ``prefix`` (``train``, ``val``, ``test``); tasks with
+        automatic optimization implement this, a task with its own steps (IMS) overrides those."""
+        raise NotImplementedError(f"{type(self).__name__} defines no _step")
+
+    def training_step(self, batch, batch_idx):
+        return self._step(batch, "train")
+
+    def validation_step(self, batch, batch_idx):
+        return self._step(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        return self._step(batch, "test")
+
     def visuals(self, batch: dict[str, torch.Tensor]) -> tuple[list[str], list[torch.Tensor]]:
         """Column titles and ``(B, C, H, W)`` tensors for the image-grid callback."""
         return [], []
@@ -80,34 +84,4 @@ class ImlsTask(L.LightningModule):
         self.log(f"{prefix}_psnr", psnr.mean(), batch_size=bs, **kw)
         self.log(f"{prefix}_ssim", ssim_metric(pred, target), batch_size=bs, **kw)
         return psnr
-
-
-def task_class(name: str) -> type[ImlsTask]:
-    if name not in _TASKS:
-        raise InputError(f"checkpoint names task {name!r}: expected one of {sorted(_TASKS)}")
-    return getattr(importlib.import_module(_TASKS[name]), name)
-
-
-def load_task(path: str | Path, *, expect: str | None = None, what: str = "checkpoint") -> ImlsTask:
-    """Rebuild a task from its checkpoint (``weights_only=True``), in eval mode on the CPU.
-
-    Args:
-        path: a ``.ckpt`` written by this project's training.
-        expect: the task class name it must be (e.g. ``"RecNNTask"``).
-        what: the config key the path came from, for error messages.
-    """
-    ckpt = load_checkpoint(path, what=what)
-    name = ckpt.get("imls_task")
-    if name is None:
-        raise InputError(f"{what}={path}: not a checkpoint of this project (no task name)")
-    if expect is not None and name != expect:
-        raise InputError(f"{what}={path}: is a {name} checkpoint, expected a {expect} checkpoint")
-    cls = task_class(name)
-    task = cls(**ckpt["hyper_parameters"])
-    missing, unexpected = task.load_state_dict(ckpt["state_dict"], strict=False)
-    if unexpected or [k for k in missing if not k.startswith(task.optional_state_prefixes())]:
-        raise InputError(f"{what}={path}: weights do not fit the network it describes (missing {missing[:3]}, unexpected {unexpected[:3]})")
-    task.eval()
-    task.checkpoint_path = str(path)
-    return task
 

@@ -31,7 +31,8 @@ from ..models.iml import IMLNet
 from ..models.pull_push import pull_push_inpaint
 from ..patterns import build_pattern, plastic_rank_pattern
 from ..metrics import psnr_per_image
-from .base import ImlsTask, load_task
+from ..checkpoints import check_same_pattern, load_task
+from .base import ImlsTask
 from .recnn import RecNNTask
 
 MODES = ("standalone", "end_to_end")
@@ -154,11 +155,8 @@ class IMLTask(ImlsTask):
         self.recnn = None
         if mode == "end_to_end":
             rh = dict(recnn_hparams)
-            if int(rh.get("fr_size", -1)) != int(fr_size) or build_pattern(rh["pattern"], int(fr_size)).fingerprint() != self.pattern.fingerprint():
-                raise InputError(
-                    "recnn.checkpoint: the RecNN was trained on another sampling pattern or resolution "
-                    f"(its fr_size={rh.get('fr_size')}, pattern={rh.get('pattern')}); train the IML with the same pattern/data.resolution"
-                )
+            check_same_pattern(rh, self.pattern, key="recnn.checkpoint", network="RecNN",
+                               hint="train the IML with the same pattern/data.resolution")
             self.recnn = RecNNTask(**rh).net
             if not finetune_recnn:
                 self.recnn.requires_grad_(False)
@@ -245,15 +243,6 @@ class IMLTask(ImlsTask):
         norms = [p.grad.detach().norm() for p in enc.parameters() if p.grad is not None]
         if norms:
             self.log("train/encoder_grad_norm", torch.stack(norms).norm(), on_step=True, on_epoch=False)
-
-    def training_step(self, batch, batch_idx):
-        return self._step(batch, "train")
-
-    def validation_step(self, batch, batch_idx):
-        self._step(batch, "val")
-
-    def test_step(self, batch, batch_idx):
-        self._step(batch, "test")
 
     def configure_optimizers(self):
         params = [p for p in self.parameters() if p.requires_grad]

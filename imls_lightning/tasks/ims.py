@@ -70,15 +70,17 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
 from data_gen.errors import InputError, config_keys
+from data_gen.validate import check_number
 
-from ..config import to_plain
 from ..backbones import BACKBONES, VGG16_LAYERS
+from ..checkpoints import check_same_pattern, load_task, require_pim_target
+from ..config import to_plain
 from ..losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
 from ..patterns import build_pattern
 from ..metrics import psnr_per_image
-from .base import ImlsTask, load_task
+from .base import ImlsTask
 from .iml import IMLTask, end_to_end_loss, iml_net_from_hparams
 from .recnn import RecNNTask
 
@@ -95,16 +97,6 @@ PERCEPTUAL_DEFAULTS = {
     "criterion": "mse",
     "normalize": True,
 }
-
-
-def _nonneg(value: Any, key: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{key}={value!r}: expected a finite number >= 0") from None
-    if not (v >= 0 and math.isfinite(v)):
-        raise InputError(f"{key}={value}: expected a finite number >= 0")
-    return v
 
 
 def loss_config(loss: Optional[Mapping]) -> dict:
@@ -129,7 +121,7 @@ def loss_config(loss: Optional[Mapping]) -> dict:
     if bad:
         raise InputError(f"model.loss.perceptual.{sorted(bad)[0]}: unknown option; expected some of {list(PERCEPTUAL_DEFAULTS)}")
     per = {**PERCEPTUAL_DEFAULTS, **per}
-    per["weight"] = _nonneg(per["weight"], "model.loss.perceptual.weight")
+    per["weight"] = check_number(per["weight"], "model.loss.perceptual.weight", 0)
     per["layers"] = [str(x) for x in per["layers"]]
     # names are checked here (cheap); the weight file is read, and checked, when the loss is built
     if per["backbone"] not in BACKBONES:
@@ -138,10 +130,10 @@ def loss_config(loss: Optional[Mapping]) -> dict:
     if not per["layers"] or bad_layers:
         raise InputError(f"model.loss.perceptual.layers: unknown layer {bad_layers[:1] or '(none)'}; expected VGG16 names like relu1_2, relu2_2, relu3_3, relu4_3")
     out = {
-        "bce": _nonneg(raw.get("bce", 0.0), "model.loss.bce"),
-        "mse": _nonneg(raw.get("mse", 0.0), "model.loss.mse"),
+        "bce": check_number(raw.get("bce", 0.0), "model.loss.bce", 0),
+        "mse": check_number(raw.get("mse", 0.0), "model.loss.mse", 0),
         "perceptual": per,
-        "adversarial": _nonneg(raw.get("adversarial", 0.01), "model.loss.adversarial"),
+        "adversarial": check_number(raw.get("adversarial", 0.01), "model.loss.adversarial", 0),
     }
     if out["bce"] == 0 and out["mse"] == 0 and per["weight"] == 0:
         raise InputError("model.loss: bce, mse and perceptual.weight are all 0; the generator needs at least one image loss > 0")
@@ -195,9 +187,7 @@ def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float
     Returns:
         ``(B, 1, n, n)`` bool IM.
     """
-    if task.target != "pim":
-        raise InputError(f"ims_checkpoint: its IMS was trained with model.target={task.target}; the adaptive mean scales the "
-                         "regressed PIM', which needs an IMS trained with model.target=pim")
+    require_pim_target(task.hparams, what="rescaling the regressed PIM' to another mean value")
     g = g.float()
     u_train = float(task.iml.mean) if u_train is None else float(u_train)
     lower = float(task.iml.normalization.lower)
@@ -223,15 +213,8 @@ def build_iml_net(iml_hparams: Mapping, pattern) -> IMLNet:
     return iml_net_from_hparams(iml_hparams, pattern)
 
 
-def _same_pattern(hp: Mapping, pattern, fr_size: int) -> bool:
-    try:
-        return int(hp.get("fr_size", -1)) == int(fr_size) and build_pattern(hp["pattern"], int(fr_size)).fingerprint() == pattern.fingerprint()
-    except (KeyError, InputError):
-        return False
-
-
-def _input_iml(cfg, pattern, res: int) -> tuple[str, IMLTask]:
-    """``(iml.checkpoint, its IMLTask)``, trained on ``pattern`` at ``res``.
+def _input_iml(cfg, pattern) -> tuple[str, IMLTask]:
+    """``(iml.checkpoint, its IMLTask)``, trained on ``pattern`` (at its resolution).
 
     Raises:
         InputError: the key is unset, the file is not an IML checkpoint, or the IML was trained on
@@ -241,15 +224,12 @@ def _input_iml(cfg, pattern, res: int) -> tuple[str, IMLTask]:
         raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
     ck = str(cfg.iml.checkpoint)
     iml_task = load_task(ck, expect="IMLTask", what="iml.checkpoint")
-    if not _same_pattern(iml_task.hparams, pattern, res):
-        raise InputError(
-            f"iml.checkpoint={ck}: the IML was trained with pattern {iml_task.pattern.summary()} at data.resolution={iml_task.hparams['fr_size']}, "
-            f"this run uses {pattern.summary()}; choose the recnn/pattern and data.resolution it was trained with"
-        )
+    check_same_pattern(iml_task.hparams, pattern, key="iml.checkpoint", path=ck, network="IML",
+                       hint="choose the recnn/pattern and data.resolution it was trained with")
     return ck, iml_task
 
 
-def _input_recnn(cfg, iml_task: IMLTask, pattern, res: int) -> tuple[Optional[dict], Optional[dict], Optional[str]]:
+def _input_recnn(cfg, iml_task: IMLTask, pattern) -> tuple[Optional[dict], Optional[dict], Optional[str]]:
     """The RecNN behind the IMS's final-image metrics: ``(hyperparameters, state dict, source key)``.
 
     The one inside an end-to-end IML checkpoint (its decoder was trained for it), else
@@ -264,11 +244,8 @@ def _input_recnn(cfg, iml_task: IMLTask, pattern, res: int) -> tuple[Optional[di
         print("[ims] no RecNN (standalone IML and no recnn.checkpoint): the final FR PSNR/SSIM metrics are skipped", flush=True)
         return None, None, None
     rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
-    if not _same_pattern(rt.hparams, pattern, res):
-        raise InputError(
-            f"recnn.checkpoint={cfg.recnn.checkpoint}: the RecNN was trained with pattern {rt.pattern.summary()}, "
-            f"the IML with {pattern.summary()}; use a RecNN trained on the IML's pattern and resolution"
-        )
+    check_same_pattern(rt.hparams, pattern, key="recnn.checkpoint", path=cfg.recnn.checkpoint, network="RecNN",
+                       against="the IML", hint="use a RecNN trained on the IML's pattern and resolution")
     return dict(rt.hparams), rt.net.state_dict(), "recnn.checkpoint"
 
 
@@ -361,11 +338,8 @@ class IMSTask(ImlsTask):
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
-        if not _same_pattern(iml_hparams, self.pattern, int(fr_size)):
-            raise InputError(
-                f"iml.checkpoint: the IML was trained on another sampling pattern or resolution (its fr_size={iml_hparams.get('fr_size')}, "
-                f"pattern={iml_hparams.get('pattern')}); use the recnn/pattern and data.resolution it was trained with"
-            )
+        check_same_pattern(iml_hparams, self.pattern, key="iml.checkpoint", network="IML",
+                           hint="use the recnn/pattern and data.resolution it was trained with")
         with config_keys({k: f"model.{k}" for k in ("layers", "base_channels", "max_channels")}):  # the user's keys
             self.generator = IMSGenerator(n, layers=layers, base_channels=base_channels, max_channels=max_channels)
         with config_keys({"base_channels": "model.disc_base_channels", "max_channels": "model.disc_max_channels"}):
@@ -375,11 +349,8 @@ class IMSTask(ImlsTask):
             self.iml.decoder.requires_grad_(True)
         self.recnn = None
         if recnn_hparams:
-            if not _same_pattern(recnn_hparams, self.pattern, int(fr_size)):
-                raise InputError(
-                    "recnn.checkpoint: the RecNN was trained on another sampling pattern or resolution "
-                    f"(its fr_size={recnn_hparams.get('fr_size')}, pattern={recnn_hparams.get('pattern')}) than the IML"
-                )
+            check_same_pattern(recnn_hparams, self.pattern, key="recnn.checkpoint", network="RecNN", against="the IML",
+                               hint="use a RecNN trained on the IML's pattern and resolution")
             self.recnn = RecNNTask(**dict(recnn_hparams)).net.requires_grad_(False)
         self.load_pretrained(pretrained)
         if criterion is not None:
@@ -436,8 +407,8 @@ class IMSTask(ImlsTask):
         so that a missing perceptual backbone fails before any labelling."""
         res = int(cfg.data.resolution)
         pattern = build_pattern(to_plain(cfg.pattern), res)
-        ck, iml_task = _input_iml(cfg, pattern, res)
-        recnn_hparams, recnn_state, source = _input_recnn(cfg, iml_task, pattern, res)
+        ck, iml_task = _input_iml(cfg, pattern)
+        recnn_hparams, recnn_state, source = _input_recnn(cfg, iml_task, pattern)
         # the labels themselves are made by the DataModule (datamodule_kwargs); here only their provenance
         from data_gen.cache import cache_path_for
         from data_gen.scene import build_scene

@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 
 from data_gen.errors import InputError
+from data_gen.validate import check_integer, check_number
 
 from ..importance import check_alpha, check_mean, hard_rejection_sample
 from ..models.las import LASNet, LASOutput, las_loss
@@ -30,28 +31,6 @@ __all__ = ["LASTask"]
 RECON_ARCHS = ("enhancenet", "unet")
 
 
-def _int(value: Any, key: str, minimum: int) -> int:
-    if isinstance(value, bool):
-        raise InputError(f"{key}={value!r}: expected an integer >= {minimum}")
-    try:
-        v = int(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{key}={value!r}: expected an integer >= {minimum}") from None
-    if v != value or v < minimum:
-        raise InputError(f"{key}={value!r}: expected an integer >= {minimum}")
-    return v
-
-
-def _nonneg(value: Any, key: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{key}={value!r}: expected a finite number >= 0") from None
-    if not (v >= 0 and math.isfinite(v)):
-        raise InputError(f"{key}={value}: expected a finite number >= 0")
-    return v
-
-
 def check_low_res(low_res: Any, fr_size: int) -> int:
     """``model.low_res`` must divide ``data.resolution`` (the importance net upsamples by an integer).
 
@@ -59,7 +38,7 @@ def check_low_res(low_res: Any, fr_size: int) -> int:
         >>> check_low_res(16, 64)
         16
     """
-    h = _int(low_res, "model.low_res", 1)
+    h = check_integer(low_res, "model.low_res", 1)
     if h > fr_size or fr_size % h:
         raise InputError(
             f"model.low_res={low_res}: expected a divisor of data.resolution={fr_size} that is <= it "
@@ -129,13 +108,13 @@ class LASTask(ImlsTask):
         **_: Any,  # run keys of the model node and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
-        m = _int(fr_size, "data.resolution", 1)
+        m = check_integer(fr_size, "data.resolution", 1)
         h = check_low_res(low_res, m)
-        post = _int(post_upscale, "model.post_upscale", 1)
+        post = check_integer(post_upscale, "model.post_upscale", 1)
         if (m // h) % post:
             raise InputError(f"model.post_upscale={post_upscale}: expected a divisor of data.resolution / model.low_res = {m // h}")
         u = check_mean(mean, "model.mean")
-        lo = _nonneg(lower, "model.lower")
+        lo = check_number(lower, "model.lower", 0)
         if not lo < u:
             raise InputError(f"model.lower={lower}: expected 0 <= lower < model.mean ({u})")
         d = float(delta)
@@ -145,22 +124,22 @@ class LASTask(ImlsTask):
         if recon_arch not in RECON_ARCHS:
             raise InputError(f"model.recon_arch={recon_arch!r}: expected one of {list(RECON_ARCHS)}")
         sizes = {
-            "importance_channels": _int(importance_channels, "model.importance_channels", 1),
-            "importance_blocks": _int(importance_blocks, "model.importance_blocks", 0),
-            "importance_border": _int(importance_border, "model.importance_border", 0),
-            "recon_channels": _int(recon_channels, "model.recon_channels", 1),
-            "recon_blocks": _int(recon_blocks, "model.recon_blocks", 0),
-            "unet_depth": _int(unet_depth, "model.unet_depth", 1),
-            "unet_channels": _int(unet_channels, "model.unet_channels", 1),
+            "importance_channels": check_integer(importance_channels, "model.importance_channels", 1),
+            "importance_blocks": check_integer(importance_blocks, "model.importance_blocks", 0),
+            "importance_border": check_integer(importance_border, "model.importance_border", 0),
+            "recon_channels": check_integer(recon_channels, "model.recon_channels", 1),
+            "recon_blocks": check_integer(recon_blocks, "model.recon_blocks", 0),
+            "unet_depth": check_integer(unet_depth, "model.unet_depth", 1),
+            "unet_channels": check_integer(unet_channels, "model.unet_channels", 1),
         }
-        weights = {k: _nonneg(v, f"model.{k}") for k, v in
+        weights = {k: check_number(v, f"model.{k}", 0) for k, v in
                    (("l1_weight", l1_weight), ("mse_weight", mse_weight), ("heatmap_weight", heatmap_weight))}
         if weights["l1_weight"] + weights["mse_weight"] == 0:
             raise InputError("model.l1_weight=0 and model.mse_weight=0: expected at least one image loss weight > 0")
         hc = float(heatmap_center)
         if not math.isfinite(hc):
             raise InputError(f"model.heatmap_center={heatmap_center}: expected a finite number")
-        b = _int(border, "model.border", 0)
+        b = check_integer(border, "model.border", 0)
         if 2 * b >= m:
             raise InputError(f"model.border={border}: expected fewer than data.resolution / 2 = {m // 2} pixels")
         lr_ = float(lr)
@@ -238,15 +217,6 @@ class LASTask(ImlsTask):
         if hard:
             self.log_image_metrics(f"{prefix}/fr", out.fr_pred, fr)
         return loss
-
-    def training_step(self, batch, batch_idx):
-        return self._step(batch, "train")
-
-    def validation_step(self, batch, batch_idx):
-        return self._step(batch, "val")
-
-    def test_step(self, batch, batch_idx):
-        return self._step(batch, "test")
 
     def configure_optimizers(self):
         return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)

@@ -1,0 +1,174 @@
+"""Loading task checkpoints and the cross-checks between them (``imls_lightning.checkpoints``).
+
+The hyperparameter checks run on plain dicts; loading runs on the session's real tiny checkpoints
+(``tiny_checkpoints`` in conftest.py).
+"""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from data_gen.errors import InputError
+from imls_lightning.checkpoints import (
+    check_resolution,
+    check_same_pattern,
+    check_trained_on,
+    config_diff,
+    load_ims_and_recnn,
+    load_task,
+    require_pim_target,
+    require_recnn,
+    same_pattern,
+    task_class,
+    task_path,
+)
+from imls_lightning.patterns import build_pattern
+
+DOWN2 = {"kind": "downsample", "factor": 2}
+DOWN4 = {"kind": "downsample", "factor": 4}
+P32 = build_pattern(DOWN2, 32)
+
+
+def hp(pattern=DOWN2, fr_size=32, **kw):
+    return {"pattern": pattern, "fr_size": fr_size, **kw}
+
+
+def one_line(err) -> str:
+    msg = str(err.value)
+    assert "\n" not in msg
+    return msg
+
+
+# ---- pattern and resolution --------------------------------------------------------------------
+def test_same_pattern():
+    assert same_pattern(hp(), P32)
+    assert not same_pattern(hp(DOWN4), P32)          # other pixels
+    assert not same_pattern(hp(fr_size=64), P32)      # same kind, other resolution
+    assert not same_pattern({"fr_size": 32}, P32)      # no pattern recorded
+    assert not same_pattern(hp({"kind": "nope"}), P32)  # a pattern this version cannot build
+
+
+def test_check_same_pattern_passes_and_raises():
+    check_same_pattern(hp(), P32, key="recnn.checkpoint")
+    with pytest.raises(InputError) as err:
+        check_same_pattern(hp(DOWN4), P32, key="recnn.checkpoint", path="/r.ckpt", network="RecNN", against="the IML",
+                           hint="use another")
+    msg = one_line(err)
+    assert msg.startswith("recnn.checkpoint=/r.ckpt: the RecNN was trained on another sampling pattern or resolution (downsample 32->8")
+    assert "the IML: downsample 32->16" in msg and msg.endswith("; use another")
+    # without a path (a constructor only has hyperparameters); an unbuildable pattern is shown as given
+    with pytest.raises(InputError, match=r"^iml.checkpoint: the IML was trained on another .*pattern=\{'kind': 'nope'\} at 32\^2"):
+        check_same_pattern(hp({"kind": "nope"}), P32, key="iml.checkpoint", network="IML")
+
+
+def test_check_resolution():
+    check_resolution(hp(), 32, key="checkpoints.las")
+    with pytest.raises(InputError) as err:
+        check_resolution(hp(fr_size=64), 32, key="checkpoints.ims", path="/i.ckpt", network="IMS", against="this evaluation uses")
+    assert one_line(err) == ("checkpoints.ims=/i.ckpt: the IMS was trained at data.resolution=64, this evaluation uses 32; "
+                             "pass data.resolution=64 (and the data group it was trained with)")
+    with pytest.raises(InputError, match=r"the cache c holds 32; use data.resolution=64$"):
+        check_resolution(hp(fr_size=64), 32, key="iml.checkpoint", against="the cache c holds", hint="use data.resolution=64")
+
+
+# ---- what an IMS checkpoint carries ------------------------------------------------------------
+def test_require_recnn():
+    net = torch.nn.Identity()
+    assert require_recnn(net, key="ims_checkpoint") is net
+    with pytest.raises(InputError) as err:
+        require_recnn(None, key="checkpoints.ims", path="/i.ckpt", recnn_key="checkpoints.recnn")
+    assert one_line(err) == ("checkpoints.ims=/i.ckpt: carries no RecNN (its IML was trained standalone); "
+                             "pass checkpoints.recnn=<RecNN .ckpt>")
+
+
+def test_require_pim_target():
+    require_pim_target({"target": "pim"})
+    for target in ("im", None):
+        with pytest.raises(InputError, match=rf"^ims_checkpoint=/i.ckpt: its IMS was trained with model.target={target}; "
+                                             r"rescaling needs an IMS trained with model.target=pim$"):
+            require_pim_target({"target": target}, path="/i.ckpt", what="rescaling")
+
+
+# ---- scene and renderer ------------------------------------------------------------------------
+def test_config_diff():
+    assert config_diff({"a": 1, "b": [1, 2]}, {"a": 1, "b": [1, 2]}) == []
+    assert config_diff({"a": 1, "b": {"c": 2}}, {"a": 2, "b": {"c": 3}, "d": 0}) == ["a", "b.c", "d"]
+    assert config_diff({"p": [1, 2]}, {"p": [1, 3]}) == ["p"]
+    assert config_diff({"volume_path": "/x/../x/v.raw"}, {"volume_path": "/x/v.raw"}) == []  # the same file
+
+
+def test_check_trained_on():
+    scene = {"name": "tiny", "transfer_function": {"colormap": "gray"}}
+    renderer = {"name": "numba", "step": 0.5}
+    trained = {"scene": scene, "renderer": renderer}
+    check_trained_on(trained, scene, renderer, key="ims_checkpoint")
+    check_trained_on({}, {"name": "other"}, {"name": "vtk"}, key="ims_checkpoint")  # nothing recorded: nothing to check
+    other = {"name": "tiny", "transfer_function": {"colormap": "viridis"}}
+    with pytest.raises(InputError) as err:
+        check_trained_on(trained, other, renderer, key="checkpoints.ims", path="/i.ckpt", against="this evaluation",
+                         escape="or allow_mismatch=true")
+    assert one_line(err) == ("checkpoints.ims=/i.ckpt: trained on scene=tiny, this evaluation uses scene=tiny (scene differs in "
+                             "transfer_function.colormap); pass scene=tiny (with the overrides it was trained with), or allow_mismatch=true")
+    with pytest.raises(InputError, match=r"^ims_checkpoint: trained with renderer=numba, this run uses renderer=vtk .*pass renderer=numba$"):
+        check_trained_on(trained, scene, {"name": "vtk"}, key="ims_checkpoint")
+
+
+# ---- loading -----------------------------------------------------------------------------------
+def test_task_class():
+    assert task_class("RecNNTask").__name__ == "RecNNTask"
+    with pytest.raises(InputError, match=r"^checkpoint names task 'os.system': expected one of \['IMLTask'"):
+        task_class("os.system")
+
+
+def test_load_task(tiny_checkpoints):
+    task = load_task(tiny_checkpoints["recnn"], expect="RecNNTask", what="recnn.checkpoint")
+    assert type(task).__name__ == "RecNNTask" and not task.training
+    assert task_path(task) == str(tiny_checkpoints["recnn"]) and task_path(torch.nn.Identity()) is None
+    assert type(load_task(tiny_checkpoints["ims"])).__name__ == "IMSTask"  # no expectation: any task
+
+
+def test_exception_load_task(tiny_checkpoints, tmp_path):
+    ck = tiny_checkpoints["recnn"]
+    with pytest.raises(InputError) as err:
+        load_task(ck, expect="IMSTask", what="checkpoints.ims")
+    assert one_line(err) == f"checkpoints.ims={ck}: is a RecNNTask checkpoint, expected a IMSTask checkpoint"
+    with pytest.raises(InputError, match=r"^x=/nonexistent/a.ckpt: file not found"):
+        load_task("/nonexistent/a.ckpt", what="x")
+    raw = torch.load(ck, map_location="cpu", weights_only=True)
+    nameless = {k: v for k, v in raw.items() if k != "imls_task"}
+    torch.save(nameless, tmp_path / "nameless.ckpt")
+    with pytest.raises(InputError, match=r"nameless.ckpt: not a checkpoint of this project \(no task name\)$"):
+        load_task(tmp_path / "nameless.ckpt")
+    raw["imls_task"] = "NopeTask"
+    torch.save(raw, tmp_path / "foreign.ckpt")
+    with pytest.raises(InputError, match="checkpoint names task 'NopeTask'"):
+        load_task(tmp_path / "foreign.ckpt")
+    raw["imls_task"] = "RecNNTask"
+    raw["state_dict"] = {f"{k}_renamed": v for k, v in raw["state_dict"].items()}
+    torch.save(raw, tmp_path / "misfit.ckpt")
+    with pytest.raises(InputError, match=r"misfit.ckpt: weights do not fit the network it describes \(missing"):
+        load_task(tmp_path / "misfit.ckpt")
+
+
+def test_load_ims_and_recnn(tiny_checkpoints):
+    task, recnn = load_ims_and_recnn(str(tiny_checkpoints["ims"]))
+    assert type(task).__name__ == "IMSTask" and recnn is None
+    task, recnn = load_ims_and_recnn(str(tiny_checkpoints["ims"]), str(tiny_checkpoints["recnn"]))
+    rt = load_task(tiny_checkpoints["recnn"])
+    for a, b in zip(recnn.state_dict().values(), rt.net.state_dict().values()):
+        assert torch.equal(a, b)
+
+
+def test_exception_load_ims_and_recnn(tiny_checkpoints, tmp_path):
+    # the same RecNN, recorded as trained at twice the resolution (its weights still fit)
+    raw = torch.load(tiny_checkpoints["recnn"], map_location="cpu", weights_only=True)
+    raw["hyper_parameters"]["fr_size"] = 2 * int(raw["hyper_parameters"]["fr_size"])
+    other = tmp_path / "recnn64.ckpt"
+    torch.save(raw, other)
+    with pytest.raises(InputError) as err:
+        load_ims_and_recnn(str(tiny_checkpoints["ims"]), str(other))
+    assert one_line(err).startswith(f"recnn_checkpoint={other}: the RecNN was trained on another sampling pattern or resolution")
+    with pytest.raises(InputError, match=r"^checkpoints.recnn=.*expected a RecNNTask checkpoint"):
+        load_ims_and_recnn(str(tiny_checkpoints["ims"]), str(tiny_checkpoints["iml"]), keys=("checkpoints.ims", "checkpoints.recnn"))
+    with pytest.raises(InputError, match=r"^ims_checkpoint=.*is a IMLTask checkpoint, expected a IMSTask"):
+        load_ims_and_recnn(str(tiny_checkpoints["iml"]))
