@@ -25,7 +25,7 @@ class ImlsTask(L.LightningModule):
     :func:`~imls_lightning.checkpoints.load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
     ``**_`` and ignore it, on purpose: the node's keys for the training run rather than the networks
     (``name``, ``patience``, ``monitor``, ...) and hyperparameters that older checkpoints saved pass
-    both paths alike, with no list of them to keep in step (``tests/test_task_config.py`` checks
+    both paths alike, with no list of them to keep in step (``tests/test_training.py`` checks
     that every YAML key is an argument or such a run key, so a typo is not swallowed).
     """
 
