@@ -20,16 +20,10 @@ from data_gen.cache_log import forget_checked
 from data_gen.errors import InputError
 from data_gen.renderers import make_renderer
 from data_gen.scene import build_scene
+from tests.data_gen.helpers import VTK
+from tests.data_gen.helpers import cache_data as _data
 
 ROOT = Path(__file__).resolve().parents[2]
-VTK = {"name": "vtk", "mapper": "fixed_point"}
-
-
-def _data(tmp_path, **kw):
-    d = {"num_views": 10, "test_views": 6, "resolution": 24, "workers": 0, "seed": 0,
-         "cache_dir": str(tmp_path / "cache")}
-    d.update(kw)
-    return d
 
 
 def _log_lines(path: Path) -> int:

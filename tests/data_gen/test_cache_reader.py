@@ -8,15 +8,8 @@ import pytest
 
 from data_gen.cache import ViewImageCache, render_cache
 from data_gen.errors import InputError
-
-VTK = {"name": "vtk", "mapper": "fixed_point"}
-
-
-def _data(tmp_path, **kw):
-    d = {"num_views": 10, "test_views": 6, "resolution": 24, "workers": 0, "seed": 0,
-         "cache_dir": str(tmp_path / "cache")}
-    d.update(kw)
-    return d
+from tests.data_gen.helpers import VTK
+from tests.data_gen.helpers import cache_data as _data
 
 
 def test_verify_detects_silent_corruption(tmp_path, tiny_scene):

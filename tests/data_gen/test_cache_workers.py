@@ -9,16 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from data_gen.cache import ViewImageCache, render_cache
+from tests.data_gen.helpers import VTK
+from tests.data_gen.helpers import cache_data as _data
 
 ROOT = Path(__file__).resolve().parents[2]
-VTK = {"name": "vtk", "mapper": "fixed_point"}
-
-
-def _data(tmp_path, **kw):
-    d = {"num_views": 10, "test_views": 6, "resolution": 24, "workers": 0, "seed": 0,
-         "cache_dir": str(tmp_path / "cache")}
-    d.update(kw)
-    return d
 
 
 def test_parallel_workers_match_in_process(tmp_path, tiny_scene):

@@ -2,15 +2,8 @@
 from __future__ import annotations
 
 from data_gen.cache import ViewImageCache, render_cache
-
-VTK = {"name": "vtk", "mapper": "fixed_point"}
-
-
-def _data(tmp_path, **kw):
-    d = {"num_views": 10, "test_views": 6, "resolution": 24, "workers": 0, "seed": 0,
-         "cache_dir": str(tmp_path / "cache")}
-    d.update(kw)
-    return d
+from tests.data_gen.helpers import VTK
+from tests.data_gen.helpers import cache_data as _data
 
 
 def test_contact_sheet_sample_covers_splits(tmp_path, tiny_scene):

@@ -8,20 +8,7 @@ from data_gen.errors import InputError
 from imls_lightning.compaction import decompact
 from imls_lightning.models.fovolnet import FoVolNet, apply_pixel_kernels, masked_downsample
 from imls_lightning.patterns import SamplingPattern
-
-
-def grid_pattern(n: int, factor: int, offset: int = 0) -> SamplingPattern:
-    """Downsampling stand-in: pixel (offset + f i, offset + f j) of each f x f block."""
-    m = n * factor
-    ii = torch.arange(n)
-    idx = ((offset + factor * ii)[:, None] * m + (offset + factor * ii)[None, :]).reshape(-1)
-    return SamplingPattern("downsample", m, n, idx)
-
-
-def random_pattern(m: int, n: int, k: int, seed: int = 0) -> SamplingPattern:
-    """Foveal-like stand-in: k random pixels in raster order."""
-    g = torch.Generator().manual_seed(seed)
-    return SamplingPattern("foveal", m, n, torch.randperm(m * m, generator=g)[:k].sort().values)
+from tests.models.helpers import grid_pattern, random_pattern
 
 
 def small_fovolnet(pattern, **kw) -> FoVolNet:
