@@ -77,15 +77,21 @@ def iml_net_from_hparams(h: Mapping, pattern) -> IMLNet:
     )
 
 
-def _mean_range(value, mean: float) -> list[float] | None:
+def check_mean_range(value, key: str = "model.mean_range") -> list[float] | None:
+    """``None``, or ``[lo, hi]`` as floats with ``0.01 <= lo <= hi <= 1``: a range of mean values u.
+
+    Example:
+        >>> check_mean_range((0.1, 0.6))
+        [0.1, 0.6]
+    """
     if value is None:
         return None
     try:
         lo, hi = (float(x) for x in value)
     except (TypeError, ValueError):
-        raise InputError(f"model.mean_range={value}: expected null or [lo, hi] with 0.01 <= lo <= hi <= 1") from None
+        raise InputError(f"{key}={value}: expected null or [lo, hi] with 0.01 <= lo <= hi <= 1") from None
     if not (0.01 <= lo <= hi <= 1.0):
-        raise InputError(f"model.mean_range={value}: expected null or [lo, hi] with 0.01 <= lo <= hi <= 1")
+        raise InputError(f"{key}={value}: expected null or [lo, hi] with 0.01 <= lo <= hi <= 1")
     return [lo, hi]
 
 
@@ -144,7 +150,7 @@ class IMLTask(ImlsTask):
             "image_weight": float(image_weight), "finetune_recnn": bool(finetune_recnn), "lr": float(lr),
             "recnn_hparams": to_plain(recnn_hparams) if recnn_hparams else None, "recnn_name": recnn_name,
             "decoder": str(decoder), "importance": str(importance), "straight_through": bool(straight_through),
-            "mean_range": _mean_range(to_plain(mean_range), float(mean)),
+            "mean_range": check_mean_range(to_plain(mean_range)),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         # errors name the user's keys (model.depth=, model.alpha=, ...)

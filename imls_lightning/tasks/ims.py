@@ -35,13 +35,17 @@ without either the FR metrics are skipped with a one-time warning.
 Decoder fine-tuning (beyond the paper, ``model.decoder_lr > 0``; needs ``target=pim``). The IML
 decoder was trained on the IML's own masks, which the IMS only approximates from the view. With
 ``decoder_lr > 0`` the decoder (not the encoder, not the RecNN) is trained further, beside the
-generator, on the hard masks the generator makes at a random mean value per view (drawn from the
-IML's ``mean_range``, else its mean), with the IML's end-to-end loss
+generator, on the hard masks the generator makes at a random mean value per view (drawn from
+``decoder_mean_range``, else the IML's ``mean_range``, else its mean), with the IML's end-to-end loss
 ``compaction_weight * MSE(C', C) + image_weight * MSE(RecNN(C'), FR)`` (``MSE(C', C)`` alone without a
 RecNN). The product path then runs the decoder that was trained for the masks it will get; the
 fine-tuned weights are stored in the IMS checkpoint. ``decoder_lr = 0`` (default) keeps it frozen.
 A decoder step costs several generator steps (the decoder and the RecNN run forward and backward), so
-``decoder_every = k`` takes one every ``k`` batches.
+``decoder_every = k`` takes one every ``k`` batches. ``decoder_mean_range`` exists because the
+IMS's mean value is not the IML's: the IMS rescales PIM' regressed at the IML's trained mean, whose
+object pixels saturate, so the same share of C needs a larger u on the IMS (on the flame demo the IMS
+needs u = 0.70 for 40% of C, where u = 0.4 gives the IML 33%), and the IML's range would leave the
+ORP's masks untrained.
 
 Logged under ``{prefix}`` = ``train`` | ``val`` | ``test``:
 
@@ -81,7 +85,7 @@ from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
 from ..patterns import build_pattern
 from ..metrics import psnr_per_image
 from .base import ImlsTask
-from .iml import IMLTask, end_to_end_loss, iml_net_from_hparams
+from .iml import IMLTask, check_mean_range, end_to_end_loss, iml_net_from_hparams
 from .recnn import RecNNTask
 
 __all__ = ["IMSTask", "TARGETS", "loss_config", "build_criterion", "pim_to_target", "build_iml_net", "scaled_pim_im"]
@@ -302,6 +306,7 @@ class IMSTask(ImlsTask):
         renderer: Optional[Mapping] = None,
         decoder_lr: float = 0.0,
         decoder_every: int = 1,
+        decoder_mean_range: Any = None,
         pretrained: Optional[Mapping[str, Mapping[str, torch.Tensor]]] = None,
         criterion: Optional[IMLoss] = None,
         **_: Any,  # run keys of the model node (name, patience, labels_*, ...) and stale hyperparameters: see ImlsTask
@@ -335,6 +340,7 @@ class IMSTask(ImlsTask):
             # the scene and renderer the IMS was trained on: IMLSRenderer.from_checkpoints needs nothing else
             "scene": _plain_json(scene) if scene else None, "renderer": _plain_json(renderer) if renderer else None,
             "decoder_lr": float(decoder_lr), "decoder_every": int(decoder_every),
+            "decoder_mean_range": check_mean_range(to_plain(decoder_mean_range), "model.decoder_mean_range"),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
@@ -528,9 +534,11 @@ class IMSTask(ImlsTask):
         return [opt_g, opt_d, torch.optim.Adam(self.iml.decoder.parameters(), lr=float(self.hparams.decoder_lr))]
 
     def _random_means(self, n: int, device) -> torch.Tensor:
-        """``(n,)`` mean values for decoder fine-tuning: uniform in the IML's ``mean_range``, else its mean."""
+        """``(n,)`` mean values for decoder fine-tuning: uniform in ``decoder_mean_range``, else in the
+        IML's ``mean_range``, else its mean."""
         h = self.hparams.iml_hparams
-        lo, hi = h.get("mean_range") or (float(self.iml.mean), float(self.iml.mean))
+        lo, hi = (self.hparams.get("decoder_mean_range") or h.get("mean_range")
+                  or (float(self.iml.mean), float(self.iml.mean)))
         return float(lo) + (float(hi) - float(lo)) * torch.rand(n, device=device)
 
     def decoder_loss(self, g: torch.Tensor, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:

@@ -410,6 +410,8 @@ def test_checkpoint_round_trip_gives_identical_masks(tmp_path, target):
         ({"decoder_lr": float("nan"), "target": "pim"}, "model.decoder_lr=nan"),
         ({"decoder_lr": 1e-3, "target": "im"}, "needs model.target=pim"),
         ({"decoder_lr": 1e-3, "target": "pim", "decoder_every": 0}, "model.decoder_every=0"),
+        ({"decoder_lr": 1e-3, "target": "pim", "decoder_mean_range": [0.6, 0.2]}, r"model.decoder_mean_range=\[0.6, 0.2\]"),
+        ({"decoder_lr": 1e-3, "target": "pim", "decoder_mean_range": "high"}, "model.decoder_mean_range=high"),
     ],
 )
 def test_exception_bad_settings(kw, match):
@@ -510,3 +512,16 @@ def test_exception_errors_name_the_users_keys():
                     ({"disc_base_channels": 0}, "model.disc_base_channels=0")):
         with pytest.raises(InputError, match=f"^{key}"):
             IMSTask(DOWN, FR, iml_hparams(DOWN), **{**small, **kw})
+
+
+def test_decoder_mean_range_overrides_the_imls_range_for_the_fine_tuning_means():
+    """The fine-tuning means come from ``decoder_mean_range`` when set, else from the IML's range."""
+    iml_default = tiny_task(target="pim", decoder_lr=1e-3)
+    assert iml_default.hparams.decoder_mean_range is None
+    lo, hi = float(iml_default.iml.mean), float(iml_default.iml.mean)   # the tiny IML has no range: its mean
+    u = iml_default._random_means(256, "cpu")
+    assert torch.allclose(u, torch.full_like(u, lo)) and hi == lo
+    task = tiny_task(target="pim", decoder_lr=1e-3, decoder_mean_range=[0.5, 0.9])
+    u = task._random_means(4096, "cpu")
+    assert float(u.min()) >= 0.5 and float(u.max()) <= 0.9
+    assert float(u.min()) < 0.52 and float(u.max()) > 0.88   # uniform over the whole range
