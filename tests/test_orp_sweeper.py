@@ -15,7 +15,7 @@ import yaml
 from imls_lightning import orp
 from imls_lightning.orp import DEFAULTS, ORPSettings
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 TINY = ["model=iml", "recnn=enhancenet", "hydra/sweeper=orp", "scene=tiny", "data=tiny", "renderer=numba",
         "trainer.max_epochs=1", "recnn.net.channels=8", "recnn.net.blocks=2", "model.depth=2", "model.base_channels=8",

@@ -191,7 +191,7 @@ def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float
     Returns:
         ``(B, 1, n, n)`` bool IM.
     """
-    require_pim_target(task.hparams, what="rescaling the regressed PIM' to another mean value")
+    require_pim_target({"target": task.target}, what="rescaling the regressed PIM' to another mean value")
     g = g.float()
     u_train = float(task.iml.mean) if u_train is None else float(u_train)
     lower = float(task.iml.normalization.lower)
