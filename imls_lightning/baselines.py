@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from .models.pull_push import pull_push_inpaint
-from .metrics import psnr_per_image
+from .core.metrics import psnr_per_image
 from .tasks.iml import background_mask
 
 __all__ = ["SHARES", "mask_at_share", "iml_pim_at", "equal_share_rows", "summarize_equal_share"]
@@ -86,7 +86,7 @@ def mask_at_share(mask_at: Callable[[torch.Tensor], torch.Tensor], share: float,
 def iml_pim_at(iml: torch.nn.Module, pim: torch.Tensor, u: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """PIM' of the IML ``iml``'s encoder output ``pim (B, 1, n, n)`` normalized per image to its own mean
     value ``u (B,)`` (the IML's ``lower`` and ``delta``), over the ``valid (n, n)`` pixels."""
-    from .importance import normalize_importance
+    from .core.importance import normalize_importance
 
     lower, delta = iml.normalization.lower, iml.normalization.delta
     return torch.cat([normalize_importance(pim[i:i + 1], float(u[i]), lower, delta, valid) for i in range(pim.shape[0])])

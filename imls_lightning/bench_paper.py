@@ -172,7 +172,7 @@ def _num(v: Any) -> float:
 def breakdown_rows(summary: Mapping[str, Any]) -> list[list[str]]:
     """Per-stage latency of every method of one pair, then the physical limit: ray-casting the
     ORP's pixels alone (IML/S's selective render with free networks)."""
-    from .pipeline import STAGES
+    from .inference.pipeline import STAGES
     from .report.names import METHOD_LABELS
 
     m = summary["methods"]
@@ -194,7 +194,7 @@ def plot_breakdown(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
     """Stacked bars per method and pair, plus the limit (the paper's time-breakdown figure)."""
     import numpy as np
 
-    from .pipeline import STAGES
+    from .inference.pipeline import STAGES
     from .report.names import METHOD_LABELS, STAGE_COLORS, STAGE_LABELS
     from .report.plots import new_figure, save_figure
 
@@ -228,7 +228,7 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
                     stage_minutes: Mapping[str, float], command: str, machine: Mapping[str, str],
                     settings: Mapping[str, Mapping[str, Sequence[str]]] | None = None) -> str:
     """``paper_scale.md``: the CSV as a table, each pair's breakdown and baselines, the paper's figures."""
-    from .pipeline import STAGES
+    from .inference.pipeline import STAGES
     from .report.names import STAGE_LABELS
 
     out = ["# Paper-scale benchmark" + (" (partial: still running or interrupted)" if partial else ""), ""]

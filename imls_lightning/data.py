@@ -33,9 +33,9 @@ from torch.utils.data import DataLoader, Dataset
 
 from data_gen.errors import InputError
 
-from .compaction import compact
+from .core.compaction import compact
 from .config import to_plain
-from .patterns import SamplingPattern, build_pattern, crop_pattern
+from .core.patterns import SamplingPattern, build_pattern, crop_pattern
 
 ALL_FIELDS = ("view", "fr", "pr", "c")
 
@@ -149,7 +149,7 @@ class ImlsDataModule(L.LightningDataModule):
         crop: train on random ``crop x crop`` windows of the FR-Images (and their C-Images) instead of
             whole images: ``data.crop``, for the fully convolutional RecNN and IML at paper scale.
             Validation and test batches stay whole. Needs a shift-invariant pattern
-            (:func:`~imls_lightning.patterns.crop_pattern`).
+            (:func:`~imls_lightning.core.patterns.crop_pattern`).
     """
 
     def __init__(

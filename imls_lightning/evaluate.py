@@ -5,7 +5,7 @@
 For each view of the cache's test trajectory (``views=test``; rendered if missing, with the
 scene/data/renderer groups the networks were trained with) and each method - full ray cast, RecNN
 alone, LAS (with a LAS checkpoint), IML + RecNN, IML/S + RecNN - every stage is timed (median of
-``repeats`` runs after ``warmup``; see :func:`imls_lightning.pipeline.time_method`) and the image is
+``repeats`` runs after ``warmup``; see :func:`imls_lightning.inference.pipeline.time_method`) and the image is
 scored against the cache's ground truth (PSNR, SSIM). Selective rendering is real: the renderer
 ray-casts only the chosen pixels.
 
@@ -51,10 +51,10 @@ import data_gen  # noqa: F401  (registers the scene config resolvers)
 from data_gen.errors import InputError, cli_errors, checked_command_line
 
 from . import report as rep
-from .checkpoints import check_resolution, check_same_pattern, load_task, require_recnn
-from .checkpoints import check_trained_on as checkpoint_trained_on
+from .inference.checkpoints import check_resolution, check_same_pattern, load_task, require_recnn
+from .inference.checkpoints import check_trained_on as checkpoint_trained_on
 from .config import file_hash, load_checkpoint, register_resolvers, settings_hash, to_plain
-from .pipeline import (
+from .inference.pipeline import (
     STAGES,
     FullRayCast,
     IMLPlusRecNN,
@@ -258,7 +258,7 @@ def check_trained_on(cfg: DictConfig, s: Settings) -> None:
     """The scene and renderer of this evaluation must be those the IMS checkpoint was trained on
     (recorded in it); otherwise a one-line error, unless ``allow_mismatch=true``. (The sampling
     pattern and resolution are checked in :func:`load_networks`.) The check itself:
-    :func:`imls_lightning.checkpoints.check_trained_on`."""
+    :func:`imls_lightning.inference.checkpoints.check_trained_on`."""
     hp = load_checkpoint(s.ims, what="checkpoints.ims")["hyper_parameters"]
     if bool(cfg.get("allow_mismatch", False)):
         return
@@ -281,8 +281,8 @@ def _recnn_name(s: Settings) -> str:
 
 def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """PSNR (dB, 100 for identical images) and SSIM of two ``(m, m, 3)`` uint8 images, by the same
-    functions as the training logs (:mod:`imls_lightning.metrics`)."""
-    from .metrics import psnr, ssim_metric
+    functions as the training logs (:mod:`imls_lightning.core.metrics`)."""
+    from .core.metrics import psnr, ssim_metric
 
     # np.array copies: the cache's images are read-only memory maps (torch warns on those)
     p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float().div(255.0)

@@ -5,7 +5,7 @@
 
 An IMS checkpoint carries every network the product runs (see :mod:`imls_lightning.tasks.ims`);
 the export writes the three that run per view, each on its own so that a deployment can time and
-place them like :class:`~imls_lightning.pipeline.IMLSRenderer` does:
+place them like :class:`~imls_lightning.inference.pipeline.IMLSRenderer` does:
 
 ================  ===========================================  ===============================
 file              input -> output                               what
@@ -25,7 +25,7 @@ imls-lightning[export]``; opset 17, written by torch's TorchScript-based exporte
 renamed when complete.
 
 The selective ray cast between the networks is not a network: :class:`ExportedIMLSRenderer` takes
-the scene's renderer for it, exactly as :class:`~imls_lightning.pipeline.IMLSRenderer` (whose
+the scene's renderer for it, exactly as :class:`~imls_lightning.inference.pipeline.IMLSRenderer` (whose
 ``render(view) -> (image, timings)`` it inherits), so an exported renderer gives the same images.
 
 Example:
@@ -50,9 +50,9 @@ from torch import nn
 
 from data_gen.errors import InputError, cli_errors
 
-from .patterns import SamplingPattern
-from .checkpoints import load_ims_and_recnn, require_recnn, task_path
-from .pipeline import IMLSRenderer, NetOptions
+from .core.patterns import SamplingPattern
+from .inference.checkpoints import load_ims_and_recnn, require_recnn, task_path
+from .inference.pipeline import IMLSRenderer, NetOptions
 
 __all__ = ["FORMATS", "IMPredictor", "ExportedIMLSRenderer", "export_renderer", "onnx_available", "main"]
 
@@ -187,7 +187,7 @@ def _export_torchscript(module: nn.Module, example: torch.Tensor, path: Path) ->
 def _export_onnx(module: nn.Module, example: torch.Tensor, path: Path, name: str) -> None:
     """The TorchScript-based exporter (``dynamo=False``): it exports what ``torch.jit.trace``
     records, so the networks' data-dependent input checks (e.g. ``int(indices[-1])`` in
-    :func:`~imls_lightning.compaction.decompact`) become constants at the fixed export size. The
+    :func:`~imls_lightning.core.compaction.decompact`) become constants at the fixed export size. The
     ``torch.export`` route (``dynamo=True``) refuses them (GuardOnDataDependentSymNode)."""
     import onnx
 
@@ -316,7 +316,7 @@ def read_export(path: str | os.PathLike) -> tuple[dict[str, Any], SamplingPatter
 
 
 class ExportedIMLSRenderer(IMLSRenderer):
-    """:class:`~imls_lightning.pipeline.IMLSRenderer` running exported networks.
+    """:class:`~imls_lightning.inference.pipeline.IMLSRenderer` running exported networks.
 
     Same stages, timings and ``render(view) -> ((m, m, 3) uint8, {stage: seconds})``; the IM, the
     decoder and the RecNN are the TorchScript modules or ONNX Runtime sessions of an export
@@ -336,7 +336,7 @@ class ExportedIMLSRenderer(IMLSRenderer):
             device: ``auto`` | ``cpu`` | ``cuda`` (TorchScript modules move there; ONNX sessions
                 use the CUDA execution provider when the device is CUDA and it is installed).
         """
-        from .pipeline import pick_device
+        from .inference.pipeline import pick_device
 
         p = Path(path).expanduser()
         meta, pattern = read_export(p)

@@ -49,7 +49,7 @@ import torch
 from data_gen.atomic import atomic_json, fsync_dir
 from data_gen.errors import InputError
 
-from .compaction import compact
+from .core.compaction import compact
 from .config import file_hash
 
 __all__ = ["ensure_labels", "labels_path_for", "ImportanceLabels", "LABELS_FORMAT", "label_iml"]
@@ -109,7 +109,7 @@ def label_iml(iml, pattern, images_uint8: np.ndarray, device: torch.device) -> t
 
     Args:
         iml: an :class:`~imls_lightning.models.iml.IMLNet` (eval mode, on ``device``).
-        pattern: its :class:`~imls_lightning.patterns.SamplingPattern`.
+        pattern: its :class:`~imls_lightning.core.patterns.SamplingPattern`.
         images_uint8: ``(B, m, m, 3)`` uint8 FR-Images.
 
     Returns:
@@ -166,7 +166,7 @@ def ensure_labels(
     """
     from data_gen.cache import ViewImageCache
 
-    from .checkpoints import check_resolution, load_task
+    from .inference.checkpoints import check_resolution, load_task
 
     if not (isinstance(batch_size, int) and batch_size >= 1):
         raise InputError(f"labels batch_size={batch_size}: expected an integer >= 1")

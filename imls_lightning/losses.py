@@ -2,7 +2,7 @@
 
 * Image losses for RecNN / IML training: :func:`image_loss` (MSE or L1, optionally ``+ w * (1 - SSIM)``)
   and the differentiable :func:`ssim` (Gaussian window, as Wang et al. 2004). The metrics (PSNR, and
-  SSIM as logged and reported) live in :mod:`imls_lightning.metrics`; :func:`psnr` is that one.
+  SSIM as logged and reported) live in :mod:`imls_lightning.core.metrics`; :func:`psnr` is that one.
 * IM losses for the IMS generator, whose tanh output lives in (-1, 1) and whose targets are the
   IML labels scaled from {0, 1} to {-1, 1}: :func:`im_bce_loss` (computed from logits, so it is
   finite at saturation) and :func:`im_mse_loss`.
@@ -27,7 +27,7 @@ from torch import nn
 
 from data_gen.errors import InputError
 from imls_lightning.backbones import BACKBONES, VGG16_LAYERS, load_vgg16, to_rgb01
-from imls_lightning.metrics import psnr  # noqa: F401  (public here too: the one PSNR lives in imls_lightning.metrics)
+from imls_lightning.core.metrics import psnr  # noqa: F401  (public here too: the one PSNR lives in imls_lightning.core.metrics)
 
 __all__ = [
     "psnr", "ssim", "image_loss", "ImageLoss",

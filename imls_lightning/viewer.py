@@ -4,7 +4,7 @@
 [azimuth=30] [elevation=20] [distance=null] [mask=true]``
 
 A matplotlib window with two image panels side by side, **IML/S + RecNN** (the product:
-:class:`~imls_lightning.pipeline.IMLSRenderer`) and **ray cast (ground truth)** (the same scene
+:class:`~imls_lightning.inference.pipeline.IMLSRenderer`) and **ray cast (ground truth)** (the same scene
 renderer's full render of every FR pixel), an optional small panel with the importance mask (the FR
 pixels the IML/S frame really ray-cast), and a latency panel: one bar per stage of
 ``IMLSRenderer.run(view)`` (``importance``, ``selective_render``, ``decoder``, ``recnn``, ``total``)
@@ -70,7 +70,7 @@ from data_gen.camera import validate_view
 from data_gen.errors import InputError, boolean, checked_command_line, cli_errors, finite_number
 from data_gen.views import orthogonal_up, unit_vectors
 
-from .pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
+from .inference.pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
 
 __all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer", "viewer", "main"]
 
@@ -123,7 +123,7 @@ def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0
 
 def frame_psnr(image: np.ndarray, truth: np.ndarray) -> float:
     """PSNR in dB of two ``(m, m, 3)`` uint8 images (100 dB when identical), as the evaluation scores it."""
-    from .metrics import psnr
+    from .core.metrics import psnr
 
     p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float()
     t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float()
@@ -406,7 +406,7 @@ class Viewer:
         self.axes["stats"].set_position((0.60, 0.04, 0.39, 0.22))
 
     def _show_imls(self) -> None:
-        from .patterns import c_pixels_to_fr
+        from .core.patterns import c_pixels_to_fr
 
         self._artists["imls"].set_data(self.imls.image)
         im = self.imls.info.get("im")

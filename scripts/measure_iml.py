@@ -74,8 +74,8 @@ def evaluate_recnn_alone(recnn_ckpt: Path, result: dict, batch_size: int) -> dic
 def evaluate_iml(iml_ckpt: Path, result: dict, recnn_ckpt: Path, batch_size: int) -> dict:
     """Hard-mask IPR / C-share and IML + RecNN image quality of one IML checkpoint on the test views."""
     from imls_lightning.models.iml import IMLRecNN, c_share, ipr
-    from imls_lightning.checkpoints import load_task
-    from imls_lightning.metrics import psnr_per_image
+    from imls_lightning.inference.checkpoints import load_task
+    from imls_lightning.core.metrics import psnr_per_image
 
     task = load_task(iml_ckpt, expect="IMLTask")
     rec = task.recnn if task.recnn is not None else load_task(recnn_ckpt, expect="RecNNTask").net
@@ -138,7 +138,7 @@ def render(rec: dict, args, cmd: str) -> str:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from imls_lightning.importance import check_mean
+    from imls_lightning.core.importance import check_mean
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     mr.add_common_args(p)

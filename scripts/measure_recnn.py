@@ -179,7 +179,7 @@ class ImageMetrics:
 
     def add(self, name: str, pred: torch.Tensor, target: torch.Tensor) -> None:
         """``pred``, ``target``: ``(B, 3, m, m)``; ``pred`` is clamped to [0, 1] here."""
-        from imls_lightning.metrics import psnr_per_image, ssim_metric as ssim
+        from imls_lightning.core.metrics import psnr_per_image, ssim_metric as ssim
 
         b = target.shape[0]
         self.psnr[name] = self.psnr.get(name, 0.0) + float(psnr_per_image(pred, target).sum())

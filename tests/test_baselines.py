@@ -14,7 +14,7 @@ from imls_lightning.baselines import (
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.iml import IMLNet
 from imls_lightning.models.pull_push import pull_push_inpaint
-from imls_lightning.patterns import SamplingPattern, plastic_rank_pattern
+from imls_lightning.core.patterns import SamplingPattern, plastic_rank_pattern
 from imls_lightning.report import equal_share_markdown
 from imls_lightning.tasks.base import psnr_per_image
 

@@ -8,7 +8,7 @@ import torch
 
 from data_gen.errors import InputError
 from imls_lightning.data import ImlsDataModule
-from imls_lightning.patterns import downsample_pattern
+from imls_lightning.core.patterns import downsample_pattern
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -78,7 +78,7 @@ def test_crop_exception_with_labels_or_low_res(tiny_cfg, tmp_path):
 def test_smoke_datamodule_yields_every_field(tmp_path):
     from omegaconf import OmegaConf
 
-    from imls_lightning.compaction import compact
+    from imls_lightning.core.compaction import compact
     from imls_lightning.data import ImlsDataModule
 
     conf = ROOT / "conf"

@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from data_gen.errors import InputError
-from imls_lightning.pipeline import STAGES
+from imls_lightning.inference.pipeline import STAGES
 from imls_lightning.report import METHOD_ORDER, summary
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -88,7 +88,7 @@ def test_experiment_composes_resolves_and_sets_only_existing_keys(experiment, mo
 
 @pytest.mark.parametrize("experiment", PAPER)
 def test_paper_experiments_pin_the_papers_settings(experiment):
-    from imls_lightning.patterns import build_pattern
+    from imls_lightning.core.patterns import build_pattern
 
     per_model = {m: _resolve(_compose([f"experiment={experiment}", f"model={m}"])) for m in MODELS}
     cfg = per_model["iml"]

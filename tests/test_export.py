@@ -23,7 +23,7 @@ from data_gen.renderers import make_renderer
 from data_gen.scene import build_scene
 from data_gen.views import sample_training_views
 from imls_lightning.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available, parse_args
-from imls_lightning.pipeline import IMLSRenderer
+from imls_lightning.inference.pipeline import IMLSRenderer
 from imls_lightning.tasks.base import load_task
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask

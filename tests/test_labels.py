@@ -22,9 +22,9 @@ import imls_lightning.labels as labels_mod
 from data_gen.cache import ViewImageCache, ensure_cache
 from data_gen.errors import InputError
 from data_gen.scene import build_scene
-from imls_lightning.compaction import compact
+from imls_lightning.core.compaction import compact
 from imls_lightning.data import ImlsDataModule
-from imls_lightning.importance import normalize_importance
+from imls_lightning.core.importance import normalize_importance
 from imls_lightning.labels import ImportanceLabels, ensure_labels, labels_path_for
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.recnn import RecNNTask
@@ -115,7 +115,7 @@ def test_labels_match_direct_iml_inference(world, which):
 
 
 def lab_valid(pattern_cfg) -> np.ndarray:
-    from imls_lightning.patterns import build_pattern
+    from imls_lightning.core.patterns import build_pattern
 
     return build_pattern(pattern_cfg, 32).valid.numpy()
 

@@ -39,9 +39,9 @@ def test_all_lists_exactly_the_homes():
 def test_unknown_names_and_submodules():
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         imls_lightning.nope  # noqa: B018
-    from imls_lightning import patterns  # a submodule is still imported as such
+    from imls_lightning.core import patterns  # a submodule is still imported as such
 
-    assert patterns.__name__ == "imls_lightning.patterns"
+    assert patterns.__name__ == "imls_lightning.core.patterns"
 
 
 @pytest.mark.parametrize("code", ["import imls_lightning", "from imls_lightning import ORPSearch"])

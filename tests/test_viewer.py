@@ -24,7 +24,7 @@ def _run(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
 def renderer(tiny_checkpoints):
     import torch
 
-    from imls_lightning.pipeline import IMLSRenderer, NetOptions
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as OMP_NUM_THREADS=1 in the subprocesses (shared 2-core machine)

@@ -46,7 +46,7 @@ Example:
 """
 from __future__ import annotations
 
-from ..importance import MEAN_RANGE
+from ..core.importance import MEAN_RANGE
 from ..tasks.ims import scaled_pim_im
 from .checks import check_epsilon, check_integer, clamp_mean
 from .cli import CONF_DIR, main, run_adaptive, run_dir_of

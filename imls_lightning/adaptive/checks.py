@@ -9,7 +9,7 @@ from typing import Any
 
 from data_gen.validate import check_integer, check_number
 
-from ..importance import MEAN_RANGE
+from ..core.importance import MEAN_RANGE
 
 __all__ = ["check_integer", "check_epsilon", "clamp_mean"]
 

@@ -21,9 +21,9 @@ import data_gen  # noqa: F401  (registers the scene config resolvers)
 from data_gen.errors import InputError, checked_command_line, cli_errors
 
 from ..config import register_resolvers
-from ..importance import MEAN_RANGE
-from ..checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
-from ..pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, pick_device
+from ..core.importance import MEAN_RANGE
+from ..inference.checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
+from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, pick_device
 from ..tasks.ims import scaled_pim_im
 from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
@@ -67,7 +67,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     from ..evaluate import measure, spaced
     from ..orp.job import evaluate_quality
     from ..orp.search import ORPSearch, batched
-    from ..pipeline import RecNNAlone
+    from ..inference.pipeline import RecNNAlone
     from ..report import atomic_write_text
 
     s = parse_settings(cfg)

@@ -19,9 +19,9 @@ from torch import nn
 
 from data_gen.errors import InputError, finite_number
 
-from ..importance import MEAN_RANGE, normalize_importance
-from ..metrics import psnr_per_image
-from ..pipeline import pick_device
+from ..core.importance import MEAN_RANGE, normalize_importance
+from ..core.metrics import psnr_per_image
+from ..inference.pipeline import pick_device
 from ..tasks.ims import scaled_pim_im
 from .checks import check_epsilon, check_integer, clamp_mean
 
@@ -130,7 +130,7 @@ def im_at_means(iml: nn.Module, pim: torch.Tensor, means: torch.Tensor | Sequenc
 
     Exactly the IML's inference path with ``iml.mean = means[b]`` (its normalization, with its
     ``lower``/``delta`` and valid-pixel mean, then hard rejection sampling against ``P``, 0 on
-    padding): each image is normalized by :func:`~imls_lightning.importance.normalize_importance`
+    padding): each image is normalized by :func:`~imls_lightning.core.importance.normalize_importance`
     with its own scalar mean.
 
     Args:

@@ -16,7 +16,7 @@ from torch import nn
 
 from data_gen.errors import InputError, finite_number
 
-from ..importance import MEAN_RANGE
+from ..core.importance import MEAN_RANGE
 from .checks import check_integer, clamp_mean
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
-from ..pipeline import (
+from ..inference.checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
+from ..inference.pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
     NetOptions,

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..importance import MEAN_RANGE
-from ..pipeline import pick_device
+from ..core.importance import MEAN_RANGE
+from ..inference.pipeline import pick_device
 from ..report import atomic_write_text, new_figure, save_figure
 from .settings import Settings
 from .tradeoff import TradeoffPoint

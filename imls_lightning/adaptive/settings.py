@@ -8,7 +8,7 @@ from typing import Any
 
 from data_gen.errors import InputError, finite_number
 
-from ..pipeline import pick_device
+from ..inference.pipeline import pick_device
 from .checks import check_epsilon, check_integer
 from .labels import REFERENCES, SOURCES, UNREACHABLE
 

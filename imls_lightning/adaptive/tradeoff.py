@@ -15,9 +15,9 @@ from torch import nn
 
 from data_gen.errors import InputError
 
-from ..importance import MEAN_RANGE
-from ..metrics import psnr_per_image
-from ..pipeline import pick_device
+from ..core.importance import MEAN_RANGE
+from ..core.metrics import psnr_per_image
+from ..inference.pipeline import pick_device
 from .checks import check_epsilon, check_integer
 from .labels import check_source, mask_function
 

@@ -133,7 +133,7 @@ class EnhanceNet(nn.Module):
     """EnhanceNet RecNN: ``forward(c_image (B, 3, n, n)) -> (B, 3, m, m)``, ``m = n * factor``.
 
     Args:
-        pattern: a :class:`~imls_lightning.patterns.SamplingPattern` that is a regular grid
+        pattern: a :class:`~imls_lightning.core.patterns.SamplingPattern` that is a regular grid
             (``kind="downsample"``; ``"full"`` with ``m == n`` gives factor 1).
         channels: feature channels. Default 64 (paper).
         blocks: residual blocks. Default 10 (paper).
@@ -144,7 +144,7 @@ class EnhanceNet(nn.Module):
     The last conv starts at 0.1 x its default init, so an untrained net is close to bicubic.
 
     Example:
-        >>> from imls_lightning.patterns import SamplingPattern
+        >>> from imls_lightning.core.patterns import SamplingPattern
         >>> idx = (2 * torch.arange(4)[:, None] * 8 + 2 * torch.arange(4)[None, :]).reshape(-1)
         >>> net = EnhanceNet(SamplingPattern("downsample", 8, 4, idx), channels=8, blocks=1)
         >>> net(torch.rand(1, 3, 4, 4)).shape

@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning.compaction import Decompaction
+from imls_lightning.core.compaction import Decompaction
 from imls_lightning.models.unet import UNet, make_norm
 
 __all__ = ["FoVolNet", "apply_pixel_kernels", "masked_downsample"]
@@ -103,7 +103,7 @@ class FoVolNet(nn.Module):
     """Static FoVolNet RecNN: ``forward(c_image (B, 3, n, n)) -> (B, 3, m, m)``.
 
     Args:
-        pattern: a :class:`~imls_lightning.patterns.SamplingPattern` (any kind; foveal in the paper).
+        pattern: a :class:`~imls_lightning.core.patterns.SamplingPattern` (any kind; foveal in the paper).
         features: feature channels out of the feature U-Net. Default 16.
         depth: feature U-Net resolution levels. Default 4 (needs ``m >= 2**(depth-1)``).
         base_channels: feature U-Net first-level channels. Default 16.
@@ -116,7 +116,7 @@ class FoVolNet(nn.Module):
     Defaults are modest so it trains on CPU at 64-128^2.
 
     Example:
-        >>> from imls_lightning.patterns import SamplingPattern
+        >>> from imls_lightning.core.patterns import SamplingPattern
         >>> pat = SamplingPattern("foveal", 16, 8, torch.randperm(256)[:50].sort().values)
         >>> net = FoVolNet(pat, features=8, depth=2, base_channels=4, filter_channels=4)
         >>> net(torch.rand(2, 3, 8, 8)).shape

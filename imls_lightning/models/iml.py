@@ -22,7 +22,7 @@ the untrained mask baseline, trained with its own decoder.
 end-to-end model, and, with a standalone-trained IML, its "off-the-shelf RecNN" case.
 
 Precision. The encoder and decoder may run under autocast; softplus, normalization and rejection
-sampling always run in float32 (see :mod:`imls_lightning.importance`), so ``pim``, ``pim_norm``,
+sampling always run in float32 (see :mod:`imls_lightning.core.importance`), so ``pim``, ``pim_norm``,
 ``im`` and ``pr_c_image`` are float32, and ``c_recon`` is the decoder's dtype (bf16 under bf16
 autocast: compute losses in float32).
 """
@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning.importance import ImportanceNormalization, RejectionSampling, delegated
+from imls_lightning.core.importance import ImportanceNormalization, RejectionSampling, delegated
 from imls_lightning.models.pull_push import pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
@@ -346,7 +346,7 @@ class IMLRecNN(nn.Module):
         ``from_pr_c_image(pr_c_image, im)``: already selectively rendered C-Image and its mask -> FR-Image (IML/S).
 
     Example:
-        >>> from imls_lightning.patterns import SamplingPattern
+        >>> from imls_lightning.core.patterns import SamplingPattern
         >>> from imls_lightning.models.fovolnet import FoVolNet
         >>> pat = SamplingPattern("foveal", 16, 8, torch.randperm(256)[:64].sort().values)
         >>> iml = IMLNet(8, torch.rand(8, 8), depth=2, base_channels=4)

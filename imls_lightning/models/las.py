@@ -84,7 +84,7 @@ from torch import nn
 
 from data_gen.errors import InputError
 from data_gen.validate import check_integer
-from imls_lightning.importance import (
+from imls_lightning.core.importance import (
     ImportanceNormalization,
     check_alpha,
     check_ipr,
@@ -96,7 +96,7 @@ from imls_lightning.importance import (
 )
 from imls_lightning.models.pull_push import PullPushInpaint, pull_push_inpaint
 from imls_lightning.models.unet import UNet
-from imls_lightning.patterns import plastic_rank_pattern
+from imls_lightning.core.patterns import plastic_rank_pattern
 
 __all__ = [
     "pull_push_inpaint",

@@ -169,8 +169,8 @@ def _compose_train(overrides: list[str]):
 def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
     import torch
 
-    from ..pipeline import pick_device
-    from ..checkpoints import check_same_pattern, load_task
+    from ..inference.pipeline import pick_device
+    from ..inference.checkpoints import check_same_pattern, load_task
     from ..training import train
 
     flag = _plain(cfg.orp_job)
@@ -278,7 +278,7 @@ def evaluate_quality(dataset, batch_size: int, iml_task, recnn_iml, recnn_alone,
     from torch.utils.data import DataLoader
 
     from ..models.iml import c_share, ipr
-    from ..metrics import psnr_per_image
+    from ..core.metrics import psnr_per_image
 
     fr = iml_task.pattern.fr_size
     valid = iml_task.pattern.valid.to(device)
@@ -321,7 +321,7 @@ def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, i
     from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene
 
-    from ..pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone, time_method
+    from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone, time_method
 
     renderer_cfg = _plain(cfg.renderer) if s.latency_renderer is None else {"name": s.latency_renderer}
     renderer = make_renderer(build_scene(_plain(cfg.scene)), renderer_cfg)

@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 from data_gen.errors import InputError, boolean, finite_number
 from data_gen.validate import check_integer, check_number
 
-# the paper's range of the mean value (== imls_lightning.importance.MEAN_RANGE; not imported, to
+# the paper's range of the mean value (== imls_lightning.core.importance.MEAN_RANGE; not imported, to
 # keep this module free of torch for the Hydra plugin scan)
 MEAN_RANGE = (0.01, 1.0)
 SCALES = ("log", "linear")

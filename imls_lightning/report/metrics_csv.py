@@ -10,7 +10,7 @@ import numpy as np
 
 from data_gen.atomic import atomic_write_text  # noqa: F401  (the report's writer; its one home is data_gen.atomic)
 
-from ..pipeline import STAGES
+from ..inference.pipeline import STAGES
 from .names import METHOD_LABELS, METRIC_COLUMNS
 
 

@@ -2,7 +2,7 @@
 columns of ``metrics.csv`` / ``sweep.csv`` / ``options.csv``."""
 from __future__ import annotations
 
-from ..pipeline import STAGES
+from ..inference.pipeline import STAGES
 
 #: method key -> label in tables and plots (the paper's names)
 METHOD_LABELS = {

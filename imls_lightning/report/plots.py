@@ -9,8 +9,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..metrics import psnr_from_mse
-from ..pipeline import STAGES
+from ..core.metrics import psnr_from_mse
+from ..inference.pipeline import STAGES
 from .metrics_csv import number
 from .names import METHOD_COLORS, METHOD_LABELS, STAGE_COLORS, STAGE_LABELS
 

@@ -7,7 +7,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..pipeline import STAGES
+from ..inference.pipeline import STAGES
 from .metrics_csv import number, summarize_rows
 from .names import MASK_LABELS, METHOD_LABELS, STAGE_LABELS
 

@@ -2,7 +2,7 @@
 
 A task owns one or more ``nn.Module`` networks (from ``imls_lightning.models``), its losses, its
 metrics and its optimizer. Hyperparameters are saved as plain data, so that checkpoints load with
-``torch.load(weights_only=True)`` through :func:`~imls_lightning.checkpoints.load_task`.
+``torch.load(weights_only=True)`` through :func:`~imls_lightning.inference.checkpoints.load_task`.
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import lightning as L
 import torch
 
 # load_task lives in ..checkpoints; imported here too, where callers long found it
-from ..checkpoints import load_task  # noqa: F401
-from ..metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
+from ..inference.checkpoints import load_task  # noqa: F401
+from ..core.metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
 
 
 class ImlsTask(L.LightningModule):
@@ -22,7 +22,7 @@ class ImlsTask(L.LightningModule):
     A task is built in two ways. Training instantiates the ``model`` config node
     (:func:`imls_lightning.training.build_task`): every model setting, its one default in
     ``conf/model/<name>.yaml``, plus :meth:`config_context`, what comes from outside that node.
-    :func:`~imls_lightning.checkpoints.load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
+    :func:`~imls_lightning.inference.checkpoints.load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
     ``**_`` and ignore it, on purpose: the node's keys for the training run rather than the networks
     (``name``, ``patience``, ``monitor``, ...) and hyperparameters that older checkpoints saved pass
     both paths alike, with no list of them to keep in step (``tests/test_training.py`` checks

@@ -29,9 +29,9 @@ from data_gen.errors import InputError, config_keys
 from ..config import to_plain
 from ..models.iml import IMLNet
 from ..models.pull_push import pull_push_inpaint
-from ..patterns import build_pattern, plastic_rank_pattern
-from ..metrics import psnr_per_image
-from ..checkpoints import check_same_pattern, load_task
+from ..core.patterns import build_pattern, plastic_rank_pattern
+from ..core.metrics import psnr_per_image
+from ..inference.checkpoints import check_same_pattern, load_task
 from .base import ImlsTask
 from .recnn import RecNNTask
 

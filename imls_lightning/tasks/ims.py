@@ -77,13 +77,13 @@ from data_gen.errors import InputError, config_keys
 from data_gen.validate import check_number
 
 from ..backbones import BACKBONES, VGG16_LAYERS
-from ..checkpoints import check_same_pattern, load_task, require_pim_target
+from ..inference.checkpoints import check_same_pattern, load_task, require_pim_target
 from ..config import to_plain
 from ..losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
-from ..patterns import build_pattern
-from ..metrics import psnr_per_image
+from ..core.patterns import build_pattern
+from ..core.metrics import psnr_per_image
 from .base import ImlsTask
 from .iml import IMLTask, check_mean_range, end_to_end_loss, iml_net_from_hparams
 from .recnn import RecNNTask

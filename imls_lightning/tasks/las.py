@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from data_gen.errors import InputError
 from data_gen.validate import check_integer, check_number
 
-from ..importance import check_alpha, check_mean, hard_rejection_sample
+from ..core.importance import check_alpha, check_mean, hard_rejection_sample
 from ..models.las import LASNet, LASOutput, las_loss
 from .base import ImlsTask
 

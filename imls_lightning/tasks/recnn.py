@@ -8,9 +8,9 @@ from hydra.utils import instantiate
 
 from data_gen.errors import InputError
 
-from ..compaction import decompact
+from ..core.compaction import decompact
 from ..config import to_plain
-from ..patterns import build_pattern
+from ..core.patterns import build_pattern
 from .base import ImlsTask
 
 

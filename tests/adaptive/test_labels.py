@@ -28,7 +28,7 @@ from imls_lightning.tasks.base import load_task
 
 
 def _c_fr(cache, rows, pattern):
-    from imls_lightning.compaction import compact
+    from imls_lightning.core.compaction import compact
 
     img = torch.from_numpy(np.array(cache.images[rows])).permute(0, 3, 1, 2).float() / 255
     return compact(img, pattern.indices, pattern.c_size), img

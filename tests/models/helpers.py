@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import torch
 
-from imls_lightning.patterns import SamplingPattern
+from imls_lightning.core.patterns import SamplingPattern
 
 
 def grid_pattern(n: int, factor: int, offset: int = 0) -> SamplingPattern:

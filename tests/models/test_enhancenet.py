@@ -78,7 +78,7 @@ def test_enhancenet_bf16_autocast_finite_and_float32_skip():
 
 # --- EnhanceNet on training crops (data.crop) ---------------------------------------------------
 def test_enhancenet_crop_smoke_bicubic_of_a_crop_is_the_crop_of_the_bicubic_inside():
-    from imls_lightning.patterns import downsample_pattern
+    from imls_lightning.core.patterns import downsample_pattern
 
     torch.manual_seed(0)
     net = EnhanceNet(downsample_pattern(32, 2), channels=4, blocks=1).double()
@@ -92,7 +92,7 @@ def test_enhancenet_crop_smoke_bicubic_of_a_crop_is_the_crop_of_the_bicubic_insi
 
 
 def test_enhancenet_crop_gradcheck():
-    from imls_lightning.patterns import downsample_pattern
+    from imls_lightning.core.patterns import downsample_pattern
 
     net = EnhanceNet(downsample_pattern(16, 2), channels=2, blocks=1).double()
     c = torch.rand(1, 3, 4, 4, dtype=torch.float64, requires_grad=True)
@@ -100,7 +100,7 @@ def test_enhancenet_crop_gradcheck():
 
 
 def test_enhancenet_crop_exception_not_a_c_image():
-    from imls_lightning.patterns import downsample_pattern
+    from imls_lightning.core.patterns import downsample_pattern
 
     net = EnhanceNet(downsample_pattern(16, 2), channels=2, blocks=1)
     with pytest.raises(ValueError, match="EnhanceNet: expected a C-Image"):
@@ -122,7 +122,7 @@ def test_enhancenet_trained_with_the_default_loss_learns_beyond_its_bicubic_skip
     """Regression: with an l1 loss the residual collapsed to a constant and the RecNN was bicubic alone."""
     from omegaconf import OmegaConf
 
-    from imls_lightning.patterns import downsample_pattern
+    from imls_lightning.core.patterns import downsample_pattern
     from imls_lightning.tasks.recnn import reconstruction_loss
 
     default = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf" / "model" / "recnn.yaml").loss

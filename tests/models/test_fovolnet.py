@@ -5,9 +5,9 @@ import pytest
 import torch
 
 from data_gen.errors import InputError
-from imls_lightning.compaction import decompact
+from imls_lightning.core.compaction import decompact
 from imls_lightning.models.fovolnet import FoVolNet, apply_pixel_kernels, masked_downsample
-from imls_lightning.patterns import SamplingPattern
+from imls_lightning.core.patterns import SamplingPattern
 from tests.models.helpers import grid_pattern, random_pattern
 
 

@@ -7,12 +7,12 @@ import torch
 import torch.nn.functional as F
 
 from data_gen.errors import InputError
-from imls_lightning.importance import normalize_importance
+from imls_lightning.core.importance import normalize_importance
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.fovolnet import FoVolNet
 from imls_lightning.models.iml import FillDecoder, IMLNet, IMLRecNN, PlainDecoder, RefineDecoder, c_share, ipr
 from imls_lightning.models.pull_push import pull_push_inpaint
-from imls_lightning.patterns import SamplingPattern
+from imls_lightning.core.patterns import SamplingPattern
 
 N = 16
 

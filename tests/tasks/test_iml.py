@@ -73,7 +73,7 @@ def test_background_mask_against_a_direct_threshold():
 
 
 def test_checkpoints_without_a_decoder_key_build_the_plain_decoder():
-    from imls_lightning.patterns import build_pattern
+    from imls_lightning.core.patterns import build_pattern
 
     p = build_pattern(PATTERN, FR)
     old = iml_net_from_hparams({"depth": 2, "base_channels": 4}, p)  # hyperparameters of an old checkpoint

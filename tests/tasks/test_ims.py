@@ -21,11 +21,11 @@ from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
 from data_gen.errors import InputError
-from imls_lightning.compaction import compact
-from imls_lightning.importance import hard_rejection_sample, normalize_importance
+from imls_lightning.core.compaction import compact
+from imls_lightning.core.importance import hard_rejection_sample, normalize_importance
 from imls_lightning.losses import discriminator_loss, generator_loss, im_bce_loss
 from imls_lightning.models.ims import im_to_target
-from imls_lightning.patterns import build_pattern, plastic_rank_pattern
+from imls_lightning.core.patterns import build_pattern, plastic_rank_pattern
 from imls_lightning.tasks.base import load_task, psnr_per_image
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask, loss_config, pim_to_target, scaled_pim_im

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from data_gen.errors import InputError
-from imls_lightning.importance import (
+from imls_lightning.core.importance import (
     ImportanceNormalization,
     RejectionSampling,
     hard_rejection_sample,

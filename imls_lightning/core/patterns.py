@@ -10,7 +10,7 @@ them, in raster order, into the ``n x n`` C-Image (zero padded past the pattern'
   modulation surface around a fixed centre; dense in the fovea, sparse in the periphery.
 * :func:`full_pattern` - every pixel (``c_size = fr_size``), for tests and upper bounds.
 * :func:`blue_noise` - void-and-cluster blue-noise ranks (Ulichney 1993), procedural and seeded
-  (from :mod:`imls_lightning.rank_patterns`, re-exported here, like the next one).
+  (from :mod:`imls_lightning.core.rank_patterns`, re-exported here, like the next one).
 * :func:`plastic_rank_pattern` - the LAS rank map P (R2 / plastic sequence, rank of first visit).
 * :func:`build_pattern` - the above from the Hydra ``pattern`` node; :func:`c_pixels_to_fr` maps a
   C-Image mask (e.g. the IM) to the FR raster indices the selective renderer must cast.

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from imls_lightning import rank_patterns as rp
-from imls_lightning.rank_patterns import blue_noise, plastic_rank_pattern
+from imls_lightning.core import rank_patterns as rp
+from imls_lightning.core.rank_patterns import blue_noise, plastic_rank_pattern
 
 
 # --- blue noise --------------------------------------------------------------------------------------

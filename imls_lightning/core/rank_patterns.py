@@ -2,7 +2,7 @@
 
 * :func:`blue_noise` - void-and-cluster blue-noise ranks (Ulichney 1993), procedural and seeded:
   thresholded against a modulation surface it makes the foveal pattern of
-  :mod:`imls_lightning.patterns`.
+  :mod:`imls_lightning.core.patterns`.
 * :func:`plastic_rank_pattern` - the LAS rank map P (R2 / plastic sequence, rank of first visit).
 
 Both are computed once per size (and seed) and cached in memory, read-only.

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from data_gen.errors import InputError
-from imls_lightning.compaction import Compaction, Decompaction, compact, decompact
-from imls_lightning.patterns import SamplingPattern, downsample_pattern, foveal_pattern
+from imls_lightning.core.compaction import Compaction, Decompaction, compact, decompact
+from imls_lightning.core.patterns import SamplingPattern, downsample_pattern, foveal_pattern
 
 
 def _random_pattern(m: int = 10, n: int = 8, k: int = 41, seed: int = 0) -> SamplingPattern:

@@ -1,4 +1,4 @@
-"""The one home of PSNR and SSIM (imls_lightning.metrics), against torchmetrics."""
+"""The one home of PSNR and SSIM (imls_lightning.core.metrics), against torchmetrics."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,7 @@ import pytest
 import torch
 from torchmetrics.functional.image import peak_signal_noise_ratio, structural_similarity_index_measure
 
-from imls_lightning.metrics import psnr, psnr_from_mse, psnr_per_image, ssim_metric
+from imls_lightning.core.metrics import psnr, psnr_from_mse, psnr_per_image, ssim_metric
 
 
 def _pair(shape=(3, 3, 24, 20), seed=0, dtype=torch.float32):

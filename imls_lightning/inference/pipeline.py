@@ -49,8 +49,8 @@ from data_gen.camera import validate_view
 from data_gen.errors import InputError
 
 from .checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
-from .importance import check_ipr
-from .patterns import SamplingPattern, c_pixels_to_fr
+from ..core.importance import check_ipr
+from ..core.patterns import SamplingPattern, c_pixels_to_fr
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
 

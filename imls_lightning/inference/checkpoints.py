@@ -13,7 +13,7 @@ Checks take the checkpoint's *hyperparameters* (``task.hparams`` or the ``hyper_
 task's constructor, a report that only reads the checkpoint).
 
 Example:
-    >>> from imls_lightning.patterns import build_pattern
+    >>> from imls_lightning.core.patterns import build_pattern
     >>> p = build_pattern({"kind": "downsample", "factor": 2}, 8)
     >>> same_pattern({"pattern": {"kind": "downsample", "factor": 2}, "fr_size": 8}, p)
     True
@@ -30,8 +30,8 @@ from typing import Any, Mapping
 
 from data_gen.errors import InputError
 
-from .config import load_checkpoint, to_plain
-from .patterns import SamplingPattern, build_pattern
+from ..config import load_checkpoint, to_plain
+from ..core.patterns import SamplingPattern, build_pattern
 
 __all__ = ["TASKS", "task_class", "task_path", "load_task", "load_ims_and_recnn", "same_pattern", "check_same_pattern",
            "check_resolution", "check_trained_on", "require_recnn", "require_pim_target", "config_diff"]
@@ -116,7 +116,7 @@ def same_pattern(hp: Mapping, pattern: SamplingPattern) -> bool:
     same resolution and the same pixels (:meth:`SamplingPattern.fingerprint`).
 
     Example:
-        >>> from imls_lightning.patterns import build_pattern
+        >>> from imls_lightning.core.patterns import build_pattern
         >>> p = build_pattern({"kind": "downsample", "factor": 2}, 8)
         >>> same_pattern({"pattern": {"kind": "downsample", "factor": 2}, "fr_size": 16}, p)
         False

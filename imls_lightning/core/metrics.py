@@ -4,7 +4,7 @@ ORP, adaptive and the viewer, so that a report and a training log agree to the l
 * PSNR: the direct formula ``10 log10(L^2 / MSE)`` per image, with the MSE floored at
   ``1e-10 L^2`` so that identical images give 100 dB rather than infinity (:func:`psnr_from_mse`,
   :func:`psnr`, :func:`psnr_per_image`). Away from that floor it equals torchmetrics'
-  ``peak_signal_noise_ratio(..., dim=(1, 2, 3))`` (checked in ``tests/test_metrics.py``).
+  ``peak_signal_noise_ratio(..., dim=(1, 2, 3))`` (checked in ``tests/core/test_metrics.py``).
 * SSIM: torchmetrics' ``structural_similarity_index_measure`` (Gaussian window 11, sigma 1.5,
   data range 1; smaller images use the largest odd window that fits) (:func:`ssim_metric`).
 

@@ -1,4 +1,4 @@
-"""Loading task checkpoints and the cross-checks between them (``imls_lightning.checkpoints``).
+"""Loading task checkpoints and the cross-checks between them (``imls_lightning.inference.checkpoints``).
 
 The hyperparameter checks run on plain dicts; loading runs on the session's real tiny checkpoints
 (``tiny_checkpoints`` in conftest.py).
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from data_gen.errors import InputError
-from imls_lightning.checkpoints import (
+from imls_lightning.inference.checkpoints import (
     check_resolution,
     check_same_pattern,
     check_trained_on,
@@ -22,7 +22,7 @@ from imls_lightning.checkpoints import (
     task_class,
     task_path,
 )
-from imls_lightning.patterns import build_pattern
+from imls_lightning.core.patterns import build_pattern
 
 DOWN2 = {"kind": "downsample", "factor": 2}
 DOWN4 = {"kind": "downsample", "factor": 4}

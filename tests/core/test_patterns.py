@@ -1,6 +1,6 @@
 """Sampling patterns (downsample, foveal, full), the config builder and helpers.
 
-The rank patterns (blue noise, the plastic P) are tested in ``tests/test_rank_patterns.py``."""
+The rank patterns (blue noise, the plastic P) are tested in ``tests/core/test_rank_patterns.py``."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,9 +11,9 @@ import torch
 from omegaconf import OmegaConf
 
 from data_gen.errors import InputError
-from imls_lightning import patterns as pat
-from imls_lightning.compaction import compact, decompact
-from imls_lightning.patterns import (
+from imls_lightning.core import patterns as pat
+from imls_lightning.core.compaction import compact, decompact
+from imls_lightning.core.patterns import (
     SamplingPattern,
     build_pattern,
     c_pixels_to_fr,
@@ -22,9 +22,9 @@ from imls_lightning.patterns import (
     foveal_surface,
     full_pattern,
 )
-from imls_lightning.rank_patterns import blue_noise_ranks
+from imls_lightning.core.rank_patterns import blue_noise_ranks
 
-CONF = Path(__file__).resolve().parents[1] / "conf" / "pattern"
+CONF = Path(__file__).resolve().parents[2] / "conf" / "pattern"
 
 
 # --- downsample / full ---------------------------------------------------------------------------

@@ -107,7 +107,7 @@ class Compaction(nn.Module):
     """:func:`compact` with the pattern's indices stored as a (non-persistent) buffer.
 
     Example:
-        >>> from imls_lightning.patterns import downsample_pattern
+        >>> from imls_lightning.core.patterns import downsample_pattern
         >>> layer = Compaction.from_pattern(downsample_pattern(8, 2))
         >>> layer(torch.rand(2, 3, 8, 8)).shape
         torch.Size([2, 3, 4, 4])
@@ -122,7 +122,7 @@ class Compaction(nn.Module):
 
     @classmethod
     def from_pattern(cls, pattern) -> "Compaction":
-        """From a :class:`~imls_lightning.patterns.SamplingPattern` (checks the input resolution)."""
+        """From a :class:`~imls_lightning.core.patterns.SamplingPattern` (checks the input resolution)."""
         return cls(pattern.indices, pattern.c_size, pattern.fr_size)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -136,7 +136,7 @@ class Decompaction(nn.Module):
     """:func:`decompact` with the pattern's indices stored as a (non-persistent) buffer.
 
     Example:
-        >>> from imls_lightning.patterns import downsample_pattern
+        >>> from imls_lightning.core.patterns import downsample_pattern
         >>> layer = Decompaction.from_pattern(downsample_pattern(8, 2))
         >>> layer(torch.rand(2, 3, 4, 4)).shape
         torch.Size([2, 3, 8, 8])
@@ -152,7 +152,7 @@ class Decompaction(nn.Module):
 
     @classmethod
     def from_pattern(cls, pattern) -> "Decompaction":
-        """From a :class:`~imls_lightning.patterns.SamplingPattern` (checks the input resolution)."""
+        """From a :class:`~imls_lightning.core.patterns.SamplingPattern` (checks the input resolution)."""
         return cls(pattern.indices, pattern.fr_size, pattern.c_size)
 
     def forward(self, c_image: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""Inference methods (imls_lightning.pipeline): the IML/S renderer built from real checkpoints, the
+"""Inference methods (imls_lightning.inference.pipeline): the IML/S renderer built from real checkpoints, the
 baselines, selective rendering and stage timing.
 
 The checkpoints are real (``tiny_checkpoints`` in conftest.py: RecNN -> IML -> IMS and LAS trained with
@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from data_gen.errors import InputError
-from imls_lightning.pipeline import (
+from imls_lightning.inference.pipeline import (
     FullRayCast,
     IMLPlusRecNN,
     IMLSRenderer,
@@ -30,7 +30,7 @@ from imls_lightning.pipeline import (
 )
 from imls_lightning.tasks.base import load_task
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CPU = NetOptions(device="cpu")
 IMLS_STAGES = {"importance", "selective_render", "decoder", "recnn", "total"}
 

@@ -1,0 +1,4 @@
+"""The method's formulas, free of training and I/O: compaction of a sampling pattern's pixels
+(:mod:`.compaction`), importance normalization and rejection sampling with the one mean-value search
+(:mod:`.importance`), sampling patterns and the plastic / blue-noise rank patterns (:mod:`.patterns`,
+:mod:`.rank_patterns`), and the image metrics every report and training log shares (:mod:`.metrics`)."""
