@@ -1,6 +1,8 @@
 """Settings shared by the cache's test modules (one home: cache, reader, workers, contact sheet)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 # VTK's fixed-point mapper: deterministic, and fast enough for 24^2 test caches
 VTK = {"name": "vtk", "mapper": "fixed_point"}
 
@@ -12,3 +14,12 @@ def cache_data(tmp_path, **kw) -> dict:
          "cache_dir": str(tmp_path / "cache")}
     d.update(kw)
     return d
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie or a dead process does not)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state not in ("Z", "X")

@@ -11,6 +11,7 @@ import numpy as np
 from data_gen.cache import ViewImageCache, render_cache
 from tests.data_gen.helpers import VTK
 from tests.data_gen.helpers import cache_data as _data
+from tests.data_gen.helpers import process_alive as _alive
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -47,11 +48,3 @@ def test_orphaned_worker_exits_when_its_parent_dies(tmp_path):
     while time.monotonic() < deadline and _alive(worker):
         time.sleep(0.1)
     assert not _alive(worker), "the orphaned worker still waits for its setup"
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    return state not in ("Z", "X")
