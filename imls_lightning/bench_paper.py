@@ -81,7 +81,8 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
     return OmegaConf.create({
         "scene": scene, "data": str(cfg.data), "recnn": recnn, "renderer": str(cfg.renderer),
         "runs_dir": str(cfg.runs_dir), "cache_dir": str(cfg.cache_dir), "seed": int(cfg.seed),
-        "progress": bool(cfg.progress), "dry_run": bool(cfg.dry_run), "stages": stages,
+        "progress": bool(cfg.progress), "dry_run": bool(cfg.dry_run),
+        "train_only": bool(cfg.get("train_only", False)), "stages": stages,
         "evaluate": override_list(cfg, "evaluate"),
     })
 
@@ -322,7 +323,7 @@ def pairs(cfg: DictConfig) -> list[tuple[str, str]]:
 
 
 def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: str = "") -> Path | None:
-    """Run every pair and write the results; returns ``paper_scale.md`` (None with ``dry_run``)."""
+    """Run every pair and write the results; returns ``paper_scale.md`` (None with ``dry_run`` or ``train_only``)."""
     from .report import machine_info
 
     todo = pairs(cfg)
@@ -337,7 +338,7 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
         log(f"\n[bench-paper] pair {k + 1}/{len(todo)}: {scene}, {recnn}")
         t0 = time.perf_counter()
         report = demo(pair_config(cfg, scene, recnn), scene_overrides)
-        if report is None:  # dry run
+        if report is None:  # dry run, or train_only
             continue
         minutes[f"{scene}, {recnn}"] = (time.perf_counter() - t0) / 60
         summary = read_summary(report)
@@ -354,7 +355,7 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
         if cfg.get("benchmarks_md"):
             update_section(Path(str(cfg.benchmarks_md)), section_text(all_rows, partial))
         log(f"[bench-paper] {scene}, {recnn} done in {minutes[f'{scene}, {recnn}']:.1f} min -> {csv_path}")
-    return None if cfg.dry_run else md_path
+    return None if cfg.dry_run or cfg.get("train_only", False) else md_path
 
 
 _SCENE_OVERRIDES: list[str] = []

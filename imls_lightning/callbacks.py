@@ -1,10 +1,14 @@
-"""Lightning callbacks of the project."""
+"""Lightning callbacks and loggers of the project."""
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import lightning as L
 import torch
+from lightning.fabric.loggers.logger import rank_zero_experiment
+from lightning.pytorch.loggers import CSVLogger
+from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 
 from .viz import image_grid, save_image
 
@@ -49,3 +53,48 @@ class ImageGridCallback(L.Callback):
                 import numpy as np
 
                 exp.add_image("val/grid", np.asarray(grid), trainer.current_epoch, dataformats="HWC")
+
+
+class _AppendingWriter(ExperimentWriter):
+    """Lightning's CSV writer, except that an existing ``metrics.csv`` is continued, not deleted."""
+
+    def _check_log_dir_exists(self) -> None:
+        # Lightning deletes metrics.csv here, so a resumed run lost the epochs before the resume;
+        # continue the file instead, with its header as the known columns
+        path = Path(self.metrics_file_path)
+        if path.is_file():
+            with path.open(newline="") as f:
+                header = next(csv.reader(f), [])
+            self.metrics_keys = list(header)
+
+
+class ResumableCSVLogger(CSVLogger):
+    """``CSVLogger`` whose ``metrics.csv`` survives a resumed run: the rows logged after the
+    resume are appended to those logged before it (Lightning's own logger deletes the file).
+
+    A run that starts over instead moves the old file aside first (:func:`set_aside_metrics`).
+
+    Example:
+        >>> logger = ResumableCSVLogger("runs/x", name="csv", version="")  # doctest: +SKIP
+    """
+
+    @property
+    @rank_zero_experiment
+    def experiment(self) -> ExperimentWriter:
+        if self._experiment is None:
+            self._fs.makedirs(self.root_dir, exist_ok=True)
+            self._experiment = _AppendingWriter(log_dir=self.log_dir)
+        return self._experiment
+
+
+def set_aside_metrics(log_dir: Path) -> Path | None:
+    """Rename ``<log_dir>/metrics.csv`` to the first free ``metrics.previous<N>.csv`` (a run that
+    trains again from the start keeps its old log beside the new one); returns the new name."""
+    path = Path(log_dir) / ExperimentWriter.NAME_METRICS_FILE
+    if not path.is_file():
+        return None
+    n = 1
+    while (target := path.with_name(f"metrics.previous{n}.csv")).exists():
+        n += 1
+    path.rename(target)
+    return target

@@ -23,6 +23,9 @@ Any scene: every scene override that ``python -m data_gen`` accepts (``scene.vol
 (where ``scene`` is a plain name, :func:`split_scene_overrides`), checked against ``data_gen``'s config
 (:func:`check_scene_overrides`) and passed, verbatim, right after ``scene=<name>`` to every stage's
 command. ``dry_run=true`` prints the stage commands (stdout) instead of running them.
+``train_only=true`` stops after the training stages: train on a GPU machine, then run the same
+command without it on the machine whose speed you want to measure (the evaluation reuses the runs
+when the paths and settings are the same).
 
 Example:
     python -m imls_lightning.demo                                   # flame, EnhanceNet
@@ -172,7 +175,7 @@ def override_list(cfg: DictConfig, key: str) -> list[str]:
 
 
 def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
-    """Run every stage; returns the evaluation report's path (None with ``dry_run``).
+    """Run every stage; returns the evaluation report's path (None with ``dry_run`` or ``train_only``).
 
     ``scene_overrides`` (``scene.<key>=...``, see :func:`split_scene_overrides`) follow
     ``scene=<cfg.scene>`` in every stage's command."""
@@ -205,6 +208,11 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     if OmegaConf.select(cfg, "stages.las") is not None:
         las = stage("LAS", [*train, "model=las", *train_common, *override_list(cfg, "stages.las")])
 
+    if bool(cfg.get("train_only", False)):
+        if not dry:
+            print(f"\n[demo] train_only: trained in {(time.perf_counter() - t0) / 60:.1f} min; the evaluation is "
+                  "left for the same command without train_only", file=sys.stderr, flush=True)
+        return None
     ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={runs}", f"checkpoints.ims={ims}",
           f"checkpoints.recnn={recnn}", f"checkpoints.iml={iml}", f"progress={bool(cfg.progress)}", "reuse=true",
           *override_list(cfg, "evaluate")]

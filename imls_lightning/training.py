@@ -26,6 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError
 
+from .callbacks import ResumableCSVLogger, set_aside_metrics
 from .config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
@@ -157,6 +158,11 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     ckpt_path = None if fast or restart else _resume_path(cfg, run_dir, task)
     if ckpt_path:
         print(f"[train] resuming from {ckpt_path}", flush=True)
+    else:
+        # a run that starts (over) keeps the log of an earlier attempt beside its own
+        for lg in trainer.loggers:
+            if isinstance(lg, ResumableCSVLogger):
+                set_aside_metrics(Path(lg.log_dir))
     t0 = time.perf_counter()
     trainer.fit(task, datamodule=datamodule, ckpt_path=ckpt_path)
     minutes = (time.perf_counter() - t0) / 60.0

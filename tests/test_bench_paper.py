@@ -125,3 +125,15 @@ def test_cli_dry_run_prints_every_stage_command():
     lines = p.stdout.strip().splitlines()
     assert len(lines) == 7 and lines[0].startswith("python -m data_gen scene=ct_head data=paper_cpu")
     assert "data.crop=128" in lines[1] and "timed_views=6" in lines[-1]
+
+
+def test_cli_gpu_schedule_train_only_prints_the_training_stages():
+    """bench_paper_gpu.yaml: bench_paper.yaml with the longer schedules; train_only drops the evaluation."""
+    p = subprocess.run([sys.executable, "-m", "imls_lightning.bench_paper", "--config-name", "bench_paper_gpu", "dry_run=true",
+                        "train_only=true", "scenes=[ct_head]", "recnns=[enhancenet]"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    lines = p.stdout.strip().splitlines()
+    assert len(lines) == 6 and not any("imls_lightning.evaluate" in ln for ln in lines)
+    iml = next(ln for ln in lines if "model=iml" in ln and "importance=uniform" not in ln)
+    assert "data.crop=128" in iml and "trainer.max_epochs=40" in iml and "test=false" in iml

@@ -48,6 +48,11 @@ TINY = ["scene=tiny", "data=tiny", "progress=false",
 def test_smoke_demo_pipeline_on_tiny_and_reuse(tmp_path):
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
     cmd = [PY, "-m", "imls_lightning.demo", *TINY, f"runs_dir={tmp_path}/runs", f"cache_dir={tmp_path}/cache"]
+    # train_only (train on a GPU machine, evaluate elsewhere): every training stage, no evaluation
+    p = subprocess.run([*cmd, "train_only=true"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, f"STDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-5000:]}"
+    assert "[demo] LAS done in" in p.stderr and "[demo] evaluation" not in p.stderr and "train_only: trained in" in p.stderr
+    assert not list((tmp_path / "runs").glob("eval/*/report.md"))
     t0 = time.perf_counter()
     p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     first = time.perf_counter() - t0

@@ -84,6 +84,11 @@ def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
     p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=3", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
     assert "resuming from" in p.stdout and str(run_dir / "checkpoints" / "last.ckpt") in p.stdout
     assert json.loads((run_dir / "result.json").read_text())["epochs"] == 3
+    # the log keeps the epochs before the resume (Lightning's CSVLogger deleted metrics.csv)
+    import csv
+
+    rows = list(csv.DictReader((run_dir / "csv" / "metrics.csv").open(newline="")))
+    assert sorted({int(r["epoch"]) for r in rows if r.get("val/loss")}) == [0, 1, 2]
 
 
 def _copy_runs(work, tmp_path, recnn_ckpt) -> Path:
