@@ -66,7 +66,7 @@ from .inference.pipeline import (
     pick_device,
     time_method,
 )
-from .baselines import equal_share_rows, mask_at_share, product_orp, summarize_equal_share
+from .inference.baselines import equal_share_rows, mask_at_share, product_orp, summarize_equal_share
 from .models.iml import FillDecoder
 from .report import summary  # noqa: F401  (public: summary(metrics_csv) -> dict)
 
@@ -496,7 +496,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
 def _loader(cache, rows, pattern, batch_size: int = 16):
     from torch.utils.data import DataLoader
 
-    from .data import ViewImageDataset
+    from .data.datamodule import ViewImageDataset
 
     ds = ViewImageDataset(cache.path, np.asarray(rows), pattern, fields=("view", "fr", "c"))
     return DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=0)

@@ -123,7 +123,7 @@ def build_task(cfg: DictConfig) -> L.LightningModule:
 
 
 def build_datamodule(cfg: DictConfig, task_cls) -> L.LightningDataModule:
-    from .data import ImlsDataModule
+    from .data.datamodule import ImlsDataModule
 
     extra = task_cls.datamodule_kwargs(cfg) if hasattr(task_cls, "datamodule_kwargs") else {}
     return ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=cfg.pattern, **extra)

@@ -4,7 +4,7 @@ For one IMS checkpoint (``model.target=pim``) and a rendered cache, on evenly sp
 
 * how well the IMS's PIM' (from the view alone) matches the IML's PIM' (from the C-Image), per split:
   correlation and MSE over the pattern's pixels (a gap between train and test views = overfitting);
-* at each C-Image share (each mask brought to it per view, :func:`imls_lightning.baselines.mask_at_share`):
+* at each C-Image share (each mask brought to it per view, :func:`imls_lightning.inference.baselines.mask_at_share`):
   the density of the mask on the object and on the empty background, the C-level PSNR of the IML
   decoder's C-Image on the object and on the background, and the PSNR after the RecNN, for the IML's
   mask, the IMS's mask and an oracle that keeps every object pixel (background by blue noise).
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from data_gen.cache import ViewImageCache
-from imls_lightning.baselines import iml_pim_at, mask_at_share
+from imls_lightning.inference.baselines import iml_pim_at, mask_at_share
 from imls_lightning.data import ViewImageDataset
 from imls_lightning.core.metrics import psnr_from_mse, psnr_per_image
 from imls_lightning.tasks.base import load_task

@@ -130,7 +130,7 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     and it prints the agreement and the gap tables."""
     torch = pytest.importorskip("torch")
     from data_gen.cache import ViewImageCache
-    from imls_lightning.baselines import equal_share_rows
+    from imls_lightning.inference.baselines import equal_share_rows
     from imls_lightning.tasks.base import load_task
 
     mod = _ims_gap_module()

@@ -135,7 +135,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
 
     # -- fixed-mean ORP on the validation views (the ORP's own evaluation at an inference-time u) ----
     t0 = time.perf_counter()
-    from ..data import ViewImageDataset
+    from ..data.datamodule import ViewImageDataset
 
     orp_rows = cache.splits["val"] if len(cache.splits["val"]) else cache.splits["train"]
     orp_ds = ViewImageDataset(cache.path, orp_rows, pattern, fields=("view", "fr", "c"))

@@ -273,7 +273,7 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
     from torch.utils.data import DataLoader
     from tqdm import tqdm
 
-    from ..data import ViewImageDataset
+    from ..data.datamodule import ViewImageDataset
 
     eps = check_epsilon(epsilon_db)
     steps = check_integer(steps, "steps", 1, 60)

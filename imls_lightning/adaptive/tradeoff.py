@@ -48,7 +48,7 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
     from torch.utils.data import DataLoader
     from tqdm import tqdm
 
-    from ..data import ViewImageDataset
+    from ..data.datamodule import ViewImageDataset
 
     check_source(source, ims)
     bs = check_integer(batch_size, "batch_size", 1)

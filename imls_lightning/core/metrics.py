@@ -8,7 +8,7 @@ ORP, adaptive and the viewer, so that a report and a training log agree to the l
 * SSIM: torchmetrics' ``structural_similarity_index_measure`` (Gaussian window 11, sigma 1.5,
   data range 1; smaller images use the largest odd window that fits) (:func:`ssim_metric`).
 
-The differentiable SSIM *loss* term is :func:`imls_lightning.losses.ssim`, which matches the
+The differentiable SSIM *loss* term is :func:`imls_lightning.tasks.losses.ssim`, which matches the
 metric to float64 precision and stays exact on constant images.
 """
 from __future__ import annotations

@@ -205,7 +205,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
         ims_task = load_task(ims_ckpt, expect="IMSTask", what="IMS checkpoint")
 
     # 2. quality on the validation views
-    from ..data import ImlsDataModule
+    from ..data.datamodule import ImlsDataModule
 
     dm = ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=iml_task.pattern,
                         fields=("view", "fr", "c"), progress=False)

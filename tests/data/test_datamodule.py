@@ -9,7 +9,7 @@ import torch
 from data_gen.errors import InputError
 from imls_lightning.data import ImlsDataModule
 from imls_lightning.core.patterns import downsample_pattern
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +18,7 @@ def tiny_cfg(tmp_path_factory):
     from hydra.core.global_hydra import GlobalHydra
 
     GlobalHydra.instance().clear()
-    with initialize_config_dir(str(Path(__file__).resolve().parents[1] / "conf"), version_base="1.3", job_name="test_data"):
+    with initialize_config_dir(str(Path(__file__).resolve().parents[2] / "conf"), version_base="1.3", job_name="test_data"):
         cfg = compose("train", overrides=["scene=tiny", "data=tiny", "renderer=numba", "model=recnn",
                                           f"data.cache_dir={tmp_path_factory.mktemp('cache')}"])
     return cfg

