@@ -267,7 +267,7 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
     if settings:
         out += ["## Network sizes and training per stage", "",
                 "Sized for 2 CPU cores: the paper's EnhanceNet (64 channels x 10 blocks) costs 1.8 s per 256² C-Image here, "
-                "more than ray-casting the whole pattern, so no ORP could pay for it; 16 x 4 costs about 120 ms. "
+                "more than ray-casting the whole pattern, so no ORP could pay for it; 16 x 4 costs the breakdown's RecNN column. "
                 "The overrides each stage ran with:", "",
                 md_table(["RecNN", "stage", "overrides"], [[r, st, f"`{' '.join(a)}`" if a is not None else "skipped"]
                                                            for r, stages in settings.items() for st, a in stages.items()]), ""]

@@ -174,6 +174,27 @@ def override_list(cfg: DictConfig, key: str) -> list[str]:
     return [str(x) for x in v]
 
 
+def _override_key(override: str) -> str:
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
+    """The overrides of stage ``name``: ``stages.<name>``, then ``scene_stages.<scene>.<name>``
+    ("model only what a scene requires"), whose keys replace the same keys of the first list.
+
+    Example:
+        >>> cfg = OmegaConf.create({"scene": "ct_head", "stages": {"iml": ["model.depth=4", "model.base_channels=8"]},
+        ...                         "scene_stages": {"ct_head": {"iml": ["model.base_channels=16"]}}})
+        >>> stage_overrides(cfg, "iml")
+        ['model.depth=4', 'model.base_channels=16']
+    """
+    merged = {_override_key(o): o for o in override_list(cfg, f"stages.{name}")}
+    scene = cfg.get("scene")
+    if scene is not None and OmegaConf.select(cfg, f"scene_stages.{scene}") is not None:
+        merged.update({_override_key(o): o for o in override_list(cfg, f"scene_stages.{scene}.{name}")})
+    return list(merged.values())
+
+
 def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     """Run every stage; returns the evaluation report's path (None with ``dry_run`` or ``train_only``).
 
@@ -195,18 +216,18 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
         print(f"[demo] contact sheet of the cached views: {sheet}", file=sys.stderr, flush=True)
 
     train = ["-m", "imls_lightning.train"]
-    recnn = stage("RecNN", [*train, "model=recnn", *train_common, *override_list(cfg, "stages.recnn")])
-    iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *override_list(cfg, "stages.iml")])
+    recnn = stage("RecNN", [*train, "model=recnn", *train_common, *stage_overrides(cfg, "recnn")])
+    iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *stage_overrides(cfg, "iml")])
     ims = stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
-                        *override_list(cfg, "stages.ims")])
+                        *stage_overrides(cfg, "ims")])
     blue = None
     if OmegaConf.select(cfg, "stages.blue_noise") is not None:
         # the untrained-mask baseline: the blue-noise mask u > P with a decoder trained for it
         blue = stage("blue-noise decoder", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}",
-                                            "model.importance=uniform", *override_list(cfg, "stages.blue_noise")])
+                                            "model.importance=uniform", *stage_overrides(cfg, "blue_noise")])
     las = None
     if OmegaConf.select(cfg, "stages.las") is not None:
-        las = stage("LAS", [*train, "model=las", *train_common, *override_list(cfg, "stages.las")])
+        las = stage("LAS", [*train, "model=las", *train_common, *stage_overrides(cfg, "las")])
 
     if bool(cfg.get("train_only", False)):
         if not dry:

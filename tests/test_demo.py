@@ -206,3 +206,25 @@ def test_smoke_demo_on_your_own_nifti_file(tmp_path):
     assert m["scene"]["name"] == "mine" and m["scene"]["volume"]["spacing_xyz"] == [1.0, 1.0, 2.0]
     assert m["sample_distance"]["voxels"] == 1.0 and m["scene_config"]["transfer_function"]["auto"] is True
     assert len(list((tmp_path / "runs").glob("*-mine-*"))) == 4  # RecNN, IML, IMS, blue-noise runs of this scene
+
+
+def test_stage_overrides_scene_entries_replace_the_same_keys():
+    from omegaconf import OmegaConf
+
+    from imls_lightning.demo import stage_overrides
+
+    cfg = OmegaConf.create({"scene": "ct_head",
+                            "stages": {"iml": ["model.depth=4", "model.base_channels=8", "trainer.max_epochs=12"], "ims": ["a=1"]},
+                            "scene_stages": {"ct_head": {"iml": ["model.base_channels=16", "+model.extra=1"]}}})
+    assert stage_overrides(cfg, "iml") == ["model.depth=4", "model.base_channels=16", "trainer.max_epochs=12", "+model.extra=1"]
+    assert stage_overrides(cfg, "ims") == ["a=1"]  # no entry for this stage
+    cfg.scene = "flame"  # no entry for this scene
+    assert stage_overrides(cfg, "iml") == ["model.depth=4", "model.base_channels=8", "trainer.max_epochs=12"]
+
+
+def test_demo_config_ct_head_gets_the_wider_decoder():
+    p = subprocess.run([PY, "-m", "imls_lightning.demo", "scene=ct_head", "dry_run=true"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    iml = [ln for ln in p.stdout.splitlines() if "model=iml" in ln]
+    assert len(iml) == 2 and all("model.base_channels=16" in ln and "model.base_channels=8" not in ln for ln in iml)
