@@ -4,8 +4,6 @@ No timing is asserted here: performance is measured by ``scripts/bench_selective
 """
 from __future__ import annotations
 
-import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,13 +11,11 @@ import pytest
 from data_gen.errors import InputError
 from data_gen.scene import Scene, Shading
 
+from .helpers import SAMPLE_DISTANCE_VIEWS, check_images_alike_across_sample_distances, psnr
+
 VIEW = [0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
 OBLIQUE = [2.5, 1.0, 1.2, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0]
 
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 10.0 * math.log10(255.0 ** 2 / max(mse, 1e-12))
 
 
 @pytest.fixture(scope="module")
@@ -154,30 +150,8 @@ def test_exception_unknown_mapper(blob_scene):
         VTKRenderer(blob_scene, mapper="magic")
 
 
-# ---- sample distance: the opacity correction keeps images alike ---------------------------------
-# Measured (64^2, a front and an oblique view, PSNR between 0.5 and 0.25 voxel): tiny 52-53 dB, flame
-# 54-61 dB; at 128^2 ct_head 51-56 dB and mri_head 57-61 dB; both renderers alike. The same tiny pair
-# without the correction (every sample taking the transfer function's opacity as is) is at 29.6 dB.
-MIN_PSNR_ACROSS_SAMPLE_DISTANCES = 45.0
-
-
-@pytest.mark.parametrize("view", [[0.0, -4.5, 0.0, 0, 0, 0, 0, 0, 1], [2.7, 2.2, 2.7, 0, 0, 0, 0, 0, 1]])
+@pytest.mark.parametrize("view", SAMPLE_DISTANCE_VIEWS)
 def test_images_alike_across_sample_distances(view):
-    from omegaconf import OmegaConf
-
     from data_gen.render_vtk import VTKRenderer
-    from data_gen.scene import build_scene
 
-    cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf" / "scene" / "tiny.yaml")
-    half = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.5}))
-    quarter = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.25}), volume=half.volume)
-    assert quarter.sample_distance == pytest.approx(half.sample_distance / 2)
-    a, b = VTKRenderer(half).render(view, 64), VTKRenderer(quarter).render(view, 64)
-    assert (a.max(axis=2) > 10).mean() > 0.05   # something to compare
-    assert psnr(a, b) >= MIN_PSNR_ACROSS_SAMPLE_DISTANCES
-    # the test can fail: without the correction (opacity per sample) the two steps differ clearly
-    raw_half = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.5, "opacity_unit_distance": half.sample_distance}),
-                           volume=half.volume)
-    raw_quarter = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.25, "opacity_unit_distance": quarter.sample_distance}),
-                              volume=half.volume)
-    assert psnr(VTKRenderer(raw_half).render(view, 64), VTKRenderer(raw_quarter).render(view, 64)) < MIN_PSNR_ACROSS_SAMPLE_DISTANCES - 5
+    check_images_alike_across_sample_distances(VTKRenderer, view)
