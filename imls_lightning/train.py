@@ -1,6 +1,6 @@
 """Train any model of the project: ``python -m imls_lightning.train model=... recnn=... scene=...``.
 
-Thin on purpose: compose the config and call :func:`imls_lightning.training.train` (or, for a job
+Thin on purpose: compose the config and call :func:`imls_lightning.training.fit.train` (or, for a job
 of the ORP sweeper, :func:`imls_lightning.orp.orp_main`), then print the best checkpoint's path as
 the last line. Runs live in ``runs/<model>-<recnn>-<scene>-<settings hash>/``: running the same
 settings again resumes from ``last.ckpt``, or returns at once when that run had finished.
@@ -16,7 +16,7 @@ from omegaconf import DictConfig
 from data_gen.errors import checked_command_line, cli_errors
 
 from .orp import orp_main
-from .training import (  # noqa: F401  (re-exported: the train CLI's body, by its old names)
+from .training.fit import (  # noqa: F401  (re-exported: the train CLI's body, by its old names)
     RESULT_FILE,
     build_datamodule,
     cfg_model_name,

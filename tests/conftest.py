@@ -44,7 +44,7 @@ def blob_scene(blob_volume):
 @pytest.fixture(scope="session")
 def tiny_checkpoints(tmp_path_factory) -> dict:
     """Real checkpoints on ``scene=tiny data=tiny renderer=numba``, trained once per session in this
-    process through :func:`imls_lightning.training.train` (the train CLI's body) with
+    process through :func:`imls_lightning.training.fit.train` (the train CLI's body) with
     ``trainer.fast_dev_run=true`` and small networks: RecNN (EnhanceNet) -> IML end to end with it ->
     IMS on the IML's labels (``ims``: target=im, ``ims_pim``: target=pim), the blue-noise decoder
     (``blue``: an IML with importance=uniform), and LAS. About 30 s on 2 cores.

@@ -145,7 +145,7 @@ def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
     from data_gen.errors import InputError
     from imls_lightning.tasks.base import load_task
     from imls_lightning.tasks.iml import IMLTask
-    from imls_lightning.training import _resume_path
+    from imls_lightning.training.fit import _resume_path
 
     task = load_task(recnn_ckpt, expect="RecNNTask")
     text = tmp_path / "notes.txt"

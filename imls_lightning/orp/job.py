@@ -93,7 +93,7 @@ def orp_recnn_job(cfg) -> dict[str, Any]:
     """
 
     def work(job_dir: Path, overrides: list[str]) -> dict[str, Any]:
-        from ..training import train
+        from ..training.fit import train
 
         if not str(cfg.model.get("_target_", "")).endswith("RecNNTask"):
             raise InputError(f"model={cfg.model.get('name')}: the ORP's RecNN stage trains model=recnn")
@@ -112,7 +112,7 @@ def orp_job(cfg, task_overrides: Sequence[str] | None = None) -> dict[str, Any]:
     Runs inside ``python -m imls_lightning.train`` when the config has an ``orp_job`` node (the
     ORP sweeper adds ``++orp_job={...}`` with the knobs in :data:`JOB_KEYS`). Steps:
 
-    1. train the IML with :func:`imls_lightning.training.train` in its own settings-hashed run
+    1. train the IML with :func:`imls_lightning.training.fit.train` in its own settings-hashed run
        directory ``<paths.runs_dir>/<run_name>-<run_hash>`` (a finished run is reused, so a sweep
        that is started again only re-evaluates);
     2. on the validation views: PSNR of IML + RecNN (hard mask; the RecNN inside an end-to-end IML
@@ -171,7 +171,7 @@ def _orp_job(cfg, task_overrides: list[str], job_dir: Path) -> dict[str, Any]:
 
     from ..inference.pipeline import pick_device
     from ..inference.checkpoints import check_same_pattern, load_task
-    from ..training import train
+    from ..training.fit import train
 
     flag = _plain(cfg.orp_job)
     flag = dict(flag) if isinstance(flag, Mapping) else {}

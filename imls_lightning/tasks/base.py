@@ -20,12 +20,12 @@ class ImlsTask(L.LightningModule):
     """Base class: checkpoint identity, construction from config, image-grid hook and metric helpers.
 
     A task is built in two ways. Training instantiates the ``model`` config node
-    (:func:`imls_lightning.training.build_task`): every model setting, its one default in
+    (:func:`imls_lightning.training.fit.build_task`): every model setting, its one default in
     ``conf/model/<name>.yaml``, plus :meth:`config_context`, what comes from outside that node.
     :func:`~imls_lightning.inference.checkpoints.load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
     ``**_`` and ignore it, on purpose: the node's keys for the training run rather than the networks
     (``name``, ``patience``, ``monitor``, ...) and hyperparameters that older checkpoints saved pass
-    both paths alike, with no list of them to keep in step (``tests/test_training.py`` checks
+    both paths alike, with no list of them to keep in step (``tests/training/test_fit.py`` checks
     that every YAML key is an argument or such a run key, so a typo is not swallowed).
     """
 

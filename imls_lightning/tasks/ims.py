@@ -327,7 +327,7 @@ class IMSTask(ImlsTask):
             raise InputError(f"model.betas={list(betas)}: expected two numbers in [0, 1)")
         lc = loss_config(loss)
         if not iml_hparams:
-            raise InputError("model=ims needs the IML's hyperparameters (iml_hparams); build the task with imls_lightning.training.build_task and iml.checkpoint=<IML .ckpt>")
+            raise InputError("model=ims needs the IML's hyperparameters (iml_hparams); build the task with imls_lightning.training.fit.build_task and iml.checkpoint=<IML .ckpt>")
         self.automatic_optimization = False
         self.save_hyperparameters({
             "pattern": _plain_json(pattern), "fr_size": int(fr_size), "iml_hparams": _plain_json(iml_hparams),

@@ -1,7 +1,7 @@
 """IMS training task (imls_lightning.tasks.ims.IMSTask) and its config (conf/model/ims.yaml).
 
 Unit tests run the real task, networks and Lightning Trainer on synthetic (view, label) batches;
-the tests of :func:`~imls_lightning.training.build_task` use a real VTK cache of the procedural
+the tests of :func:`~imls_lightning.training.fit.build_task` use a real VTK cache of the procedural
 ``tiny`` volume and real IML/RecNN checkpoints; the CLI smoke test chains RecNN -> IML end-to-end
 -> IMS through ``python -m imls_lightning.train``."""
 from __future__ import annotations

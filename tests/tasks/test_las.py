@@ -232,7 +232,7 @@ def test_yaml_keys_are_all_task_arguments():
 
 
 def test_build_task_and_datamodule_kwargs():
-    from imls_lightning.training import build_task
+    from imls_lightning.training.fit import build_task
 
     cfg = OmegaConf.create({"model": las_yaml(), "data": {"resolution": 128}})
     task = build_task(cfg)

@@ -22,9 +22,9 @@ from imls_lightning.tasks.base import load_task
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask
 from imls_lightning.tasks.recnn import RecNNTask
-from imls_lightning.training import build_task
+from imls_lightning.training.fit import build_task
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MODELS = ["recnn", "iml", "ims", "las"]
 # keys of a model node for the training run, not the task's constructor (which ignores them, **_):
 # the run name, early stopping / best checkpoint, IMS labelling, and a checkpoint that only enters the run hash
@@ -122,7 +122,7 @@ def test_no_second_default_for_a_model_key():
     Python: that fallback would be a second default, silently out of step with the YAML."""
     every = set().union(*(set(_yaml(m)) for m in MODELS)) - {"_target_"}
     files = {ROOT / "imls_lightning" / "tasks" / f"{m}.py": set(_yaml(m)) for m in MODELS}
-    files[ROOT / "imls_lightning" / "training.py"] = every
+    files[ROOT / "imls_lightning" / "training" / "fit.py"] = every
     hits = [h for path, keys in files.items() for h in _model_key_defaults(path, keys)]
     assert not hits, hits
     for m in MODELS:  # one way from config to task: build_task
@@ -144,7 +144,7 @@ def test_a_missing_model_key_fails_by_name():
 def test_resume_path_fallbacks(tmp_path, capsys):
     from omegaconf import OmegaConf
 
-    from imls_lightning.training import _resume_path
+    from imls_lightning.training.fit import _resume_path
 
     ck = tmp_path / "checkpoints"
     ck.mkdir()
@@ -271,7 +271,7 @@ def quiet_trainer(**kw) -> L.Trainer:
 
 
 def test_set_aside_metrics_keeps_every_earlier_log(tmp_path):
-    from imls_lightning.callbacks import set_aside_metrics
+    from imls_lightning.training.callbacks import set_aside_metrics
 
     assert set_aside_metrics(tmp_path) is None
     for text in ("first", "second"):
@@ -285,7 +285,7 @@ def test_set_aside_metrics_keeps_every_earlier_log(tmp_path):
 def test_resumable_csv_logger_appends_under_the_old_header(tmp_path):
     import csv
 
-    from imls_lightning.callbacks import ResumableCSVLogger
+    from imls_lightning.training.callbacks import ResumableCSVLogger
 
     first = ResumableCSVLogger(tmp_path, name="csv", version="")
     first.log_metrics({"a": 1.0, "b": 2.0}, step=0)

@@ -10,7 +10,7 @@ from lightning.fabric.loggers.logger import rank_zero_experiment
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 
-from .report.viz import image_grid, save_image
+from ..report.viz import image_grid, save_image
 
 
 class ImageGridCallback(L.Callback):

@@ -27,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.errors import InputError
 
 from .callbacks import ResumableCSVLogger, set_aside_metrics
-from .config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
+from ..config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
 
@@ -123,7 +123,7 @@ def build_task(cfg: DictConfig) -> L.LightningModule:
 
 
 def build_datamodule(cfg: DictConfig, task_cls) -> L.LightningDataModule:
-    from .data.datamodule import ImlsDataModule
+    from ..data.datamodule import ImlsDataModule
 
     extra = task_cls.datamodule_kwargs(cfg) if hasattr(task_cls, "datamodule_kwargs") else {}
     return ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=cfg.pattern, **extra)
