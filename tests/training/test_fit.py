@@ -269,30 +269,3 @@ def quiet_trainer(**kw) -> L.Trainer:
     args.update(kw)
     return L.Trainer(**args)
 
-
-def test_set_aside_metrics_keeps_every_earlier_log(tmp_path):
-    from imls_lightning.training.callbacks import set_aside_metrics
-
-    assert set_aside_metrics(tmp_path) is None
-    for text in ("first", "second"):
-        (tmp_path / "metrics.csv").write_text(text)
-        set_aside_metrics(tmp_path)
-    assert not (tmp_path / "metrics.csv").exists()
-    assert (tmp_path / "metrics.previous1.csv").read_text() == "first"
-    assert (tmp_path / "metrics.previous2.csv").read_text() == "second"
-
-
-def test_resumable_csv_logger_appends_under_the_old_header(tmp_path):
-    import csv
-
-    from imls_lightning.training.callbacks import ResumableCSVLogger
-
-    first = ResumableCSVLogger(tmp_path, name="csv", version="")
-    first.log_metrics({"a": 1.0, "b": 2.0}, step=0)
-    first.save()
-    again = ResumableCSVLogger(tmp_path, name="csv", version="")  # a resumed run
-    again.log_metrics({"b": 3.0}, step=1)
-    again.log_metrics({"c": 4.0}, step=2)  # a column the first part never logged
-    again.save()
-    rows = list(csv.DictReader((tmp_path / "csv" / "metrics.csv").open(newline="")))
-    assert [(r["step"], r["a"], r["b"], r["c"]) for r in rows] == [("0", "1.0", "2.0", ""), ("1", "", "3.0", ""), ("2", "", "", "4.0")]
