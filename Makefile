@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # pytest-timeout guards against a hung VTK/numba worker in CI
 PYTEST_ARGS ?=
 
-.PHONY: setup test test-all demo bench bench-paper clean lint
+.PHONY: setup test test-all test-browser demo web bench bench-paper clean lint
 
 setup: $(STAMP)
 
@@ -31,6 +31,17 @@ test-all: setup
 
 demo: setup
 	$(PY) -m imls_lightning.demo
+
+# the browser viewer on the demo's checkpoints (the demo runs first; a finished demo is reused in seconds)
+web: setup
+	$(PY) -m imls_lightning.web from_report=$$($(PY) -m imls_lightning.demo progress=false | tail -1)
+
+# the headless-Chromium tests of the browser viewer (Debian's chromium + chromedriver, selenium)
+test-browser: setup
+	command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
+	  (apt-get install -y -qq chromium chromium-driver || sudo apt-get install -y -qq chromium chromium-driver)
+	$(PY) -m pip install -q -e '.[dev,browser]' --config-settings editable_mode=compat
+	$(PY) -m pytest -q tests/web $(PYTEST_ARGS)
 
 bench: setup
 	$(PY) -m imls_lightning.bench

@@ -66,10 +66,16 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.camera import validate_view
 from data_gen.errors import InputError, boolean, checked_command_line, cli_errors, finite_number
-from data_gen.views import orthogonal_up, unit_vectors
 
+from .inference.camera import (  # noqa: F401  (orbit_view, frame_psnr: re-exported, their old home)
+    DEFAULT_DISTANCE_RANGE,
+    MAX_ELEVATION,
+    frame_psnr,
+    orbit_view,
+    turned,
+    zoomed,
+)
 from .inference.pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
 
 __all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer", "viewer", "main"]
@@ -77,57 +83,12 @@ __all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer",
 #: the stages of ``IMLSRenderer.run`` shown as bars (in pipeline order), then the full ray cast
 IMLS_STAGES = ("importance", "selective_render", "decoder", "recnn", "total")
 RAY_CAST = "ray cast (full)"
-MAX_ELEVATION = 89.0           # degrees; at 90 the +z up vector would be parallel to the view
 ORBIT_STEP = 10.0              # degrees per arrow key
 DRAG_DEGREES_PER_PIXEL = 0.4
-ZOOM_STEP = 0.9                # distance factor per scroll step (in)
-DEFAULT_DISTANCE_RANGE = (2.5, 4.0)
 
 
 # ------------------------------------------------------------------------------------------------
 # camera
-
-
-def orbit_view(azimuth: float, elevation: float, distance: float, lookat=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """The view of a camera orbiting ``lookat``: 9 floats ``(eye, lookAt, up)``.
-
-    Args:
-        azimuth: degrees around the z axis, from +x towards +y (any finite number).
-        elevation: degrees above the xy plane, in ``[-89, 89]``.
-        distance: eye to ``lookat`` (> 0).
-        lookat: the point looked at (the volume centre is the origin).
-
-    Returns:
-        ``(9,)`` float64, validated; ``up`` is +z made orthogonal to the view direction (unit).
-
-    Raises:
-        InputError: non-finite angles, elevation outside +-89 degrees, or distance <= 0.
-
-    Example:
-        >>> np.round(orbit_view(0, 0, 3.0), 6).tolist()
-        [3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
-    """
-    az, el, r = (finite_number(v, k, "a finite number") for v, k in ((azimuth, "azimuth"), (elevation, "elevation"), (distance, "distance")))
-    if abs(el) > MAX_ELEVATION:
-        raise InputError(f"elevation={elevation}: expected degrees in [-{MAX_ELEVATION:g}, {MAX_ELEVATION:g}] (the up vector is +z)")
-    if r <= 0:
-        raise InputError(f"distance={distance}: expected a positive camera distance")
-    a, e = math.radians(az), math.radians(el)
-    look = np.asarray(lookat, dtype=np.float64).reshape(3)
-    eye = look + r * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
-    # the same up convention as the test trajectory (data_gen.views): +z, Gram-Schmidt against the view direction
-    fwd = unit_vectors((look - eye)[None])
-    up = orthogonal_up(fwd, np.array([[0.0, 0.0, 1.0]]))[0]
-    return validate_view(np.concatenate([eye, look, up]))
-
-
-def frame_psnr(image: np.ndarray, truth: np.ndarray) -> float:
-    """PSNR in dB of two ``(m, m, 3)`` uint8 images (100 dB when identical), as the evaluation scores it."""
-    from .core.metrics import psnr
-
-    p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float()
-    t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float()
-    return float(psnr(p, t, data_range=255.0))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -203,13 +164,11 @@ class Viewer:
 
     def orbit(self, d_azimuth: float, d_elevation: float) -> None:
         """Turn the camera (degrees); elevation is clamped to +-89, azimuth wrapped to [-180, 180)."""
-        self.azimuth = (self.azimuth + float(d_azimuth) + 180.0) % 360.0 - 180.0
-        self.elevation = float(np.clip(self.elevation + float(d_elevation), -MAX_ELEVATION, MAX_ELEVATION))
+        self.azimuth, self.elevation = turned(self.azimuth, self.elevation, d_azimuth, d_elevation)
 
     def zoom(self, steps: float) -> None:
         """Scroll ``steps`` (positive: in): distance times ``0.9 ** steps``, clamped to the scene's range."""
-        lo, hi = self.distance_range
-        self.distance = float(np.clip(self.distance * ZOOM_STEP ** float(steps), lo, hi))
+        self.distance = zoomed(self.distance, steps, self.distance_range)
 
     def reset(self) -> None:
         """Back to the start camera."""

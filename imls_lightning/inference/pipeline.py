@@ -442,7 +442,7 @@ class LASMethod(Method):
         with timer.stage("recnn"), self.opts.autocast(self.device):
             fr = net.reconstruct(samples, mask[None, None].float())
         return RenderResult(to_uint8_image(fr), timer.result(),
-                            {"ipr": len(idx) / m**2, "rendered_pixels": int(len(idx))})
+                            {"ipr": len(idx) / m**2, "rendered_pixels": int(len(idx)), "mask": mask.bool().cpu()})
 
 
 def c_mask_to_fr_pixels(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,219 @@
+"""The browser viewer's state, with no web code: a camera, the chosen method, the mean value, and
+one frame at a time (image, mask, error against the ground truth, stage latencies, PSNR).
+
+:class:`ViewerSession` is what :mod:`imls_lightning.web.app` drives; it is tested without a browser.
+
+Example:
+    >>> s = ViewerSession.from_checkpoints("ims.ckpt")      # doctest: +SKIP
+    >>> s.orbit(15, 0); s.set_mean(0.4); f = s.frame()       # doctest: +SKIP
+    >>> f.psnr, f.stages_ms["total"], f.share                # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import base64
+import io
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+from data_gen.errors import InputError, finite_number
+
+from ..core.patterns import c_pixels_to_fr
+from ..inference.camera import DEFAULT_DISTANCE_RANGE, frame_psnr, orbit_view, turned, zoomed
+from ..inference.checkpoints import load_ims_and_recnn, load_task
+from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, renderer_for_task
+from ..report.viz import error_map
+
+#: the methods a user can pick, with their labels
+METHODS = {"imls": "IML/S + RecNN (the product)", "recnn": "RecNN alone", "las": "LAS", "truth": "Ground truth (full ray cast)"}
+#: stage names shown, in pipeline order
+STAGES = ("importance", "selective_render", "decoder", "recnn", "render", "total")
+HISTORY = 60  # latency / PSNR points kept for the small plot
+
+
+@dataclass
+class Frame:
+    """One rendered frame of the session.
+
+    Attributes:
+        method: the method's key (:data:`METHODS`).
+        image: ``(m, m, 3)`` uint8, the method's image.
+        mask: ``(m, m)`` bool, the FR pixels ray-cast for it.
+        error: ``(m, m, 3)`` uint8 heat map of the error against the ground truth (x4).
+        stages_ms: stage -> milliseconds (``total`` included).
+        share: ray-cast FR pixels / FR pixels.
+        psnr: dB against the ground truth (100 when identical).
+        mean: the IML/S mean value in force.
+    """
+
+    method: str
+    image: np.ndarray
+    mask: np.ndarray
+    error: np.ndarray
+    stages_ms: dict[str, float]
+    share: float
+    psnr: float
+    mean: float
+
+
+def png_data_url(image: np.ndarray) -> str:
+    """``(h, w)`` bool / ``(h, w, 3)`` uint8 -> a ``data:image/png;base64,...`` URL for an ``<img>``."""
+    a = np.asarray(image)
+    if a.dtype == bool:
+        a = a.astype(np.uint8) * 255
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, format="PNG")
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+@dataclass
+class ViewerSession:
+    """Camera, method and mean value of one viewer, and the methods built from the checkpoints.
+
+    Args:
+        task: the loaded ``IMSTask`` (its generator, IML decoder and RecNN).
+        recnn: the RecNN module (the task's, or another of the same pattern).
+        renderer: the scene's renderer.
+        las: an optional LAS network and its low-res side ``(net, low_res)``.
+        opts: inference options of every network.
+        azimuth, elevation, distance: start camera (degrees, degrees, normalized units; ``None``:
+            the middle of the scene's camera distance range).
+        method: the start method (:data:`METHODS`).
+    """
+
+    task: Any
+    recnn: torch.nn.Module
+    renderer: Any
+    las: tuple[torch.nn.Module, int] | None = None
+    opts: NetOptions = field(default_factory=NetOptions)
+    azimuth: float = 30.0
+    elevation: float = 20.0
+    distance: float | None = None
+    method: str = "imls"
+
+    def __post_init__(self):
+        scene = getattr(self.renderer, "scene", None)
+        self.distance_range = tuple(float(c) for c in getattr(scene, "camera_distance", DEFAULT_DISTANCE_RANGE))
+        lo, hi = self.distance_range
+        self.distance = 0.5 * (lo + hi) if self.distance is None else finite_number(self.distance, "distance", "a finite number")
+        if not lo - 1e-9 <= self.distance <= hi + 1e-9:
+            raise InputError(f"distance={self.distance}: expected a camera distance in scene.camera_distance=[{lo:g}, {hi:g}]")
+        orbit_view(self.azimuth, self.elevation, self.distance)  # one-line InputError on bad angles
+        self.home = (float(self.azimuth), float(self.elevation), float(self.distance))
+        self.scene_name = getattr(scene, "name", "?")
+        self.trained_mean = float(self.task.iml.mean)
+        self.mean = self.trained_mean
+        self.rescalable = str(self.task.hparams.get("target", "pim")) == "pim"
+        self._imls: dict[float, IMLSRenderer] = {}
+        self.truth_method = FullRayCast(self.renderer, self.task.pattern.fr_size, self.opts)
+        self.recnn_method = RecNNAlone(self.renderer, self.task.pattern, self.recnn, self.opts)
+        self.history: deque[tuple[str, float, float]] = deque(maxlen=HISTORY)
+        self._truth_cache: tuple[bytes, np.ndarray] | None = None
+        self.set_method(self.method)
+
+    @classmethod
+    def from_checkpoints(cls, ims_checkpoint: str, recnn_checkpoint: str | None = None, las_checkpoint: str | None = None,
+                         *, opts: NetOptions | None = None, **camera) -> "ViewerSession":
+        """Load the IMS (and optionally another RecNN and a LAS) checkpoint; the scene and renderer
+        are those the IMS was trained on. Bad or mismatched checkpoints fail in one line."""
+        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
+        recnn = recnn if recnn is not None else task.recnn
+        if recnn is None:
+            raise InputError(f"ims_checkpoint={ims_checkpoint}: holds no RecNN; pass recnn_checkpoint=<RecNN .ckpt>")
+        las = None
+        if las_checkpoint:
+            lt = load_task(las_checkpoint, expect="LASTask", what="las_checkpoint")
+            if int(lt.hparams["fr_size"]) != int(task.pattern.fr_size):
+                raise InputError(f"las_checkpoint={las_checkpoint}: trained at {lt.hparams['fr_size']}^2, the IMS at "
+                                 f"{task.pattern.fr_size}^2; use a LAS of the same resolution")
+            las = (lt.net, int(lt.hparams["low_res"]))
+        return cls(task, recnn, renderer_for_task(task), las=las, opts=opts or NetOptions(), **camera)
+
+    # -- controls ----------------------------------------------------------------------------------
+    @property
+    def methods(self) -> dict[str, str]:
+        """The methods this session can show (LAS only with a LAS checkpoint)."""
+        return {k: v for k, v in METHODS.items() if k != "las" or self.las is not None}
+
+    def set_method(self, name: str) -> None:
+        if name not in self.methods:
+            raise InputError(f"method={name!r}: expected one of {', '.join(self.methods)}")
+        self.method = name
+
+    def set_mean(self, u: float) -> None:
+        """The IML/S mean value (the IMS's PIM' rescaled to it); ``[0.01, 1]``."""
+        u = finite_number(u, "mean", "a number in [0.01, 1]")
+        if not 0.01 <= u <= 1.0:
+            raise InputError(f"mean={u}: expected a number in [0.01, 1]")
+        if not self.rescalable and abs(u - self.trained_mean) > 1e-9:
+            raise InputError(f"mean={u}: this IMS was trained with model.target={self.task.hparams.get('target')}; only its "
+                             f"trained mean {self.trained_mean:g} can be shown (train it with model.target=pim)")
+        self.mean = round(u, 4)
+
+    def orbit(self, d_azimuth: float, d_elevation: float) -> None:
+        self.azimuth, self.elevation = turned(self.azimuth, self.elevation, d_azimuth, d_elevation)
+
+    def zoom(self, steps: float) -> None:
+        self.distance = zoomed(self.distance, steps, self.distance_range)
+
+    def reset(self) -> None:
+        self.azimuth, self.elevation, self.distance = self.home
+
+    def view(self) -> np.ndarray:
+        return orbit_view(self.azimuth, self.elevation, self.distance)
+
+    # -- rendering ---------------------------------------------------------------------------------
+    def _imls_at(self, u: float) -> IMLSRenderer:
+        if u not in self._imls:
+            mean = None if abs(u - self.trained_mean) < 1e-9 else u
+            self._imls[u] = IMLSRenderer.from_task(self.task, self.renderer, self.recnn, self.opts, mean=mean)
+        return self._imls[u]
+
+    def _truth(self, view: np.ndarray):
+        key = np.asarray(view, np.float64).tobytes()
+        if self._truth_cache is None or self._truth_cache[0] != key:
+            res = self.truth_method.run(view)
+            self._truth_cache = (key, res.image)
+            self._truth_ms = {k: 1e3 * v for k, v in res.timings.items()}
+        return self._truth_cache[1]
+
+    def _fr_mask(self, c_mask: torch.Tensor | None) -> np.ndarray:
+        """``(m, m)`` bool: the FR pixels of the set C-Image pixels (None: the whole pattern)."""
+        p = self.task.pattern
+        mask = np.zeros(p.fr_size * p.fr_size, bool)
+        mask[p.indices.numpy() if c_mask is None else c_pixels_to_fr(p, torch.as_tensor(c_mask)).numpy()] = True
+        return mask.reshape(p.fr_size, p.fr_size)
+
+    def frame(self) -> Frame:
+        """Render the current view with the current method (and the ground truth it is scored against)."""
+        view = self.view()
+        m = self.task.pattern.fr_size
+        with torch.inference_mode():
+            truth = self._truth(view)
+            imls = self._imls_at(self.mean)
+            if self.method == "truth":
+                image, stages, mask = truth, dict(self._truth_ms), np.ones((m, m), bool)
+            else:
+                if self.method == "imls":
+                    res = imls.run(view)
+                    mask = self._fr_mask(res.info["im"])
+                elif self.method == "recnn":
+                    res = self.recnn_method.run(view)
+                    mask = self._fr_mask(None)
+                else:  # LAS at the IPR IML/S has at this view and mean
+                    ipr = max(imls.run(view).info["ipr"], 1.0 / m**2)
+                    res = LASMethod(self.renderer, self.las[0], m, self.las[1], ipr=ipr, opts=self.opts).run(view)
+                    mask = np.asarray(res.info["mask"], bool).reshape(m, m) if "mask" in res.info else np.zeros((m, m), bool)
+                image, stages = res.image, {k: 1e3 * v for k, v in res.timings.items()}
+        psnr = frame_psnr(image, truth)
+        err = error_map(torch.from_numpy(np.array(image)).permute(2, 0, 1).float() / 255,
+                        torch.from_numpy(np.array(truth)).permute(2, 0, 1).float() / 255)
+        err = (err.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+        share = float(mask.mean())
+        self.history.append((self.method, stages.get("total", math.nan), psnr))
+        return Frame(self.method, image, mask, err, stages, share, psnr, self.mean)

@@ -1,0 +1,79 @@
+"""imls_lightning.web.session: the browser viewer's state, on real tiny checkpoints (no browser)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from data_gen.errors import InputError
+from imls_lightning.inference.pipeline import NetOptions
+from imls_lightning.web.session import ViewerSession, png_data_url
+
+
+@pytest.fixture(scope="module")
+def session(tiny_checkpoints):
+    return ViewerSession.from_checkpoints(str(tiny_checkpoints["ims_pim"]), las_checkpoint=str(tiny_checkpoints["las"]),
+                                          opts=NetOptions(device="cpu"))
+
+
+def test_smoke_every_method_renders_a_scored_frame(session):
+    m = session.task.pattern.fr_size
+    shares = {}
+    for name in session.methods:
+        session.set_method(name)
+        f = session.frame()
+        assert f.image.shape == (m, m, 3) and f.image.dtype == np.uint8 and f.mask.shape == (m, m)
+        assert f.error.shape == (m, m, 3) and np.isfinite(f.psnr) and f.stages_ms["total"] > 0
+        shares[name] = f.share
+    assert set(shares) == {"imls", "recnn", "las", "truth"}
+    assert shares["truth"] == 1.0 and shares["recnn"] == pytest.approx(session.task.pattern.sampling_ratio)
+    session.set_method("truth")
+    assert session.frame().psnr >= 99.9  # the ground truth scored against itself
+    assert len(session.history) >= 5
+
+
+def test_mean_slider_changes_the_share_ray_cast(session):
+    session.set_method("imls")
+    session.set_mean(0.05)
+    low = session.frame()
+    session.set_mean(1.0)
+    high = session.frame()
+    assert low.mean == 0.05 and high.mean == 1.0 and high.share > low.share
+
+
+def test_orbit_zoom_reset_move_the_camera_and_the_image(session):
+    session.set_method("truth")
+    first = session.frame().image
+    session.orbit(60, 10)
+    session.zoom(3)
+    assert session.azimuth != session.home[0] and session.distance < session.home[2]
+    assert not np.array_equal(session.frame().image, first)
+    session.reset()
+    assert (session.azimuth, session.elevation, session.distance) == session.home
+
+
+def test_png_data_url_round_trip():
+    import base64
+    import io
+
+    from PIL import Image
+
+    img = np.arange(48, dtype=np.uint8).reshape(4, 4, 3)
+    url = png_data_url(img)
+    assert url.startswith("data:image/png;base64,")
+    back = np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))))
+    assert np.array_equal(back, img)
+    assert png_data_url(np.eye(3, dtype=bool)).startswith("data:image/png")
+
+
+def test_exception_bad_inputs_are_one_line(session, tiny_checkpoints, tmp_path):
+    with pytest.raises(InputError, match=r"^method='x': expected one of imls, recnn, las, truth$"):
+        session.set_method("x")
+    with pytest.raises(InputError, match=r"^mean=2.0: expected a number in \[0.01, 1\]$"):
+        session.set_mean(2.0)
+    with pytest.raises(InputError, match="^ims_checkpoint="):
+        ViewerSession.from_checkpoints(str(tmp_path / "missing.ckpt"))
+    with pytest.raises(InputError, match="^ims_checkpoint=.*RecNNTask"):
+        ViewerSession.from_checkpoints(str(tiny_checkpoints["recnn"]))
+    binary = ViewerSession.from_checkpoints(str(tiny_checkpoints["ims"]), opts=NetOptions(device="cpu"))
+    with pytest.raises(InputError, match="model.target=im"):
+        binary.set_mean(0.5)  # a binary-mask IMS cannot be rescaled
