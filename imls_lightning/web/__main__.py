@@ -50,7 +50,7 @@ def serve(cfg: DictConfig, *, exec_mode: str = "main"):
     ims, recnn, las = checkpoints(cfg)
 
     def load() -> ViewerSession:
-        return ViewerSession.from_checkpoints(ims, recnn, las, opts=opts,
+        return ViewerSession.from_checkpoints(ims, recnn, las, cfg.adaptive_predictor, opts=opts,
                                               azimuth=float(cfg.azimuth), elevation=float(cfg.elevation),
                                               distance=cfg.distance, method=str(cfg.method))
 

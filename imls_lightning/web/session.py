@@ -30,9 +30,10 @@ from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOption
 from ..report.viz import error_map
 
 #: the methods a user can pick, with their labels
-METHODS = {"imls": "IML/S + RecNN (the product)", "recnn": "RecNN alone", "las": "LAS", "truth": "Ground truth (full ray cast)"}
+METHODS = {"imls": "IML/S + RecNN (the product)", "adaptive": "IML/S + RecNN, adaptive mean", "recnn": "RecNN alone",
+           "las": "LAS", "truth": "Ground truth (full ray cast)"}
 #: stage names shown, in pipeline order
-STAGES = ("importance", "selective_render", "decoder", "recnn", "render", "total")
+STAGES = ("mean", "importance", "low_res_render", "selective_render", "decoder", "recnn", "render", "total")
 HISTORY = 60  # latency / PSNR points kept for the small plot
 
 
@@ -80,6 +81,8 @@ class ViewerSession:
         recnn: the RecNN module (the task's, or another of the same pattern).
         renderer: the scene's renderer.
         las: an optional LAS network and its low-res side ``(net, low_res)``.
+        predictor: an optional per-view mean predictor (``python -m imls_lightning.adaptive``'s
+            ``mean_predictor.pt``): adds the adaptive-mean method.
         opts: inference options of every network.
         azimuth, elevation, distance: start camera (degrees, degrees, normalized units; ``None``:
             the middle of the scene's camera distance range).
@@ -90,6 +93,7 @@ class ViewerSession:
     recnn: torch.nn.Module
     renderer: Any
     las: tuple[torch.nn.Module, int] | None = None
+    predictor: torch.nn.Module | None = None
     opts: NetOptions = field(default_factory=NetOptions)
     azimuth: float = 30.0
     elevation: float = 20.0
@@ -112,15 +116,20 @@ class ViewerSession:
         self._imls: dict[float, IMLSRenderer] = {}
         self.truth_method = FullRayCast(self.renderer, self.task.pattern.fr_size, self.opts)
         self.recnn_method = RecNNAlone(self.renderer, self.task.pattern, self.recnn, self.opts)
+        self.adaptive_method = None
+        if self.predictor is not None:
+            from ..adaptive.renderer import AdaptiveIMLSRenderer
+
+            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.task, self.predictor, self.recnn, self.opts)
         self.history: deque[tuple[str, float, float]] = deque(maxlen=HISTORY)
         self._truth_cache: tuple[bytes, np.ndarray] | None = None
         self.set_method(self.method)
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, recnn_checkpoint: str | None = None, las_checkpoint: str | None = None,
-                         *, opts: NetOptions | None = None, **camera) -> "ViewerSession":
-        """Load the IMS (and optionally another RecNN and a LAS) checkpoint; the scene and renderer
-        are those the IMS was trained on. Bad or mismatched checkpoints fail in one line."""
+                         predictor: str | None = None, *, opts: NetOptions | None = None, **camera) -> "ViewerSession":
+        """Load the IMS (and optionally another RecNN, a LAS checkpoint and a mean predictor); the
+        scene and renderer are those the IMS was trained on. Bad or mismatched files fail in one line."""
         task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
         recnn = recnn if recnn is not None else task.recnn
         if recnn is None:
@@ -132,13 +141,20 @@ class ViewerSession:
                 raise InputError(f"las_checkpoint={las_checkpoint}: trained at {lt.hparams['fr_size']}^2, the IMS at "
                                  f"{task.pattern.fr_size}^2; use a LAS of the same resolution")
             las = (lt.net, int(lt.hparams["low_res"]))
-        return cls(task, recnn, renderer_for_task(task), las=las, opts=opts or NetOptions(), **camera)
+        mean_predictor = None
+        if predictor:
+            from ..adaptive.predictor import MeanPredictor
+
+            mean_predictor = MeanPredictor.load(predictor)
+        return cls(task, recnn, renderer_for_task(task), las=las, predictor=mean_predictor, opts=opts or NetOptions(), **camera)
 
     # -- controls ----------------------------------------------------------------------------------
     @property
     def methods(self) -> dict[str, str]:
-        """The methods this session can show (LAS only with a LAS checkpoint)."""
-        return {k: v for k, v in METHODS.items() if k != "las" or self.las is not None}
+        """The methods this session can show (LAS only with a LAS checkpoint, the adaptive mean only
+        with a predictor)."""
+        return {k: v for k, v in METHODS.items()
+                if (k != "las" or self.las is not None) and (k != "adaptive" or self.predictor is not None)}
 
     def set_method(self, name: str) -> None:
         if name not in self.methods:
@@ -199,8 +215,8 @@ class ViewerSession:
             if self.method == "truth":
                 image, stages, mask = truth, dict(self._truth_ms), np.ones((m, m), bool)
             else:
-                if self.method == "imls":
-                    res = imls.run(view)
+                if self.method in ("imls", "adaptive"):
+                    res = (imls if self.method == "imls" else self.adaptive_method).run(view)
                     mask = self._fr_mask(res.info["im"])
                 elif self.method == "recnn":
                     res = self.recnn_method.run(view)
@@ -216,4 +232,5 @@ class ViewerSession:
         err = (err.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
         share = float(mask.mean())
         self.history.append((self.method, stages.get("total", math.nan), psnr))
-        return Frame(self.method, image, mask, err, stages, share, psnr, self.mean)
+        mean = float(res.info["mean"]) if self.method == "adaptive" else self.mean
+        return Frame(self.method, image, mask, err, stages, share, psnr, mean)

@@ -10,9 +10,17 @@ from imls_lightning.web.session import ViewerSession, png_data_url
 
 
 @pytest.fixture(scope="module")
-def session(tiny_checkpoints):
+def predictor_file(tmp_path_factory):
+    """A real (untrained) per-view mean predictor file, as python -m imls_lightning.adaptive saves it."""
+    from imls_lightning.adaptive.predictor import MeanPredictor
+
+    return MeanPredictor(hidden=8, layers=1).save(tmp_path_factory.mktemp("predictor") / "mean_predictor.pt")
+
+
+@pytest.fixture(scope="module")
+def session(tiny_checkpoints, predictor_file):
     return ViewerSession.from_checkpoints(str(tiny_checkpoints["ims_pim"]), las_checkpoint=str(tiny_checkpoints["las"]),
-                                          opts=NetOptions(device="cpu"))
+                                          predictor=str(predictor_file), opts=NetOptions(device="cpu"))
 
 
 def test_smoke_every_method_renders_a_scored_frame(session):
@@ -24,11 +32,17 @@ def test_smoke_every_method_renders_a_scored_frame(session):
         assert f.image.shape == (m, m, 3) and f.image.dtype == np.uint8 and f.mask.shape == (m, m)
         assert f.error.shape == (m, m, 3) and np.isfinite(f.psnr) and f.stages_ms["total"] > 0
         shares[name] = f.share
-    assert set(shares) == {"imls", "recnn", "las", "truth"}
+    assert set(shares) == {"imls", "adaptive", "recnn", "las", "truth"}
     assert shares["truth"] == 1.0 and shares["recnn"] == pytest.approx(session.task.pattern.sampling_ratio)
     session.set_method("truth")
     assert session.frame().psnr >= 99.9  # the ground truth scored against itself
     assert len(session.history) >= 5
+
+
+def test_adaptive_method_reports_the_views_mean(session):
+    session.set_method("adaptive")
+    f = session.frame()
+    assert 0.01 <= f.mean <= 1.0 and "mean" in f.stages_ms and f.mask.any()
 
 
 def test_mean_slider_changes_the_share_ray_cast(session):
@@ -66,7 +80,7 @@ def test_png_data_url_round_trip():
 
 
 def test_exception_bad_inputs_are_one_line(session, tiny_checkpoints, tmp_path):
-    with pytest.raises(InputError, match=r"^method='x': expected one of imls, recnn, las, truth$"):
+    with pytest.raises(InputError, match=r"^method='x': expected one of imls, adaptive, recnn, las, truth$"):
         session.set_method("x")
     with pytest.raises(InputError, match=r"^mean=2.0: expected a number in \[0.01, 1\]$"):
         session.set_mean(2.0)
@@ -74,6 +88,9 @@ def test_exception_bad_inputs_are_one_line(session, tiny_checkpoints, tmp_path):
         ViewerSession.from_checkpoints(str(tmp_path / "missing.ckpt"))
     with pytest.raises(InputError, match="^ims_checkpoint=.*RecNNTask"):
         ViewerSession.from_checkpoints(str(tiny_checkpoints["recnn"]))
+    with pytest.raises(InputError, match="^predictor="):
+        ViewerSession.from_checkpoints(str(tiny_checkpoints["ims_pim"]), predictor=str(tiny_checkpoints["recnn"]))
     binary = ViewerSession.from_checkpoints(str(tiny_checkpoints["ims"]), opts=NetOptions(device="cpu"))
+    assert "adaptive" not in binary.methods and "las" not in binary.methods
     with pytest.raises(InputError, match="model.target=im"):
         binary.set_mean(0.5)  # a binary-mask IMS cannot be rescaled
