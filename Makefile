@@ -40,7 +40,6 @@ web: setup
 test-browser: setup
 	command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
 	  (apt-get install -y -qq chromium chromium-driver || sudo apt-get install -y -qq chromium chromium-driver)
-	$(PY) -m pip install -q -e '.[dev,browser]' --config-settings editable_mode=compat
 	$(PY) -m pytest -q tests/web $(PYTEST_ARGS)
 
 bench: setup

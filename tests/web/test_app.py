@@ -85,7 +85,7 @@ def test_exception_cli_without_checkpoint_is_one_line():
 
 
 def _chrome():
-    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (make test-browser installs it)")
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (pip install -e '.[dev]')")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     driver = shutil.which("chromedriver")
     if not chromium or not driver:
