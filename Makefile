@@ -39,7 +39,7 @@ web: setup
 # the headless-Chromium tests of the browser viewer (Debian's chromium + chromedriver, selenium)
 test-browser: setup
 	command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
-	  (apt-get install -y -qq chromium chromium-driver || sudo apt-get install -y -qq chromium chromium-driver)
+	  (apt-get update -qq && apt-get install -y -qq chromium chromium-driver || (sudo apt-get update -qq && sudo apt-get install -y -qq chromium chromium-driver))
 	$(PY) -m pytest -q tests/web $(PYTEST_ARGS)
 
 bench: setup
