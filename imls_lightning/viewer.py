@@ -71,10 +71,9 @@ from data_gen.errors import InputError, boolean, checked_command_line, cli_error
 from .inference.camera import (  # noqa: F401  (orbit_view, frame_psnr: re-exported, their old home)
     DEFAULT_DISTANCE_RANGE,
     MAX_ELEVATION,
+    OrbitCamera,
     frame_psnr,
     orbit_view,
-    turned,
-    zoomed,
 )
 from .inference.pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
 
@@ -100,7 +99,7 @@ class _Drag:
         self.x, self.y, self.moved = x, y, False
 
 
-class Viewer:
+class Viewer(OrbitCamera):
     """The viewer window (or a headless Agg figure): IML/S + RecNN beside the ray cast, with latency.
 
     Args:
@@ -156,23 +155,6 @@ class Viewer:
                 self.renderer.run(v)
                 self.ray_caster.run(v)
         self.update(full=True)
-
-    # -- camera ----------------------------------------------------------------------------------
-    def view(self) -> np.ndarray:
-        """The current view, 9 floats ``(eye, lookAt, up)``."""
-        return orbit_view(self.azimuth, self.elevation, self.distance)
-
-    def orbit(self, d_azimuth: float, d_elevation: float) -> None:
-        """Turn the camera (degrees); elevation is clamped to +-89, azimuth wrapped to [-180, 180)."""
-        self.azimuth, self.elevation = turned(self.azimuth, self.elevation, d_azimuth, d_elevation)
-
-    def zoom(self, steps: float) -> None:
-        """Scroll ``steps`` (positive: in): distance times ``0.9 ** steps``, clamped to the scene's range."""
-        self.distance = zoomed(self.distance, steps, self.distance_range)
-
-    def reset(self) -> None:
-        """Back to the start camera."""
-        self.azimuth, self.elevation, self.distance = self.home
 
     def toggle_mask(self) -> None:
         """Show/hide the importance mask panel."""

@@ -83,3 +83,30 @@ def zoomed(distance: float, steps: float, distance_range: tuple[float, float]) -
     """
     lo, hi = distance_range
     return float(np.clip(float(distance) * ZOOM_STEP ** float(steps), lo, hi))
+
+
+class OrbitCamera:
+    """The camera of a viewer, as a mixin: the class sets ``azimuth``, ``elevation``, ``distance``
+    (degrees, degrees, normalized units), ``home`` (the start triple) and ``distance_range``."""
+
+    azimuth: float
+    elevation: float
+    distance: float
+    home: tuple[float, float, float]
+    distance_range: tuple[float, float]
+
+    def view(self) -> np.ndarray:
+        """The current view, 9 floats ``(eye, lookAt, up)``."""
+        return orbit_view(self.azimuth, self.elevation, self.distance)
+
+    def orbit(self, d_azimuth: float, d_elevation: float) -> None:
+        """Turn the camera (degrees); elevation is clamped to +-89, azimuth wrapped to [-180, 180)."""
+        self.azimuth, self.elevation = turned(self.azimuth, self.elevation, d_azimuth, d_elevation)
+
+    def zoom(self, steps: float) -> None:
+        """Scroll ``steps`` (positive: in): distance times ``0.9 ** steps``, clamped to the scene's range."""
+        self.distance = zoomed(self.distance, steps, self.distance_range)
+
+    def reset(self) -> None:
+        """Back to the start camera."""
+        self.azimuth, self.elevation, self.distance = self.home

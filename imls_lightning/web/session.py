@@ -24,7 +24,7 @@ from PIL import Image
 from data_gen.errors import InputError, finite_number
 
 from ..core.patterns import c_pixels_to_fr
-from ..inference.camera import DEFAULT_DISTANCE_RANGE, frame_psnr, orbit_view, turned, zoomed
+from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import load_ims_and_recnn, load_task
 from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, renderer_for_task
 from ..report.viz import error_map
@@ -73,7 +73,7 @@ def png_data_url(image: np.ndarray) -> str:
 
 
 @dataclass
-class ViewerSession:
+class ViewerSession(OrbitCamera):
     """Camera, method and mean value of one viewer, and the methods built from the checkpoints.
 
     Args:
@@ -170,18 +170,6 @@ class ViewerSession:
             raise InputError(f"mean={u}: this IMS was trained with model.target={self.task.hparams.get('target')}; only its "
                              f"trained mean {self.trained_mean:g} can be shown (train it with model.target=pim)")
         self.mean = round(u, 4)
-
-    def orbit(self, d_azimuth: float, d_elevation: float) -> None:
-        self.azimuth, self.elevation = turned(self.azimuth, self.elevation, d_azimuth, d_elevation)
-
-    def zoom(self, steps: float) -> None:
-        self.distance = zoomed(self.distance, steps, self.distance_range)
-
-    def reset(self) -> None:
-        self.azimuth, self.elevation, self.distance = self.home
-
-    def view(self) -> np.ndarray:
-        return orbit_view(self.azimuth, self.elevation, self.distance)
 
     # -- rendering ---------------------------------------------------------------------------------
     def _imls_at(self, u: float) -> IMLSRenderer:
