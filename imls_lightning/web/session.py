@@ -27,7 +27,7 @@ from ..core.patterns import c_pixels_to_fr
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import load_ims_and_recnn, load_task
 from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, renderer_for_task
-from ..report.viz import error_map
+from ..report.viz import error_map, to_uint8
 
 #: the methods a user can pick, with their labels
 METHODS = {"imls": "IML/S + RecNN (the product)", "adaptive": "IML/S + RecNN, adaptive mean", "recnn": "RecNN alone",
@@ -116,6 +116,9 @@ class ViewerSession(OrbitCamera):
         self._imls: dict[float, IMLSRenderer] = {}
         self.truth_method = FullRayCast(self.renderer, self.task.pattern.fr_size, self.opts)
         self.recnn_method = RecNNAlone(self.renderer, self.task.pattern, self.recnn, self.opts)
+        # LAS is built once; each frame only sets its IPR to IML/S's at that view
+        self.las_method = None if self.las is None else LASMethod(self.renderer, self.las[0], self.task.pattern.fr_size,
+                                                                   self.las[1], ipr=1.0, opts=self.opts)
         self.adaptive_method = None
         if self.predictor is not None:
             from ..adaptive.renderer import AdaptiveIMLSRenderer
@@ -209,15 +212,15 @@ class ViewerSession(OrbitCamera):
                 elif self.method == "recnn":
                     res = self.recnn_method.run(view)
                     mask = self._fr_mask(None)
-                else:  # LAS at the IPR IML/S has at this view and mean
-                    ipr = max(imls.run(view).info["ipr"], 1.0 / m**2)
-                    res = LASMethod(self.renderer, self.las[0], m, self.las[1], ipr=ipr, opts=self.opts).run(view)
-                    mask = np.asarray(res.info["mask"], bool).reshape(m, m) if "mask" in res.info else np.zeros((m, m), bool)
+                else:  # LAS at the IPR IML/S has at this view and mean (the IMS alone decides it, no rendering)
+                    im = imls.predict_im(torch.as_tensor(np.asarray(view, np.float32))[None].to(imls.device))
+                    self.las_method.ipr = max(float(im.sum()) / m**2, 1.0 / m**2)
+                    res = self.las_method.run(view)
+                    mask = res.info["mask"].numpy().reshape(m, m)
                 image, stages = res.image, {k: 1e3 * v for k, v in res.timings.items()}
         psnr = frame_psnr(image, truth)
-        err = error_map(torch.from_numpy(np.array(image)).permute(2, 0, 1).float() / 255,
-                        torch.from_numpy(np.array(truth)).permute(2, 0, 1).float() / 255)
-        err = (err.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+        err = to_uint8(error_map(torch.from_numpy(np.array(image)).permute(2, 0, 1).float() / 255,
+                                 torch.from_numpy(np.array(truth)).permute(2, 0, 1).float() / 255))
         share = float(mask.mean())
         self.history.append((self.method, stages.get("total", math.nan), psnr))
         mean = float(res.info["mean"]) if self.method == "adaptive" else self.mean
