@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # pytest-timeout guards against a hung VTK/numba worker in CI
 PYTEST_ARGS ?=
 
-.PHONY: setup test test-all test-browser demo web bench bench-paper clean lint
+.PHONY: setup test test-all test-browser demo web bench bench-paper size-search clean lint
 
 setup: $(STAMP)
 
@@ -50,6 +50,13 @@ bench: setup
 bench-paper: setup
 	mkdir -p benchmarks
 	$(PY) -m imls_lightning.bench_paper 2>&1 | tee -a benchmarks/paper_scale.log
+
+# model only what a scene requires: a Hydra multirun over the networks' sizes (the demo's scale by
+# default, about 40 minutes); writes benchmarks/size_search/<scene>/pareto.* and
+# conf/pipelines/experiment/<scene>_fast.yaml (python -m imls_lightning.demo +experiment=<scene>_fast)
+size-search: setup
+	mkdir -p benchmarks/size_search
+	$(PY) -m imls_lightning.size_search progress=false 2>&1 | tee -a benchmarks/size_search/search.log
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

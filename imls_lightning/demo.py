@@ -49,6 +49,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
+from .orp.overrides import override_key
+
 ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = str(ROOT / "conf")
 
@@ -174,10 +176,6 @@ def override_list(cfg: DictConfig, key: str) -> list[str]:
     return [str(x) for x in v]
 
 
-def _override_key(override: str) -> str:
-    return override.split("=", 1)[0].lstrip("+~")
-
-
 def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
     """The overrides of stage ``name``: ``stages.<name>``, then ``scene_stages.<scene>.<name>``
     ("model only what a scene requires"), whose keys replace the same keys of the first list.
@@ -188,10 +186,10 @@ def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
         >>> stage_overrides(cfg, "iml")
         ['model.depth=4', 'model.base_channels=16']
     """
-    merged = {_override_key(o): o for o in override_list(cfg, f"stages.{name}")}
+    merged = {override_key(o): o for o in override_list(cfg, f"stages.{name}")}
     scene = cfg.get("scene")
     if scene is not None and OmegaConf.select(cfg, f"scene_stages.{scene}") is not None:
-        merged.update({_override_key(o): o for o in override_list(cfg, f"scene_stages.{scene}.{name}")})
+        merged.update({override_key(o): o for o in override_list(cfg, f"scene_stages.{scene}.{name}")})
     return list(merged.values())
 
 

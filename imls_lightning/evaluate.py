@@ -40,7 +40,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import hydra
 import numpy as np
@@ -88,6 +88,20 @@ def _int(cfg, key: str, minimum: int, allow_none: bool = False) -> int | None:
         what = f"an integer >= {minimum}" + (" or null" if allow_none else "")
         raise InputError(f"{key}={v}: expected {what}")
     return int(v)
+
+
+def _bool(cfg, key: str, default: bool) -> bool:
+    v = OmegaConf.select(cfg, key, default=default)
+    if not isinstance(v, bool):
+        raise InputError(f"{key}={v}: expected true or false")
+    return v
+
+
+def _lift(cfg) -> bool | str:
+    v = OmegaConf.select(cfg, "ims_lift", default="auto")
+    if v not in (True, False, "auto"):
+        raise InputError(f"ims_lift={v}: expected auto, true or false")
+    return v
 
 
 def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
@@ -138,6 +152,7 @@ class Settings:
     orp_max_views: int | None = 30
     shares: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.4])
     timed_views: int | None = None
+    ims_lift: bool | str = "auto"
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -149,6 +164,7 @@ class Settings:
             "las_ipr": self.las_ipr, "las_iprs": self.las_iprs, "mean_values": self.mean_values,
             "sweep_views": self.sweep_views, "grid_views": self.grid_views, "orp": self.orp,
             "epsilon_db": self.epsilon_db, "orp_max_views": self.orp_max_views, "shares": self.shares,
+            "ims_lift": self.ims_lift,
             # only when set: evaluations made before the key existed keep their directories
             **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
         }
@@ -196,6 +212,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_max_views=_int(cfg, "orp_max_views", 1, allow_none=True),
         shares=_floats(cfg, "shares", 0.0, 1.0, lo_open=True) if cfg.get("shares") is not None else [],
         timed_views=_int(cfg, "timed_views", 1, allow_none=True),
+        ims_lift=_lift(cfg),
     )
 
 
@@ -363,6 +380,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         print(f"[evaluate] {out} already has a report of these settings; reusing it (reuse=false re-measures)", file=sys.stderr, flush=True)
         return report_path
     nets = load_networks(s, resolution)
+    nets.ims_task.lift_to_mean = s.ims_lift is True
     ims = nets.ims_task
     out.mkdir(parents=True, exist_ok=True)
     report_path.unlink(missing_ok=True)  # no report.md = no finished evaluation in this folder
@@ -473,7 +491,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     plain = {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
     plain.update(checkpoints=to_plain(cfg.checkpoints), settings=s.hashed(), output_dir=str(out))
     rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)))
-    orp_summary = _orp_summary(orp_result, s) if orp_result is not None else None
+    orp_summary = _orp_summary(orp_result, s, lifted=bool(nets.ims_task.lift_to_mean)) if orp_result is not None else None
     # the machine-readable results the benchmarks collect (make bench-paper)
     rep.atomic_write_text(out / "summary.json", json.dumps({
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
@@ -521,16 +539,46 @@ def _product_orp(s: Settings, cfg, cache, nets: Networks, pattern, device):
     ims = nets.ims_task.to(device)
     with torch.inference_mode():
         batches = list(_loader(cache, rows, pattern))
-        return product_orp(ims, ims.decoder, nets.recnn.to(device).eval(), batches, s.epsilon_db, device=device)
+        recnn = nets.recnn.to(device).eval()
+        return orp_with_lift(lambda: product_orp(ims, ims.decoder, recnn, batches, s.epsilon_db, device=device),
+                             ims, s.ims_lift)
 
 
-def _orp_summary(result, s: Settings) -> dict[str, Any]:
+def orp_with_lift(search: Callable[[], Any], ims, lift: bool | str) -> Any:
+    """Run the ORP ``search`` with the IMS task ``ims``'s masks as ``lift`` says (``ims_lift``).
+
+    ``auto``: the paper's rescale first; when it finds no ORP (its share saturates short of
+    the bound), search again with the masks lifted to their mean value, which then stay lifted for the
+    rest of the evaluation. The result keeps the first search's points as ``rescale_points``.
+    """
+    ims.lift_to_mean = lift is True
+    result = search()
+    if lift == "auto" and not result.found:
+        print(f"[evaluate] ORP: none with the paper's rescale (largest share {_largest_share(result):.1%} of C); "
+              "searching again with the IMS's masks lifted to their mean value (ims_lift=auto)", file=sys.stderr, flush=True)
+        ims.lift_to_mean = True
+        plain = _points(result)
+        result = search()
+        result.rescale_points = plain  # kept for the report: what the paper's rescale reached
+    return result
+
+
+def _points(result) -> list[tuple]:
+    return sorted(((e.u, (e.record or {}).get("gap_db"), (e.record or {}).get("c_share")) for e in result.evaluations))
+
+
+def _largest_share(result) -> float:
+    shares = [(e.record or {}).get("c_share") for e in result.evaluations]
+    return max((float(x) for x in shares if x is not None), default=float("nan"))
+
+
+def _orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
     best = result.best
     rec = best.record if best is not None else {}
     return {"found": result.found, "mean": result.mean, "epsilon_db": s.epsilon_db, "gap_db": rec.get("gap_db"),
             "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
-            "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations),
-            "points": sorted(((e.u, (e.record or {}).get("gap_db"), (e.record or {}).get("c_share")) for e in result.evaluations))}
+            "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations), "lift": lifted,
+            "points": _points(result), "rescale_points": getattr(result, "rescale_points", None)}
 
 
 def _equal_share(s: Settings, cache, rows_all, positions, nets: Networks, pattern, device) -> list[dict[str, Any]]:

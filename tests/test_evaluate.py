@@ -299,3 +299,43 @@ def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):
     assert "Latency: stage times on 1 of the 2 evaluated views" in report.read_text()
     with pytest.raises(InputError, match="timed_views=0"):
         evaluate(_compose(*_args(run["ck"], "timed_views=0")))
+
+
+# ---- the IMS's masks lifted to their mean value (ims_lift) ---------------------------------------
+@pytest.mark.parametrize("value,expected", [(None, "auto"), ("true", True), ("false", False), ("auto", "auto")])
+def test_ims_lift_setting(tiny_checkpoints, value, expected):
+    from imls_lightning.evaluate import parse_settings
+
+    extra = [f"ims_lift={value}"] if value is not None else []
+    assert parse_settings(_compose(*_args(tiny_checkpoints), *extra)).ims_lift == expected
+
+
+def test_exception_ims_lift_is_one_line(tiny_checkpoints):
+    from imls_lightning.evaluate import parse_settings
+
+    with pytest.raises(InputError, match=r"^ims_lift=maybe: expected auto, true or false$"):
+        parse_settings(_compose(*_args(tiny_checkpoints), "ims_lift=maybe"))
+
+
+def test_orp_with_lift_auto_searches_again_lifted_only_when_the_rescale_finds_none(capsys):
+    """The control flow of ims_lift=auto with the real ORP search (the gap is a function of the
+    lifted state; the lift itself is tested on a real IMS in tests/adaptive/test_renderer.py)."""
+    from types import SimpleNamespace
+
+    from imls_lightning.evaluate import orp_with_lift
+    from imls_lightning.orp import ORPSearch, batched
+
+    def search_for(ims):
+        # the rescale's gap never drops below 2 dB; lifted, every u >= 0.5 is within 1 dB
+        gap = lambda u: (0.0 if u >= 0.5 else 3.0) if ims.lift_to_mean else 2.0  # noqa: E731
+        return lambda: ORPSearch(epsilon_db=1.0).run(batched(lambda u: {"gap_db": gap(u), "c_share": min(u, 0.6)}))
+
+    ims = SimpleNamespace(lift_to_mean=None)
+    res = orp_with_lift(search_for(ims), ims, "auto")
+    assert res.found and 0.5 <= res.mean <= 0.56 and ims.lift_to_mean is True
+    assert res.rescale_points and all(g == 2.0 for _, g, _ in res.rescale_points)
+    assert "ORP: none with the paper's rescale (largest share 60.0% of C)" in capsys.readouterr().err
+    for lift in (False, True):
+        ims = SimpleNamespace(lift_to_mean=None)
+        res = orp_with_lift(search_for(ims), ims, lift)
+        assert ims.lift_to_mean is lift and res.found is lift and getattr(res, "rescale_points", None) is None

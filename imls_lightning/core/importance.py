@@ -38,6 +38,8 @@ __all__ = [
     "check_ipr",
     "delegated",
     "normalize_importance",
+    "lift_to_share",
+    "lifted_mask",
     "soft_rejection_sample",
     "hard_rejection_sample",
     "ImportanceNormalization",
@@ -128,6 +130,109 @@ def normalize_importance(
             count = v.sum(dim=(1, 2, 3), keepdim=True).clamp_min(1.0) * x.shape[1]
             mu = (x * v).sum(dim=(1, 2, 3), keepdim=True) / count
         return lower + x * ((u - lower) / (mu + delta))
+
+
+def lift_to_share(
+    pim_norm: torch.Tensor,
+    mean: torch.Tensor | float,
+    valid: Optional[torch.Tensor] = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per image, the multiplier ``m >= 1`` and floor ``f`` that make a normalized importance sample a
+    share ``u`` of the pixels (the IMS's masks at mean values above the trained one).
+
+    Against the rank pattern ``P`` (uniform in ``(0, 1]``) a pixel of importance ``x`` is sampled with
+    probability ``min(x, 1)``. Once pixels saturate above 1 the share falls short of the mean ``u``, and
+    a pixel at 0 is never sampled at any ``u`` (an IMS trained at ``u = 0.2`` reaches 66 % of C at
+    ``u = 1`` on ct_head). This lifts ``PIM'`` in two steps, so that the expected share is ``u``:
+
+    1. scale first: the smallest ``m >= 1`` with ``mean(min(m PIM', 1)) = u``. ``m PIM' > P`` is the
+       same family of masks as the paper's rescale, only reaching the share ``u`` (the importance
+       ranking is kept);
+    2. only when every pixel with ``PIM' > 0`` is taken (``m = inf``): the floor ``f`` in ``[0, 1]`` on
+       the pixels at 0, a blue-noise share ``f > P`` of them. ``u = 1`` samples every pixel.
+
+    ``m = 1, f = 0`` (no change) when ``mean(min(PIM', 1)) >= u`` already. Solved exactly from the
+    sorted values: with the ``k`` largest saturated the share is ``(k + m R_k) / N``, ``R_k`` the sum
+    of the others.
+
+    Args:
+        pim_norm: ``(B, 1, H, W)`` normalized importance PIM' (``>= 0``).
+        mean: the share to reach per image: a number or a ``(B,)`` tensor in ``[0, 1]``.
+        valid: optional ``(H, W)`` / ``(1, 1, H, W)`` / ``(B, 1, H, W)`` mask of the pixels that count
+            (the pattern's ``K`` pixels of a compacted C-Image).
+
+    Returns:
+        ``(m, f)``, each ``(B, 1, 1, 1)`` float64 (``m`` may be ``inf``); not differentiable (thresholds).
+        The mask is ``(m PIM' > P) | (f > P)``, with ``m PIM'`` read as ``PIM' > 0`` where ``m = inf``
+        (:func:`lifted_mask`).
+
+    Example:
+        >>> pim = torch.tensor([[[[0.0, 0.1, 0.3, 2.0]]]])   # mean(min(PIM', 1)) = 0.35
+        >>> [v.item() for v in lift_to_share(pim, 0.35)]      # reached already
+        [1.0, 0.0]
+        >>> [round(v.item(), 6) for v in lift_to_share(pim, 0.5)]   # scale 0.1 and 0.3 by 2.5
+        [2.5, 0.0]
+        >>> [v.item() for v in lift_to_share(pim, 0.875)]    # all three taken, the zero lifted to 0.5
+        [inf, 0.5]
+    """
+    if pim_norm.dim() != 4:
+        raise ValueError(f"pim_norm: expected a (B, C, H, W) tensor, got shape {tuple(pim_norm.shape)}")
+    b = pim_norm.shape[0]
+    u = torch.as_tensor(mean, dtype=torch.float64).reshape(-1).cpu()
+    if u.numel() == 1:
+        u = u.expand(b)
+    if u.numel() != b:
+        raise ValueError(f"mean: expected a number or {b} mean values, got {u.numel()}")
+    for v in u.tolist():
+        if not (0.0 <= v <= 1.0 + 1e-6):  # a float32 1.0 passes
+            check_number(v, "mean", 0.0, 1.0)
+    u = u.clamp(0.0, 1.0)
+    x = pim_norm.detach().to(torch.float64).clamp_min(0.0)
+    if valid is not None:
+        v = valid.to(device=x.device, dtype=torch.bool)
+        while v.dim() < 4:
+            v = v.unsqueeze(0)
+        v = v.expand(b, 1, x.shape[2], x.shape[3])
+    mult = torch.ones(b, dtype=torch.float64)
+    floor = torch.zeros(b, dtype=torch.float64)
+    for i in range(b):
+        vals = (x[i][v[i]] if valid is not None else x[i].reshape(-1)).cpu()
+        n = vals.numel()
+        target = float(u[i]) * n
+        if n == 0 or float(vals.clamp(max=1.0).sum()) >= target:
+            continue  # the rescale reaches u by itself
+        pos = vals[vals > 0]
+        if target >= pos.numel():  # every pixel with importance is taken; the rest comes from the floor
+            mult[i] = math.inf
+            floor[i] = min(max((target - pos.numel()) / max(n - pos.numel(), 1), 0.0), 1.0)
+            continue
+        xs, _ = torch.sort(pos, descending=True)
+        rest = xs.flip(0).cumsum(0).flip(0)                   # rest[k] = sum of xs[k:]
+        k = torch.arange(xs.numel(), dtype=torch.float64)
+        at_saturation = k + rest / xs                         # share * N when xs[k] reaches 1; non-decreasing
+        j = int(torch.searchsorted(at_saturation, torch.tensor([target], dtype=torch.float64)))
+        j = min(j, xs.numel() - 1)
+        mult[i] = max((target - j) / float(rest[j]), 1.0)
+    return mult.view(b, 1, 1, 1).to(pim_norm.device), floor.view(b, 1, 1, 1).to(pim_norm.device)
+
+
+def lifted_mask(pim_norm: torch.Tensor, mult: torch.Tensor, floor: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
+    """The hard mask ``(m PIM' > P) | (f > P)`` of :func:`lift_to_share`'s ``(m, f)``; a value reaching 1
+    is always sampled (``P`` reaches 1), and ``m = inf`` takes every pixel with ``PIM' > 0``.
+
+    Example:
+        >>> pim = torch.tensor([[[[0.0, 0.1, 0.3, 2.0]]]])
+        >>> m, f = lift_to_share(pim, 0.875)
+        >>> lifted_mask(pim, m, f, torch.tensor([[0.4, 0.9, 0.9, 0.9]])).tolist()
+        [[[[True, True, True, True]]]]
+    """
+    with torch.autocast(device_type=pim_norm.device.type, enabled=False):
+        x = _f32(pim_norm)
+        P = _p_like(P, x)
+        m, f = mult.to(device=x.device, dtype=x.dtype), floor.to(device=x.device, dtype=x.dtype)
+        scaled = torch.where(torch.isinf(m), torch.where(x > 0, torch.ones_like(x), torch.zeros_like(x)),
+                             x * torch.where(torch.isinf(m), torch.ones_like(m), m))
+        return (scaled > P) | (scaled >= 1.0) | (f > P) | (f >= 1.0)
 
 
 def _p_like(P: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

@@ -175,13 +175,20 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
                      f"ray-cast, IML decoder, RecNN) stays within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN alone on "
                      f"the validation views: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
                      f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB ({o['evaluations']} means tried). IML/S + RecNN "
-                     "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u).")
+                     "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u"
+                     + (", lifted so that its share of C reaches u)." if o.get("lift") else ", not lifted).") )
         else:
             L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
                      "alone on the validation views; IML/S runs at its trained mean.")
         L.append("")
         L.append(md_table(["u", "gap (dB)", "C-share"], [[fmt(u, 4), fmt(g, 2), fmt_pct(c)] for u, g, c in o["points"]], "rrr"))
         L.append("")
+        if o.get("rescale_points"):
+            L.append("The paper's rescale (`ims_lift=false`) found no ORP first: its share of C saturates. Its search:")
+            L.append("")
+            L.append(md_table(["u", "gap (dB)", "C-share"],
+                              [[fmt(u, 4), fmt(g, 2), fmt_pct(c)] for u, g, c in o["rescale_points"]], "rrr"))
+            L.append("")
 
     if "imls" in summ:
         L.append("## Speed-up of IML/S + RecNN")

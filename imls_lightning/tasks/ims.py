@@ -82,6 +82,7 @@ from ..config import to_plain
 from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import IMSDiscriminator, IMSGenerator, im_to_target
+from ..core.importance import lift_to_share, lifted_mask
 from ..core.patterns import build_pattern
 from ..core.metrics import psnr_per_image
 from .base import ImlsTask
@@ -172,7 +173,8 @@ def pim_to_target(pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> to
     return t
 
 
-def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float | None = None) -> torch.Tensor:
+def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float | None = None,
+                  lift: bool | None = None) -> torch.Tensor:
     """IM of an IMS (``target="pim"``) output at mean value ``u`` instead of the trained ``u_train``.
 
     The IMS regresses ``PIM' = (g + 1) / 2`` normalized to mean ``u_train``; the IML normalization
@@ -182,11 +184,20 @@ def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float
     ``u >= u_train`` and is compared at its lower bound otherwise. At ``u == u_train`` (same float32)
     this is bit-for-bit :meth:`IMSTask.output_to_im`.
 
+    Rescaling alone cannot reach every share: a pixel regressed as 0 stays 0 at any ``u`` and pixels
+    pushed past 1 waste their excess, so the share stops short of ``u`` (66 % of C at ``u = 1`` for
+    the paper-scale ct_head IMS). With ``lift``, above the trained mean, PIM'(u) is lifted by
+    :func:`~imls_lightning.core.importance.lift_to_share`: scaled further until the expected share is
+    ``u`` (the same masks as the plain rescale, reached at their share), and once every pixel with
+    importance is taken, a blue-noise floor on the rest; ``u = 1`` renders every pixel. Where the
+    rescale already reaches ``u`` the IM is unchanged.
+
     Args:
         task: the :class:`~imls_lightning.tasks.ims.IMSTask` (its ``P``, ``valid``, IML ``lower``).
         g: ``(B, 1, n, n)`` generator output in ``[-1, 1]``.
         u: ``(B,)`` tensor or a number: the mean value per view.
         u_train: the mean the IMS targets were normalized to (default: the IML's trained mean).
+        lift: lift the rescaled PIM' to the share ``u`` (default: the task's ``lift_to_mean``, True).
 
     Returns:
         ``(B, 1, n, n)`` bool IM.
@@ -202,8 +213,19 @@ def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float
         pim_u = pim * scale
     else:
         pim_u = (pim - lower) * scale + lower
-    im = (pim_u > task.P.to(g.device)) | ((g >= 1.0) & (scale >= 1.0))
-    return im & task.valid.to(g.device)
+    P, valid = task.P.to(g.device), task.valid.to(g.device)
+    saturated = (g >= 1.0) & (scale >= 1.0)
+    im = (pim_u > P) | saturated
+    if getattr(task, "lift_to_mean", True) if lift is None else lift:
+        # above the trained mean only (below it nothing saturates and the IM stays the paper's): m = 1,
+        # f = 0 add nothing, so where the rescale reaches u the IM is bit-for-bit the rescaled one
+        x = torch.where(saturated, pim_u.clamp_min(1.0), pim_u)
+        m, f = lift_to_share(x, ut.flatten(), valid)
+        above = (scale > 1.0).to(m.device)
+        m = torch.where(above, m, torch.ones_like(m))
+        f = torch.where(above, f, torch.zeros_like(f))
+        im = im | lifted_mask(x, m, f, P)
+    return im & valid
 
 
 def _plain_json(obj: Any) -> Any:
@@ -275,7 +297,9 @@ class IMSTask(ImlsTask):
 
     Attributes:
         generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
-        (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern.
+        (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern; ``lift_to_mean``
+        (bool, default True, a run-time setting, not a hyperparameter): :func:`scaled_pim_im` lifts
+        the rescaled PIM' so that the share of C reaches the mean value (False: the plain rescale).
 
     Example:
         >>> task = build_task(cfg)  # model=ims iml.checkpoint=...  # doctest: +SKIP
@@ -312,6 +336,7 @@ class IMSTask(ImlsTask):
         **_: Any,  # run keys of the model node (name, patience, labels_*, ...) and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
+        self.lift_to_mean = True  # scaled_pim_im: reach the share u past the rescale's saturation
         if target not in TARGETS:
             raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
         if not (isinstance(lr, (int, float)) and lr > 0 and math.isfinite(lr)):

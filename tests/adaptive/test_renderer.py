@@ -24,6 +24,31 @@ def test_scaled_pim_im_equals_output_to_im_at_the_trained_mean_and_grows_with_u(
     assert counts == sorted(counts) and counts[0] < counts[2] < counts[-1]
 
 
+def test_scaled_pim_im_lift_reaches_the_share_of_u_and_every_pixel_at_one(pim_task):
+    n = pim_task.pattern.c_size
+    valid = pim_task.valid.bool().view(n, n)
+    k = int(valid.sum())
+    g = torch.full((2, 1, n, n), -1.0)   # no importance but a saturated corner and a graded band
+    g[:, 0, : n // 4, : n // 4] = 1.0
+    g[:, 0, n // 2:, :] = torch.linspace(-0.9, 0.0, n)
+    u0 = float(pim_task.iml.mean)
+    plain = [float(scaled_pim_im(pim_task, g, u, lift=False)[0, 0][valid].float().mean()) for u in (0.9, 1.0)]
+    assert plain[1] < 0.75  # the zeros stay zeros at any u
+    for u in (u0, min(2 * u0, 0.5), 0.7, 0.9):
+        im, im_plain = scaled_pim_im(pim_task, g, u), scaled_pim_im(pim_task, g, u, lift=False)
+        share, share_plain = (float(m[0, 0][valid].float().mean()) for m in (im, im_plain))
+        expected = max(u, share_plain) if u > u0 else share_plain  # at or below the trained mean: the paper's
+        assert share == pytest.approx(expected, abs=0.04), u
+        assert not bool((im_plain & ~im).any())  # scale first: it keeps every pixel the plain rescale samples
+    full = scaled_pim_im(pim_task, g, 1.0)
+    assert int(full[0, 0][valid].sum()) == k and not bool(full[0, 0][~valid].any())
+    pim_task.lift_to_mean = False  # the task's run-time switch is the default of lift=None
+    try:
+        assert torch.equal(scaled_pim_im(pim_task, g, 1.0), scaled_pim_im(pim_task, g, 1.0, lift=False))
+    finally:
+        pim_task.lift_to_mean = True
+
+
 # ---- adaptive renderers ------------------------------------------------------------------------------
 def test_adaptive_renderer_with_the_trained_mean_is_imls_renderer(pim_task, renderer, tiny_cache):
     u0 = float(pim_task.iml.mean)

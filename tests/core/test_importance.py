@@ -1,6 +1,8 @@
 """PIM normalization and rejection sampling: formulas, gradients, extremes, user errors."""
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -9,6 +11,8 @@ from imls_lightning.core.importance import (
     ImportanceNormalization,
     RejectionSampling,
     hard_rejection_sample,
+    lift_to_share,
+    lifted_mask,
     normalize_importance,
     soft_rejection_sample,
 )
@@ -236,3 +240,76 @@ def test_rejection_sampling_window_smoke_crop_uses_the_top_left_of_p():
 def test_rejection_sampling_window_exception_larger_than_p():
     with pytest.raises(ValueError, match="larger than the rank pattern"):
         RejectionSampling(torch.rand(4, 4))(torch.rand(1, 1, 8, 8))
+
+
+# ---- lift_to_share ----------------------------------------------------------------------------------
+def _share(x: torch.Tensor, m: float, f: float) -> float:
+    """Expected share of the lifted importance, computed directly: min(max(m x, f), 1) (m x = [x > 0] at m = inf)."""
+    x = x.double()
+    scaled = (x > 0).double() if math.isinf(m) else x * m
+    return float(torch.clamp(torch.maximum(scaled, torch.full_like(x, f)), max=1.0).mean())
+
+
+def test_lift_smoke_scales_first_then_floors():
+    pim = torch.tensor([[[[0.0, 0.1, 0.3, 2.0]]]])
+    assert [v.item() for v in lift_to_share(pim, 0.3)] == [1.0, 0.0]
+    m, f = lift_to_share(pim, 0.5)
+    assert m.item() == pytest.approx(2.5) and f.item() == 0.0
+    assert [v.item() for v in lift_to_share(pim, 1.0)] == [math.inf, 1.0]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_lift_against_direct_share_with_valid_pixels_and_per_image_means(seed):
+    g = torch.Generator().manual_seed(seed)
+    pim = torch.rand(4, 1, 9, 11, generator=g) ** 3 * 3 * (torch.rand(4, 1, 9, 11, generator=g) > 0.4)
+    valid = torch.rand(9, 11, generator=g) > 0.3
+    u = torch.rand(4, generator=g) * 0.99 + 0.01
+    m, f = lift_to_share(pim, u, valid)
+    assert m.shape == f.shape == (4, 1, 1, 1) and m.dtype == torch.float64
+    for b in range(4):
+        x = pim[b, 0][valid]
+        plain = float(x.double().clamp(max=1).mean())
+        mb, fb = float(m[b]), float(f[b])
+        assert mb >= 1.0 and 0.0 <= fb <= 1.0
+        assert _share(x, mb, fb) == pytest.approx(max(plain, float(u[b])), abs=1e-9)
+        if fb > 0:
+            assert math.isinf(mb)  # the floor only once every pixel with importance is taken
+        elif mb > 1.0:
+            assert _share(x, mb * (1 - 1e-6), 0.0) < float(u[b])  # the smallest multiplier
+
+
+def test_lifted_mask_reaches_the_share_against_the_rank_pattern():
+    n = 64
+    P = rank_pattern(n, seed=1)
+    pim = torch.zeros(1, 1, n, n)
+    pim[..., n // 2:, :] = torch.linspace(0.05, 3.0, n)  # graded importance on half the image, saturating
+    plain = float(pim.clamp(max=1).mean())  # 0.42: the plain mask's share
+    for u in (0.3, 0.45, 0.6, 0.9, 1.0):
+        im = lifted_mask(pim, *lift_to_share(pim, u), P)
+        assert float(im.float().mean()) == pytest.approx(max(u, plain), abs=0.02), u
+        assert not bool((hard_rejection_sample(pim, P) & ~im).any())  # keeps what the plain mask samples
+    assert bool(lifted_mask(pim, *lift_to_share(pim, 1.0), P).all())
+
+
+def test_lift_extremes_all_zero_and_all_saturated_are_finite():
+    zero, full = torch.zeros(2, 1, 8, 8), torch.full((2, 1, 8, 8), 1e30)
+    m, f = lift_to_share(zero, 0.01)
+    assert m.isinf().all() and f.flatten().tolist() == pytest.approx([0.01, 0.01])
+    assert [v.flatten().tolist() for v in lift_to_share(full, 1.0)] == [[1.0, 1.0], [0.0, 0.0]]
+    assert [v.flatten().tolist() for v in lift_to_share(zero, 0.5, torch.zeros(8, 8, dtype=torch.bool))] == [[1.0, 1.0], [0.0, 0.0]]
+    tiny = torch.full((1, 1, 8, 8), 1e-30)
+    m, f = lift_to_share(tiny, 0.5)
+    assert torch.isfinite(m).all() and _share(tiny.flatten(), float(m), float(f)) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan")])
+def test_lift_exception_mean_out_of_range(bad):
+    with pytest.raises(InputError, match="mean"):
+        lift_to_share(torch.rand(1, 1, 4, 4), bad)
+
+
+def test_lift_exception_shapes():
+    with pytest.raises(ValueError, match="pim_norm"):
+        lift_to_share(torch.rand(4, 4), 0.5)
+    with pytest.raises(ValueError, match="mean"):
+        lift_to_share(torch.rand(2, 1, 4, 4), torch.tensor([0.1, 0.2, 0.3]))
