@@ -197,7 +197,7 @@ def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float
         g: ``(B, 1, n, n)`` generator output in ``[-1, 1]``.
         u: ``(B,)`` tensor or a number: the mean value per view.
         u_train: the mean the IMS targets were normalized to (default: the IML's trained mean).
-        lift: lift the rescaled PIM' to the share ``u`` (default: the task's ``lift_to_mean``, True).
+        lift: lift the rescaled PIM' to the share ``u`` (default: the task's ``lift_to_mean``, False).
 
     Returns:
         ``(B, 1, n, n)`` bool IM.
@@ -216,7 +216,7 @@ def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float
     P, valid = task.P.to(g.device), task.valid.to(g.device)
     saturated = (g >= 1.0) & (scale >= 1.0)
     im = (pim_u > P) | saturated
-    if getattr(task, "lift_to_mean", True) if lift is None else lift:
+    if getattr(task, "lift_to_mean", False) if lift is None else lift:
         # above the trained mean only (below it nothing saturates and the IM stays the paper's): m = 1,
         # f = 0 add nothing, so where the rescale reaches u the IM is bit-for-bit the rescaled one
         x = torch.where(saturated, pim_u.clamp_min(1.0), pim_u)
@@ -298,8 +298,9 @@ class IMSTask(ImlsTask):
     Attributes:
         generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
         (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern; ``lift_to_mean``
-        (bool, default True, a run-time setting, not a hyperparameter): :func:`scaled_pim_im` lifts
-        the rescaled PIM' so that the share of C reaches the mean value (False: the plain rescale).
+        (bool, default False, a run-time setting, not a hyperparameter): True makes :func:`scaled_pim_im`
+        lift the rescaled PIM' so that the share of C reaches the mean value (False: the paper's
+        rescale; training always uses that).
 
     Example:
         >>> task = build_task(cfg)  # model=ims iml.checkpoint=...  # doctest: +SKIP
@@ -336,7 +337,7 @@ class IMSTask(ImlsTask):
         **_: Any,  # run keys of the model node (name, patience, labels_*, ...) and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
-        self.lift_to_mean = True  # scaled_pim_im: reach the share u past the rescale's saturation
+        self.lift_to_mean = False  # scaled_pim_im: the paper's rescale unless asked (evaluate's ims_lift)
         if target not in TARGETS:
             raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
         if not (isinstance(lr, (int, float)) and lr > 0 and math.isfinite(lr)):
@@ -571,7 +572,7 @@ class IMSTask(ImlsTask):
         random mean values: what :attr:`decoder` is fine-tuned on."""
         c = batch["c"]
         with torch.no_grad():
-            im = scaled_pim_im(self, g.detach(), self._random_means(c.shape[0], c.device)).to(c.dtype)
+            im = scaled_pim_im(self, g.detach(), self._random_means(c.shape[0], c.device), lift=False).to(c.dtype)
         c_rec = self.iml.decoder(im * c, im)
         end_to_end = self.recnn is not None and "fr" in batch
         fr_pred, fr = (self.recnn(c_rec).float(), batch["fr"].float()) if end_to_end else (None, None)

@@ -34,19 +34,20 @@ def test_scaled_pim_im_lift_reaches_the_share_of_u_and_every_pixel_at_one(pim_ta
     u0 = float(pim_task.iml.mean)
     plain = [float(scaled_pim_im(pim_task, g, u, lift=False)[0, 0][valid].float().mean()) for u in (0.9, 1.0)]
     assert plain[1] < 0.75  # the zeros stay zeros at any u
+    assert pim_task.lift_to_mean is False  # the paper's rescale unless asked
     for u in (u0, min(2 * u0, 0.5), 0.7, 0.9):
-        im, im_plain = scaled_pim_im(pim_task, g, u), scaled_pim_im(pim_task, g, u, lift=False)
+        im, im_plain = scaled_pim_im(pim_task, g, u, lift=True), scaled_pim_im(pim_task, g, u)
         share, share_plain = (float(m[0, 0][valid].float().mean()) for m in (im, im_plain))
         expected = max(u, share_plain) if u > u0 else share_plain  # at or below the trained mean: the paper's
         assert share == pytest.approx(expected, abs=0.04), u
         assert not bool((im_plain & ~im).any())  # scale first: it keeps every pixel the plain rescale samples
-    full = scaled_pim_im(pim_task, g, 1.0)
+    full = scaled_pim_im(pim_task, g, 1.0, lift=True)
     assert int(full[0, 0][valid].sum()) == k and not bool(full[0, 0][~valid].any())
-    pim_task.lift_to_mean = False  # the task's run-time switch is the default of lift=None
+    pim_task.lift_to_mean = True  # the task's run-time switch is the default of lift=None
     try:
-        assert torch.equal(scaled_pim_im(pim_task, g, 1.0), scaled_pim_im(pim_task, g, 1.0, lift=False))
+        assert torch.equal(scaled_pim_im(pim_task, g, 1.0), full)
     finally:
-        pim_task.lift_to_mean = True
+        pim_task.lift_to_mean = False
 
 
 # ---- adaptive renderers ------------------------------------------------------------------------------
