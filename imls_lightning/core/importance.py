@@ -40,6 +40,7 @@ __all__ = [
     "normalize_importance",
     "lift_to_share",
     "lifted_mask",
+    "LiftToShare",
     "soft_rejection_sample",
     "hard_rejection_sample",
     "ImportanceNormalization",
@@ -389,3 +390,19 @@ class RejectionSampling(nn.Module):
 
     def extra_repr(self) -> str:
         return f"size={tuple(self.P.shape)}, alpha={self._alpha}"
+
+
+class LiftToShare(nn.Module):
+    """:func:`lift_to_share` then :func:`lifted_mask` as a layer: the hard IM ``(B, 1, H, W)`` (bool) that
+    samples a share ``mean`` of each image's (valid) pixels, keeping the importance ranking.
+
+    Example:
+        >>> lift = LiftToShare()
+        >>> pim = torch.tensor([[[[0.0, 0.1, 0.3, 2.0]]]])
+        >>> lift(pim, 0.875, torch.tensor([[0.4, 0.9, 0.9, 0.9]])).tolist()
+        [[[[True, True, True, True]]]]
+    """
+
+    def forward(self, pim_norm: torch.Tensor, mean: torch.Tensor | float, P: torch.Tensor,
+                valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+        return lifted_mask(pim_norm, *lift_to_share(pim_norm, mean, valid), P)

@@ -9,6 +9,7 @@ import torch
 from data_gen.errors import InputError
 from imls_lightning.core.importance import (
     ImportanceNormalization,
+    LiftToShare,
     RejectionSampling,
     hard_rejection_sample,
     lift_to_share,
@@ -313,3 +314,12 @@ def test_lift_exception_shapes():
         lift_to_share(torch.rand(4, 4), 0.5)
     with pytest.raises(ValueError, match="mean"):
         lift_to_share(torch.rand(2, 1, 4, 4), torch.tensor([0.1, 0.2, 0.3]))
+
+
+def test_lift_module_smoke_equals_the_functions():
+    g = torch.Generator().manual_seed(3)
+    pim = torch.rand(2, 1, 16, 16, generator=g) ** 4 * 4
+    P, valid = rank_pattern(16, seed=2), torch.rand(16, 16, generator=g) > 0.2
+    u = torch.tensor([0.5, 0.9])
+    expected = lifted_mask(pim, *lift_to_share(pim, u, valid), P)
+    assert torch.equal(LiftToShare()(pim, u, P, valid), expected) and expected.dtype == torch.bool
