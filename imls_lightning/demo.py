@@ -193,6 +193,17 @@ def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
     return list(merged.values())
 
 
+def stage_args(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> tuple[list[str], list[str]]:
+    """The arguments every stage's command shares: ``(common, train_common)``, the scene, data,
+    renderer and cache for every CLI, plus the RecNN, runs folder, seed (and no progress bar) for
+    ``imls_lightning.train``."""
+    common = [f"scene={cfg.scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={cfg.cache_dir}"]
+    train_common = [*common, f"recnn={cfg.recnn}", f"paths.runs_dir={cfg.runs_dir}", f"seed={int(cfg.seed)}"]
+    if not cfg.progress:
+        train_common.append("trainer.enable_progress_bar=false")
+    return common, train_common
+
+
 def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     """Run every stage; returns the evaluation report's path (None with ``dry_run`` or ``train_only``).
 
@@ -202,10 +213,7 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     dry = bool(cfg.get("dry_run", False))
     check_scene_overrides(str(cfg.scene), scene_overrides)
     stage = dry_stage if dry else run_stage
-    common = [f"scene={cfg.scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={cfg.cache_dir}"]
-    train_common = [*common, f"recnn={cfg.recnn}", f"paths.runs_dir={runs}", f"seed={int(cfg.seed)}"]
-    if not cfg.progress:
-        train_common.append("trainer.enable_progress_bar=false")
+    common, train_common = stage_args(cfg, scene_overrides)
     t0 = time.perf_counter()
 
     cache = stage("cache", ["-m", "data_gen", *common, "contact_sheet=true", f"progress={bool(cfg.progress)}"])

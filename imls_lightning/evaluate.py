@@ -90,13 +90,6 @@ def _int(cfg, key: str, minimum: int, allow_none: bool = False) -> int | None:
     return int(v)
 
 
-def _bool(cfg, key: str, default: bool) -> bool:
-    v = OmegaConf.select(cfg, key, default=default)
-    if not isinstance(v, bool):
-        raise InputError(f"{key}={v}: expected true or false")
-    return v
-
-
 def _lift(cfg) -> bool | str:
     v = OmegaConf.select(cfg, "ims_lift", default="auto")
     if v not in (True, False, "auto"):

@@ -45,7 +45,8 @@ from data_gen.atomic import atomic_write_text
 from data_gen.errors import InputError, cli_errors
 
 from .bench_paper import csv_row, read_summary
-from .demo import demo, dry_stage, override_list, run_pipeline, run_stage, split_scene_overrides, stage_overrides
+from .demo import (demo, dry_stage, override_list, run_pipeline, run_stage, split_scene_overrides, stage_args,
+                   stage_overrides)
 from .orp.overrides import override_key
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,10 +143,7 @@ def reference_recnn(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> str
     """Train (or reuse) the reference RecNN: the stage ``recnn`` with the reference size; its checkpoint."""
     ref = OmegaConf.to_container(cfg.reference, resolve=True) or {}
     args = [f"{SIZE_KEYS['recnn_' + k][1]}={int(v)}" for k, v in ref.items()]
-    common = [f"scene={cfg.scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}",
-              f"data.cache_dir={cfg.cache_dir}", f"recnn={cfg.recnn}", f"paths.runs_dir={cfg.runs_dir}", f"seed={int(cfg.seed)}"]
-    if not cfg.progress:
-        common.append("trainer.enable_progress_bar=false")
+    common = stage_args(cfg, scene_overrides)[1]
     stage = dry_stage if bool(cfg.get("dry_run", False)) else run_stage
     merged = {override_key(o): o for o in [*override_list(cfg, "stages.recnn"), *args]}  # the reference's size wins
     return stage("reference RecNN", ["-m", "imls_lightning.train", "model=recnn", *common, *merged.values()])

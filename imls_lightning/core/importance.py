@@ -231,8 +231,8 @@ def lifted_mask(pim_norm: torch.Tensor, mult: torch.Tensor, floor: torch.Tensor,
         x = _f32(pim_norm)
         P = _p_like(P, x)
         m, f = mult.to(device=x.device, dtype=x.dtype), floor.to(device=x.device, dtype=x.dtype)
-        scaled = torch.where(torch.isinf(m), torch.where(x > 0, torch.ones_like(x), torch.zeros_like(x)),
-                             x * torch.where(torch.isinf(m), torch.ones_like(m), m))
+        # m = inf takes every pixel with importance (x * inf would be NaN at x = 0)
+        scaled = torch.where(torch.isinf(m), (x > 0).to(x.dtype), x * m.nan_to_num(posinf=1.0))
         return (scaled > P) | (scaled >= 1.0) | (f > P) | (f >= 1.0)
 
 
