@@ -47,6 +47,10 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the columns of ``benchmarks/paper_scale.csv``, in order (issue 18)
 CSV_COLUMNS = ("scene", "recnn", "fr_size", "c_size", "sample_distance_voxels", "mean", "c_share", "ipr",
                "psnr_recnn_db", "psnr_imls_db", "gap_db", "recnn_ms", "imls_ms", "speedup", "las_ms", "las_psnr_db", "full_ms")
+#: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
+#: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
+ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
+                    "psnr_fixed_same_ipr_db", "recnn_ms", "adaptive_ms", "speedup")
 SECTION_BEGIN = "<!-- paper-scale:begin (written by python -m imls_lightning.bench_paper) -->"
 SECTION_END = "<!-- paper-scale:end -->"
 #: the paper's ORP table (Table "Detailed ORP", GPU): dataset -> (ORP, latency ms, speed-up) per RecNN
@@ -84,6 +88,7 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
         "progress": bool(cfg.progress), "dry_run": bool(cfg.dry_run),
         "train_only": bool(cfg.get("train_only", False)), "stages": stages,
         "evaluate": override_list(cfg, "evaluate"),
+        "adaptive": override_list(cfg, "adaptive") if OmegaConf.select(cfg, "adaptive") is not None else None,
     })
 
 
@@ -125,6 +130,38 @@ def csv_row(summary: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def read_adaptive(report: Path) -> dict[str, Any]:
+    """The adaptive run's ``adaptive.json`` beside ``report`` (its summary per method and its means);
+    a missing or damaged one is refused in one line."""
+    path = Path(report).parent / "adaptive.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise InputError(f"{path}: cannot read the adaptive run's results ({err}); run it again (reuse=false)") from None
+    if not isinstance(data, dict) or "imls_adaptive" not in (data.get("summary") or {}):
+        raise InputError(f"{path}: not an adaptive run's results (no 'imls_adaptive'); run it again (reuse=false)")
+    return {"summary": data["summary"], "u_median": (data.get("u_adaptive") or {}).get("median"), "report": str(report)}
+
+
+def adaptive_row(summary: Mapping[str, Any]) -> dict[str, Any] | None:
+    """One ``paper_scale_adaptive.csv`` row (:data:`ADAPTIVE_COLUMNS`) from a pair's summary with its
+    ``adaptive`` entry (:func:`read_adaptive`); None without one. The speed-up and the gap are against
+    the RecNN alone timed in the adaptive run itself (ratios from one run)."""
+    ad = summary.get("adaptive")
+    if not ad:
+        return None
+    m = ad["summary"]
+    a, r = m["imls_adaptive"], m.get("recnn", {})
+    imls = summary["methods"].get("imls", {})
+    share_per_ipr = _num(imls.get("c_share")) / _num(imls.get("ipr")) if _num(imls.get("ipr")) > 0 else math.nan
+    recnn_ms, ad_ms = _total(m, "recnn"), _total(m, "imls_adaptive")
+    return {"scene": summary["scene"], "recnn": summary["recnn"], "u_median": ad.get("u_median"),
+            "c_share": _num(a.get("ipr")) * share_per_ipr, "ipr": a.get("ipr"), "psnr_recnn_db": r.get("psnr"),
+            "psnr_adaptive_db": a.get("psnr"), "gap_db": a.get("gap"), "within_eps": a.get("within"),
+            "psnr_fixed_same_ipr_db": m.get("imls_matched", {}).get("psnr"), "recnn_ms": recnn_ms, "adaptive_ms": ad_ms,
+            "speedup": recnn_ms / ad_ms if ad_ms > 0 else math.nan}
+
+
 def _cell(v: Any) -> str:
     if isinstance(v, float):
         return "" if not math.isfinite(v) else f"{v:.6g}"
@@ -150,13 +187,33 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         return [dict(r) for r in reader]
 
 
-def write_csv(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CSV_COLUMNS)
+    w.writerow(columns)
     for r in rows:
-        w.writerow([_cell(r.get(c)) for c in CSV_COLUMNS])
+        w.writerow([_cell(r.get(c)) for c in columns])
     return atomic_write_text(path, buf.getvalue())
+
+
+#: what ``paper_scale_pairs.json`` keeps per pair, so a run of one pair reports every pair run before
+PAIR_RECORD_KEYS = ("summary", "minutes", "settings", "command")
+
+
+def read_pairs(path: Path) -> dict[str, dict[str, Any]]:
+    """Earlier pairs' records (``{"<scene>, <recnn>": {summary, minutes, settings, command}}``) from
+    ``paper_scale_pairs.json``; a file that is not such a record set is refused in one line."""
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        raise InputError(f"{path}: cannot read it ({err}); move it away to start a new table") from None
+    ok = isinstance(data, dict) and all(isinstance(v, dict) and set(PAIR_RECORD_KEYS) <= set(v)
+                                        and isinstance(v["summary"], dict) and "methods" in v["summary"] for v in data.values())
+    if not ok:
+        raise InputError(f"{path}: not the benchmark's pair records (each needs {list(PAIR_RECORD_KEYS)}); move it away to start a new table")
+    return data
 
 
 # ------------------------------------------------------------------------------------------------
@@ -221,14 +278,21 @@ def plot_breakdown(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
         ax.grid(axis="y", alpha=0.3)
         if k == 0:
             ax.set_ylabel("average latency (ms)")
-    fig.axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    handles: dict[str, Any] = {}  # every stage that any pair shows (LAS's low-res render only where LAS ran)
+    for ax in fig.axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lab, h)
+    fig.axes[-1].legend(list(handles.values()), list(handles), fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return save_figure(fig, path)
 
 
 def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mapping[str, Any]], *, partial: bool,
                     stage_minutes: Mapping[str, float], command: str, machine: Mapping[str, str],
-                    settings: Mapping[str, Mapping[str, Sequence[str]]] | None = None) -> str:
-    """``paper_scale.md``: the CSV as a table, each pair's breakdown and baselines, the paper's figures."""
+                    settings: Mapping[str, Mapping[str, Sequence[str]]] | None = None,
+                    commands: Mapping[str, str] | None = None) -> str:
+    """``paper_scale.md``: the CSV as a table (plus each pair's per-view adaptive row), each pair's
+    breakdown and baselines, the paper's figures; ``settings``, ``stage_minutes`` and ``commands`` are
+    keyed by pair (``"<scene>, <recnn>"``)."""
     from .inference.pipeline import STAGES
     from .report.names import STAGE_LABELS
 
@@ -236,27 +300,50 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
     out += ["The paper's protocol at the paper's scale on this CPU: 512² FR-Images, 256² C-Images, half-voxel sampling, "
             "the numba renderer. The ORP is searched on the product path (IMS mask from the view, exactly those pixels "
             "ray-cast, IML decoder, RecNN) on the validation views, within ε = 1 dB of the RecNN alone; PSNR is measured "
-            "on the 120-view test trajectory. One IMS regresses PIM' and is rescaled to the ORP's mean. "
+            "on the 120-view test trajectory. One IMS regresses PIM' and is rescaled to the ORP's mean (the paper's "
+            "rescale; where that finds no ORP, its masks are lifted to each mean's share of C, `ims_lift`, and the pair's section says so). "
             "`speedup` = RecNN alone / IML/S + RecNN; `las_*` is LAS at IML/S's IPR.", ""]
     head = ["scene", "RecNN", "FR / C", "step (voxels)", "ORP mean", "C-share", "IPR", "RecNN PSNR", "IML/S PSNR", "gap (dB)",
             "RecNN (ms)", "IML/S (ms)", "speed-up", "LAS (ms)", "LAS PSNR", "full ray cast (ms)"]
-    body = [[r["scene"], r["recnn"], f"{r['fr_size']}² / {r['c_size']}²", fmt(r.get("sample_distance_voxels")), fmt(r.get("mean"), 3),
+    main = [[r["scene"], r["recnn"], f"{r['fr_size']}² / {r['c_size']}²", fmt(r.get("sample_distance_voxels")), fmt(r.get("mean"), 3),
              fmt_pct(_num(r.get("c_share"))), fmt_pct(_num(r.get("ipr"))), fmt(r.get("psnr_recnn_db")), fmt(r.get("psnr_imls_db")),
              fmt(r.get("gap_db")), fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
              fmt(r.get("las_ms"), 1), fmt(r.get("las_psnr_db")), fmt(r.get("full_ms"), 1)] for r in rows]
-    out += [md_table(head, body), "", "Files: `paper_scale.csv` (these rows), `paper_scale_breakdown.png`.", ""]
+    per_view = {}
+    for s in summaries:
+        a = adaptive_row(s)
+        if a is not None:
+            per_view[(a["scene"], a["recnn"])] = [
+                a["scene"], f"{a['recnn']}, per-view u", f"{s['fr_size']}² / {s['c_size']}²", fmt(s.get("sample_distance_voxels")),
+                f"per view (median {fmt(a.get('u_median'), 3)})", fmt_pct(a.get("c_share")), fmt_pct(_num(a.get("ipr"))),
+                fmt(a.get("psnr_recnn_db")), fmt(a.get("psnr_adaptive_db")), fmt(a.get("gap_db")), fmt(a.get("recnn_ms"), 1),
+                fmt(a.get("adaptive_ms"), 1), speedup(a.get("recnn_ms"), a.get("adaptive_ms")), "–", "–", "–"]
+    body = rows_beside(main, per_view)
+    out += [md_table(head, body), "", "Files: `paper_scale.csv` (these rows but the per-view ones), `paper_scale_adaptive.csv` "
+            "(the per-view adaptive mean: `python -m imls_lightning.adaptive`, its RecNN alone timed in the same run), "
+            "`paper_scale_breakdown.png`.", ""]
     for s in summaries:
         orp = s.get("orp") or {}
         out += [f"## {s['scene']}, {s['recnn']}", ""]
         if orp.get("found"):
             out += [f"ORP on the product path (validation views): mean u = {fmt(orp.get('mean'), 4)}, C-share {fmt_pct(orp.get('c_share'))}, "
-                    f"IPR {fmt_pct(orp.get('ipr'))}, gap {fmt(orp.get('gap_db'))} dB ({orp.get('evaluations')} means tried).", ""]
+                    f"IPR {fmt_pct(orp.get('ipr'))}, gap {fmt(orp.get('gap_db'))} dB ({orp.get('evaluations')} means tried)"
+                    + ("; the IMS's masks lifted to each mean's share (the paper's rescale found no ORP)." if orp.get("lift") else "."), ""]
         elif orp:
             out += ["ORP: no mean in [0.01, 1] brought IML/S within ε of the RecNN alone on the validation views; IML/S ran at its trained mean.", ""]
         out += [f"Average latency per stage (ms): stage medians on {s.get('timed_views')} of the {s.get('views')} trajectory views; "
                 "PSNR on all of them.", ""]
         out += [md_table(["method", "IPR", *(STAGE_LABELS[x] for x in STAGES), "total", "speed-up vs RecNN alone", "PSNR (dB)"],
                          breakdown_rows(s)), ""]
+        a = adaptive_row(s)
+        if a is not None:
+            out += [f"Per-view adaptive mean (`python -m imls_lightning.adaptive`, the masks of the ORP above; report "
+                    f"`{s['adaptive']['report']}`): the predictor's u per view (median {fmt(a.get('u_median'), 3)}) gives IPR "
+                    f"{fmt_pct(_num(a.get('ipr')))} ({fmt_pct(a.get('c_share'))} of C) and {fmt(a.get('psnr_adaptive_db'))} dB, "
+                    f"{fmt(a.get('gap_db'))} dB below the RecNN alone, {fmt_pct(a.get('within_eps'), 0)} of the views within ε; "
+                    f"the fixed mean of the same IPR scores {fmt(a.get('psnr_fixed_same_ipr_db'))} dB. Timed in that run: "
+                    f"{fmt(a.get('adaptive_ms'), 1)} ms against the RecNN alone's {fmt(a.get('recnn_ms'), 1)} ms "
+                    f"({speedup(a.get('recnn_ms'), a.get('adaptive_ms'))}).", ""]
         if s.get("equal_share"):
             out += ["Learned parts against the untrained baselines at equal share of C (PSNR after the RecNN, mean over the "
                     "evaluated trajectory views):", "", equal_share_markdown(s["equal_share"]), ""]
@@ -269,10 +356,14 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
                 "Sized for 2 CPU cores: the paper's EnhanceNet (64 channels x 10 blocks) costs 1.8 s per 256² C-Image here, "
                 "more than ray-casting the whole pattern, so no ORP could pay for it; 16 x 4 costs the breakdown's RecNN column. "
                 "The overrides each stage ran with:", "",
-                md_table(["RecNN", "stage", "overrides"], [[r, st, f"`{' '.join(a)}`" if a is not None else "skipped"]
-                                                           for r, stages in settings.items() for st, a in stages.items()]), ""]
+                md_table(["pair", "stage", "overrides"], [[r, st, f"`{' '.join(a)}`" if a is not None else "skipped"]
+                                                          for r, stages in settings.items() for st, a in stages.items()]), ""]
     if stage_minutes:
-        out += ["## Time this run took", "", md_table(["pair", "minutes"], [[k, fmt(v, 1)] for k, v in stage_minutes.items()]), ""]
+        cmds = commands or {}
+        out += ["## Time each pair took", "", "The pair's last command, all its stages: the minutes count only what ran, so a pair "
+                "whose training or evaluation was reused shows less than a first run.", "",
+                md_table(["pair", "minutes", "command"], [[k, fmt(v, 1), f"`{cmds[k]}`" if cmds.get(k) else ""]
+                                                          for k, v in stage_minutes.items()]), ""]
     out += ["## Machine and command", "", md_table(["", ""], [[k, v] for k, v in machine.items()]), "", f"`{command}`", ""]
     return "\n".join(out)
 
@@ -290,20 +381,39 @@ def update_section(benchmarks_md: Path, text: str) -> Path:
     return atomic_write_text(benchmarks_md, new)
 
 
+def rows_beside(main: Sequence[Sequence[str]], extra: Mapping[tuple[str, str], Sequence[str]]) -> list[list[str]]:
+    """Table rows: each ``main`` row (scene and RecNN in its first two cells) followed by its pair's
+    ``extra`` row when there is one; extra rows of pairs without a main row come last."""
+    out, left = [], dict(extra)
+    for r in main:
+        out.append(list(r))
+        if (r[0], r[1]) in left:
+            out.append(list(left.pop((r[0], r[1]))))
+    return out + [list(v) for v in left.values()]
+
+
 def orp_cell(row: Mapping[str, Any]) -> str:
     """The ORP's C-share, or "none" with the share IML/S ran at when no mean met ε."""
     found = math.isfinite(_num(row.get("mean")))
     return fmt_pct(_num(row.get("c_share"))) if found else f"none (ran at {fmt_pct(_num(row.get('c_share')))})"
 
 
-def section_text(rows: Sequence[Mapping[str, Any]], partial: bool) -> str:
+def section_text(rows: Sequence[Mapping[str, Any]], partial: bool, adaptive: Sequence[Mapping[str, Any]] = ()) -> str:
     lines = ["## Paper scale (512² FR, 256² C, half-voxel sampling)" + (" — partial" if partial else ""), "",
              "`make bench-paper`; details, per-stage breakdown and the paper's figures in "
              "[benchmarks/paper_scale.md](benchmarks/paper_scale.md), rows in `benchmarks/paper_scale.csv`.", ""]
-    lines.append(md_table(["scene", "RecNN", "ORP C-share", "IML/S PSNR (gap)", "RecNN alone (ms)", "IML/S + RecNN (ms)", "speed-up", "LAS (ms, PSNR)"],
-                          [[r["scene"], r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
-                            fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
-                            f"{fmt(r.get('las_ms'), 1)}, {fmt(r.get('las_psnr_db'))} dB"] for r in rows]))
+    main = [[r["scene"], r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
+             fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
+             f"{fmt(r.get('las_ms'), 1)}, {fmt(r.get('las_psnr_db'))} dB"] for r in rows]
+    per_view = {(a["scene"], a["recnn"]): [a["scene"], f"{a['recnn']}, per-view u", f"per view: {fmt_pct(_num(a.get('c_share')))}",
+                                           f"{fmt(a.get('psnr_adaptive_db'))} ({fmt(a.get('gap_db'))} dB)", fmt(a.get("recnn_ms"), 1),
+                                           fmt(a.get("adaptive_ms"), 1), speedup(_num(a.get("recnn_ms")), _num(a.get("adaptive_ms"))), "–"]
+                for a in adaptive}
+    lines.append(md_table(["scene", "RecNN", "ORP C-share", "IML/S PSNR (gap)", "RecNN alone (ms)", "IML/S + RecNN (ms)", "speed-up",
+                           "LAS (ms, PSNR)"], rows_beside(main, per_view)))
+    if adaptive:
+        lines += ["", "The per-view rows: `python -m imls_lightning.adaptive` on the same checkpoints and masks, its own RecNN "
+                  "alone timed in the same run (`benchmarks/paper_scale_adaptive.csv`)."]
     return "\n".join(lines)
 
 
@@ -322,39 +432,60 @@ def pairs(cfg: DictConfig) -> list[tuple[str, str]]:
     return [(s, r) for r in recnns for s in scenes]
 
 
+def write_results(cfg: DictConfig, records: Mapping[str, Mapping[str, Any]], old_rows: Sequence[Mapping[str, Any]], *,
+                  partial: bool, command: str, machine: Mapping[str, str]) -> None:
+    """Every output of the benchmark from the pairs' records: ``paper_scale_pairs.json``, the two CSVs,
+    the breakdown plot, ``paper_scale.md`` and the BENCHMARKS.md section (``cfg.benchmarks_md``)."""
+    out_dir = Path(str(cfg.output_dir))
+    summaries = [r["summary"] for r in records.values()]
+    all_rows = merge_rows(old_rows, [csv_row(x) for x in summaries])
+    ad_rows = [a for a in (adaptive_row(x) for x in summaries) if a is not None]
+    atomic_write_text(out_dir / "paper_scale_pairs.json", json.dumps(records, indent=1, default=str))
+    write_csv(all_rows, out_dir / "paper_scale.csv")
+    write_csv(ad_rows, out_dir / "paper_scale_adaptive.csv", ADAPTIVE_COLUMNS)
+    plot_breakdown(summaries, out_dir / "paper_scale_breakdown.png")
+    atomic_write_text(out_dir / "paper_scale.md", report_markdown(
+        all_rows, summaries, partial=partial, stage_minutes={n: r["minutes"] for n, r in records.items()}, command=command,
+        machine=machine, settings={n: r["settings"] for n, r in records.items()},
+        commands={n: r["command"] for n, r in records.items()}))
+    if cfg.get("benchmarks_md"):
+        update_section(Path(str(cfg.benchmarks_md)), section_text(all_rows, partial, ad_rows))
+
+
 def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: str = "") -> Path | None:
-    """Run every pair and write the results; returns ``paper_scale.md`` (None with ``dry_run`` or ``train_only``)."""
+    """Run every pair and write the results; returns ``paper_scale.md`` (None with ``dry_run`` or ``train_only``).
+
+    Pairs run before (``paper_scale_pairs.json``) stay in every table; a pair run again replaces its record."""
     from .report import machine_info
 
     todo = pairs(cfg)
     out_dir = Path(str(cfg.output_dir))
-    csv_path, md_path, png_path = out_dir / "paper_scale.csv", out_dir / "paper_scale.md", out_dir / "paper_scale_breakdown.png"
+    csv_path, md_path, pairs_path = out_dir / "paper_scale.csv", out_dir / "paper_scale.md", out_dir / "paper_scale_pairs.json"
     old_rows = read_rows(csv_path)  # refuse a foreign table before hours of work
-    rows: list[dict[str, Any]] = []
-    summaries: list[dict[str, Any]] = []
-    minutes: dict[str, float] = {}
+    records = read_pairs(pairs_path)
     machine = machine_info("cpu")
+    if bool(cfg.get("summarize_only", False)):
+        if not records:
+            raise InputError(f"summarize_only=true: {pairs_path} holds no pairs yet; run the benchmark first")
+        write_results(cfg, records, old_rows, partial=False, command=command, machine=machine)
+        return md_path
     for k, (scene, recnn) in enumerate(todo):
         log(f"\n[bench-paper] pair {k + 1}/{len(todo)}: {scene}, {recnn}")
         t0 = time.perf_counter()
-        report = demo(pair_config(cfg, scene, recnn), scene_overrides)
+        stages = pair_config(cfg, scene, recnn)
+        results: dict[str, Any] = {}
+        report = demo(stages, scene_overrides, results)
         if report is None:  # dry run, or train_only
             continue
-        minutes[f"{scene}, {recnn}"] = (time.perf_counter() - t0) / 60
+        name = f"{scene}, {recnn}"
         summary = read_summary(report)
-        summaries.append(summary)
-        rows.append(csv_row(summary))
-        partial = k + 1 < len(todo)
-        all_rows = merge_rows(old_rows, rows)
-        write_csv(all_rows, csv_path)
-        plot_breakdown(summaries, png_path)
-        settings = {r: {k: (list(v) if v is not None else None) for k, v in pair_config(cfg, scene, r).stages.items()}
-                    for r in dict.fromkeys(rr for _, rr in todo)}
-        atomic_write_text(md_path, report_markdown(all_rows, summaries, partial=partial, stage_minutes=minutes,
-                                                   command=command, machine=machine, settings=settings))
-        if cfg.get("benchmarks_md"):
-            update_section(Path(str(cfg.benchmarks_md)), section_text(all_rows, partial))
-        log(f"[bench-paper] {scene}, {recnn} done in {minutes[f'{scene}, {recnn}']:.1f} min -> {csv_path}")
+        if results.get("adaptive"):
+            summary["adaptive"] = read_adaptive(Path(results["adaptive"]))
+        records.pop(name, None)  # a pair run again moves to the end, with its new record
+        records[name] = {"summary": summary, "minutes": (time.perf_counter() - t0) / 60, "command": command,
+                         "settings": {st: (list(v) if v is not None else None) for st, v in stages.stages.items()}}
+        write_results(cfg, records, old_rows, partial=k + 1 < len(todo), command=command, machine=machine)
+        log(f"[bench-paper] {name} done in {records[name]['minutes']:.1f} min -> {csv_path}")
     return None if cfg.dry_run or cfg.get("train_only", False) else md_path
 
 

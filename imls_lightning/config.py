@@ -76,10 +76,28 @@ def file_hash(path: str | Path, length: int = 16) -> str:
     return _FILE_HASHES[key][:length]
 
 
+#: logged metrics where higher is better (every other monitor is a loss or an error: lower is better)
+HIGHER_IS_BETTER = ("psnr", "ssim", "iou", "accuracy")
+
+
+def monitor_mode(metric: str) -> str:
+    """``"max"`` for a metric where higher is better (PSNR, SSIM, IoU, accuracy), else ``"min"``: the
+    mode of the best checkpoint and of early stopping on ``model.monitor`` (``${imls_monitor_mode:...}``).
+
+    Example:
+        >>> monitor_mode("val/fr_psnr"), monitor_mode("val/im_error"), monitor_mode("val/loss")
+        ('max', 'min', 'min')
+    """
+    name = str(metric).rsplit("/", 1)[-1].lower()
+    return "max" if any(name.endswith(k) or f"{k}_" in name for k in HIGHER_IS_BETTER) else "min"
+
+
 def register_resolvers() -> None:
-    """Register the project's resolvers once (``${imls_hash:...}``)."""
+    """Register the project's resolvers once (``${imls_hash:...}``, ``${imls_monitor_mode:...}``)."""
     if not OmegaConf.has_resolver("imls_hash"):
         OmegaConf.register_new_resolver("imls_hash", lambda *parts: settings_hash(*parts))
+    if not OmegaConf.has_resolver("imls_monitor_mode"):
+        OmegaConf.register_new_resolver("imls_monitor_mode", monitor_mode)
 
 
 def checkpoint_problem(path: str | Path) -> str | None:

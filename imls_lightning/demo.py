@@ -204,11 +204,24 @@ def stage_args(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> tuple[li
     return common, train_common
 
 
-def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
+def evaluation_lift(report: Path) -> bool:
+    """Whether the evaluation beside ``report`` lifted the IMS's masks for its ORP (``summary.json``'s
+    ``orp.lift``; False when it did not say), so later stages serve the same masks."""
+    import json
+
+    try:
+        orp = json.loads((Path(report).parent / "summary.json").read_text()).get("orp") or {}
+    except (OSError, ValueError) as err:
+        raise InputError(f"{Path(report).parent / 'summary.json'}: cannot read the evaluation's summary ({err})") from None
+    return bool(orp.get("lift", False))
+
+
+def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | None = None) -> Path | None:
     """Run every stage; returns the evaluation report's path (None with ``dry_run`` or ``train_only``).
 
     ``scene_overrides`` (``scene.<key>=...``, see :func:`split_scene_overrides`) follow
-    ``scene=<cfg.scene>`` in every stage's command."""
+    ``scene=<cfg.scene>`` in every stage's command. ``results``, when given, gets every stage's result
+    by name (``cache``, ``recnn``, ``iml``, ``ims``, ``blue_noise``, ``las``, ``report``, ``adaptive``)."""
     runs = str(cfg.runs_dir)
     dry = bool(cfg.get("dry_run", False))
     check_scene_overrides(str(cfg.scene), scene_overrides)
@@ -248,6 +261,15 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     if blue:
         ev.append(f"checkpoints.blue_noise={blue}")
     report = Path(stage("evaluation", ev))
+    adaptive = None
+    if OmegaConf.select(cfg, "adaptive") is not None:
+        # the per-view mean value (python -m imls_lightning.adaptive) on the same masks as the evaluation's ORP
+        lift = "<the evaluation's orp.lift>" if dry else str(evaluation_lift(report)).lower()
+        adaptive = stage("adaptive mean", ["-m", "imls_lightning.adaptive", *common, f"ims_checkpoint={ims}",
+                                           f"recnn_checkpoint={recnn}", f"ims_lift={lift}", f"progress={bool(cfg.progress)}",
+                                           "reuse=true", *override_list(cfg, "adaptive")])
+    if results is not None:
+        results.update(cache=cache, recnn=recnn, iml=iml, ims=ims, blue_noise=blue, las=las, report=str(report), adaptive=adaptive)
     if dry:
         return None
     minutes = (time.perf_counter() - t0) / 60

@@ -73,7 +73,7 @@ from .report import summary  # noqa: F401  (public: summary(metrics_csv) -> dict
 register_resolvers()
 
 MIN_REPEATS = 10
-OPTION_NAMES = ("half", "channels_last", "compile")
+OPTION_NAMES = NetOptions.SWITCHES
 
 
 # ------------------------------------------------------------------------------------------------
@@ -174,16 +174,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
     views = str(cfg.get("views", "test"))
     if views not in ("test", "val"):
         raise InputError(f"views={views}: expected 'test' (the trajectory) or 'val'")
-    opt = to_plain(cfg.get("options")) or {}
-    unknown = set(opt) - {"device", "half", "channels_last", "compile"}
-    if unknown:
-        raise InputError(f"options.{sorted(unknown)[0]}: unknown option; expected device, half, channels_last, compile")
-    for k in OPTION_NAMES:
-        if not isinstance(opt.get(k, False), bool):
-            raise InputError(f"options.{k}={opt.get(k)}: expected true or false")
-    options = NetOptions(device=str(opt.get("device", "auto")), half=bool(opt.get("half", False)),
-                         channels_last=bool(opt.get("channels_last", False)), compile=bool(opt.get("compile", False)))
-    pick_device(options.device)  # fails early on a missing CUDA device
+    options = NetOptions.from_config(to_plain(cfg.get("options")))
     sweep_opts = [str(o) for o in (to_plain(cfg.get("options_sweep_options")) or [])]
     bad = [o for o in sweep_opts if o not in OPTION_NAMES]
     if bad:

@@ -105,8 +105,10 @@ def test_report_and_breakdown_plot(tmp_path):
     s = _summary()
     rows = [bp.csv_row(s)]
     text = bp.report_markdown(rows, [s], partial=True, stage_minutes={"ct_head, enhancenet": 61.0}, command="cmd",
-                              machine={"cpu": "test"}, settings={"enhancenet": {"recnn": ["data.crop=128"], "las": None}})
-    assert "| enhancenet | recnn | `data.crop=128` |" in text and "| enhancenet | las | skipped |" in text
+                              machine={"cpu": "test"}, settings={"ct_head, enhancenet": {"recnn": ["data.crop=128"], "las": None}},
+                              commands={"ct_head, enhancenet": "python -m imls_lightning.bench_paper scenes=[ct_head]"})
+    assert "| ct_head, enhancenet | recnn | `data.crop=128` |" in text and "| ct_head, enhancenet | las | skipped |" in text
+    assert "| ct_head, enhancenet | 61.0 | `python -m imls_lightning.bench_paper scenes=[ct_head]` |" in text
     assert "partial" in text and "limit: the ORP's pixels alone" in text and "2.50×" in text
     assert "| 33.00 | 31.00 | 2.00 dB | 3.00 dB |" in text  # decoder − fill, mask − blue noise
     assert "Flame" in text  # the paper's figures beside ours
@@ -123,8 +125,10 @@ def test_cli_dry_run_prints_every_stage_command():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
-    assert len(lines) == 7 and lines[0].startswith("python -m data_gen scene=ct_head data=paper_cpu")
-    assert "data.crop=128" in lines[1] and "timed_views=6" in lines[-1]
+    assert len(lines) == 8 and lines[0].startswith("python -m data_gen scene=ct_head data=paper_cpu")
+    assert "data.crop=128" in lines[1] and "timed_views=6" in lines[-2] and "options.half=true" in lines[-2]
+    # the per-view adaptive mean last, on the evaluation's masks
+    assert lines[-1].startswith("python -m imls_lightning.adaptive scene=ct_head") and "ims_lift=" in lines[-1]
 
 
 def test_cli_gpu_schedule_train_only_prints_the_training_stages():
@@ -137,3 +141,101 @@ def test_cli_gpu_schedule_train_only_prints_the_training_stages():
     assert len(lines) == 6 and not any("imls_lightning.evaluate" in ln for ln in lines)
     iml = next(ln for ln in lines if "model=iml" in ln and "importance=uniform" not in ln)
     assert "data.crop=128" in iml and "trainer.max_epochs=40" in iml and "test=false" in iml
+
+
+def _adaptive(psnr=39.6, ipr=0.06, ms=150.0):
+    lat = lambda **kw: {**kw, "total": sum(kw.values())}  # noqa: E731
+    return {"report": "runs/x/adaptive.md", "u_median": 0.25, "summary": {
+        "recnn": {"psnr": 40.0, "ipr": 0.25, "gap": 0.0, "within": 1.0, "latency_ms": lat(selective_render=390.0, recnn=110.0)},
+        "imls_adaptive": {"psnr": psnr, "ipr": ipr, "gap": 40.0 - psnr, "within": 0.8,
+                          "latency_ms": lat(importance=10.0, selective_render=ms - 130.0, decoder=30.0, recnn=90.0)},
+        "imls_matched": {"psnr": 39.2, "ipr": ipr}}}
+
+
+def test_adaptive_row_smoke_its_own_run_and_the_share_of_c():
+    s = _summary()
+    assert bp.adaptive_row(s) is None
+    s["adaptive"] = _adaptive()
+    a = bp.adaptive_row(s)
+    assert tuple(a) == bp.ADAPTIVE_COLUMNS
+    assert a["speedup"] == pytest.approx(500.0 / 150.0)  # against the RecNN alone timed in the adaptive run
+    assert a["c_share"] == pytest.approx(0.06 * 0.3 / 0.075) and a["gap_db"] == pytest.approx(0.4)
+    assert a["psnr_fixed_same_ipr_db"] == 39.2 and a["u_median"] == 0.25
+    text = bp.report_markdown([bp.csv_row(s)], [s], partial=False, stage_minutes={}, command="cmd", machine={})
+    assert "| ct_head | enhancenet, per-view u |" in text and "per view (median 0.250)" in text and "3.33×" in text
+    assert "the fixed mean of the same IPR scores 39.20 dB" in text
+    sec = bp.section_text([bp.csv_row(s)], False, [a])
+    assert "| ct_head | enhancenet, per-view u | per view: 24.0% | 39.60 (0.40 dB) | 500.0 | 150.0 | 3.33× |" in sec
+
+
+def test_exception_read_adaptive_and_read_pairs_refuse_foreign_files(tmp_path):
+    (tmp_path / "adaptive.md").write_text("x")
+    with pytest.raises(InputError, match="adaptive.json: cannot read the adaptive run's results"):
+        bp.read_adaptive(tmp_path / "adaptive.md")
+    (tmp_path / "adaptive.json").write_text('{"summary": {"recnn": {}}}')
+    with pytest.raises(InputError, match="not an adaptive run's results"):
+        bp.read_adaptive(tmp_path / "adaptive.md")
+    pairs_json = tmp_path / "paper_scale_pairs.json"
+    assert bp.read_pairs(pairs_json) == {}
+    pairs_json.write_text('{"ct_head, enhancenet": {"summary": {}}}')
+    with pytest.raises(InputError, match="not the benchmark's pair records"):
+        bp.read_pairs(pairs_json)
+    pairs_json.write_text("[1,")
+    with pytest.raises(InputError, match="paper_scale_pairs.json: cannot read it"):
+        bp.read_pairs(pairs_json)
+
+
+def test_bench_paper_keeps_the_pairs_run_before(tmp_path, monkeypatch):
+    """A run of one pair rewrites every table with the pairs of earlier runs (their breakdowns, times and
+    commands), and the adaptive row of a pair that has one. The pipeline itself (demo) is exercised by
+    tests/test_demo.py; here it is replaced by the evaluation and adaptive files it leaves."""
+    def fake_demo(stages, scene_overrides, results):
+        d = tmp_path / "runs" / stages.scene
+        d.mkdir(parents=True)
+        import json
+
+        (d / "summary.json").write_text(json.dumps(_summary(stages.scene)))
+        results["adaptive"] = None
+        if stages.adaptive is not None:
+            (d / "adaptive.json").write_text(json.dumps({"summary": _adaptive()["summary"], "u_adaptive": {"median": 0.3}}))
+            results["adaptive"] = str(d / "adaptive.md")
+        return d / "report.md"
+
+    monkeypatch.setattr(bp, "demo", fake_demo)
+    out = tmp_path / "bench"
+    md = tmp_path / "BENCHMARKS.md"
+    bp.bench_paper(_cfg(scenes="[ct_head]", recnns="[enhancenet]", output_dir=str(out), benchmarks_md=str(md), adaptive="null"),
+                   command="first")
+    bp.bench_paper(_cfg(scenes="[mri_head]", recnns="[enhancenet]", output_dir=str(out), benchmarks_md=str(md)), command="second")
+    text = (out / "paper_scale.md").read_text()
+    assert "## ct_head, enhancenet" in text and "## mri_head, enhancenet" in text
+    assert "| ct_head, enhancenet |" in text and "`first`" in text and "`second`" in text
+    assert [r["scene"] for r in bp.read_rows(out / "paper_scale.csv")] == ["ct_head", "mri_head"]
+    ad = (out / "paper_scale_adaptive.csv").read_text().splitlines()
+    assert ad[0] == ",".join(bp.ADAPTIVE_COLUMNS) and len(ad) == 2 and ad[1].startswith("mri_head,enhancenet,0.3,")
+    assert "mri_head | enhancenet, per-view u" in md.read_text()
+
+
+def test_rows_beside_puts_each_pairs_extra_row_after_it():
+    main = [["ct_head", "enhancenet", "1"], ["mri_head", "enhancenet", "2"]]
+    extra = {("mri_head", "enhancenet"): ["mri_head", "enhancenet, per-view u", "3"], ("flame", "fovolnet"): ["flame", "x", "4"]}
+    assert [r[2] for r in bp.rows_beside(main, extra)] == ["1", "2", "3", "4"]
+    assert bp.rows_beside(main, {}) == main
+
+
+def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypatch):
+    out = tmp_path / "bench"
+    with pytest.raises(InputError, match="summarize_only=true: .*paper_scale_pairs.json holds no pairs yet"):
+        bp.bench_paper(_cfg(output_dir=str(out), benchmarks_md="null", summarize_only="true"))
+    out.mkdir()
+    s = _summary("mri_head")
+    s["adaptive"] = _adaptive()
+    import json
+
+    (out / "paper_scale_pairs.json").write_text(json.dumps({"mri_head, enhancenet": {
+        "summary": s, "minutes": 61.0, "command": "python -m imls_lightning.bench_paper scenes=[mri_head]", "settings": {"ims": ["a=1"]}}}))
+    monkeypatch.setattr(bp, "demo", lambda *a, **k: pytest.fail("summarize_only must not run a stage"))
+    md = bp.bench_paper(_cfg(output_dir=str(out), benchmarks_md="null", summarize_only="true"), command="summarize")
+    text = md.read_text()
+    assert "| mri_head, enhancenet | 61.0 |" in text and "enhancenet, per-view u" in text
+    assert bp.read_rows(out / "paper_scale.csv")[0]["scene"] == "mri_head" and (out / "paper_scale_breakdown.png").is_file()

@@ -48,3 +48,23 @@ def test_settings_hash_checkpoint_keys(tmp_path):
     # not a file (yet): the path itself
     assert settings_hash({"checkpoint": str(tmp_path / "no.ckpt")}) != settings_hash({"checkpoint": str(tmp_path / "no2.ckpt")})
     assert settings_hash({"checkpoint": None}) == settings_hash({"checkpoint": None})
+
+
+@pytest.mark.parametrize("metric, mode", [("val/fr_psnr", "max"), ("val/fr_ssim", "max"), ("val/im_iou", "max"),
+                                          ("val/im_accuracy", "max"), ("val/im_error", "min"), ("val/loss", "min"),
+                                          ("val/ipr_error", "min"), ("val/mse", "min")])
+def test_monitor_mode_follows_the_metric(metric, mode):
+    from imls_lightning.config import monitor_mode
+
+    assert monitor_mode(metric) == mode
+
+
+def test_callbacks_take_the_monitor_mode_and_the_run_hash_is_unchanged():
+    """model.monitor=val/fr_psnr (the product path's PSNR) keeps its best epoch by the highest value; the
+    default monitors keep mode min, and runs made before the resolver existed keep their hashes."""
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+        psnr = compose(config_name="train", overrides=["model=ims", "model.monitor=val/fr_psnr"])
+        default = compose(config_name="train", overrides=["model=ims"])
+    assert psnr.callbacks.model_checkpoint.mode == "max" and psnr.callbacks.early_stopping.mode == "max"
+    assert default.callbacks.model_checkpoint.mode == "min" and default.callbacks.early_stopping.mode == "min"
+    assert "monitor_mode" not in default.model  # the mode is derived: the model's settings (its run hash) do not change

@@ -78,6 +78,18 @@ def test_smoke_demo_pipeline_on_tiny_and_reuse(tmp_path):
     assert p2.stdout.strip().splitlines()[-1] == str(report)
     assert second < first
 
+    # adaptive=[...]: the per-view mean value after the evaluation, on the evaluation's masks (its orp.lift)
+    adaptive = _overrides("adaptive", "steps=2", "predictor.epochs=20", "predictor.hidden=8", "repeats=2", "timing_views=1",
+                          "tradeoff_means=2")
+    p3 = subprocess.run([*cmd, adaptive], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert p3.returncode == 0, p3.stderr[-3000:]
+    assert "[demo] adaptive mean done in" in p3.stderr and p3.stdout.strip().splitlines()[-1] == str(report)
+    import json
+
+    lift = str(bool(json.loads((report.parent / "summary.json").read_text())["orp"].get("lift"))).lower()
+    assert f"ims_lift={lift}" in p3.stderr
+    assert list((tmp_path / "runs").glob("ims-*/adaptive/*/adaptive.md"))
+
 
 def test_exception_demo_stage_failure_names_the_stage(tmp_path):
     env = dict(os.environ, PYTHONUNBUFFERED="1")

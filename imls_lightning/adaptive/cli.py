@@ -23,7 +23,7 @@ from data_gen.errors import InputError, checked_command_line, cli_errors
 from ..config import register_resolvers
 from ..core.importance import MEAN_RANGE
 from ..inference.checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
-from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, pick_device
+from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, pick_device
 from ..tasks.ims import scaled_pim_im
 from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
@@ -79,7 +79,10 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     check_trained_on(ims.hparams, cfg.scene, cfg.renderer, key="ims_checkpoint", path=s.ims)
     recnn = require_recnn(recnn if recnn is not None else ims.recnn, key="ims_checkpoint", path=s.ims)
     device = pick_device(s.device)
-    opts = NetOptions(device=str(device))
+    opts = s.options
+    # every IML/S mask of this run (labels, trade-off curve, renderers) comes from scaled_pim_im, which
+    # reads this: lifted past the paper's rescale when the evaluation's ORP needed it (evaluate ims_lift)
+    ims.lift_to_mean = s.ims_lift
     iml = ims.iml
     u_train = float(iml.mean)
     pattern = ims.pattern
@@ -94,6 +97,9 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     label_dir = run_dir / "adaptive" / "labels"
     label_hash = settings_hash(ck_hashes, cache.path.name, s.label_key())
     out = Path(s.output_dir) if s.output_dir else run_dir / "adaptive" / settings_hash(ck_hashes, cache.path.name, s.hashed())
+    if s.reuse and (out / "adaptive.md").is_file() and _finished(out):
+        print(f"adaptive: reusing the finished run {out} (reuse=false runs it again)", file=sys.stderr, flush=True)
+        return out / "adaptive.md"
     out.mkdir(parents=True, exist_ok=True)
     (out / "adaptive.md").unlink(missing_ok=True)
     timing: dict[str, Any] = {}
@@ -262,11 +268,22 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
         {**p.__dict__, "d_psnr": p.d_psnr, "d_ipr": p.d_ipr} for p in trade["points"]]}
     atomic_write_text(out / "adaptive.json", json.dumps({"summary": summ, "tradeoff": trade_json, "timing": timing, "predictor": hist,
                                                              "u_train": u_train, "u_orp": u_orp, "u_matched": u_match,
+                                                             "u_adaptive": {"median": float(np.median(u_pred)), "min": float(u_pred.min()),
+                                                                            "max": float(u_pred.max())},
                                                              "epsilon_db": eps}, indent=2, default=str))
     atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(
         {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg} | {"settings": s.hashed(), "ims_checkpoint": s.ims,
                                                                                     "recnn_checkpoint": s.recnn})))
     return atomic_write_text(out / "adaptive.md", md)
+
+
+def _finished(out: Path) -> bool:
+    """A finished run's ``adaptive.json`` holds a summary with the adaptive method (content, not the name)."""
+    try:
+        data = json.loads((out / "adaptive.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and "imls_adaptive" in (data.get("summary") or {})
 
 
 def _command() -> str:

@@ -118,7 +118,10 @@ def markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels,
     L.append(f"# Adaptive mean value vs fixed mean (scene {cfg.scene.get('name')}, {n} {s.views} views, epsilon {eps:g} dB)\n")
     L.append(f"Command: `{command}`\n")
     L.append(f"- IMS checkpoint: `{s.ims}` (target=pim; IML trained at u = {u_train:g}); RecNN: "
-             f"`{s.recnn or 'the one in the IMS checkpoint'}`; cache `{cache.path}`; device {pick_device(s.device)}.")
+             f"`{s.recnn or 'the one in the IMS checkpoint'}`; cache `{cache.path}`; device {pick_device(s.device)}"
+             f"{', bfloat16/float16 autocast' if s.options.half else ''}.")
+    L.append("- IML/S masks at u: " + ("above the trained mean lifted to u's share of C (ims_lift=true: scale first, then a blue-noise floor)."
+                                       if s.ims_lift else "the paper's rescale, PIM' x u / u_train (ims_lift=false)."))
     ref_text = "RecNN alone" if s.reference == "recnn" else f"IML + RecNN at the trained u = {u_train:g}"
     path_name = "IML/S + RecNN" if s.label_source == "ims" else "IML + RecNN"
     orp_ref_text = ref_text  # the ORP search always runs on the IML + RecNN path

@@ -2,13 +2,13 @@
 built by :func:`parse_settings`."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from data_gen.errors import InputError, finite_number
 
-from ..inference.pipeline import pick_device
+from ..inference.pipeline import NetOptions, pick_device
 from .checks import check_epsilon, check_integer
 from .labels import REFERENCES, SOURCES, UNREACHABLE
 
@@ -35,15 +35,23 @@ class Settings:
     device: str
     output_dir: str | None
     progress: bool
+    ims_lift: bool = False
+    reuse: bool = False
+    options: NetOptions = field(default_factory=NetOptions)
 
     def label_key(self) -> dict[str, Any]:
-        return {"epsilon_db": self.epsilon_db, "reference": self.reference, "steps": self.steps,
-                "unreachable": self.unreachable, "source": self.label_source}
+        key = {"epsilon_db": self.epsilon_db, "reference": self.reference, "steps": self.steps,
+               "unreachable": self.unreachable, "source": self.label_source}
+        if self.ims_lift:  # only when set: labels made before the setting existed keep their names
+            key["ims_lift"] = True
+        return key
 
     def hashed(self) -> dict[str, Any]:
         return {**self.label_key(), "predictor": self.predictor, "views": self.views, "max_views": self.max_views,
                 "repeats": self.repeats, "timing_views": self.timing_views,
-                "tradeoff_means": self.tradeoff_means, "tradeoff_margins": list(self.tradeoff_margins)}
+                "tradeoff_means": self.tradeoff_means, "tradeoff_margins": list(self.tradeoff_margins),
+                **({"options": {k: getattr(self.options, k) for k in NetOptions.SWITCHES}}
+                   if any(getattr(self.options, k) for k in NetOptions.SWITCHES) else {})}
 
 
 PREDICTOR_DEFAULTS = {"hidden": 64, "layers": 2, "epochs": 600, "lr": 3e-3, "weight_decay": 1e-4, "seed": 0, "margin": 1.0}
@@ -99,6 +107,11 @@ def parse_settings(cfg) -> Settings:
         raise InputError(f"tradeoff_margins={margins}: expected factors in (0, 10]")
     device = str(cfg.get("device", "auto"))
     pick_device(device)
+    options = NetOptions.from_config(to_plain(cfg.get("options")), device=device)
+    ims_lift = cfg.get("ims_lift", False)
+    if not isinstance(ims_lift, bool):
+        raise InputError(f"ims_lift={ims_lift}: expected true (lift the IMS's masks to each mean value's share, as "
+                         "evaluate's ims_lift) or false (the paper's rescale)")
     return Settings(
         ims=str(ims), recnn=str(recnn) if recnn else None, epsilon_db=check_epsilon(cfg.get("epsilon_db", 1.0)), reference=reference,
         steps=check_integer(cfg.get("steps", 8), "steps", 1, 30), unreachable=unreachable, label_source=source,
@@ -107,4 +120,5 @@ def parse_settings(cfg) -> Settings:
         predictor=pred, views=views, max_views=None if mv is None else check_integer(mv, "max_views", 1),
         repeats=check_integer(cfg.get("repeats", 10), "repeats", 1), timing_views=check_integer(cfg.get("timing_views", 20), "timing_views", 0),
         device=device, output_dir=cfg.get("output_dir") or None, progress=bool(cfg.get("progress", True)),
+        ims_lift=ims_lift, options=options, reuse=bool(cfg.get("reuse", False)),
     )

@@ -40,7 +40,7 @@ import contextlib
 import copy
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
@@ -73,6 +73,31 @@ class NetOptions:
     half: bool = False            # float16 on CUDA, bfloat16 on the CPU (autocast)
     channels_last: bool = False
     compile: bool = False         # torch.compile each network (first call pays the compile)
+
+    #: the switches (besides ``device``), as in the ``options`` node of evaluate / adaptive
+    SWITCHES = ("half", "channels_last", "compile")
+
+    @classmethod
+    def from_config(cls, options: Mapping[str, Any] | None, device: str | None = None, key: str = "options") -> "NetOptions":
+        """Validated options from a config node ``{device?, half?, channels_last?, compile?}``;
+        ``device`` (when given) is used instead of the node's. A bad key or value raises a one-line
+        :class:`InputError` naming ``<key>.<name>``; a missing CUDA device fails here, not mid-run.
+
+        Example:
+            >>> NetOptions.from_config({"half": True}, device="cpu")
+            NetOptions(device='cpu', half=True, channels_last=False, compile=False)
+        """
+        opt = dict(options or {})
+        unknown = set(opt) - {"device", *cls.SWITCHES}
+        if unknown:
+            raise InputError(f"{key}.{sorted(unknown)[0]}: unknown option; expected device, {', '.join(cls.SWITCHES)}")
+        for k in cls.SWITCHES:
+            if not isinstance(opt.get(k, False), bool):
+                raise InputError(f"{key}.{k}={opt.get(k)}: expected true or false")
+        out = cls(device=str(device if device is not None else opt.get("device", "auto")),
+                  **{k: bool(opt.get(k, False)) for k in cls.SWITCHES})
+        pick_device(out.device)
+        return out
 
     def autocast(self, device: torch.device):
         if not self.half:

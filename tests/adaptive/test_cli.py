@@ -50,6 +50,25 @@ def test_cli_end_to_end_on_tiny(tiny_checkpoints, pim_ckpt, tmp_path):
     assert p2.returncode == 0 and p2.stderr.count("reusing") == 3, p2.stderr[-2000:]
 
 
+def test_cli_lifted_masks_and_reuse_of_a_finished_run(tiny_checkpoints, pim_ckpt, tmp_path):
+    """ims_lift=true (as make bench-paper passes when the evaluation's ORP was lifted): its own labels, the
+    report says so; reuse=true prints the finished run's report without running it again."""
+    args = (f"output_dir={tmp_path / 'lifted'}", "ims_lift=true", "tradeoff_means=3", "options.half=true", "reuse=true")
+    p = _cli(tiny_checkpoints, pim_ckpt, *args)
+    assert p.returncode == 0, p.stderr[-4000:]
+    report = Path(p.stdout.strip().splitlines()[-1])
+    text = report.read_text()
+    assert "lifted to u's share of C (ims_lift=true" in text and "autocast" in text
+    import json
+
+    data = json.loads((report.parent / "adaptive.json").read_text())
+    u = data["u_adaptive"]
+    assert 0.01 <= u["min"] <= u["median"] <= u["max"] <= 1.0
+    p2 = _cli(tiny_checkpoints, pim_ckpt, *args)
+    assert p2.returncode == 0 and "reusing the finished run" in p2.stderr, p2.stderr[-2000:]
+    assert p2.stdout.strip().splitlines()[-1] == str(report)
+
+
 def test_exception_cli_target_im_exits_2(tiny_checkpoints):
     p = _cli(tiny_checkpoints, tiny_checkpoints["ims"])
     assert p.returncode == 2 and "target=pim" in p.stderr and "Traceback" not in p.stderr

@@ -338,3 +338,24 @@ def test_imls_renderer_at_another_mean_needs_a_pim_target(env):
         pytest.skip("the tiny IMS regresses PIM'")
     with pytest.raises(InputError, match="target=pim"):
         IMLSRenderer.from_task(ims, env["renderer"], ims.recnn, CPU, mean=0.3)
+
+
+def test_net_options_from_config_smoke_and_device_override():
+    assert NetOptions.from_config(None) == NetOptions()
+    assert NetOptions.from_config({"half": True, "device": "cpu"}) == NetOptions(device="cpu", half=True)
+    # the adaptive CLI keeps its top-level device key: it wins over the node's
+    assert NetOptions.from_config({"device": "auto", "compile": True}, device="cpu") == NetOptions(device="cpu", compile=True)
+
+
+@pytest.mark.parametrize("node, needle", [({"fast": True}, r"options\.fast: unknown option"),
+                                          ({"half": "yes"}, r"options\.half=yes: expected true or false"),
+                                          ({"channels_last": 1}, r"options\.channels_last=1: expected true or false")])
+def test_exception_net_options_from_config_names_the_key(node, needle):
+    with pytest.raises(InputError, match=needle):
+        NetOptions.from_config(node)
+
+
+def test_exception_net_options_from_config_missing_cuda(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(InputError, match="device=cuda: CUDA is not available"):
+        NetOptions.from_config({"device": "cuda"})
