@@ -38,7 +38,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
-from .demo import demo, override_list, run_pipeline, split_scene_overrides
+from .demo import demo, override_list, read_summary, run_pipeline, split_scene_overrides
 from .report import atomic_write_text, md_table
 from .report.tables import equal_share_markdown, fmt, fmt_pct, speedup
 
@@ -96,18 +96,6 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
 # one row per pair, from the evaluation's summary.json
 
 
-def read_summary(report: Path) -> dict[str, Any]:
-    """The evaluation's ``summary.json`` beside ``report``; a missing or damaged one is refused in one line."""
-    path = Path(report).parent / "summary.json"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as err:
-        raise InputError(f"{path}: cannot read the evaluation's summary ({err}); run the evaluation again (reuse=false)") from None
-    if not isinstance(data, dict) or "methods" not in data:
-        raise InputError(f"{path}: not an evaluation summary (no 'methods'); run the evaluation again (reuse=false)")
-    return data
-
-
 def _total(methods: Mapping[str, Any], name: str) -> float:
     return float(methods.get(name, {}).get("latency_ms", {}).get("total", math.nan))
 
@@ -133,13 +121,11 @@ def csv_row(summary: Mapping[str, Any]) -> dict[str, Any]:
 def read_adaptive(report: Path) -> dict[str, Any]:
     """The adaptive run's ``adaptive.json`` beside ``report`` (its summary per method and its means);
     a missing or damaged one is refused in one line."""
-    path = Path(report).parent / "adaptive.json"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as err:
-        raise InputError(f"{path}: cannot read the adaptive run's results ({err}); run it again (reuse=false)") from None
-    if not isinstance(data, dict) or "imls_adaptive" not in (data.get("summary") or {}):
-        raise InputError(f"{path}: not an adaptive run's results (no 'imls_adaptive'); run it again (reuse=false)")
+    from .adaptive.report import read_results
+
+    data, problem = read_results(Path(report).parent)
+    if problem:
+        raise InputError(f"{Path(report).parent / 'adaptive.json'}: {problem}; run it again (reuse=false)")
     return {"summary": data["summary"], "u_median": (data.get("u_adaptive") or {}).get("median"), "report": str(report)}
 
 

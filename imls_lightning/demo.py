@@ -204,16 +204,24 @@ def stage_args(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> tuple[li
     return common, train_common
 
 
+def read_summary(report: Path) -> dict:
+    """The evaluation's ``summary.json`` beside ``report``; a missing or damaged one is refused in one line."""
+    import json
+
+    path = Path(report).parent / "summary.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise InputError(f"{path}: cannot read the evaluation's summary ({err}); run the evaluation again (reuse=false)") from None
+    if not isinstance(data, dict) or "methods" not in data:
+        raise InputError(f"{path}: not an evaluation summary (no 'methods'); run the evaluation again (reuse=false)")
+    return data
+
+
 def evaluation_lift(report: Path) -> bool:
     """Whether the evaluation beside ``report`` lifted the IMS's masks for its ORP (``summary.json``'s
     ``orp.lift``; False when it did not say), so later stages serve the same masks."""
-    import json
-
-    try:
-        orp = json.loads((Path(report).parent / "summary.json").read_text()).get("orp") or {}
-    except (OSError, ValueError) as err:
-        raise InputError(f"{Path(report).parent / 'summary.json'}: cannot read the evaluation's summary ({err})") from None
-    return bool(orp.get("lift", False))
+    return bool((read_summary(report).get("orp") or {}).get("lift", False))
 
 
 def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | None = None) -> Path | None:

@@ -73,7 +73,6 @@ from .report import summary  # noqa: F401  (public: summary(metrics_csv) -> dict
 register_resolvers()
 
 MIN_REPEATS = 10
-OPTION_NAMES = NetOptions.SWITCHES
 
 
 # ------------------------------------------------------------------------------------------------
@@ -176,9 +175,9 @@ def parse_settings(cfg: DictConfig) -> Settings:
         raise InputError(f"views={views}: expected 'test' (the trajectory) or 'val'")
     options = NetOptions.from_config(to_plain(cfg.get("options")))
     sweep_opts = [str(o) for o in (to_plain(cfg.get("options_sweep_options")) or [])]
-    bad = [o for o in sweep_opts if o not in OPTION_NAMES]
+    bad = [o for o in sweep_opts if o not in NetOptions.SWITCHES]
     if bad:
-        raise InputError(f"options_sweep_options={sweep_opts}: unknown option {bad[0]!r}; expected some of {list(OPTION_NAMES)}")
+        raise InputError(f"options_sweep_options={sweep_opts}: unknown option {bad[0]!r}; expected some of {list(NetOptions.SWITCHES)}")
     las_ipr = cfg.get("las_ipr")
     if las_ipr is not None:
         las_ipr = _floats(cfg, "las_ipr", 0.0, 1.0, lo_open=True)[0]

@@ -44,9 +44,9 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.atomic import atomic_write_text
 from data_gen.errors import InputError, cli_errors
 
-from .bench_paper import csv_row, read_summary
-from .demo import (demo, dry_stage, override_list, run_pipeline, run_stage, split_scene_overrides, stage_args,
-                   stage_overrides)
+from .bench_paper import csv_row
+from .demo import (demo, dry_stage, override_list, read_summary, run_pipeline, run_stage, split_scene_overrides,
+                   stage_args, stage_overrides)
 from .orp.overrides import override_key
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -29,7 +29,7 @@ from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
 from .predictor import ConstantMean, TableMean, train_predictor
 from .renderer import AdaptiveIMLPlusRecNN, AdaptiveIMLSRenderer
-from .report import markdown, plot_per_view, plot_tradeoff, reference_method, write_csv
+from .report import markdown, plot_per_view, plot_tradeoff, read_results, reference_method, write_csv
 from .settings import parse_settings
 from .tradeoff import mean_for_ipr, quality_at_means, tradeoff
 
@@ -97,7 +97,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     label_dir = run_dir / "adaptive" / "labels"
     label_hash = settings_hash(ck_hashes, cache.path.name, s.label_key())
     out = Path(s.output_dir) if s.output_dir else run_dir / "adaptive" / settings_hash(ck_hashes, cache.path.name, s.hashed())
-    if s.reuse and (out / "adaptive.md").is_file() and _finished(out):
+    if s.reuse and (out / "adaptive.md").is_file() and read_results(out)[1] is None:
         print(f"adaptive: reusing the finished run {out} (reuse=false runs it again)", file=sys.stderr, flush=True)
         return out / "adaptive.md"
     out.mkdir(parents=True, exist_ok=True)
@@ -275,15 +275,6 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
         {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg} | {"settings": s.hashed(), "ims_checkpoint": s.ims,
                                                                                     "recnn_checkpoint": s.recnn})))
     return atomic_write_text(out / "adaptive.md", md)
-
-
-def _finished(out: Path) -> bool:
-    """A finished run's ``adaptive.json`` holds a summary with the adaptive method (content, not the name)."""
-    try:
-        data = json.loads((out / "adaptive.json").read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(data, dict) and "imls_adaptive" in (data.get("summary") or {})
 
 
 def _command() -> str:

@@ -237,3 +237,18 @@ def tradeoff_markdown(trade: dict[str, Any], s: Settings, path_name: str, n: int
              f"above it has '–' as fixed IPR. See `tradeoff.png`, `tradeoff.csv`.\n")
     L.append("![trade-off](tradeoff.png)")
     return L
+
+
+def read_results(out: str | Path) -> tuple[dict[str, Any] | None, str | None]:
+    """A finished run's ``adaptive.json`` in ``out``, checked by its content (a summary with the
+    adaptive method): ``(data, None)``, or ``(None, why not)`` as a short phrase."""
+    import json
+
+    try:
+        data = json.loads((Path(out) / "adaptive.json").read_text())
+    except (OSError, ValueError) as err:
+        return None, f"cannot read the adaptive run's results ({err})"
+    if not isinstance(data, dict) or "imls_adaptive" not in (data.get("summary") or {}):
+        return None, "not an adaptive run's results (no 'imls_adaptive')"
+    return data, None
+

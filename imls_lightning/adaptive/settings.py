@@ -8,7 +8,7 @@ from typing import Any
 
 from data_gen.errors import InputError, finite_number
 
-from ..inference.pipeline import NetOptions, pick_device
+from ..inference.pipeline import NetOptions
 from .checks import check_epsilon, check_integer
 from .labels import REFERENCES, SOURCES, UNREACHABLE
 
@@ -106,7 +106,6 @@ def parse_settings(cfg) -> Settings:
     if not all(0 < x <= 10 for x in margins):
         raise InputError(f"tradeoff_margins={margins}: expected factors in (0, 10]")
     device = str(cfg.get("device", "auto"))
-    pick_device(device)
     options = NetOptions.from_config(to_plain(cfg.get("options")), device=device)
     ims_lift = cfg.get("ims_lift", False)
     if not isinstance(ims_lift, bool):
