@@ -91,6 +91,36 @@ def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
     assert sorted({int(r["epoch"]) for r in rows if r.get("val/loss")}) == [0, 1, 2]
 
 
+def test_smoke_longer_schedule_continues_a_finished_run(work, recnn_ckpt, tmp_path):
+    """A finished run asked for more epochs was returned as it was: trainer limits are not part of the
+    run's identity, so `trainer.max_epochs=10` silently gave the 3-epoch network."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    args = ["model=recnn", "recnn=enhancenet", "recnn.net.channels=8", "recnn.net.blocks=2"]
+    p = _run(args + ["trainer.max_epochs=3"], tmp_path)
+    assert "finished 2 epochs; continuing to trainer.max_epochs=3" in p.stdout, p.stdout[-2000:]
+    assert f"resuming from {run_dir / 'checkpoints' / 'last.ckpt'}" in p.stdout
+    result = json.loads((run_dir / "result.json").read_text())
+    assert (result["epochs"], result["max_epochs"], result["stopped_early"]) == (3, 3, False)
+    # the same limit again, or a shorter one: the run is finished and returned as it is
+    for limit in (3, 1):
+        again = _run(args + [f"trainer.max_epochs={limit}"], tmp_path)
+        assert "already finished" in again.stdout and _last_line(again) == _last_line(p)
+
+
+def test_epochs_to_extend():
+    from omegaconf import OmegaConf
+
+    from imls_lightning.training.fit import epochs_to_extend
+
+    cfg = OmegaConf.create({"trainer": {"max_epochs": 10}})
+    assert epochs_to_extend({"epochs": 3}, cfg) == 10  # a run from before max_epochs was recorded
+    assert epochs_to_extend({"epochs": 3, "max_epochs": 3}, cfg) == 10
+    assert epochs_to_extend({"epochs": 10, "max_epochs": 10}, cfg) is None
+    assert epochs_to_extend({"epochs": 12, "max_epochs": 30}, cfg) is None
+    assert epochs_to_extend({"epochs": 4, "max_epochs": 5, "stopped_early": True}, cfg) is None  # it would stop again
+    assert epochs_to_extend({"epochs": 3}, OmegaConf.create({"trainer": {"max_epochs": -1}})) is None
+
+
 def _copy_runs(work, tmp_path, recnn_ckpt) -> Path:
     import shutil
 

@@ -3,7 +3,9 @@
 Build the task (``instantiate`` of the ``model`` node: :func:`build_task`) and the DataModule, run
 the Trainer, test the best checkpoint on the test trajectory and write the run's ``result.json``.
 Runs live in ``runs/<model>-<recnn>-<scene>-<settings hash>/``: running the same settings again
-resumes from ``last.ckpt``, or returns at once when that run had finished.
+resumes from ``last.ckpt``, or returns at once when that run had finished; a larger
+``trainer.max_epochs`` than a finished run trained to continues it from its ``last.ckpt``
+(:func:`epochs_to_extend`).
 
 The command line itself is :mod:`imls_lightning.train` (a thin entry point); this module is kept
 apart from it so that the ORP job (:mod:`imls_lightning.orp`), which trains through :func:`train`
@@ -20,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
+from lightning.pytorch.callbacks import EarlyStopping
 import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -104,6 +107,35 @@ def cfg_model_name(task) -> str:
     return {"RecNNTask": "recnn", "IMLTask": "iml", "IMSTask": "ims", "LASTask": "las"}.get(type(task).__name__, "?")
 
 
+def _max_epochs(cfg: DictConfig) -> int | None:
+    value = cfg.trainer.get("max_epochs") if cfg.get("trainer") is not None else None
+    return int(value) if value is not None and int(value) >= 0 else None
+
+
+def trained_epochs(result: dict[str, Any]) -> int | None:
+    """The epoch limit a finished run trained to: its ``max_epochs`` (runs before it was recorded: ``epochs``)."""
+    value = result.get("max_epochs", result.get("epochs"))
+    return int(value) if isinstance(value, (int, float)) else None
+
+
+def epochs_to_extend(result: dict[str, Any], cfg: DictConfig) -> int | None:
+    """``trainer.max_epochs`` when it asks a finished run for more epochs than it trained, else None.
+
+    A run that early stopping ended is finished at any limit (it would stop again). Fewer epochs than
+    trained reuse the run as it is: its best checkpoint was chosen over all of them.
+
+    Example:
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"trainer": {"max_epochs": 10}})
+        >>> epochs_to_extend({"epochs": 3, "max_epochs": 3}, cfg), epochs_to_extend({"epochs": 10}, cfg)
+        (10, None)
+    """
+    wanted, done = _max_epochs(cfg), trained_epochs(result)
+    if wanted is None or done is None or result.get("stopped_early"):
+        return None
+    return wanted if wanted > done else None
+
+
 def build_task(cfg: DictConfig) -> L.LightningModule:
     """The task of ``cfg.model``: ``hydra.utils.instantiate`` of that node (``_target_``: the task
     class; every model setting, with its one default, lives in ``conf/model/<name>.yaml``), called
@@ -142,13 +174,19 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         except (OSError, ValueError, AttributeError):
             result, best = None, ""
         problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
-        if result is not None and problem is None:
+        more = epochs_to_extend(result, cfg) if result is not None and problem is None else None
+        if result is not None and problem is None and more is None:
             print(f"[train] {run_dir} already finished; reusing it (resume=never retrains)", flush=True)
             return result
-        # never trust a finished run whose best checkpoint is gone or damaged: train it again
-        _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
-        result_file.unlink(missing_ok=True)
-        restart = True
+        if more is not None:
+            # trainer limits are not part of the run's identity, so a longer schedule continues the
+            # finished run from its last.ckpt instead of returning the shorter one as if it were asked for
+            print(f"[train] {run_dir} finished {trained_epochs(result)} epochs; continuing to trainer.max_epochs={more}", flush=True)
+        else:
+            # never trust a finished run whose best checkpoint is gone or damaged: train it again
+            _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
+            result_file.unlink(missing_ok=True)
+            restart = True
 
     L.seed_everything(int(cfg.seed), workers=True)
     task = build_task(cfg)
@@ -187,6 +225,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "best_score": float(score) if score is not None and math.isfinite(float(score)) else None,
         "monitor": str(cfg.model.monitor),
         "epochs": int(trainer.current_epoch),
+        "max_epochs": _max_epochs(cfg),
+        "stopped_early": any(getattr(cb, "stopped_epoch", 0) > 0 for cb in trainer.callbacks if isinstance(cb, EarlyStopping)),
         "train_minutes": round(minutes, 3),
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
