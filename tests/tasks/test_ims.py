@@ -525,3 +525,24 @@ def test_decoder_mean_range_overrides_the_imls_range_for_the_fine_tuning_means()
     u = task._random_means(4096, "cpu")
     assert float(u.min()) >= 0.5 and float(u.max()) <= 0.9
     assert float(u.min()) < 0.52 and float(u.max()) > 0.88   # uniform over the whole range
+
+
+def test_shallow_start_hint_names_the_layers_that_start_at_4x4():
+    """The paper-scale schedules ran the generator with 5 layers at a 256^2 mask: it started at 16x16,
+    the view reaching 65,536 values through one linear layer (BENCHMARKS.md, "ct_head's IMS")."""
+    import doctest
+
+    from imls_lightning.models.ims import generator_plan
+    from imls_lightning.tasks import ims as ims_module
+    from imls_lightning.tasks.ims import shallow_start_hint
+
+    hint = shallow_start_hint(256, 5)
+    assert hint.startswith("model.layers=5 starts the IMS generator at 16x16") and "model.layers=7 starts at 4x4" in hint
+    assert "\n" not in hint
+    assert generator_plan(256, 7)[0] == 4
+    # no hint where the start is narrow already, or where no number of layers narrows it (odd sides)
+    assert shallow_start_hint(256, 7) is None and shallow_start_hint(64, 5) is None and shallow_start_hint(32, 4) is None
+    assert shallow_start_hint(7, 3) is None  # 7 has no factor of 2: every plan starts at 7x7
+    assert "model.layers=4 starts at 6x6" in shallow_start_hint(48, 1)
+    failures = doctest.DocTestRunner().run(doctest.DocTestFinder().find(shallow_start_hint, globs=vars(ims_module))[0])
+    assert failures.failed == 0
