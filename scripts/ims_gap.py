@@ -3,7 +3,9 @@
 For one IMS checkpoint (``model.target=pim``) and a rendered cache, on evenly spaced views of a split:
 
 * how well the IMS's PIM' (from the view alone) matches the IML's PIM' (from the C-Image), per split:
-  correlation and MSE over the pattern's pixels (a gap between train and test views = overfitting);
+  correlation and MSE over the pattern's pixels (a gap between train and test views = overfitting), and
+  the per-view correlation at the pixel and over 4 x 4 and 32 x 32 blocks (low even on training views and
+  at coarse blocks = the generator underfits: too few layers, too little training);
 * at each C-Image share (each mask brought to it per view, :func:`imls_lightning.inference.baselines.mask_at_share`):
   the density of the mask on the object and on the empty background, the C-level PSNR of the IML
   decoder's C-Image on the object and on the background, and the PSNR after the RecNN, for the IML's
@@ -22,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from data_gen.cache import ViewImageCache
 from imls_lightning.inference.baselines import iml_pim_at, mask_at_share
@@ -31,6 +34,8 @@ from imls_lightning.tasks.base import load_task
 from imls_lightning.tasks.iml import background_mask
 
 SPLITS = ("train", "val", "test")
+#: block sides of the per-view PIM' correlation: the pixel, then coarser and coarser placement
+BLOCKS = (1, 4, 32)
 
 
 def load_views(cache: ViewImageCache, pattern, split: str, count: int) -> dict[str, torch.Tensor]:
@@ -50,13 +55,39 @@ def iml_pim(iml, c: torch.Tensor, mean: float) -> torch.Tensor:
     return iml_pim_at(iml, pim, torch.full((c.shape[0],), mean), iml.valid.bool().view(n, n)).clamp(0, 1)
 
 
-def pim_agreement(ims, batch: dict[str, torch.Tensor]) -> dict[str, float]:
-    """Correlation and MSE of the IMS's PIM' ``(g + 1) / 2`` against the IML's, over the pattern's pixels."""
+def block_correlation(got: torch.Tensor, want: torch.Tensor, valid: torch.Tensor, block: int) -> float:
+    """Mean over the views of the Pearson correlation of two maps ``(B, 1, n, n)`` after averaging each over
+    ``block x block`` blocks of the pattern's pixels ``valid`` ``(n, n)`` (blocks without one are left out):
+    how well the IMS places importance at that scale, whatever it misses below it.
+
+    Example:
+        >>> x = torch.rand(2, 1, 8, 8)
+        >>> round(block_correlation(x, 2 * x + 1, torch.ones(8, 8, dtype=torch.bool), 2), 6)
+        1.0
+    """
+    w = valid.to(got.dtype).view(1, 1, *valid.shape)
+    count = F.avg_pool2d(w, block).flatten(1)[0]
+    keep = count > 0
+    a = (F.avg_pool2d(got * w, block).flatten(1) / count.clamp(min=1e-12))[:, keep]
+    b = (F.avg_pool2d(want * w, block).flatten(1) / count.clamp(min=1e-12))[:, keep]
+    a, b = a - a.mean(1, keepdim=True), b - b.mean(1, keepdim=True)
+    r = (a * b).sum(1) / (a.norm(dim=1) * b.norm(dim=1)).clamp(min=1e-12)
+    return float(r.mean())
+
+
+def pim_agreement(ims, batch: dict[str, torch.Tensor], blocks=BLOCKS) -> dict[str, float]:
+    """Correlation and MSE of the IMS's PIM' ``(g + 1) / 2`` against the IML's, over the pattern's pixels
+    (pooled over the views), and the per-view correlation at each block size of ``blocks``
+    (:func:`block_correlation`: ``corr_<block>``; None for blocks wider than half the mask)."""
     n = batch["c"].shape[-1]
     valid = ims.iml.valid.bool().view(n, n)
-    want = iml_pim(ims.iml, batch["c"], float(ims.iml.mean))[:, :, valid].flatten()
-    got = ((ims.generator(batch["view"]).float() + 1) / 2)[:, :, valid].flatten()
-    return {"corr": float(torch.corrcoef(torch.stack([got, want]))[0, 1]), "mse": float(((got - want) ** 2).mean())}
+    want_map = iml_pim(ims.iml, batch["c"], float(ims.iml.mean))
+    got_map = ((ims.generator(batch["view"]).float() + 1) / 2).clamp(0, 1)
+    want, got = want_map[:, :, valid].flatten(), got_map[:, :, valid].flatten()
+    out = {"corr": float(torch.corrcoef(torch.stack([got, want]))[0, 1]), "mse": float(((got - want) ** 2).mean())}
+    # blocks wider than the mask have no correlation (one value per view): None
+    out.update({f"corr_{k}": block_correlation(got_map, want_map, valid, k) if 2 * k <= n else None for k in blocks})
+    return out
 
 
 def object_oracle(obj: torch.Tensor, bg: torch.Tensor, P: torch.Tensor, valid: torch.Tensor, share: float) -> torch.Tensor:
@@ -136,9 +167,10 @@ def _report(a: argparse.Namespace, ap: argparse.ArgumentParser) -> int:
     batch = load_views(cache, ims.pattern, a.split, a.views)
     alone = float(psnr_per_image(ims.recnn(batch["c"]), batch["fr"]).mean())
     rows = gap_rows(ims, batch, a.shares)
-    print("| split | PIM' correlation IMS vs IML | MSE |\n|---|---:|---:|")
+    print("| split | PIM' correlation IMS vs IML | MSE | " + " | ".join(f"per view, {k} x {k} blocks" for k in BLOCKS)
+          + " |\n|---|---:|---:|" + "---:|" * len(BLOCKS))
     for s, r in agreement.items():
-        print(f"| {s} | {r['corr']:.3f} | {r['mse']:.4f} |")
+        print(f"| {s} | {r['corr']:.3f} | {r['mse']:.4f} | " + " | ".join("–" if r[f"corr_{k}"] is None else f"{r[f'corr_{k}']:.3f}" for k in BLOCKS) + " |")
     print(f"\nRecNN alone on {batch['c'].shape[0]} {a.split} views: {alone:.2f} dB\n")
     print("| share | mask | kept | density object | density background | C PSNR object | C PSNR background | PSNR after RecNN |")
     print("|---:|---|---:|---:|---:|---:|---:|---:|")

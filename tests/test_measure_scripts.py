@@ -125,6 +125,29 @@ def test_ims_gap_object_oracle_against_a_direct_loop():
     assert got.dtype == torch.float32
 
 
+def test_ims_gap_block_correlation_against_a_direct_loop():
+    torch = pytest.importorskip("torch")
+    mod = _ims_gap_module()
+    g = torch.Generator().manual_seed(1)
+    a, b = torch.rand(3, 1, 8, 8, generator=g, dtype=torch.float64), torch.rand(3, 1, 8, 8, generator=g, dtype=torch.float64)
+    valid = torch.ones(8, 8, dtype=torch.bool)
+    valid[:4, :4] = False  # a block of 4 with no pattern pixel is left out; partial blocks average their own pixels
+    valid[6, 6] = False
+    want = []
+    for i in range(3):
+        xs, ys = [], []
+        for by in range(0, 8, 4):
+            for bx in range(0, 8, 4):
+                cells = [(y, x) for y in range(by, by + 4) for x in range(bx, bx + 4) if valid[y, x]]
+                if cells:
+                    xs.append(np.mean([float(a[i, 0, y, x]) for y, x in cells]))
+                    ys.append(np.mean([float(b[i, 0, y, x]) for y, x in cells]))
+        want.append(np.corrcoef(xs, ys)[0, 1])
+    assert mod.block_correlation(a, b, valid, 4) == pytest.approx(float(np.mean(want)), abs=1e-9)
+    assert mod.block_correlation(a, 3 * a - 1, valid, 1) == pytest.approx(1.0, abs=1e-9)
+    assert np.isfinite(mod.block_correlation(torch.zeros(1, 1, 8, 8), b[:1].float(), valid, 4))  # a flat map: 0, not NaN
+
+
 def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     """The script's IML rows equal the evaluation's equal-share rows on the same views (one formula),
     and it prints the agreement and the gap tables."""
@@ -142,8 +165,11 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
                      "--json", str(out)]) == 0
     assert torch.is_grad_enabled()  # the script leaves the process's autograd state as it found it
     text = capsys.readouterr().out
-    assert "PIM' correlation" in text and "| 0.20 | ims |" in text and "| 1.00 | oracle |" in text
+    assert "PIM' correlation" in text and "32 x 32 blocks" in text and "| 0.20 | ims |" in text and "| 1.00 | oracle |" in text
     data = json.loads(out.read_text())
+    n = 16  # the tiny scene's C-Image: 32 x 32 blocks do not fit twice
+    for split, r in data["agreement"].items():
+        assert all(-1 <= r[f"corr_{k}"] <= 1 for k in mod.BLOCKS if 2 * k <= n) and r["corr_32"] is None, (split, r)
     assert len(data["rows"]) == 6 and all(np.isfinite(r["fr_psnr"]) for r in data["rows"])
     with torch.no_grad():
         ims = load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims").eval()
