@@ -403,9 +403,6 @@ class IMSTask(ImlsTask):
                            hint="use the recnn/pattern and data.resolution it was trained with")
         with config_keys({k: f"model.{k}" for k in ("layers", "base_channels", "max_channels")}):  # the user's keys
             self.generator = IMSGenerator(n, layers=layers, base_channels=base_channels, max_channels=max_channels)
-        shallow = shallow_start_hint(n, int(layers))
-        if shallow:
-            rank_zero_warn(shallow)
         with config_keys({"base_channels": "model.disc_base_channels", "max_channels": "model.disc_max_channels"}):
             self.discriminator = IMSDiscriminator(n, base_channels=disc_base_channels, max_channels=disc_max_channels)
         self.iml = build_iml_net(iml_hparams, self.pattern).requires_grad_(False)
@@ -471,6 +468,9 @@ class IMSTask(ImlsTask):
         so that a missing perceptual backbone fails before any labelling."""
         res = int(cfg.data.resolution)
         pattern = build_pattern(to_plain(cfg.pattern), res)
+        shallow = shallow_start_hint(pattern.c_size, int(cfg.model.layers))
+        if shallow:  # when a training is configured, not each time a trained checkpoint is loaded
+            rank_zero_warn(shallow)
         ck, iml_task = _input_iml(cfg, pattern)
         recnn_hparams, recnn_state, source = _input_recnn(cfg, iml_task, pattern)
         # the labels themselves are made by the DataModule (datamodule_kwargs); here only their provenance

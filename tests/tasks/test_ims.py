@@ -546,3 +546,28 @@ def test_shallow_start_hint_names_the_layers_that_start_at_4x4():
     assert "model.layers=4 starts at 6x6" in shallow_start_hint(48, 1)
     failures = doctest.DocTestRunner().run(doctest.DocTestFinder().find(shallow_start_hint, globs=vars(ims_module))[0])
     assert failures.failed == 0
+
+
+@pytest.mark.parametrize("layers, hinted", [(1, True), (3, False)])
+def test_training_config_with_a_wide_start_gets_the_hint(tiny_checkpoints, layers, hinted, recwarn):
+    """The hint comes when a training is configured (config_context), through Hydra's compose API; not when a
+    trained checkpoint is loaded. The tiny scene's 16^2 mask: 1 layer starts at 16x16, 3 at 4x4."""
+    import warnings
+
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(Path(__file__).resolve().parents[2] / "conf"), version_base="1.3", job_name="hint"):
+        cfg = compose("train", overrides=["scene=tiny", "data=tiny", "renderer=numba", "model=ims", "recnn=enhancenet",
+                                          f"data.cache_dir={tiny_checkpoints['cache_dir']}",
+                                          f"iml.checkpoint={tiny_checkpoints['iml']}", f"model.layers={layers}"])
+    warnings.simplefilter("always")
+    IMSTask.config_context(cfg)
+    hints = [str(w.message) for w in recwarn if "starts the IMS generator" in str(w.message)]
+    assert len(hints) == int(hinted), hints
+    if hinted:
+        assert hints[0].startswith("model.layers=1 starts the IMS generator at 16x16") and "model.layers=3 starts at 4x4" in hints[0]
+    recwarn.clear()
+    load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims")  # 5 layers at 16^2: no hint on load either
+    assert not [w for w in recwarn if "starts the IMS generator" in str(w.message)]
