@@ -82,7 +82,7 @@ def pim_agreement(ims, batch: dict[str, torch.Tensor], blocks=BLOCKS) -> dict[st
     n = batch["c"].shape[-1]
     valid = ims.iml.valid.bool().view(n, n)
     want_map = iml_pim(ims.iml, batch["c"], float(ims.iml.mean))
-    got_map = ((ims.generator(batch["view"]).float() + 1) / 2).clamp(0, 1)
+    got_map = (ims.generator(batch["view"]).float() + 1) / 2
     want, got = want_map[:, :, valid].flatten(), got_map[:, :, valid].flatten()
     out = {"corr": float(torch.corrcoef(torch.stack([got, want]))[0, 1]), "mse": float(((got - want) ** 2).mean())}
     # blocks wider than the mask have no correlation (one value per view): None

@@ -248,10 +248,11 @@ def shallow_start_hint(c_size: int, layers: int) -> str | None:
         >>> shallow_start_hint(256, 5).split(":")[0]
         'model.layers=5 starts the IMS generator at 16x16 for a 256x256 mask'
     """
-    s0, narrowest = generator_plan(c_size, layers)[0], generator_plan(c_size, layers + 32)[0]
+    s0 = generator_plan(c_size, layers)[0]
+    narrowest, doublings, _ = generator_plan(c_size, layers + 32)  # as many doublings as the side allows
     if s0 <= MAX_START_SIDE or narrowest == s0:
         return None
-    better = next(L for L in range(layers + 1, layers + 33) if generator_plan(c_size, L)[0] == narrowest)
+    better = doublings + 1  # the projection, then one layer per doubling
     return (f"model.layers={layers} starts the IMS generator at {s0}x{s0} for a {c_size}x{c_size} mask: the view reaches "
             f"it through one linear layer; model.layers={better} starts at {narrowest}x{narrowest} (on ct_head at 256^2 "
             f"that mask beat blue noise by 0.25 to 0.46 dB more)")

@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
-from lightning.pytorch.callbacks import EarlyStopping
 import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -108,7 +107,7 @@ def cfg_model_name(task) -> str:
 
 
 def _max_epochs(cfg: DictConfig) -> int | None:
-    value = cfg.trainer.get("max_epochs") if cfg.get("trainer") is not None else None
+    value = cfg.trainer.get("max_epochs")
     return int(value) if value is not None and int(value) >= 0 else None
 
 
@@ -226,7 +225,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "monitor": str(cfg.model.monitor),
         "epochs": int(trainer.current_epoch),
         "max_epochs": _max_epochs(cfg),
-        "stopped_early": any(getattr(cb, "stopped_epoch", 0) > 0 for cb in trainer.callbacks if isinstance(cb, EarlyStopping)),
+        "stopped_early": getattr(trainer.early_stopping_callback, "stopped_epoch", 0) > 0,
         "train_minutes": round(minutes, 3),
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
