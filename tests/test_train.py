@@ -107,6 +107,19 @@ def test_smoke_longer_schedule_continues_a_finished_run(work, recnn_ckpt, tmp_pa
         assert "already finished" in again.stdout and _last_line(again) == _last_line(p)
 
 
+def test_smoke_time_boxed_run_counts_as_finished(work, recnn_ckpt, tmp_path):
+    """`trainer.max_time` time-boxes a stage (training on a lent GPU machine); the run it stops is
+    finished, so the machine that evaluates it reuses it instead of training on."""
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    args = ["model=recnn", "recnn=enhancenet", "recnn.net.channels=8", "recnn.net.blocks=2", "trainer.max_epochs=1000"]
+    p = _run(args + ["trainer.max_time=00:00:00:01"], tmp_path)
+    result = json.loads((run_dir / "result.json").read_text())
+    assert (result["stopped_early"], result["stopped_by"], result["max_epochs"]) == (True, "max_time", 1000), p.stdout[-2000:]
+    assert 2 <= result["epochs"] < 1000
+    again = _run(args, tmp_path)
+    assert "already finished" in again.stdout and _last_line(again) == _last_line(p)
+
+
 def test_epochs_to_extend():
     from omegaconf import OmegaConf
 

@@ -120,8 +120,10 @@ def trained_epochs(result: dict[str, Any]) -> int | None:
 def epochs_to_extend(result: dict[str, Any], cfg: DictConfig) -> int | None:
     """``trainer.max_epochs`` when it asks a finished run for more epochs than it trained, else None.
 
-    A run that early stopping ended is finished at any limit (it would stop again). Fewer epochs than
-    trained reuse the run as it is: its best checkpoint was chosen over all of them.
+    A run that stopped before its limit (early stopping, or ``trainer.max_time``: see :func:`stop_reason`)
+    is finished at any limit: it would stop again, and a time-boxed run trained on a GPU machine must not
+    go on training on the CPU that evaluates it. Fewer epochs than trained reuse the run as it is: its
+    best checkpoint was chosen over all of them.
 
     Example:
         >>> from omegaconf import OmegaConf
@@ -133,6 +135,22 @@ def epochs_to_extend(result: dict[str, Any], cfg: DictConfig) -> int | None:
     if wanted is None or done is None or result.get("stopped_early"):
         return None
     return wanted if wanted > done else None
+
+
+def stop_reason(trainer: L.Trainer) -> str | None:
+    """Why a fit ended before ``trainer.max_epochs``: ``"early_stopping"``, ``"max_time"`` or None.
+
+    ``trainer.max_time`` (Lightning's :class:`~lightning.pytorch.callbacks.Timer`) time-boxes a stage,
+    e.g. the training of a paper-scale pair on a lent GPU machine.
+    """
+    if getattr(trainer.early_stopping_callback, "stopped_epoch", 0) > 0:
+        return "early_stopping"
+    for cb in trainer.callbacks:
+        if isinstance(cb, L.pytorch.callbacks.Timer):
+            remaining = cb.time_remaining()
+            if remaining is not None and remaining <= 0:
+                return "max_time"
+    return None
 
 
 def build_task(cfg: DictConfig) -> L.LightningModule:
@@ -225,7 +243,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "monitor": str(cfg.model.monitor),
         "epochs": int(trainer.current_epoch),
         "max_epochs": _max_epochs(cfg),
-        "stopped_early": getattr(trainer.early_stopping_callback, "stopped_epoch", 0) > 0,
+        "stopped_early": stop_reason(trainer) is not None,
+        "stopped_by": stop_reason(trainer),
         "train_minutes": round(minutes, 3),
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
