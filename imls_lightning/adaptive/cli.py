@@ -139,26 +139,37 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     predictor.save(out / "mean_predictor.pt")
     timing["train_predictor_s"] = round(hist["seconds"], 2)
 
-    # -- fixed-mean ORP on the validation views (the ORP's own evaluation at an inference-time u) ----
+    # -- fixed-mean ORP on the validation views, on the path the labels bisect ----------------------
     t0 = time.perf_counter()
     from ..data.datamodule import ViewImageDataset
 
     orp_rows = cache.splits["val"] if len(cache.splits["val"]) else cache.splits["train"]
     orp_ds = ViewImageDataset(cache.path, orp_rows, pattern, fields=("view", "fr", "c"))
+    if s.orp_path == "product":
+        # the product path, as the evaluation searches it (IMS mask at u, those C-pixels, the decoder,
+        # the RecNN): its "IML/S, fixed u (ORP)" row is then the evaluation's ORP, not the IML bound's u
+        from torch.utils.data import DataLoader
 
-    def orp_quality(u: float) -> dict[str, float]:
-        it = copy.deepcopy(iml)
-        it.mean = clamp_mean(u)
-        return evaluate_quality(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
-                         recnn.to(device), None, device)
+        from ..inference.baselines import product_orp
 
-    ref_q = orp_quality(u_train)["psnr_iml_recnn"] if s.reference == "iml" else None
+        with torch.inference_mode():
+            batches = list(DataLoader(orp_ds, batch_size=s.batch_size, shuffle=False, num_workers=0))
+            orp_res = product_orp(ims.to(device).eval(), ims.decoder, recnn.to(device).eval(), batches, s.epsilon_db,
+                                  device=device)
+    else:
+        def orp_quality(u: float) -> dict[str, float]:
+            it = copy.deepcopy(iml)
+            it.mean = clamp_mean(u)
+            return evaluate_quality(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
+                                    recnn.to(device), None, device)
 
-    def orp_gap(u: float) -> float:
-        q = orp_quality(u)
-        return (q["psnr_recnn"] if ref_q is None else ref_q) - q["psnr_iml_recnn"]
+        ref_q = orp_quality(u_train)["psnr_iml_recnn"] if s.reference == "iml" else None
 
-    orp_res = ORPSearch(epsilon_db=s.epsilon_db, bracket=bracket, tolerance=0.05, k=1, max_rounds=12, scale="log").run(batched(orp_gap))
+        def orp_gap(u: float) -> float:
+            q = orp_quality(u)
+            return (q["psnr_recnn"] if ref_q is None else ref_q) - q["psnr_iml_recnn"]
+
+        orp_res = ORPSearch(epsilon_db=s.epsilon_db, bracket=bracket, tolerance=0.05, k=1, max_rounds=12, scale="log").run(batched(orp_gap))
     u_orp = float(orp_res.mean) if orp_res.found else MEAN_RANGE[1]
     timing["orp_search_s"] = round(time.perf_counter() - t0, 2)
 

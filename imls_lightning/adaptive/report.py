@@ -124,7 +124,8 @@ def markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels,
                                        if s.ims_lift else "the paper's rescale, PIM' x u / u_train (ims_lift=false)."))
     ref_text = "RecNN alone" if s.reference == "recnn" else f"IML + RecNN at the trained u = {u_train:g}"
     path_name = "IML/S + RecNN" if s.label_source == "ims" else "IML + RecNN"
-    orp_ref_text = ref_text  # the ORP search always runs on the IML + RecNN path
+    orp_ref_text = (f"RecNN alone on the product path (IML/S + RecNN{', lifted masks' if s.ims_lift else ''}: the evaluation's ORP)"
+                    if s.orp_path == "product" else f"{ref_text} on the IML + RecNN path")
     if s.reference != "recnn":
         ref_text = f"{path_name} at the trained u = {u_train:g}"
     L.append(f"- Labels: per view, smallest u in [{bracket[0]:g}, {bracket[1]:g}] with PSNR({path_name} at u) >= PSNR({ref_text}) - {eps:g} dB "

@@ -46,8 +46,16 @@ class Settings:
             key["ims_lift"] = True
         return key
 
+    @property
+    def orp_path(self) -> str:
+        """Where the fixed-mean ORP is searched: ``"product"`` (IMS mask at u, decoder, RecNN, against the
+        RecNN alone: the evaluation's ORP) when the labels bisect the product path against the RecNN
+        alone; else ``"iml"`` (IML + RecNN, against the labels' reference)."""
+        return "product" if self.label_source == "ims" and self.reference == "recnn" else "iml"
+
     def hashed(self) -> dict[str, Any]:
-        return {**self.label_key(), "predictor": self.predictor, "views": self.views, "max_views": self.max_views,
+        # orp_path: runs from before the product-path search searched the IML's u; they are not reused
+        return {**self.label_key(), "orp_path": self.orp_path, "predictor": self.predictor, "views": self.views, "max_views": self.max_views,
                 "repeats": self.repeats, "timing_views": self.timing_views,
                 "tradeoff_means": self.tradeoff_means, "tradeoff_margins": list(self.tradeoff_margins),
                 **({"options": {k: getattr(self.options, k) for k in NetOptions.SWITCHES}}

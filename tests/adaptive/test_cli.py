@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 import subprocess
@@ -21,7 +22,24 @@ def _cli(ck: dict, ims: Path, *extra: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
-def test_cli_end_to_end_on_tiny(tiny_checkpoints, pim_ckpt, tmp_path):
+def _direct_product_orp(pim_ckpt, cache) -> float:
+    """The product path's ORP on the cache's validation views, by a direct call of the evaluation's search."""
+    import torch
+    from torch.utils.data import DataLoader
+
+    from imls_lightning.core.importance import MEAN_RANGE
+    from imls_lightning.data.datamodule import ViewImageDataset
+    from imls_lightning.inference.baselines import product_orp
+    from imls_lightning.tasks.base import load_task
+
+    ims = load_task(pim_ckpt, expect="IMSTask").eval()
+    ds = ViewImageDataset(cache.path, cache.splits["val"], ims.pattern, fields=("view", "fr", "c"))
+    with torch.inference_mode():
+        res = product_orp(ims, ims.decoder, ims.recnn.eval(), list(DataLoader(ds, batch_size=16)), 1.0)
+    return float(res.mean) if res.found else MEAN_RANGE[1]
+
+
+def test_cli_end_to_end_on_tiny(tiny_checkpoints, pim_ckpt, tiny_cache, tmp_path):
     p = _cli(tiny_checkpoints, pim_ckpt, f"output_dir={tmp_path / 'out'}")
     assert p.returncode == 0, f"exit {p.returncode}\nSTDOUT:\n{p.stdout[-2000:]}\nSTDERR:\n{p.stderr[-4000:]}"
     report = Path(p.stdout.strip().splitlines()[-1])
@@ -43,6 +61,9 @@ def test_cli_end_to_end_on_tiny(tiny_checkpoints, pim_ckpt, tmp_path):
         assert float(r["ipr_imls_adaptive"]) >= 0 and math.isfinite(float(r["psnr_imls_adaptive"]))
         assert r["u_fixed"] == rows[0]["u_fixed"]
     assert (report.parent / "adaptive.png").stat().st_size > 1000 and (report.parent / "mean_predictor.pt").is_file()
+    # the fixed-mean ORP is the product path's (as the evaluation searches it), not the IML bound's u
+    assert "RecNN alone on the product path (IML/S + RecNN: the evaluation's ORP)" in text
+    assert json.loads((report.parent / "adaptive.json").read_text())["u_orp"] == _direct_product_orp(pim_ckpt, tiny_cache)
     labels = sorted((pim_ckpt.parent.parent / "adaptive" / "labels").glob("*.npz"))
     assert {x.name.split("-")[0] for x in labels} == {"train", "val", "test"}
     # a second run reuses the labels
@@ -59,8 +80,6 @@ def test_cli_lifted_masks_and_reuse_of_a_finished_run(tiny_checkpoints, pim_ckpt
     report = Path(p.stdout.strip().splitlines()[-1])
     text = report.read_text()
     assert "lifted to u's share of C (ims_lift=true" in text and "autocast" in text
-    import json
-
     data = json.loads((report.parent / "adaptive.json").read_text())
     u = data["u_adaptive"]
     assert 0.01 <= u["min"] <= u["median"] <= u["max"] <= 1.0

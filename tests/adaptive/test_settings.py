@@ -49,3 +49,12 @@ def test_settings_lift_and_options_enter_the_keys_only_when_set(tiny_checkpoints
     lifted = _settings(pim_ckpt, "ims_lift=true", "options.half=true", "device=cpu", "reuse=true")
     assert lifted.label_key()["ims_lift"] is True and lifted.hashed()["options"]["half"] is True
     assert lifted.options.device == "cpu" and lifted.reuse and "reuse" not in lifted.hashed()
+
+
+def test_settings_orp_path_follows_the_labels(tiny_checkpoints, pim_ckpt):
+    """The fixed-mean ORP is searched where the labels bisect: the product path against the RecNN alone
+    (the evaluation's ORP) by default; the IML + RecNN path otherwise. The run's folder says which."""
+    assert _settings(pim_ckpt).orp_path == "product"
+    assert _settings(pim_ckpt, "label_source=iml").orp_path == "iml"
+    assert _settings(pim_ckpt, "reference=iml").orp_path == "iml"
+    assert _settings(pim_ckpt).hashed()["orp_path"] == "product"
