@@ -100,10 +100,10 @@ def test_measure_pixel_check_script(tmp_path):
     assert out["check_ms"] > 0 and out["ratio"] > 20, out
 
 
-def _ims_gap_module():
+def _script_module(name: str):
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("ims_gap", ROOT / "scripts" / "ims_gap.py")
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -111,7 +111,7 @@ def _ims_gap_module():
 
 def test_ims_gap_object_oracle_against_a_direct_loop():
     torch = pytest.importorskip("torch")
-    mod = _ims_gap_module()
+    mod = _script_module("ims_gap")
     g = torch.Generator().manual_seed(0)
     valid = torch.ones(6, 6, dtype=torch.bool)
     obj = torch.rand(2, 1, 6, 6, generator=g) > 0.7
@@ -127,7 +127,7 @@ def test_ims_gap_object_oracle_against_a_direct_loop():
 
 def test_ims_gap_block_correlation_against_a_direct_loop():
     torch = pytest.importorskip("torch")
-    mod = _ims_gap_module()
+    mod = _script_module("ims_gap")
     g = torch.Generator().manual_seed(1)
     a, b = torch.rand(3, 1, 8, 8, generator=g, dtype=torch.float64), torch.rand(3, 1, 8, 8, generator=g, dtype=torch.float64)
     valid = torch.ones(8, 8, dtype=torch.bool)
@@ -156,7 +156,7 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     from imls_lightning.inference.baselines import equal_share_rows
     from imls_lightning.tasks.base import load_task
 
-    mod = _ims_gap_module()
+    mod = _script_module("ims_gap")
     fr_size = int(load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims").hparams["fr_size"])
     cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
                      if ViewImageCache.open(p.parent).images.shape[1] == fr_size)
@@ -179,3 +179,40 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     got = next(r for r in data["rows"] if r["mask"] == "iml" and r["share"] == 0.2)
     assert got["fr_psnr"] == pytest.approx(float(np.mean(want["psnr"])), abs=1e-4)
     assert got["density_object"] == pytest.approx(want["density_object"], abs=1e-6)
+
+
+def test_smoke_measure_backends_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
+    """Every backend runs the same IMS, views and mask: float32 PyTorch and its TorchScript / ONNX
+    exports give the same image (PSNR within 0.01 dB), bfloat16 close to it; a missing ONNX Runtime is a row
+    that says so, not an error."""
+    from data_gen.cache import ViewImageCache
+    from imls_lightning.export import onnx_available
+    from imls_lightning.tasks.base import load_task
+
+    mod = _script_module("measure_backends")
+    fr_size = int(load_task(str(tiny_checkpoints["ims"]), expect="IMSTask", what="ims").hparams["fr_size"])
+    cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
+                     if ViewImageCache.open(p.parent).images.shape[1] == fr_size)
+    out = tmp_path / "backends.md"
+    assert mod.main([str(tiny_checkpoints["ims"]), "--cache", str(cache_dir), "--views", "2", "--repeats", "1", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text == capsys.readouterr().out.rstrip("\n") + "\n"
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in text.splitlines() if line.startswith("| ") and "---" not in line}
+    for name in ("PyTorch float32", "PyTorch bfloat16", "PyTorch bfloat16 + channels_last", "TorchScript float32 (export)",
+                 "ONNX Runtime float32 (export)"):
+        assert name in rows, text
+
+    def delta(name: str) -> float:
+        return float(rows[name].rstrip(" |").split(" | ")[-1])
+
+    assert abs(delta("TorchScript float32 (export)")) < 0.01 and abs(delta("PyTorch bfloat16")) < 1.0
+    if onnx_available():
+        assert abs(delta("ONNX Runtime float32 (export)")) < 0.01
+    else:
+        assert "skipped: onnx / onnxruntime not installed" in rows["ONNX Runtime float32 (export)"]
+
+
+def test_exception_measure_backends_bad_cache(tiny_checkpoints, tmp_path):
+    mod = _script_module("measure_backends")
+    with pytest.raises(SystemExit, match=f"--cache {tmp_path}: .*no manifest.json"):
+        mod.main([str(tiny_checkpoints["ims"]), "--cache", str(tmp_path)])

@@ -219,7 +219,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             if isinstance(lg, ResumableCSVLogger):
                 set_aside_metrics(Path(lg.log_dir))
     t0 = time.perf_counter()
-    trainer.fit(task, datamodule=datamodule, ckpt_path=ckpt_path)
+    trainer.fit(task, datamodule=datamodule, ckpt_path=ckpt_path, weights_only=True)  # tensors and plain types only
     minutes = (time.perf_counter() - t0) / 60.0
     if trainer.interrupted:
         raise InputError(f"training interrupted; run the same command again to resume from {run_dir / 'checkpoints' / 'last.ckpt'}")
@@ -229,12 +229,12 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     if not best:
         # fast_dev_run (or checkpointing off): keep the weights anyway, so stages can be chained
         best = str(run_dir / "checkpoints" / ("fast_dev_run.ckpt" if fast else "final.ckpt"))
-        trainer.save_checkpoint(best)
+        trainer.save_checkpoint(best, weights_only=False)  # the whole state: it may be resumed
     score = getattr(ckpt_cb, "best_model_score", None) if ckpt_cb is not None else None
     test_metrics: dict[str, float] = {}
     if cfg.get("test", True):
         ckpt_for_test = None if fast or not getattr(ckpt_cb, "best_model_path", "") else "best"
-        out = trainer.test(task, datamodule=datamodule, ckpt_path=ckpt_for_test, verbose=False)
+        out = trainer.test(task, datamodule=datamodule, ckpt_path=ckpt_for_test, verbose=False, weights_only=True)
         test_metrics = {k: float(v) for k, v in (out[0] if out else {}).items()}
 
     result = {
