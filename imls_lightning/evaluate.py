@@ -402,7 +402,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         "recnn": RecNNAlone(renderer, pattern, nets.recnn, opts),
         "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts, mean=imls_mean),
         "imls": imls,
-        "imls_fill": IMLSRenderer(renderer, pattern, imls.predict_im, FillDecoder(), nets.recnn, opts),
+        "imls_fill": IMLSRenderer(renderer, pattern, imls.predict_im, FillDecoder(pattern), nets.recnn, opts),
     }
     las_ipr_used = None
     if nets.las_task is not None:
@@ -571,7 +571,7 @@ def _equal_share(s: Settings, cache, rows_all, positions, nets: Networks, patter
         for b in _loader(cache, rows_all[positions], pattern):
             out.append(equal_share_rows(b["c"].to(device), b["fr"].to(device), b["view"].to(device), nets.recnn.to(device).eval(),
                                         iml=nets.iml.to(device).eval(), ims_task=ims, blue=None if nets.blue is None else nets.blue.to(device).eval(),
-                                        shares=s.shares))
+                                        shares=s.shares, pattern=pattern))
     return summarize_equal_share(out)
 
 

@@ -24,7 +24,8 @@ pixels than a busy one for the same quality. This package makes ``u`` a function
    (importance from the rendered C-Image at ``u_v``).
 4. **The CLI** (:func:`run_adaptive`): labels (cached next to the IMS run and reused), predictor,
    and the comparison on the test trajectory with the fixed-mean alternatives (the trained mean, the
-   fixed-mean ORP on the validation views, the fixed mean whose average IPR matches the adaptive one),
+   fixed-mean ORP on the validation views, searched on the product path as the evaluation searches it
+   when the labels are, the fixed mean whose average IPR matches the adaptive one),
    written as ``adaptive.md`` + ``adaptive.csv`` + ``adaptive.png``; and the trade-off
    (:func:`quality_at_means`, :func:`tradeoff`): the predictor at several margins against the whole
    curve of fixed means on the (average IPR, average PSNR) plane (``tradeoff.png`` / ``.csv``).

@@ -4,7 +4,7 @@ A learned part earns its place only by beating the simplest thing that needs no 
 same pixels and with the same RecNN:
 
 * **decoder vs fill**: the same mask's pixels rebuilt by the trained IML decoder, or by the
-  untrained pull-push fill (:func:`~imls_lightning.models.pull_push.pull_push_inpaint`), each then
+  untrained pull-push fill (:func:`~imls_lightning.models.pull_push.fill_c_image`), each then
   through the RecNN;
 * **mask vs blue noise**: the learned mask (IML from the C-Image, IMS from the view) against the
   blue-noise plastic mask ``u > P`` of the same share, each through a decoder trained for it (the
@@ -31,7 +31,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from ..models.pull_push import pull_push_inpaint
+from ..models.pull_push import fill_c_image
 from ..core.metrics import psnr_per_image
 from ..tasks.iml import background_mask
 
@@ -103,7 +103,7 @@ def _densities(im: torch.Tensor, c: torch.Tensor, valid: torch.Tensor) -> tuple[
 @torch.no_grad()
 def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | None, recnn: torch.nn.Module,
                      iml: torch.nn.Module | None = None, ims_task: Any = None, blue: torch.nn.Module | None = None,
-                     shares: Sequence[float] = SHARES, valid: torch.Tensor | None = None) -> list[dict[str, Any]]:
+                     shares: Sequence[float] = SHARES, valid: torch.Tensor | None = None, pattern: Any = None) -> list[dict[str, Any]]:
     """Per-image PSNR after the RecNN for every (share, mask, reconstruction) on one batch.
 
     Args:
@@ -119,6 +119,8 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
             for blue-noise masks), or ``None`` (blue-noise masks get the fill only).
         shares: C-Image shares.
         valid: ``(n, n)`` bool pattern pixels (default: ``iml.valid`` or all).
+        pattern: the C-Images' sampling pattern: a foveal one is filled at the samples' FR positions
+            (:func:`~imls_lightning.models.pull_push.fill_c_image`); ``None``: filled as a grid.
 
     Returns:
         rows ``{"share", "mask", "reconstruction", "psnr" (B,), "c_share" (B,), "density_background",
@@ -152,7 +154,7 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
             im = mask_at_share(mask_at, share, valid, B)
             d_bg, d_obj = _densities(im, c, valid)
             got = im.flatten(1).sum(1) / valid.sum()
-            recs = {"fill": pull_push_inpaint(im * c, im)}
+            recs = {"fill": fill_c_image(im * c, im, pattern)}
             if decoder is not None:
                 recs["decoder"] = decoder(im * c, im)
             for rec_name, c_rec in recs.items():

@@ -36,7 +36,7 @@ from torch import nn
 
 from data_gen.errors import InputError
 from imls_lightning.core.importance import ImportanceNormalization, RejectionSampling, delegated
-from imls_lightning.models.pull_push import pull_push_inpaint
+from imls_lightning.models.pull_push import fill_c_image, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
 __all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "RefineDecoder", "PlainDecoder", "FillDecoder", "build_decoder",
@@ -55,7 +55,8 @@ def _mask_like(mask: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
 
 
 class FillDecoder(nn.Module):
-    """The untrained baseline decoder: pull-push fill of the sampled pixels (no parameters).
+    """The untrained baseline decoder: pull-push fill of the sampled pixels (no parameters); with a
+    foveal ``pattern``, at their FR positions (:func:`~imls_lightning.models.pull_push.fill_c_image`).
 
     ``forward(values (B, 3, n, n), mask (B, 1, n, n)) -> (B, 3, n, n)``; ``values`` only matter
     where ``mask > 0`` (pass the C-Image or the PR-C-Image alike); sampled pixels are kept.
@@ -66,8 +67,12 @@ class FillDecoder(nn.Module):
         1.0
     """
 
+    def __init__(self, pattern=None):
+        super().__init__()
+        self.pattern = pattern  # a foveal pattern's C-Image is filled at the samples' FR positions (fill_c_image)
+
     def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return pull_push_inpaint(values, _mask_like(mask, values))
+        return fill_c_image(values, _mask_like(mask, values), self.pattern)
 
 
 class RefineDecoder(nn.Module):

@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["pull_push_inpaint", "PullPushInpaint"]
+__all__ = ["pull_push_inpaint", "PullPushInpaint", "fill_c_image"]
 
 # Below this pyramid mass a pixel counts as empty in pull-push (LAS: exactly 0). Keeps 1/N finite.
 _PP_EPS = 1e-12
@@ -103,6 +103,46 @@ def pull_push_inpaint(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     dt = torch.float64 if values.dtype == torch.float64 else torch.float32
     with torch.autocast(device_type=values.device.type, enabled=False):
         return _pull_push(mask.to(dt), values.to(dt))[1]
+
+
+def fill_c_image(values: torch.Tensor, mask: torch.Tensor, pattern=None) -> torch.Tensor:
+    """Pull-push fill of a C-Image's unsampled pixels, where the pixels' neighbours are their neighbours
+    in the image.
+
+    A downsampling pattern's C-Image is a regular grid of the FR-Image, so it is filled as it is. A foveal
+    pattern's C-Image packs scattered FR pixels in raster order (:func:`~imls_lightning.core.compaction.compact`):
+    its rows are runs of FR rows and its columns are not neighbours at all. Its samples are scattered back to
+    their FR positions, filled there and gathered again, so the untrained baseline fills from the pixels
+    around each hole in the picture, not from its neighbours in memory.
+
+    Args:
+        values: ``(B, C, n, n)`` C-Image values (anything where the mask is 0).
+        mask: ``(B, 1, n, n)`` or ``(B, n, n)`` in [0, 1] (bool allowed).
+        pattern: the :class:`~imls_lightning.core.patterns.SamplingPattern` of the C-Image; ``None`` or a
+            grid pattern: the plain :func:`pull_push_inpaint`.
+
+    Returns:
+        ``(B, C, n, n)``, the sampled pixels unchanged (0/1 mask); float32 for reduced precision.
+
+    Example:
+        >>> from imls_lightning.core.patterns import foveal_pattern
+        >>> p = foveal_pattern(16, 6, None)
+        >>> v = torch.rand(1, 3, 6, 6); m = (torch.rand(1, 1, 6, 6) > 0.5).float()
+        >>> out = fill_c_image(v, m, p)
+        >>> out.shape, bool(torch.equal(out * m, v * m))
+        (torch.Size([1, 3, 6, 6]), True)
+    """
+    if pattern is None or pattern.kind != "foveal":
+        return pull_push_inpaint(values, mask)
+    from ..core.compaction import compact, decompact
+
+    if mask.dim() == 3:
+        mask = mask.unsqueeze(1)
+    dt = torch.float64 if values.dtype == torch.float64 else torch.float32
+    m = mask.to(dt)
+    idx = pattern.indices.to(values.device)
+    filled = pull_push_inpaint(decompact(values.to(dt) * m, idx, pattern.fr_size), decompact(m, idx, pattern.fr_size))
+    return compact(filled, idx, pattern.c_size)
 
 
 class PullPushInpaint(nn.Module):

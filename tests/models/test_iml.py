@@ -238,6 +238,20 @@ def test_refine_decoder_with_zero_correction_is_the_pull_push_fill():
     torch.testing.assert_close(FillDecoder()(m * c, m), pull_push_inpaint(m * c, m))
 
 
+def test_fill_decoder_with_a_foveal_pattern_fills_at_the_fr_positions():
+    """The evaluation's "IML/S mask + fill" decoder: a foveal C-Image is filled where its pixels sit in the
+    picture (fill_c_image), not among its neighbours in memory; a grid pattern is the plain fill."""
+    from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    c = torch.rand(1, 3, N, N)
+    m = (torch.rand(1, 1, N, N) > 0.6).float()
+    fov = foveal_pattern(3 * N, N, None)
+    torch.testing.assert_close(FillDecoder(fov)(m * c, m), fill_c_image(m * c, m, fov))
+    assert not torch.allclose(FillDecoder(fov)(m * c, m), pull_push_inpaint(m * c, m))
+    torch.testing.assert_close(FillDecoder(downsample_pattern(2 * N, 2))(m * c, m), pull_push_inpaint(m * c, m))
+
+
 def test_refine_decoder_gradcheck():
     dec = RefineDecoder(depth=2, base_channels=2).double()
     c = torch.rand(1, 3, 4, 4, dtype=torch.float64, requires_grad=True)

@@ -83,3 +83,80 @@ def test_pull_push_gradcheck():
     data = torch.rand(1, 2, 5, 4, dtype=torch.float64, requires_grad=True)
     mask = (torch.rand(1, 1, 5, 4, dtype=torch.float64) * 0.9 + 0.05).requires_grad_(True)
     assert torch.autograd.gradcheck(pull_push_inpaint, (data, mask))
+
+
+# ---- fill_c_image: the fill where the C-Image's neighbours are the picture's ------------------------
+def _smooth_fr(m: int) -> torch.Tensor:
+    y, x = torch.meshgrid(torch.linspace(0, 1, m, dtype=torch.float64), torch.linspace(0, 1, m, dtype=torch.float64), indexing="ij")
+    return torch.stack([x, y, 0.5 * (x + y)])[None]  # (1, 3, m, m): a ramp, which pull-push rebuilds closely
+
+
+def test_fill_c_image_grid_pattern_is_the_plain_fill():
+    from imls_lightning.core.patterns import downsample_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    v, m = torch.rand(2, 3, 8, 8), (torch.rand(2, 1, 8, 8) > 0.6).float()
+    for pattern in (None, downsample_pattern(16, 2)):
+        assert torch.equal(fill_c_image(v, m, pattern), pull_push_inpaint(v, m))
+
+
+def test_fill_c_image_foveal_against_a_direct_scatter_fill_gather():
+    """A foveal C-Image is filled at its samples' FR positions: against a direct loop over the pattern's pixels."""
+    from imls_lightning.core.patterns import foveal_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    p = foveal_pattern(24, 8, None)
+    k, n, fr = p.count, p.c_size, p.fr_size
+    torch.manual_seed(0)
+    v = torch.rand(1, 3, n, n, dtype=torch.float64)
+    mask = (torch.rand(1, 1, n, n) > 0.5).double()
+    got = fill_c_image(v, mask, p)
+    fr_v, fr_m = torch.zeros(1, 3, fr, fr, dtype=torch.float64), torch.zeros(1, 1, fr, fr, dtype=torch.float64)
+    for j in range(k):  # pixel j of the C-Image sits at FR raster index indices[j]
+        y, x = divmod(int(p.indices[j]), fr)
+        fr_v[0, :, y, x] = v[0, :, j // n, j % n] * mask[0, 0, j // n, j % n]
+        fr_m[0, 0, y, x] = mask[0, 0, j // n, j % n]
+    filled = pull_push_inpaint(fr_v, fr_m)
+    want = torch.zeros_like(v)
+    for j in range(k):
+        y, x = divmod(int(p.indices[j]), fr)
+        want[0, :, j // n, j % n] = filled[0, :, y, x]
+    assert torch.allclose(got, want, atol=1e-12)
+    keep = mask.bool().expand_as(v)
+    assert torch.equal(got[keep], v[keep])  # sampled pixels unchanged
+
+
+def test_fill_c_image_foveal_beats_the_fill_in_memory_order():
+    """The reason for the function: on a smooth picture the C-Image's memory neighbours are not its
+    picture neighbours, and filling among them is several times worse."""
+    from imls_lightning.core.compaction import compact
+    from imls_lightning.core.patterns import foveal_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    p = foveal_pattern(64, 24, None)
+    c = compact(_smooth_fr(p.fr_size), p.indices, p.c_size)
+    torch.manual_seed(1)
+    mask = (torch.rand(1, 1, p.c_size, p.c_size, dtype=torch.float64) > 0.7).double()
+    valid = compact(torch.ones(1, 1, p.fr_size, p.fr_size, dtype=torch.float64), p.indices, p.c_size).bool()
+    err_fr = (fill_c_image(c, mask, p) - c).abs()[valid.expand_as(c)].mean()
+    err_c = (pull_push_inpaint(c, mask) - c).abs()[valid.expand_as(c)].mean()
+    assert err_fr < 0.5 * err_c, (float(err_fr), float(err_c))
+
+
+def test_fill_c_image_gradcheck():
+    from imls_lightning.core.patterns import foveal_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    p = foveal_pattern(12, 5, None)
+    v = torch.rand(1, 2, 5, 5, dtype=torch.float64, requires_grad=True)
+    m = (torch.rand(1, 1, 5, 5, dtype=torch.float64) * 0.9 + 0.05).requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda a, b: fill_c_image(a, b, p), (v, m))
+
+
+def test_exception_fill_c_image_mask_shape():
+    from imls_lightning.core.patterns import foveal_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    p = foveal_pattern(12, 5, None)
+    with pytest.raises((ValueError, RuntimeError)):
+        fill_c_image(torch.rand(1, 3, 5, 5), torch.ones(1, 1, 4, 4), p)
