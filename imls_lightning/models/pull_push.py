@@ -10,6 +10,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..core.compaction import compact, decompact
+
 __all__ = ["pull_push_inpaint", "PullPushInpaint", "fill_c_image"]
 
 # Below this pyramid mass a pixel counts as empty in pull-push (LAS: exactly 0). Keeps 1/N finite.
@@ -134,8 +136,6 @@ def fill_c_image(values: torch.Tensor, mask: torch.Tensor, pattern=None) -> torc
     """
     if pattern is None or pattern.kind != "foveal":
         return pull_push_inpaint(values, mask)
-    from ..core.compaction import compact, decompact
-
     if mask.dim() == 3:
         mask = mask.unsqueeze(1)
     dt = torch.float64 if values.dtype == torch.float64 else torch.float32

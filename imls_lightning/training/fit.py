@@ -237,14 +237,15 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         out = trainer.test(task, datamodule=datamodule, ckpt_path=ckpt_for_test, verbose=False, weights_only=True)
         test_metrics = {k: float(v) for k, v in (out[0] if out else {}).items()}
 
+    stopped_by = stop_reason(trainer)
     result = {
         "best_checkpoint": str(Path(best).resolve()),
         "best_score": float(score) if score is not None and math.isfinite(float(score)) else None,
         "monitor": str(cfg.model.monitor),
         "epochs": int(trainer.current_epoch),
         "max_epochs": _max_epochs(cfg),
-        "stopped_early": stop_reason(trainer) is not None,
-        "stopped_by": stop_reason(trainer),
+        "stopped_early": stopped_by is not None,
+        "stopped_by": stopped_by,
         "train_minutes": round(minutes, 3),
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
