@@ -128,8 +128,10 @@ def main(argv=None) -> int:
         cache = ViewImageCache.open(Path(args.cache))
     except (InputError, OSError) as err:
         raise SystemExit(f"--cache {args.cache}: {err}") from None
+    from imls_lightning.evaluate import spaced
+
     rows_idx = np.asarray(cache.splits["test"])
-    rows_idx = rows_idx[np.linspace(0, len(rows_idx) - 1, args.views).round().astype(int)]
+    rows_idx = rows_idx[spaced(len(rows_idx), args.views)]  # the evaluation's own choice of evenly spaced views
     views = np.asarray(cache.views[rows_idx], np.float32)
     truth = np.stack([np.asarray(cache.images[r]) for r in rows_idx])
     with tempfile.TemporaryDirectory(prefix="imls-backends-") as tmp:

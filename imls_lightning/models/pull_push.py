@@ -138,10 +138,9 @@ def fill_c_image(values: torch.Tensor, mask: torch.Tensor, pattern=None) -> torc
         return pull_push_inpaint(values, mask)
     if mask.dim() == 3:
         mask = mask.unsqueeze(1)
-    dt = torch.float64 if values.dtype == torch.float64 else torch.float32
-    m = mask.to(dt)
-    idx = pattern.indices.to(values.device)
-    filled = pull_push_inpaint(decompact(values.to(dt) * m, idx, pattern.fr_size), decompact(m, idx, pattern.fr_size))
+    m = mask.to(values.dtype)
+    idx = pattern.indices.to(values.device)  # pull_push_inpaint picks the working precision, as for a grid
+    filled = pull_push_inpaint(decompact(values * m, idx, pattern.fr_size), decompact(m, idx, pattern.fr_size))
     return compact(filled, idx, pattern.c_size)
 
 
