@@ -26,8 +26,11 @@ Example:
 """
 from __future__ import annotations
 
+import concurrent.futures
+import multiprocessing
 import os
 import re
+import sys
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -267,6 +270,17 @@ def _seed(seed) -> int:
     return int(seed)
 
 
+def procedural_spec(generator: str, size=None, seed=0) -> tuple[str, tuple[int, int, int], int]:
+    """Checked ``(generator, (x, y, z), seed)``: the generator's default size where ``size`` is None.
+
+    Example:
+        >>> procedural_spec("flame", None, 2)
+        ('flame', (64, 64, 96), 2)
+    """
+    g = _generator(generator)
+    return g.name, _size(size, g.default_size), _seed(seed)
+
+
 def procedural_source(generator: str, dims, seed: int) -> str:
     """The regeneration string, e.g. ``procedural:mixing_layer?size=64,64,64&seed=0``."""
     return f"procedural:{generator}?size={','.join(str(int(d)) for d in dims)}&seed={int(seed)}"
@@ -320,22 +334,91 @@ def from_source(source: str) -> Volume:
     return make_procedural(gen, dims, seed)
 
 
+def raw_name(generator: str, dims, seed: int = 0) -> str:
+    """The file name :func:`write_procedural_raw` gives a volume in a directory.
+
+    Seed 0 keeps the plain Open SciVis name (``flame_1408x1080x1100_float32.raw``, what
+    ``experiment=large_flame`` expects); other seeds are part of the name, so two seeds never share
+    a file.
+
+    Example:
+        >>> raw_name("flame", (64, 64, 96)), raw_name("flame", 32, seed=3)
+        ('flame_64x64x96_float32.raw', 'flame-seed3_32x32x32_float32.raw')
+    """
+    g = _generator(generator)
+    dims = _size(dims, g.default_size, "dims")
+    stem = g.name if _seed(seed) == 0 else f"{g.name}-seed{int(seed)}"
+    return f"{stem}_{dims[0]}x{dims[1]}x{dims[2]}_float32.raw"
+
+
+def _probe_slices(nz: int) -> list[int]:
+    # first, middle and last z-slice: a changed generator, seed or a torn file shows in one of them
+    return sorted({0, nz // 2, nz - 1})
+
+
+def raw_matches(generator: str, dims, path: str | os.PathLike, seed: int = 0) -> bool:
+    """Whether ``path`` holds this procedural volume: right size, and its first, middle and last
+    z-slices equal the generator's bit for bit (a slab is bit-identical to the whole volume's rows).
+
+    Costs three z-slices of generation, so a reused file is checked by content, not by its name.
+    """
+    g = _generator(generator)
+    dims = _size(dims, g.default_size, "dims")
+    path = Path(path)
+    nbytes = dims[0] * dims[1] * dims[2] * 4
+    if not path.is_file() or path.stat().st_size != nbytes:
+        return False
+    data = np.memmap(path, dtype="<f4", mode="r", shape=(dims[2], dims[1], dims[0]))
+    try:
+        return all(np.array_equal(data[z:z + 1], g.fn(dims, _seed(seed), z, z + 1)) for z in _probe_slices(dims[2]))
+    finally:
+        del data
+
+
+def _write_slab(name: str, dims, seed: int, z0: int, z1: int, path: str) -> int:
+    """Worker: evaluate one z-slab and write it at its offset of the (pre-sized) file."""
+    slab = np.ascontiguousarray(PROCEDURAL_GENERATORS[name].fn(dims, seed, z0, z1), dtype="<f4")
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        view = memoryview(slab).cast("B")
+        offset, done = z0 * dims[0] * dims[1] * 4, 0
+        while done < len(view):
+            done += os.pwrite(fd, view[done:], offset + done)
+    finally:
+        os.close(fd)
+    return z1 - z0
+
+
+def _workers(workers) -> int:
+    try:
+        w = int(workers)
+        if w < 0 or isinstance(workers, bool) or float(workers) != w:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise InputError(f"workers={workers!r}: expected an integer >= 0 (0 = one per core)") from None
+    return w or (os.cpu_count() or 1)
+
+
 def write_procedural_raw(generator: str, dims, path: str | os.PathLike, seed: int = 0, chunk_z: int = 32,
-                         overwrite: bool = False) -> Path:
+                         overwrite: bool = False, workers: int = 1, progress: bool = False) -> Path:
     """Stream a procedural volume slab by slab into an Open SciVis ``.raw`` file (float32, LE).
 
-    Never holds more than ``chunk_z`` slices in memory, so paper-scale volumes (1024^3 = 4 GiB)
-    can be made on a small machine. The file is written under a temporary name and renamed when
-    complete (atomic): an existing file with the final name is always whole, and is kept as is
-    unless ``overwrite``.
+    Never holds more than ``chunk_z`` slices per worker in memory, so paper-scale volumes (1024^3 =
+    4 GiB) can be made on a small machine. The file is written under a temporary name and renamed
+    when complete (atomic): an existing file with the final name is always whole. It is reused only
+    when its content checks out (:func:`raw_matches`); a file that does not (another generator
+    version, a torn copy) is regenerated, and the one line saying so goes to stderr.
 
     Args:
         generator: a name in :data:`PROCEDURAL_GENERATORS`.
         dims: ``(x, y, z)`` or an int.
-        path: a directory (the file is named ``<generator>_XxYxZ_float32.raw`` in it) or the
-            ``.raw`` file itself, whose name must follow the convention with these dims.
+        path: a directory (the file is named :func:`raw_name` in it) or the ``.raw`` file itself,
+            whose name must follow the convention with these dims.
         seed: as in :func:`make_procedural` (same seed, same voxels).
         chunk_z: z-slices per slab.
+        workers: processes evaluating slabs in parallel (0 = one per core); each writes its slab
+            at its own offset of the file.
+        progress: a tqdm bar over the slabs.
 
     Returns:
         The path of the ``.raw`` file; load it with ``load_volume({"path": ...})``.
@@ -348,6 +431,7 @@ def write_procedural_raw(generator: str, dims, path: str | os.PathLike, seed: in
     g = _generator(generator)
     dims = _size(dims, g.default_size, "dims")
     seed = _seed(seed)
+    workers = _workers(workers)
     try:
         chunk_z = int(chunk_z)
         if chunk_z < 1:
@@ -355,7 +439,7 @@ def write_procedural_raw(generator: str, dims, path: str | os.PathLike, seed: in
     except (TypeError, ValueError):
         raise InputError(f"chunk_z={chunk_z!r}: expected a positive integer") from None
     path = Path(path).expanduser()
-    fname = f"{g.name}_{dims[0]}x{dims[1]}x{dims[2]}_float32.raw"
+    fname = raw_name(g.name, dims, seed)
     if path.is_dir():
         path = path / fname
     else:
@@ -365,15 +449,40 @@ def write_procedural_raw(generator: str, dims, path: str | os.PathLike, seed: in
         if not path.parent.is_dir():
             raise InputError(f"path={path}: directory {path.parent} does not exist")
     nbytes = dims[0] * dims[1] * dims[2] * 4
-    if path.is_file() and path.stat().st_size == nbytes and not overwrite:
-        return path
+    if path.is_file() and not overwrite:
+        if raw_matches(g.name, dims, path, seed):
+            return path
+        print(f"{path}: not the volume procedural:{g.name} seed {seed} describes (size or content differ); regenerating it",
+              file=sys.stderr)
+    slabs = [(z0, min(dims[2], z0 + chunk_z)) for z0 in range(0, dims[2], chunk_z)]
+    bar = _progress(len(slabs), f"{fname}", progress)
+
     def write(fh) -> None:
-        for z0 in range(0, dims[2], chunk_z):
-            slab = g.fn(dims, seed, z0, min(dims[2], z0 + chunk_z))
-            fh.write(np.ascontiguousarray(slab, dtype="<f4").tobytes())
+        if workers == 1 or len(slabs) == 1:
+            for z0, z1 in slabs:
+                fh.write(np.ascontiguousarray(g.fn(dims, seed, z0, z1), dtype="<f4").tobytes())
+                bar.update(1)
+            return
+        fh.truncate(nbytes)
+        fh.flush()
+        # spawn, not fork: the parent may hold numba/torch thread pools that a fork would copy mid-state
+        ctx = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(min(workers, len(slabs)), mp_context=ctx) as pool:
+            jobs = [pool.submit(_write_slab, g.name, dims, seed, z0, z1, fh.name) for z0, z1 in slabs]
+            for job in concurrent.futures.as_completed(jobs):
+                job.result()
+                bar.update(1)
 
     try:
         atomic_write(path, write, unique=True)
     except PermissionError as err:
         raise InputError(f"path={path}: cannot write ({err.strerror})") from None
+    finally:
+        bar.close()
     return path
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="slab", disable=not enabled, leave=False)

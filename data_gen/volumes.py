@@ -59,7 +59,7 @@ SUPPORTED_EXTENSIONS = (".raw", ".vti", ".nrrd", ".nhdr", ".mha", ".mhd", ".nii"
 #: keys of the ``scene.volume`` config node (keys starting with ``_`` are ignored)
 VOLUME_CONFIG_KEYS = (
     "kind", "path", "dims", "dtype", "spacing", "clip_percentiles", "nan_to", "name",
-    "generator", "size", "seed",
+    "generator", "size", "seed", "stream_to",
 )
 
 # ``name_XxYxZ_dtype.raw``; the name itself may contain underscores (``ct_head_256x256x108_int16``)
@@ -626,6 +626,10 @@ def load_volume(cfg: Mapping, prefix: str = "scene.volume") -> Volume:
     * ``nan_to``: replace NaN/Inf voxels by this number (otherwise they are an error).
     * ``name``: volume name (default: from the file name / the generator).
     * ``generator``, ``size`` (int or ``[x, y, z]``), ``seed`` (``kind=procedural``).
+    * ``stream_to`` (``kind=procedural``): a directory; the volume is streamed there slab by slab
+      on every core (:func:`~data_gen.procedural.write_procedural_raw`, reused when its content
+      checks out) and memory-mapped, as paper-size volumes must be. ``null``: made in memory.
+      Either way the volume's ``source`` is the procedural string, so caches do not depend on it.
 
     Args:
         cfg: dict or ``DictConfig``.
@@ -652,6 +656,8 @@ def load_volume(cfg: Mapping, prefix: str = "scene.volume") -> Volume:
     clip = _plain(_get(cfg, "clip_percentiles"))
     nan_to = _get(cfg, "nan_to")
     name = _get(cfg, "name")
+    if kind == "procedural" and _get(cfg, "stream_to") not in (None, ""):
+        return _streamed_procedural(cfg, prefix, spacing, clip, nan_to, name)
     if kind == "procedural":
         from .procedural import make_procedural
 
@@ -671,3 +677,23 @@ def load_volume(cfg: Mapping, prefix: str = "scene.volume") -> Volume:
                                  spacing=spacing, name=name, what=what)
     return finalize_volume(data, sp, name=info["name"], source=str(path), info=info,
                            clip_percentiles=clip, nan_to=nan_to, what=what)
+
+
+def _streamed_procedural(cfg: Mapping, prefix: str, spacing, clip, nan_to, name) -> Volume:
+    """A procedural volume streamed to ``<stream_to>/<generator>_XxYxZ_float32.raw`` and memory-mapped."""
+    from .procedural import PROCEDURAL_GENERATORS, procedural_source, procedural_spec, write_procedural_raw
+
+    gen, dims, seed = procedural_spec(_get(cfg, "generator", ""), _plain(_get(cfg, "size")), _get(cfg, "seed", 0))
+    out = Path(str(_get(cfg, "stream_to"))).expanduser()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"{prefix}.stream_to={out}: cannot create the directory ({err.strerror})") from None
+    path = write_procedural_raw(gen, dims, out, seed=seed, workers=0)
+    data = _memmap(path, RAW_DTYPES["float32"], (dims[2], dims[1], dims[0]), 0, f"{prefix}.stream_to ({path})")
+    source = procedural_source(gen, dims, seed)
+    sp = _check_spacing(spacing, f"{prefix}.spacing") if spacing is not None else (1.0, 1.0, 1.0)
+    info = {"generator": gen, "size_xyz": list(dims), "seed": seed, "description": PROCEDURAL_GENERATORS[gen].description,
+            "spacing_from": "config" if spacing is not None else "default", "streamed_to": str(path)}
+    return finalize_volume(data, sp, name=str(name or gen), source=source, info=info,
+                           clip_percentiles=clip, nan_to=nan_to, what=f"{prefix} ({source})")

@@ -125,7 +125,7 @@ def test_source_round_trip():
 
 def test_write_procedural_raw_streams_and_matches(tmp_path):
     p = write_procedural_raw("mixing_layer", (24, 20, 30), tmp_path, seed=4, chunk_z=7)
-    assert p.name == "mixing_layer_24x20x30_float32.raw" and p.parent == tmp_path
+    assert p.name == "mixing_layer-seed4_24x20x30_float32.raw" and p.parent == tmp_path  # the seed is in the name
     assert [f.name for f in tmp_path.iterdir()] == [p.name]  # no temporary file left behind
     vol = load_volume({"kind": "file", "path": str(p)})
     assert isinstance(vol.data, np.memmap)

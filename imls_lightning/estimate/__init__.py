@@ -1,0 +1,24 @@
+"""Will IML/S pay on this volume? The before-training estimate (``python -m imls_lightning.estimate``).
+
+Before any cache or training, on a few random views of a scene at paper scale, it measures
+
+* the ray cast of the RecNN's whole sampling pattern (what the RecNN alone renders),
+* the cost per C-pixel on the object and on the background (an importance mask keeps the object),
+* the latency of untrained networks of the chosen sizes (IMS, IML decoder, RecNN),
+* the classical C -> FR upsampling's PSNR (bilinear; pull-push for the foveal pattern): how much
+  detail lives at the pixel scale, i.e. whether a RecNN leaves error an importance mask can hide,
+
+and tabulates the speed-up bound of IML/S + RecNN over the RecNN alone against the share of C
+(:mod:`.bound`), with the largest share at which the goal (2x; 1.5x for FoVolNet) is reachable.
+
+Example:
+    >>> from imls_lightning.estimate import RenderCost, bound_table, share_for_speedup
+    >>> cost = RenderCost(0.5, 0.01, 0.001, 30000, 35536)
+    >>> share_for_speedup(bound_table(cost, c_render_ms=336.0, nets_ms=32.0, recnn_ms=16.0), 2.0)
+    0.3
+"""
+from .bound import SHARES, RenderCost, bound_table, share_for_speedup, speedup_at, speedup_from_estimate
+from .run import DEFAULT_TARGETS, RESULT, format_report, read_estimate, run_estimate
+
+__all__ = ["SHARES", "RenderCost", "bound_table", "share_for_speedup", "speedup_at", "speedup_from_estimate",
+           "DEFAULT_TARGETS", "RESULT", "format_report", "read_estimate", "run_estimate"]

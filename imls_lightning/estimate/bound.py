@@ -1,0 +1,131 @@
+"""The before-training speed-up bound: what IML/S + RecNN can gain over the RecNN alone on a scene.
+
+One home for the arithmetic of :mod:`imls_lightning.estimate`. The product path costs
+
+    T_imls(s) = T_ims + R(s) + T_decoder + T_recnn,
+
+the RecNN alone ``T_alone = R(1) + T_recnn``, so the bound at a share ``s`` of the C-Image is
+``T_alone / T_imls(s)``. ``R(s)``, the selective ray cast of ``s K`` of the pattern's ``K`` pixels,
+is modelled from three measurements (:class:`RenderCost`): a fixed cost per call and a cost per
+pixel on the object and on the background. An importance mask keeps the object's pixels, which
+cost more (their rays march through the volume; background rays miss it or are skipped), at a
+density ``b`` times the object's on the background (``background_density``; the demo's IMS samples
+the background at 1/6 of the object's density, ct_head's at 0.24).
+
+Example:
+    >>> cost = RenderCost(fixed_ms=1.0, object_ms_per_px=0.004, background_ms_per_px=0.0005,
+    ...                   object_px=40000, background_px=25536)
+    >>> round(cost.render_ms(1.0), 2)
+    173.77
+    >>> b = bound_table(cost, c_render_ms=173.0, nets_ms=32.0, recnn_ms=16.0)
+    >>> [round(r["speedup"], 2) for r in b[:3]], share_for_speedup(b, 2.0)
+    ([2.62, 1.99, 1.6], 0.1)
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Sequence
+
+from data_gen.errors import InputError
+
+#: the shares of C at which the bound is tabulated (issue 31: 0.1, 0.2, ..., 1.0)
+SHARES = tuple(round(0.1 * i, 1) for i in range(1, 11))
+
+
+@dataclass(frozen=True)
+class RenderCost:
+    """Selective ray-cast cost: ``fixed_ms + n_obj * object_ms_per_px + n_bg * background_ms_per_px``.
+
+    ``object_px`` / ``background_px``: the pattern's pixels on the object and on the background.
+    """
+
+    fixed_ms: float
+    object_ms_per_px: float
+    background_ms_per_px: float
+    object_px: int
+    background_px: int
+
+    @property
+    def pixels(self) -> int:
+        return int(self.object_px + self.background_px)
+
+    @property
+    def object_fraction(self) -> float:
+        return self.object_px / max(self.pixels, 1)
+
+    def pixels_at(self, share: float, background_density: float = 0.25) -> tuple[float, float]:
+        """``(object pixels, background pixels)`` a mask of ``share`` of the pattern keeps, the
+        background sampled at ``background_density`` times the object's density (the object full
+        first: beyond it the rest comes from the background)."""
+        s = _share(share)
+        b = _density(background_density)
+        n = s * self.pixels
+        denom = self.object_px + b * self.background_px
+        d = n / denom if denom > 0 else 1.0
+        if d <= 1.0:
+            return d * self.object_px, d * b * self.background_px
+        return float(self.object_px), min(n - self.object_px, float(self.background_px))
+
+    def render_ms(self, share: float, background_density: float = 0.25) -> float:
+        """Modelled time of ray-casting ``share`` of the pattern (ms)."""
+        n_obj, n_bg = self.pixels_at(share, background_density)
+        return self.fixed_ms + n_obj * self.object_ms_per_px + n_bg * self.background_ms_per_px
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _share(share: float) -> float:
+    s = float(share)
+    if not 0.0 <= s <= 1.0:
+        raise InputError(f"share={share}: expected a share of the C-Image in [0, 1]")
+    return s
+
+
+def _density(b: float) -> float:
+    v = float(b)
+    if not 0.0 < v <= 1.0:
+        raise InputError(f"background_density={b}: expected a number in (0, 1] (the background's sampling density "
+                         "relative to the object's)")
+    return v
+
+
+def speedup_at(cost: RenderCost, share: float, *, c_render_ms: float, nets_ms: float, recnn_ms: float,
+               background_density: float = 0.25) -> float:
+    """The bound ``T_alone / T_imls(share)``; ``nets_ms`` = the IMS and the decoder together."""
+    alone = float(c_render_ms) + float(recnn_ms)
+    return alone / (float(nets_ms) + cost.render_ms(share, background_density) + float(recnn_ms))
+
+
+def bound_table(cost: RenderCost, *, c_render_ms: float, nets_ms: float, recnn_ms: float,
+                background_density: float = 0.25, shares: Sequence[float] = SHARES) -> list[dict[str, float]]:
+    """``[{"share", "speedup", "render_ms", "limit"}]`` per share: the bound with the networks and the
+    limit without them (the share's pixels alone against the RecNN alone)."""
+    alone = float(c_render_ms) + float(recnn_ms)
+    rows = []
+    for s in shares:
+        r = cost.render_ms(s, background_density)
+        rows.append({"share": float(s), "speedup": alone / (float(nets_ms) + r + float(recnn_ms)),
+                     "render_ms": r, "limit": alone / r if r > 0 else float("inf")})
+    return rows
+
+
+def share_for_speedup(table: Sequence[dict[str, float]], target: float) -> float | None:
+    """The largest tabulated share whose bound reaches ``target``; None if none does."""
+    ok = [r["share"] for r in table if r["speedup"] >= float(target)]
+    return max(ok) if ok else None
+
+
+def speedup_from_estimate(estimate: dict[str, Any], share: float) -> float:
+    """The bound at any ``share`` from an ``estimate.json``'s content (its render cost and stage
+    times): a benchmark row's ``estimated_speedup`` at the share it measured."""
+    try:
+        cost = RenderCost(**estimate["render_cost"])
+        return speedup_at(cost, share, c_render_ms=estimate["c_render_ms"], nets_ms=estimate["nets_ms"],
+                          recnn_ms=estimate["recnn_ms"], background_density=estimate["background_density"])
+    except (KeyError, TypeError) as err:
+        raise InputError(f"estimate: missing or malformed key {err} (expected an estimate.json of python -m "
+                         "imls_lightning.estimate)") from None
+
+
+__all__ = ["SHARES", "RenderCost", "speedup_at", "bound_table", "share_for_speedup", "speedup_from_estimate"]

@@ -1,0 +1,200 @@
+"""Measurements of the before-training estimate: render costs, untrained networks, bilinear C -> FR.
+
+Everything is measured on views drawn like the training views (never the test trajectory: choosing
+scenes and sizes is tuning). Times are medians of ``repeats`` runs after a warm-up, per view, then
+the median over the views.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from data_gen.errors import InputError
+
+from ..core.metrics import psnr_from_mse
+from ..core.patterns import SamplingPattern, plastic_rank_pattern
+from ..inference.pipeline import NetOptions, pick_device, prepare_net
+from ..models.ims import IMSGenerator
+from ..models.iml import IMLNet
+from ..models.pull_push import pull_push_inpaint
+from .bound import RenderCost
+
+#: a C pixel counts as background when no channel differs from the background colour by more than this (of 255)
+BACKGROUND_TOLERANCE = 2
+
+
+def median_ms(fn: Callable[[], Any], repeats: int, warmup: int = 1) -> float:
+    """Median wall time of ``fn()`` in ms over ``repeats`` runs after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times))
+
+
+def object_pixels(colours: np.ndarray, background) -> np.ndarray:
+    """``(K,)`` bool: the C pixels ``(K, 3)`` uint8 whose colour is not the background's."""
+    bg = np.round(np.asarray(background, np.float64) * 255.0)
+    return (np.abs(colours.astype(np.float64) - bg[None, :]) > BACKGROUND_TOLERANCE).any(axis=1)
+
+
+def upsample_c_image(c: torch.Tensor, pattern: SamplingPattern) -> tuple[torch.Tensor, str]:
+    """The classical C -> FR upsampling a RecNN has to beat: ``(B, 3, n, n)`` -> ``(B, 3, m, m)``.
+
+    Downsampling pattern: bilinear interpolation between the sampled FR positions (C pixel ``j`` is FR
+    pixel ``j f + o``; edges clamp). Other patterns: the samples scattered to their FR positions and
+    pull-push filled there. Returns the image and the method's name.
+
+    Example:
+        >>> from imls_lightning.core.patterns import downsample_pattern
+        >>> fr = torch.linspace(0, 1, 8).repeat(1, 3, 8, 1)       # a ramp along x
+        >>> p = downsample_pattern(8, 2)
+        >>> c = fr[..., ::2, ::2]
+        >>> up, name = upsample_c_image(c, p)
+        >>> name, round(float((up - fr)[..., :7].abs().max()), 6)   # exact inside, clamped at the edge
+        ('bilinear', 0.0)
+    """
+    m, n = pattern.fr_size, pattern.c_size
+    if pattern.kind == "downsample":
+        f, o = dict(pattern.params)["factor"], dict(pattern.params)["offset"]
+        pos = (torch.arange(m, dtype=torch.float32) - o) / f  # FR pixel -> C coordinate
+        g = (pos.clamp(0, n - 1) / max(n - 1, 1)) * 2 - 1
+        grid = torch.stack(torch.meshgrid(g, g, indexing="xy"), dim=-1)[None].expand(c.shape[0], m, m, 2)
+        return F.grid_sample(c.float(), grid.to(c.device), mode="bilinear", padding_mode="border", align_corners=True), "bilinear"
+    idx = pattern.indices.to(c.device)
+    flat = c.float().flatten(2)[:, :, : pattern.count]
+    values = torch.zeros(c.shape[0], 3, m * m, device=c.device).index_copy_(2, idx, flat)
+    mask = torch.zeros(c.shape[0], 1, m * m, device=c.device).index_fill_(2, idx, 1.0)
+    return pull_push_inpaint(values.view(-1, 3, m, m), mask.view(-1, 1, m, m)), "pull-push"
+
+
+def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
+    """PSNR of two ``[0, 1]`` images (the project's formula)."""
+    return float(psnr_from_mse(float(torch.mean((a.double().clamp(0, 1) - b.double()) ** 2))))
+
+
+@dataclass
+class ViewMeasurement:
+    full_ms: float
+    c_render_ms: float
+    empty_ms: float
+    object_ms: float
+    background_ms: float
+    object_px: int
+    background_px: int
+    bilinear_db: float
+    fr: np.ndarray          # (m, m, 3) uint8
+    upsampled: np.ndarray   # (m, m, 3) uint8
+
+
+def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: int, warmup: int) -> ViewMeasurement:
+    """Render costs and the classical upsampling's PSNR on one view.
+
+    The FR frame is rendered once (timed once: it is the cache's cost, not a stage of any method); the
+    downsampling pattern's C-Image is its subset, so it is not rendered again for the PSNR.
+    """
+    m = pattern.fr_size
+    idx = pattern.indices.numpy()
+    t0 = time.perf_counter()
+    fr = renderer.render(view, m)
+    full_ms = (time.perf_counter() - t0) * 1e3
+    colours = fr.reshape(-1, 3)[idx]
+    obj = object_pixels(colours, background)
+    obj_idx, bg_idx = idx[obj], idx[~obj]
+    c_ms = median_ms(lambda: renderer.render_pixels(view, m, idx), repeats, warmup)
+    empty = np.zeros(0, np.int64)
+    empty_ms = median_ms(lambda: renderer.render_pixels(view, m, empty), repeats, warmup)
+    obj_ms = median_ms(lambda: renderer.render_pixels(view, m, obj_idx), repeats, warmup) if len(obj_idx) else empty_ms
+    bg_ms = median_ms(lambda: renderer.render_pixels(view, m, bg_idx), repeats, warmup) if len(bg_idx) else empty_ms
+    n = pattern.c_size
+    flat = np.zeros((n * n, 3), np.float32)
+    flat[: len(idx)] = colours.astype(np.float32) / 255.0
+    c = torch.from_numpy(flat).view(1, n, n, 3).permute(0, 3, 1, 2)
+    up, _ = upsample_c_image(c, pattern)
+    target = torch.from_numpy(fr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+    up_u8 = (up[0].permute(1, 2, 0).clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
+    return ViewMeasurement(full_ms, c_ms, empty_ms, obj_ms, bg_ms, int(obj.sum()), int((~obj).sum()),
+                           psnr_db(up, target), fr, up_u8)
+
+
+def render_cost(views: list[ViewMeasurement]) -> RenderCost:
+    """Median per-pixel costs over the views (each view's fixed cost taken off first)."""
+    fixed = float(np.median([v.empty_ms for v in views]))
+    obj = [max(v.object_ms - v.empty_ms, 0.0) / v.object_px for v in views if v.object_px]
+    bg = [max(v.background_ms - v.empty_ms, 0.0) / v.background_px for v in views if v.background_px]
+    return RenderCost(fixed_ms=fixed, object_ms_per_px=float(np.median(obj)) if obj else 0.0,
+                      background_ms_per_px=float(np.median(bg)) if bg else 0.0,
+                      object_px=int(np.median([v.object_px for v in views])),
+                      background_px=int(np.median([v.background_px for v in views])))
+
+
+def build_networks(pattern: SamplingPattern, recnn_net: Mapping[str, Any], iml: Mapping[str, Any],
+                   ims: Mapping[str, Any]) -> dict[str, torch.nn.Module]:
+    """Untrained networks of the chosen sizes: latency does not depend on the weights.
+
+    ``recnn_net``: the ``recnn.net`` node (``_target_`` + sizes); ``iml``: ``depth``, ``base_channels``,
+    ``decoder``; ``ims``: ``layers``, ``base_channels``, ``max_channels``.
+    """
+    from ..tasks.recnn import build_recnn
+
+    n = pattern.c_size
+    try:
+        recnn = build_recnn(recnn_net, pattern)
+    except InputError:
+        raise
+    except Exception as err:  # Hydra wraps the model's own error: name the node and the cause in one line
+        cause = err.__cause__ or err
+        raise InputError(f"recnn.net: cannot build the RecNN ({type(cause).__name__}: {str(cause).splitlines()[0]})") from None
+    iml_net = IMLNet(n, plastic_rank_pattern(n), depth=int(iml["depth"]), base_channels=int(iml["base_channels"]),
+                     valid=pattern.valid, decoder=str(iml.get("decoder", "refine")))
+    gen = IMSGenerator(n, layers=int(ims["layers"]), base_channels=int(ims["base_channels"]),
+                       max_channels=int(ims["max_channels"]))
+    return {"recnn": recnn, "iml": iml_net, "ims": gen}
+
+
+@torch.inference_mode()
+def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
+               warmup: int, share: float = 0.3) -> dict[str, float]:
+    """Median ms of each stage IML/S adds and of the RecNN, as the product path runs them
+    (autocast and channels-last input as ``opts`` asks; the mask's threshold included in the IMS)."""
+    device = pick_device(opts.device)
+    n = pattern.c_size
+    recnn = prepare_net(nets["recnn"], device, opts)
+    iml = prepare_net(nets["iml"], device, opts)
+    gen = prepare_net(nets["ims"], device, opts)
+    P = plastic_rank_pattern(n).to(device)
+    valid = pattern.valid.to(device)
+    view = torch.tensor([[0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]], device=device)
+    c = torch.rand(1, n, n, 3, device=device).permute(0, 3, 1, 2)  # channels-last memory, as the renderer hands it over
+    im = ((torch.rand(1, 1, n, n, device=device) < share) & valid).to(c.dtype)
+
+    def run_ims():
+        with opts.autocast(device):
+            g = gen(view)
+        return ((g.float() + 1.0) * 0.5 > P) & valid
+
+    def run_decoder():
+        with opts.autocast(device):
+            return iml.decode(im * c, im)
+
+    def run_recnn():
+        with opts.autocast(device):
+            return recnn(c)
+
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    out = {}
+    for name, fn in (("ims_ms", run_ims), ("decoder_ms", run_decoder), ("recnn_ms", run_recnn)):
+        out[name] = median_ms(lambda fn=fn: (fn(), sync()), repeats, warmup)
+    return out
+
+
+__all__ = ["median_ms", "object_pixels", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
+           "render_cost", "build_networks", "network_ms", "BACKGROUND_TOLERANCE"]

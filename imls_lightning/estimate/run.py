@@ -1,0 +1,209 @@
+"""``run_estimate(cfg)``: measure a scene before any training and write ``estimate.json``.
+
+The output directory is named by a hash of everything that decides the numbers (scene, renderer,
+pattern, resolution, network sizes, views, options); a finished estimate with the same settings and
+a readable ``estimate.json`` is reused, anything else is measured again.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from data_gen.atomic import atomic_json, atomic_write
+from data_gen.cache_keys import jsonable, settings_hash
+from data_gen.errors import InputError
+from data_gen.validate import check_integer
+
+from ..core.patterns import build_pattern
+from ..inference.pipeline import NetOptions
+from .bound import bound_table, share_for_speedup
+from .measure import build_networks, measure_view, network_ms, render_cost
+
+RESULT = "estimate.json"
+#: the goal of issue 31 per pattern kind: 2x for super-resolution, 1.5x for foveated rendering
+DEFAULT_TARGETS = {"downsample": 2.0, "foveal": 1.5}
+
+
+def _say(msg: str) -> None:
+    print(f"[estimate] {msg}", file=sys.stderr, flush=True)
+
+
+def recnn_net(cfg: DictConfig) -> dict[str, Any]:
+    """The RecNN's ``net`` node with the sizes ``recnn_sizes.<recnn.name>`` puts over it."""
+    net = OmegaConf.to_container(cfg.recnn.net, resolve=True)
+    sizes = (cfg.get("recnn_sizes") or {}).get(str(cfg.recnn.name)) or {}
+    return {**net, **OmegaConf.to_container(OmegaConf.create(dict(sizes)), resolve=True)}
+
+
+def estimate_settings(cfg: DictConfig) -> dict[str, Any]:
+    """What decides the numbers (hashed into the output directory's name)."""
+    scene = OmegaConf.to_container(cfg.scene, resolve=True)
+    return jsonable({
+        "scene": scene, "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
+        "pattern": OmegaConf.to_container(cfg.pattern, resolve=True), "resolution": int(cfg.resolution),
+        "recnn": recnn_net(cfg), "iml": OmegaConf.to_container(cfg.iml, resolve=True),
+        "ims": OmegaConf.to_container(cfg.ims, resolve=True), "views": int(cfg.views), "seed": int(cfg.seed),
+        "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
+        "background_density": float(cfg.background_density), "target": cfg.target,
+    })
+
+
+def read_estimate(path: Path, settings: Mapping[str, Any] | None = None) -> dict[str, Any] | None:
+    """The content of an ``estimate.json`` if it is whole (every key of the contract) and, when
+    ``settings`` is given, made with them; ``None`` otherwise."""
+    try:
+        est = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    keys = ("c_render_ms", "nets_ms", "recnn_ms", "bilinear_db", "bound", "share_for_2x", "render_cost", "settings")
+    if not isinstance(est, dict) or any(k not in est for k in keys) or len(est["bound"]) != 10:
+        return None
+    if settings is not None and est["settings"] != jsonable(settings):
+        return None
+    return est
+
+
+def write_contact_sheet(views, path: Path, thumb: int = 256) -> Path:
+    """Per view: the FR render, the classical upsampling of its C-Image and their difference (x4)."""
+    from PIL import Image
+
+    rows = []
+    for v in views:
+        err = np.clip(np.abs(v.fr.astype(np.int16) - v.upsampled.astype(np.int16)) * 4, 0, 255).astype(np.uint8)
+        tiles = [Image.fromarray(a).resize((thumb, thumb), Image.LANCZOS) for a in (v.fr, v.upsampled, err)]
+        rows.append(np.concatenate([np.asarray(t) for t in tiles], axis=1))
+    sheet = Image.fromarray(np.concatenate(rows, axis=0))
+    return atomic_write(path, lambda f: sheet.save(f, format="PNG"))
+
+
+def _target(cfg: DictConfig, pattern) -> float:
+    t = cfg.get("target")
+    if t is None:
+        return DEFAULT_TARGETS.get(pattern.kind, 2.0)
+    try:
+        t = float(t)
+        if not t > 1.0:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise InputError(f"target={cfg.get('target')!r}: expected a speed-up > 1 (null: 2 for EnhanceNet, 1.5 for FoVolNet)") from None
+    return t
+
+
+def time_networks(nets, pattern, opts: NetOptions, half, repeats: int, warmup: int):
+    """Stage times of the networks; with ``options.half: auto`` both precisions are timed and the
+    faster kept (bfloat16 is 2x faster than float32 on CPUs with AVX-512 BF16 and 40-90x slower on
+    AVX2-only ones). Returns ``(times, options kept, times of the rejected precision or None)``."""
+    if half not in (True, False, "auto"):
+        raise InputError(f"options.half={half!r}: expected true, false or auto (time both, keep the faster)")
+    first = network_ms(nets, pattern, opts, repeats=repeats, warmup=warmup)
+    if half != "auto":
+        return first, opts, None
+    other = dataclasses.replace(opts, half=True)
+    total = lambda t: t["ims_ms"] + t["decoder_ms"] + t["recnn_ms"]  # noqa: E731
+    second = network_ms(nets, pattern, other, repeats=3, warmup=1)  # a probe: emulated bfloat16 costs seconds a call
+    if total(second) < 1.2 * total(first):
+        second = network_ms(nets, pattern, other, repeats=repeats, warmup=warmup)
+    if total(second) < total(first):
+        return second, other, {"half": False, **first}
+    return first, opts, {"half": True, **second}
+
+
+def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
+    """Run every measurement and return the estimate's content (also writes the contact sheet)."""
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene, register_resolvers
+    from data_gen.views import sample_training_views
+
+    register_resolvers()
+    n_views = check_integer(cfg.views, "views", 1)
+    repeats = check_integer(cfg.repeats, "repeats", 1)
+    warmup = check_integer(cfg.warmup, "warmup", 0)
+    half = OmegaConf.to_container(cfg.options, resolve=True).get("half", False)
+    opts = NetOptions.from_config({**OmegaConf.to_container(cfg.options, resolve=True), "half": half is True})
+    t_start = time.perf_counter()
+    scene = build_scene(cfg.scene)
+    pattern = build_pattern(cfg.pattern, int(cfg.resolution))
+    target = _target(cfg, pattern)
+    nets = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)  # bad sizes fail before any render
+    renderer = make_renderer(scene, cfg.renderer)
+    # random views as the training views are drawn (another seed): never the test trajectory
+    views = sample_training_views(n_views, scene.camera_distance, seed=int(cfg.seed), lookat_jitter=0.1)
+    measured = []
+    for i, view in enumerate(views):
+        measured.append(measure_view(renderer, pattern, view, scene.background, repeats, warmup))
+        v = measured[-1]
+        _say(f"view {i + 1}/{n_views}: frame {v.full_ms:.0f} ms, C pattern {v.c_render_ms:.1f} ms, "
+             f"object {v.object_px / max(v.object_px + v.background_px, 1):.0%} of C, {v.bilinear_db:.2f} dB")
+    nets_t, opts, rejected = time_networks(nets, pattern, opts, half, repeats=max(repeats, 10), warmup=max(warmup, 2))
+    cost = render_cost(measured)
+    c_render_ms = float(np.median([v.c_render_ms for v in measured]))
+    nets_ms = nets_t["ims_ms"] + nets_t["decoder_ms"]
+    density = float(cfg.background_density)
+    table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
+                        background_density=density)
+    sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
+    return {
+        "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
+        "recnn": str(cfg.recnn.name), "pattern": pattern.kind, "fr_size": pattern.fr_size, "c_size": pattern.c_size,
+        "c_render_ms": c_render_ms, "full_frame_ms": float(np.median([v.full_ms for v in measured])),
+        "nets_ms": nets_ms, "ims_ms": nets_t["ims_ms"], "decoder_ms": nets_t["decoder_ms"], "recnn_ms": nets_t["recnn_ms"],
+        "render_to_nets": c_render_ms / nets_ms, "bilinear_db": float(np.mean([v.bilinear_db for v in measured])),
+        "bilinear_db_per_view": [v.bilinear_db for v in measured],
+        "upsampler": "bilinear" if pattern.kind == "downsample" else "pull-push",
+        "object_fraction": cost.object_fraction, "render_cost": cost.to_dict(),
+        "modelled_c_render_ms": cost.render_ms(1.0, density), "background_density": density,
+        "bound": [{"share": r["share"], "speedup": r["speedup"]} for r in table],
+        "limit": [{"share": r["share"], "speedup": r["limit"]} for r in table],
+        "target": target, "share_for_target": share_for_speedup(table, target),
+        "share_for_2x": share_for_speedup(table, 2.0), "share_for_1_5x": share_for_speedup(table, 1.5),
+        "contact_sheet": str(sheet), "seconds": time.perf_counter() - t_start,
+        "options": {"half": opts.half, "channels_last": opts.channels_last, "device": opts.device},
+        "options_rejected": rejected,
+    }
+
+
+def format_report(est: Mapping[str, Any]) -> str:
+    """The estimate as a few lines of text (stdout)."""
+    lines = [
+        f"{est['scene']} ({est['volume_dims']} voxels), {est['recnn']} on the {est['pattern']} pattern, "
+        f"{est['fr_size']}^2 FR / {est['c_size']}^2 C",
+        f"  full frame {est['full_frame_ms']:.0f} ms; C pattern {est['c_render_ms']:.1f} ms "
+        f"({est['object_fraction']:.0%} of it on the object); {est['upsampler']} C->FR {est['bilinear_db']:.2f} dB",
+        f"  networks IML/S adds {est['nets_ms']:.1f} ms (IMS {est['ims_ms']:.1f}, decoder {est['decoder_ms']:.1f}); "
+        f"RecNN {est['recnn_ms']:.1f} ms; render / networks = {est['render_to_nets']:.1f}x",
+        "  share of C   " + " ".join(f"{r['share']:>5.0%}" for r in est["bound"]),
+        "  speed-up     " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound"]),
+        "  no networks  " + " ".join(f"{r['speedup']:>5.2f}" for r in est["limit"]),
+    ]
+    s = est["share_for_target"]
+    lines.append(f"  {est['target']:g}x is reachable up to {s:.0%} of C" if s is not None else
+                 f"  {est['target']:g}x is out of reach at any share of C (best {est['bound'][0]['speedup']:.2f}x at 10%)")
+    return "\n".join(lines)
+
+
+def run_estimate(cfg: DictConfig) -> Path:
+    """Measure (or reuse) and write ``<output_dir>/estimate.json``; returns its path."""
+    settings = estimate_settings(cfg)
+    out_dir = Path(str(cfg.output_dir)) if cfg.get("output_dir") else \
+        Path(str(cfg.runs_dir)) / "estimate" / f"{cfg.scene.name}-{cfg.recnn.name}-{settings_hash(settings)[:8]}"
+    path = out_dir / RESULT
+    est = read_estimate(path, settings)
+    if est is not None:
+        _say(f"reusing {path} (same settings)")
+    else:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        est = dict(measure(cfg, out_dir), settings=settings)
+        atomic_json(path, est)
+    print(format_report(est), flush=True)
+    return path
+
+
+__all__ = ["run_estimate", "measure", "read_estimate", "estimate_settings", "format_report", "write_contact_sheet",
+           "DEFAULT_TARGETS", "RESULT"]
