@@ -38,15 +38,21 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
 
-from .demo import demo, override_list, read_summary, run_pipeline, split_scene_overrides
+from .demo import demo, dry_stage, override_list, read_summary, run_pipeline, run_stage, split_scene_overrides
+from .estimate import read_estimate, speedup_from_estimate
+from .orp.overrides import override_key
 from .report import atomic_write_text, md_table
 from .report.tables import equal_share_markdown, fmt, fmt_pct, speedup
 
 ROOT = Path(__file__).resolve().parents[1]
 
 #: the columns of ``benchmarks/paper_scale.csv``, in order (issue 18)
-CSV_COLUMNS = ("scene", "recnn", "fr_size", "c_size", "sample_distance_voxels", "mean", "c_share", "ipr",
-               "psnr_recnn_db", "psnr_imls_db", "gap_db", "recnn_ms", "imls_ms", "speedup", "las_ms", "las_psnr_db", "full_ms")
+LEGACY_COLUMNS = ("scene", "recnn", "fr_size", "c_size", "sample_distance_voxels", "mean", "c_share", "ipr",
+                  "psnr_recnn_db", "psnr_imls_db", "gap_db", "recnn_ms", "imls_ms", "speedup", "las_ms", "las_psnr_db", "full_ms")
+#: issue 31 appends the before-training estimate's columns (python -m imls_lightning.estimate): the volume's size,
+#: the ray cast of the whole C pattern, the networks IML/S adds, bilinear C->FR and the bound at the row's share
+ESTIMATE_COLUMNS = ("volume_dims", "c_render_ms", "nets_ms", "bilinear_db", "estimated_speedup")
+CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
@@ -100,8 +106,21 @@ def _total(methods: Mapping[str, Any], name: str) -> float:
     return float(methods.get(name, {}).get("latency_ms", {}).get("total", math.nan))
 
 
-def csv_row(summary: Mapping[str, Any]) -> dict[str, Any]:
-    """One ``paper_scale.csv`` row (:data:`CSV_COLUMNS`) from an evaluation summary."""
+def estimate_cells(estimate: Mapping[str, Any] | None, c_share: Any) -> dict[str, Any]:
+    """The :data:`ESTIMATE_COLUMNS` of a row from its pair's ``estimate.json`` content (empty without one);
+    ``estimated_speedup`` is the estimate's bound at the share the row measured."""
+    if not estimate:
+        return {k: "" for k in ESTIMATE_COLUMNS}
+    try:
+        est_speedup = speedup_from_estimate(estimate, float(c_share))
+    except (TypeError, ValueError):
+        est_speedup = math.nan
+    return {"volume_dims": estimate.get("volume_dims", ""), "c_render_ms": estimate["c_render_ms"],
+            "nets_ms": estimate["nets_ms"], "bilinear_db": estimate["bilinear_db"], "estimated_speedup": est_speedup}
+
+
+def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """One ``paper_scale.csv`` row (:data:`CSV_COLUMNS`) from an evaluation summary and its pair's estimate."""
     m = summary["methods"]
     imls, recnn, las = m.get("imls", {}), m.get("recnn", {}), m.get("las", {})
     orp = summary.get("orp") or {}
@@ -115,6 +134,7 @@ def csv_row(summary: Mapping[str, Any]) -> dict[str, Any]:
         "gap_db": psnr_r - psnr_i, "recnn_ms": recnn_ms, "imls_ms": imls_ms,
         "speedup": recnn_ms / imls_ms if imls_ms > 0 else math.nan,
         "las_ms": _total(m, "las"), "las_psnr_db": las.get("psnr", math.nan), "full_ms": _total(m, "full"),
+        **estimate_cells(estimate, imls.get("c_share")),
     }
 
 
@@ -168,9 +188,10 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         return []
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != CSV_COLUMNS:
+        if tuple(reader.fieldnames or ()) not in (CSV_COLUMNS, LEGACY_COLUMNS):
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
-        return [dict(r) for r in reader]
+        # a table from before the estimate's columns: they stay empty until the pair is estimated
+        return [{**{k: "" for k in ESTIMATE_COLUMNS}, **dict(r)} for r in reader]
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:
@@ -406,6 +427,47 @@ def section_text(rows: Sequence[Mapping[str, Any]], partial: bool, adaptive: Seq
 # ------------------------------------------------------------------------------------------------
 
 
+#: stage override key -> the estimate's key for the same network size
+_ESTIMATE_SIZES = {"iml": {"model.depth": "iml.depth", "model.base_channels": "iml.base_channels", "model.decoder": "iml.decoder"},
+                   "ims": {"model.layers": "ims.layers", "model.base_channels": "ims.base_channels",
+                           "model.max_channels": "ims.max_channels"}}
+
+
+def estimate_args(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence[str] = ()) -> list[str]:
+    """The estimate's command for a pair, with the networks' sizes its stages train.
+
+    Example:
+        >>> st = OmegaConf.create({"scene": "ct_head", "recnn": "enhancenet", "renderer": "numba", "runs_dir": "runs",
+        ...     "stages": {"recnn": ["recnn.net.channels=16", "trainer.max_epochs=20"], "iml": ["recnn.net.channels=16",
+        ...     "model.depth=4"], "ims": ["model.layers=7", "trainer.max_epochs=5"]}})
+        >>> estimate_args(OmegaConf.create({"estimate": ["views=3"]}), st)[1:]
+        ['imls_lightning.estimate', 'scene=ct_head', 'recnn=enhancenet', 'renderer=numba', 'runs_dir=runs', 'recnn.net.channels=16', 'iml.depth=4', 'ims.layers=7', 'views=3']
+    """
+    net = [o for o in (stages.stages.get("recnn") or []) if override_key(str(o)).startswith("recnn.net.")]
+    sizes = []
+    for stage, keys in _ESTIMATE_SIZES.items():
+        for o in stages.stages.get(stage) or []:
+            key = override_key(str(o))
+            if key in keys:
+                sizes.append(f"{keys[key]}={str(o).split('=', 1)[1]}")
+    return ["-m", "imls_lightning.estimate", f"scene={stages.scene}", *scene_overrides, f"recnn={stages.recnn}",
+            f"renderer={stages.renderer}", f"runs_dir={stages.runs_dir}", *[str(o) for o in net], *sizes,
+            *override_list(cfg, "estimate")]
+
+
+def pair_estimate(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence[str] = ()) -> dict[str, Any] | None:
+    """Run (or reuse) the pair's before-training estimate; its ``estimate.json`` content (None on a dry run)."""
+    args = estimate_args(cfg, stages, scene_overrides)
+    if cfg.dry_run:
+        dry_stage("estimate", args, tag="bench-paper")
+        return None
+    path = Path(run_stage("estimate", args, tag="bench-paper"))
+    est = read_estimate(path)
+    if est is None:
+        raise InputError(f"{path}: not a whole estimate.json; delete its folder and run again")
+    return est
+
+
 def pairs(cfg: DictConfig) -> list[tuple[str, str]]:
     scenes = [str(cfg.scene)] if cfg.get("scene") else [str(s) for s in (cfg.get("scenes") or [])]
     recnns = [str(r) for r in (cfg.get("recnns") or [])]
@@ -424,7 +486,7 @@ def write_results(cfg: DictConfig, records: Mapping[str, Mapping[str, Any]], old
     the breakdown plot, ``paper_scale.md`` and the BENCHMARKS.md section (``cfg.benchmarks_md``)."""
     out_dir = Path(str(cfg.output_dir))
     summaries = [r["summary"] for r in records.values()]
-    all_rows = merge_rows(old_rows, [csv_row(x) for x in summaries])
+    all_rows = merge_rows(old_rows, [csv_row(r["summary"], r.get("estimate")) for r in records.values()])
     ad_rows = [a for a in (adaptive_row(x) for x in summaries) if a is not None]
     atomic_write_text(out_dir / "paper_scale_pairs.json", json.dumps(records, indent=1, default=str))
     write_csv(all_rows, out_dir / "paper_scale.csv")
@@ -453,12 +515,19 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
     if bool(cfg.get("summarize_only", False)):
         if not records:
             raise InputError(f"summarize_only=true: {pairs_path} holds no pairs yet; run the benchmark first")
+        for name, rec in records.items():  # pairs run before the estimate existed: estimate them now (minutes each)
+            if not rec.get("estimate") and not cfg.dry_run:
+                scene, recnn = rec["summary"]["scene"], rec["summary"]["recnn"]
+                rec["estimate"] = pair_estimate(cfg, pair_config(cfg, scene, recnn), scene_overrides)
         write_results(cfg, records, old_rows, partial=False, command=command, machine=machine)
         return md_path
     for k, (scene, recnn) in enumerate(todo):
         log(f"\n[bench-paper] pair {k + 1}/{len(todo)}: {scene}, {recnn}")
         t0 = time.perf_counter()
         stages = pair_config(cfg, scene, recnn)
+        # before any cache or training: the bound this pair can reach (it picks scenes and sizes; issue 31). Not on a
+        # machine that only trains: the machine that evaluates measures the times the estimate predicts
+        estimate = None if cfg.get("train_only", False) else pair_estimate(cfg, stages, scene_overrides)
         results: dict[str, Any] = {}
         report = demo(stages, scene_overrides, results)
         if report is None:  # dry run, or train_only
@@ -468,7 +537,7 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
         if results.get("adaptive"):
             summary["adaptive"] = read_adaptive(Path(results["adaptive"]))
         records.pop(name, None)  # a pair run again moves to the end, with its new record
-        records[name] = {"summary": summary, "minutes": (time.perf_counter() - t0) / 60, "command": command,
+        records[name] = {"summary": summary, "estimate": estimate, "minutes": (time.perf_counter() - t0) / 60, "command": command,
                          "settings": {st: (list(v) if v is not None else None) for st, v in stages.stages.items()}}
         write_results(cfg, records, old_rows, partial=k + 1 < len(todo), command=command, machine=machine)
         log(f"[bench-paper] {name} done in {records[name]['minutes']:.1f} min -> {csv_path}")

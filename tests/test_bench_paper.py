@@ -125,8 +125,12 @@ def test_cli_dry_run_prints_every_stage_command():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
-    assert len(lines) == 8 and lines[0].startswith("python -m data_gen scene=ct_head data=paper_cpu")
-    assert "data.crop=128" in lines[1] and "timed_views=6" in lines[-2] and "options.half=true" in lines[-2]
+    assert len(lines) == 9 and lines[1].startswith("python -m data_gen scene=ct_head data=paper_cpu")
+    # the before-training estimate first, with the sizes the stages train
+    assert lines[0].startswith("python -m imls_lightning.estimate scene=ct_head recnn=enhancenet renderer=numba")
+    assert all(k in lines[0] for k in ("recnn.net.channels=16", "recnn.net.blocks=4", "iml.depth=4", "iml.base_channels=8",
+                                       "ims.layers=7", "ims.base_channels=16", "ims.max_channels=256"))
+    assert "data.crop=128" in lines[2] and "timed_views=6" in lines[-2] and "options.half=auto" in lines[-2]
     # the per-view adaptive mean last, on the evaluation's masks
     assert lines[-1].startswith("python -m imls_lightning.adaptive scene=ct_head") and "ims_lift=" in lines[-1]
 
@@ -202,6 +206,7 @@ def test_bench_paper_keeps_the_pairs_run_before(tmp_path, monkeypatch):
         return d / "report.md"
 
     monkeypatch.setattr(bp, "demo", fake_demo)
+    monkeypatch.setattr(bp, "pair_estimate", lambda cfg, stages, ov: _estimate(stages.scene))
     out = tmp_path / "bench"
     md = tmp_path / "BENCHMARKS.md"
     bp.bench_paper(_cfg(scenes="[ct_head]", recnns="[enhancenet]", output_dir=str(out), benchmarks_md=str(md), adaptive="null"),
@@ -210,7 +215,12 @@ def test_bench_paper_keeps_the_pairs_run_before(tmp_path, monkeypatch):
     text = (out / "paper_scale.md").read_text()
     assert "## ct_head, enhancenet" in text and "## mri_head, enhancenet" in text
     assert "| ct_head, enhancenet |" in text and "`first`" in text and "`second`" in text
-    assert [r["scene"] for r in bp.read_rows(out / "paper_scale.csv")] == ["ct_head", "mri_head"]
+    rows = bp.read_rows(out / "paper_scale.csv")
+    assert [r["scene"] for r in rows] == ["ct_head", "mri_head"]
+    # the estimate's columns, the bound at the row's measured share (30% of C)
+    assert rows[1]["volume_dims"] == "128x128x84" and float(rows[1]["c_render_ms"]) == 300.0
+    expected = bp.speedup_from_estimate(_estimate("mri_head"), 0.3)
+    assert float(rows[1]["estimated_speedup"]) == pytest.approx(expected, rel=1e-6) and expected > 1
     ad = (out / "paper_scale_adaptive.csv").read_text().splitlines()
     assert ad[0] == ",".join(bp.ADAPTIVE_COLUMNS) and len(ad) == 2 and ad[1].startswith("mri_head,enhancenet,0.3,")
     assert "mri_head | enhancenet, per-view u" in md.read_text()
@@ -221,6 +231,22 @@ def test_rows_beside_puts_each_pairs_extra_row_after_it():
     extra = {("mri_head", "enhancenet"): ["mri_head", "enhancenet, per-view u", "3"], ("flame", "fovolnet"): ["flame", "x", "4"]}
     assert [r[2] for r in bp.rows_beside(main, extra)] == ["1", "2", "3", "4"]
     assert bp.rows_beside(main, {}) == main
+
+
+def _estimate(scene: str) -> dict:
+    from imls_lightning.estimate import RenderCost
+
+    return {"volume_dims": "128x128x84" if scene == "mri_head" else "256x256x108", "c_render_ms": 300.0, "nets_ms": 30.0,
+            "recnn_ms": 20.0, "bilinear_db": 33.0, "background_density": 0.25,
+            "render_cost": RenderCost(1.0, 0.008, 0.001, 30000, 35536).to_dict()}
+
+
+def test_legacy_table_reads_with_empty_estimate_columns(tmp_path):
+    path = tmp_path / "paper_scale.csv"
+    path.write_text(",".join(bp.LEGACY_COLUMNS) + "\n" + ",".join(["ct_head", "enhancenet"] + ["1"] * 15) + "\n")
+    row = bp.read_rows(path)[0]
+    assert row["scene"] == "ct_head" and all(row[k] == "" for k in bp.ESTIMATE_COLUMNS)
+    assert bp.estimate_cells(None, 0.3) == {k: "" for k in bp.ESTIMATE_COLUMNS}
 
 
 def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypatch):
@@ -235,7 +261,10 @@ def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypat
     (out / "paper_scale_pairs.json").write_text(json.dumps({"mri_head, enhancenet": {
         "summary": s, "minutes": 61.0, "command": "python -m imls_lightning.bench_paper scenes=[mri_head]", "settings": {"ims": ["a=1"]}}}))
     monkeypatch.setattr(bp, "demo", lambda *a, **k: pytest.fail("summarize_only must not run a stage"))
+    # a pair recorded before the estimate existed gets one (and only that)
+    monkeypatch.setattr(bp, "pair_estimate", lambda cfg, stages, ov: _estimate(stages.scene))
     md = bp.bench_paper(_cfg(output_dir=str(out), benchmarks_md="null", summarize_only="true"), command="summarize")
+    assert json.loads((out / "paper_scale_pairs.json").read_text())["mri_head, enhancenet"]["estimate"]["volume_dims"] == "128x128x84"
     text = md.read_text()
     assert "| mri_head, enhancenet | 61.0 |" in text and "enhancenet, per-view u" in text
     assert bp.read_rows(out / "paper_scale.csv")[0]["scene"] == "mri_head" and (out / "paper_scale_breakdown.png").is_file()

@@ -6,7 +6,6 @@ a readable ``estimate.json`` is reused, anything else is measured again.
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import sys
 import time
@@ -96,25 +95,6 @@ def _target(cfg: DictConfig, pattern) -> float:
     return t
 
 
-def time_networks(nets, pattern, opts: NetOptions, half, repeats: int, warmup: int):
-    """Stage times of the networks; with ``options.half: auto`` both precisions are timed and the
-    faster kept (bfloat16 is 2x faster than float32 on CPUs with AVX-512 BF16 and 40-90x slower on
-    AVX2-only ones). Returns ``(times, options kept, times of the rejected precision or None)``."""
-    if half not in (True, False, "auto"):
-        raise InputError(f"options.half={half!r}: expected true, false or auto (time both, keep the faster)")
-    first = network_ms(nets, pattern, opts, repeats=repeats, warmup=warmup)
-    if half != "auto":
-        return first, opts, None
-    other = dataclasses.replace(opts, half=True)
-    total = lambda t: t["ims_ms"] + t["decoder_ms"] + t["recnn_ms"]  # noqa: E731
-    second = network_ms(nets, pattern, other, repeats=3, warmup=1)  # a probe: emulated bfloat16 costs seconds a call
-    if total(second) < 1.2 * total(first):
-        second = network_ms(nets, pattern, other, repeats=repeats, warmup=warmup)
-    if total(second) < total(first):
-        return second, other, {"half": False, **first}
-    return first, opts, {"half": True, **second}
-
-
 def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     """Run every measurement and return the estimate's content (also writes the contact sheet)."""
     from data_gen.renderers import make_renderer
@@ -125,8 +105,7 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     n_views = check_integer(cfg.views, "views", 1)
     repeats = check_integer(cfg.repeats, "repeats", 1)
     warmup = check_integer(cfg.warmup, "warmup", 0)
-    half = OmegaConf.to_container(cfg.options, resolve=True).get("half", False)
-    opts = NetOptions.from_config({**OmegaConf.to_container(cfg.options, resolve=True), "half": half is True})
+    opts = NetOptions.from_config(OmegaConf.to_container(cfg.options, resolve=True))  # half: auto measured here
     t_start = time.perf_counter()
     scene = build_scene(cfg.scene)
     pattern = build_pattern(cfg.pattern, int(cfg.resolution))
@@ -141,7 +120,7 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         v = measured[-1]
         _say(f"view {i + 1}/{n_views}: frame {v.full_ms:.0f} ms, C pattern {v.c_render_ms:.1f} ms, "
              f"object {v.object_px / max(v.object_px + v.background_px, 1):.0%} of C, {v.bilinear_db:.2f} dB")
-    nets_t, opts, rejected = time_networks(nets, pattern, opts, half, repeats=max(repeats, 10), warmup=max(warmup, 2))
+    nets_t = network_ms(nets, pattern, opts, repeats=max(repeats, 10), warmup=max(warmup, 2))
     cost = render_cost(measured)
     c_render_ms = float(np.median([v.c_render_ms for v in measured]))
     nets_ms = nets_t["ims_ms"] + nets_t["decoder_ms"]
@@ -165,7 +144,6 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         "share_for_2x": share_for_speedup(table, 2.0), "share_for_1_5x": share_for_speedup(table, 1.5),
         "contact_sheet": str(sheet), "seconds": time.perf_counter() - t_start,
         "options": {"half": opts.half, "channels_last": opts.channels_last, "device": opts.device},
-        "options_rejected": rejected,
     }
 
 

@@ -99,7 +99,7 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
 
 
 @pytest.mark.parametrize("override,match", [
-    ("options.half=maybe", "options.half='maybe'"),
+    ("options.half=maybe", "options.half=maybe"),
     ("target=0.5", "target=0.5"),
     ("views=0", "views"),
     ("recnn_sizes.enhancenet.channels=0", "channels=0"),

@@ -359,3 +359,14 @@ def test_exception_net_options_from_config_missing_cuda(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(InputError, match="device=cuda: CUDA is not available"):
         NetOptions.from_config({"device": "cuda"})
+
+
+def test_half_auto_is_measured_once_and_resolves_to_a_bool(monkeypatch):
+    from imls_lightning.inference import pipeline
+
+    monkeypatch.setattr(pipeline, "_HALF_IS_FASTER", {})
+    opts = NetOptions.from_config({"half": "auto"}, device="cpu")
+    assert isinstance(opts.half, bool) and opts.half == pipeline.half_is_faster(torch.device("cpu"))
+    assert list(pipeline._HALF_IS_FASTER) == ["cpu"]
+    with pytest.raises(InputError, match="options.half=maybe: expected true or false or auto"):
+        NetOptions.from_config({"half": "maybe"})
