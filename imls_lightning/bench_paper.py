@@ -87,7 +87,8 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
             stages[name] = None  # skipped, as in the demo
             continue
         extra = crop_args if name in ("recnn", "iml", "blue_noise") else []
-        stages[name] = [*net, *extra, *override_list(cfg, f"stages.{name}")]
+        chunk = [f"chunk_minutes={cfg.chunk_minutes}"] if cfg.get("chunk_minutes") is not None else []
+        stages[name] = [*net, *extra, *override_list(cfg, f"stages.{name}"), *chunk]
     return OmegaConf.create({
         "scene": scene, "data": str(cfg.data), "recnn": recnn, "renderer": str(cfg.renderer),
         "runs_dir": str(cfg.runs_dir), "cache_dir": str(cfg.cache_dir), "seed": int(cfg.seed),

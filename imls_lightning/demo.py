@@ -59,6 +59,13 @@ class StageFailed(RuntimeError):
     """A stage's command exited with an error; its own message was already printed."""
 
 
+class StageUnfinished(RuntimeError):
+    """A training stage trained one chunk (``chunk_minutes``) and exited with status 3: the pipeline stops
+    there, and the same command continues it."""
+
+    EXIT_CODE = 3
+
+
 # ------------------------------------------------------------------------------------------------
 # scene overrides: the pipelines take every scene override python -m data_gen takes
 
@@ -136,6 +143,8 @@ def run_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo")
         assert proc.stdout is not None
         last = _echo(proc.stdout, log)
         code = proc.wait()
+    if code == StageUnfinished.EXIT_CODE:
+        raise StageUnfinished(f"{tag} stage '{name}' trained one chunk of its schedule; run the same command again to continue")
     if code != 0:
         raise StageFailed(f"{tag} stage '{name}' failed (exit {code}); its message is above. Command: python {' '.join(args)}")
     print(f"[{tag}] {name} done in {time.perf_counter() - t0:.1f} s -> {last}", file=log, flush=True)
@@ -297,10 +306,14 @@ def _main(cfg: DictConfig) -> None:
 
 
 def run_pipeline(body) -> None:
-    """A pipeline CLI's body: run ``body()``; a failed stage exits 1 with its one-line message, and
-    the result (a report's path, None on a dry run) is the last line of stdout."""
+    """A pipeline CLI's body: run ``body()``; a failed stage exits 1 with its one-line message, a stage
+    that trained one chunk exits 3 (run again to continue), and the result (a report's path, None on a
+    dry run) is the last line of stdout."""
     try:
         result = body()
+    except StageUnfinished as err:
+        print(f"[pipeline] {err}", file=sys.stderr, flush=True)
+        sys.exit(StageUnfinished.EXIT_CODE)
     except StageFailed as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         sys.exit(1)

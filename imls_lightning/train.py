@@ -7,6 +7,7 @@ settings again resumes from ``last.ckpt``, or returns at once when that run had 
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
@@ -18,6 +19,7 @@ from data_gen.errors import checked_command_line, cli_errors
 from .orp import orp_main
 from .training.fit import (  # noqa: F401  (re-exported: the train CLI's body, by its old names)
     RESULT_FILE,
+    TrainingUnfinished,
     build_datamodule,
     cfg_model_name,
     check_resume_checkpoint,
@@ -35,6 +37,9 @@ def main(cfg: DictConfig) -> float | dict | None:
         return orp_main(cfg)
     try:
         result = train(cfg)
+    except TrainingUnfinished as chunk_done:  # not an error: the run continues when the command is run again
+        print(f"[train] {chunk_done}", file=sys.stderr, flush=True)
+        sys.exit(TrainingUnfinished.EXIT_CODE)
     except BaseException:
         remove_if_only_hydra(Path(str(cfg.paths.output_dir)))
         raise

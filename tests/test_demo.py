@@ -240,3 +240,18 @@ def test_demo_config_ct_head_gets_the_wider_decoder():
     assert p.returncode == 0, p.stderr[-2000:]
     iml = [ln for ln in p.stdout.splitlines() if "model=iml" in ln]
     assert len(iml) == 2 and all("model.base_channels=16" in ln and "model.base_channels=8" not in ln for ln in iml)
+
+
+def test_a_stage_that_trained_one_chunk_stops_the_pipeline_with_status_3(tmp_path, capsys):
+    """run_stage turns a training stage's exit status 3 (chunk_minutes) into StageUnfinished, and the pipeline
+    exits 3 with one line saying how to go on; other failures stay exit 1."""
+    from imls_lightning import demo as d
+
+    with pytest.raises(d.StageUnfinished, match="run the same command again to continue"):
+        d.run_stage("recnn", ["-c", "import sys; print('x'); sys.exit(3)"])
+    with pytest.raises(d.StageFailed):
+        d.run_stage("recnn", ["-c", "import sys; sys.exit(1)"])
+    with pytest.raises(SystemExit) as e:
+        d.run_pipeline(lambda: d.run_stage("ims", ["-c", "import sys; sys.exit(3)"]))
+    assert e.value.code == 3
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("[pipeline] demo stage 'ims' trained one chunk")

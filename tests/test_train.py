@@ -52,7 +52,7 @@ def test_failed_run_leaves_no_empty_run_folder(tmp_path):
 
 # ---- RecNN ------------------------------------------------------------------------------------
 def test_smoke_recnn_checkpoint_reloads_with_identical_output(recnn_ckpt):
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     task = load_task(recnn_ckpt, expect="RecNNTask")
     again = load_task(recnn_ckpt, expect="RecNNTask")
@@ -181,12 +181,24 @@ def test_exception_resume_checkpoint_of_another_model(work, recnn_ckpt, tmp_path
     _one_line_error(p, f"resume={recnn_ckpt}", "do not fit the network")
 
 
+def test_exception_resume_not_a_checkpoint_is_refused_before_lightning_starts(tmp_path):
+    """resume=<a text file> was refused after Lightning's start-up lines (the seed, "GPU available", ...;
+    issue 33): the error is the first line on stderr, and nothing was set up."""
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    p = _run(["model=recnn", f"resume={text}"], tmp_path, check=False)
+    _one_line_error(p, f"resume={text}", "not a loadable checkpoint")
+    assert p.stderr.splitlines()[0].startswith(f"error: resume={text}: "), p.stderr[-2000:]
+    assert "GPU available" not in p.stdout + p.stderr and "Seed set" not in p.stdout + p.stderr
+    assert not (tmp_path / "runs").exists() or list((tmp_path / "runs").iterdir()) == []
+
+
 def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
     """resume=<a text file> ended in a traceback (issue 17, 11); in process (the CLI path is the test above)."""
     from omegaconf import OmegaConf
 
     from data_gen.errors import InputError
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
     from imls_lightning.tasks.iml import IMLTask
     from imls_lightning.training.fit import _resume_path
 
@@ -207,7 +219,7 @@ def test_smoke_fovolnet_fast_dev_run(work):
     p = _run(["model=recnn", "recnn=fovolnet", "trainer.fast_dev_run=true"], work)
     ckpt = Path(_last_line(p))
     assert ckpt.name == "fast_dev_run.ckpt" and ckpt.is_file()
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     task = load_task(ckpt, expect="RecNNTask")
     assert task.pattern.kind == "foveal"
@@ -215,7 +227,7 @@ def test_smoke_fovolnet_fast_dev_run(work):
 
 # ---- IML --------------------------------------------------------------------------------------
 def test_smoke_iml_standalone_and_end_to_end(work, recnn_ckpt):
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     p = _run(["model=iml", "recnn=enhancenet", "model.mode=standalone", "model.depth=3", "model.base_channels=8",
               "trainer.max_epochs=1"], work)
@@ -237,7 +249,7 @@ def test_smoke_iml_standalone_and_end_to_end(work, recnn_ckpt):
 def test_smoke_standalone_decoder_attaches_to_off_the_shelf_recnn(work, recnn_ckpt):
     """The paper's off-the-shelf case: a decoder trained without the RecNN feeds a separately trained one."""
     from imls_lightning.models.iml import IMLRecNN
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     p = _run(["model=iml", "recnn=enhancenet", "model.mode=standalone", "model.depth=3", "model.base_channels=8",
               "trainer.max_epochs=1"], work)
@@ -290,3 +302,51 @@ def test_exception_missing_checkpoint_file(work):
 def test_exception_bad_iml_settings(work, override, needle):
     p = _run(["model=iml", override, "trainer.fast_dev_run=true"], work, check=False)
     _one_line_error(p, needle)
+
+
+def test_smoke_chunked_training_continues_where_the_last_chunk_stopped(tmp_path):
+    """chunk_minutes: each run of the command trains one chunk (an epoch here), exits 3 and records the run as
+    unfinished; the same command continues from last.ckpt, and the last chunk finishes the schedule."""
+    args = ["model=recnn", "recnn=enhancenet", "recnn.net.channels=4", "recnn.net.blocks=1", "trainer.max_epochs=3",
+            "chunk_minutes=0.0001"]
+    first = _run(args, tmp_path, check=False)
+    assert first.returncode == 3, first.stderr[-2000:]
+    assert "run the same command again to continue" in first.stderr.strip().splitlines()[-1]
+    run_dir = next((tmp_path / "runs").glob("recnn-*"))
+    r1 = json.loads((run_dir / "result.json").read_text())
+    assert (r1["unfinished"], r1["stopped_by"], r1["stopped_early"], r1["epochs"]) == (True, "chunk", False, 1)
+    assert r1["test"] == {}  # no test pass on a chunk
+    second = _run(args, tmp_path, check=False)
+    assert second.returncode == 3 and "resuming from" in second.stdout
+    assert json.loads((run_dir / "result.json").read_text())["epochs"] == 2
+    last = _run(args, tmp_path)  # epoch 3 is the schedule's last: the chunk cannot stop it
+    r3 = json.loads((run_dir / "result.json").read_text())
+    assert (r3["unfinished"], r3["epochs"]) == (False, 3) and r3["test"] and Path(_last_line(last)).is_file()
+    assert "already finished" in _run(args, tmp_path).stdout
+
+
+def test_chunk_timer_stops_only_when_the_next_epoch_would_overrun(monkeypatch):
+    from types import SimpleNamespace
+
+    from imls_lightning.training import callbacks
+
+    def run(times, epoch, max_epochs=10):
+        clock = iter(times)  # train start, epoch start, epoch end
+        monkeypatch.setattr(callbacks.time, "perf_counter", lambda: next(clock))
+        t = callbacks.ChunkTimer(100 / 60)  # a 100 s chunk
+        tr = SimpleNamespace(max_epochs=max_epochs, current_epoch=epoch, should_stop=False)
+        t.on_train_start(tr, None)
+        t.on_train_epoch_start(tr, None)
+        t.on_train_epoch_end(tr, None)
+        assert tr.should_stop == t.stopped
+        return t.stopped
+
+    assert not run([0.0, 40.0, 70.0], 0)       # 70 s done + 30 s for the next epoch: within 100 s
+    assert run([0.0, 40.0, 75.0], 0)           # 75 + 35 > 100: stop now, not mid-way through the next
+    assert not run([0.0, 40.0, 99.0], 9)       # the schedule's last epoch is never cut
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "abc", "inf"])
+def test_exception_bad_chunk_minutes(tmp_path, value):
+    p = _run(["model=recnn", f"chunk_minutes={value}", "trainer.max_epochs=1"], tmp_path, check=False)
+    _one_line_error(p, f"chunk_minutes=")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import time
 from pathlib import Path
 
 import lightning as L
@@ -11,6 +12,39 @@ from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 
 from ..report.viz import image_grid, save_image
+
+
+class ChunkTimer(L.Callback):
+    """Stop a fit at the end of the epoch after which the next one would overrun ``minutes`` of this
+    process's wall time (training that outlives one sitting: ``chunk_minutes``).
+
+    Unlike Lightning's ``Timer`` (``trainer.max_time``) it keeps no state in the checkpoint: every
+    invocation that resumes the run gets a whole chunk again. ``stopped`` tells the caller that the
+    chunk, not the schedule, ended the fit.
+
+    Example:
+        >>> t = ChunkTimer(30)
+        >>> t.budget_s, t.stopped
+        (1800.0, False)
+    """
+
+    def __init__(self, minutes: float):
+        self.budget_s = float(minutes) * 60.0
+        self.stopped = False
+        self._t0 = self._epoch_t0 = 0.0
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        self._t0 = time.perf_counter()
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        self._epoch_t0 = time.perf_counter()
+
+    def on_train_epoch_end(self, trainer, pl_module) -> None:
+        now = time.perf_counter()
+        last = trainer.max_epochs is not None and trainer.max_epochs >= 0 and trainer.current_epoch + 1 >= trainer.max_epochs
+        if not last and (now - self._t0) + (now - self._epoch_t0) > self.budget_s:
+            trainer.should_stop = True
+            self.stopped = True
 
 
 class ImageGridCallback(L.Callback):

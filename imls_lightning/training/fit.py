@@ -28,7 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError
 
-from .callbacks import ResumableCSVLogger, set_aside_metrics
+from .callbacks import ChunkTimer, ResumableCSVLogger, set_aside_metrics
 from ..config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
@@ -36,8 +36,33 @@ register_resolvers()
 RESULT_FILE = "result.json"
 
 
+class TrainingUnfinished(RuntimeError):
+    """A fit stopped at the end of its chunk (``chunk_minutes``); the same command continues it."""
+
+    #: the train CLI's exit status for it (pipelines stop there and say how to go on)
+    EXIT_CODE = 3
+
+
 def _callbacks(cfg: DictConfig) -> list[L.Callback]:
     return [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c is not None and "_target_" in c]
+
+
+def chunk_minutes(cfg: DictConfig) -> float | None:
+    """``chunk_minutes``: the wall time one invocation trains for (null: the whole schedule).
+
+    Raises:
+        InputError: not a positive number.
+    """
+    value = cfg.get("chunk_minutes")
+    if value is None:
+        return None
+    try:
+        minutes = float(value)
+        if isinstance(value, bool) or not math.isfinite(minutes) or minutes <= 0:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise InputError(f"chunk_minutes={value!r}: expected a positive number of minutes (null: train the whole schedule)") from None
+    return minutes
 
 
 def _loggers(cfg: DictConfig) -> list:
@@ -51,7 +76,8 @@ def _warn(message: str) -> None:
 def _resume_path(cfg: DictConfig, run_dir: Path, task=None) -> str | None:
     """The checkpoint to resume from: ``resume=auto`` takes the run's ``last.ckpt`` when it is
     intact, else the newest intact checkpoint of the run (or none: training starts over), with a
-    one-line warning; ``resume=<path>`` must be an intact checkpoint of the model being trained."""
+    one-line warning; ``resume=<path>`` must be an intact checkpoint file and, given the ``task``,
+    one of the model being trained (:func:`check_resume_checkpoint`)."""
     resume = str(cfg.get("resume", "auto"))
     if resume == "never":
         return None
@@ -72,6 +98,9 @@ def _resume_path(cfg: DictConfig, run_dir: Path, task=None) -> str | None:
         return None
     if not Path(resume).expanduser().is_file():
         raise InputError(f"resume={resume}: checkpoint not found (use 'auto', 'never' or a .ckpt path)")
+    problem = checkpoint_problem(resume)
+    if problem is not None:
+        raise InputError(f"resume={resume}: {problem}")
     if task is not None:
         check_resume_checkpoint(resume, task)
     return str(Path(resume).expanduser())
@@ -182,6 +211,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit (or resume, or reuse) the configured model; returns the run's result record."""
     run_dir = Path(cfg.paths.output_dir)
     result_file = run_dir / RESULT_FILE
+    chunk = chunk_minutes(cfg)
     fast = bool(cfg.trainer.get("fast_dev_run", False))
     restart = False
     if str(cfg.get("resume", "auto")) == "auto" and result_file.is_file() and not fast:
@@ -192,25 +222,35 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             result, best = None, ""
         problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
         more = epochs_to_extend(result, cfg) if result is not None and problem is None else None
+        if result is not None and problem is None and result.get("unfinished"):
+            more = _max_epochs(cfg) if _max_epochs(cfg) is not None else -1  # the chunks go on to the schedule's end
         if result is not None and problem is None and more is None:
             print(f"[train] {run_dir} already finished; reusing it (resume=never retrains)", flush=True)
             return result
         if more is not None:
             # trainer limits are not part of the run's identity, so a longer schedule continues the
             # finished run from its last.ckpt instead of returning the shorter one as if it were asked for
-            print(f"[train] {run_dir} finished {trained_epochs(result)} epochs; continuing to trainer.max_epochs={more}", flush=True)
+            done = f"trained a chunk ({result.get('epochs')} epochs)" if result.get("unfinished") else f"finished {trained_epochs(result)} epochs"
+            print(f"[train] {run_dir} {done}; continuing to trainer.max_epochs={more}", flush=True)
         else:
             # never trust a finished run whose best checkpoint is gone or damaged: train it again
             _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
             result_file.unlink(missing_ok=True)
             restart = True
 
+    # resume=<not a checkpoint> is refused before Lightning's first line (the seed, the devices);
+    # whether it fits the model needs the task, built after seeding, still before the Trainer
+    ckpt_path = None if fast or restart else _resume_path(cfg, run_dir)
     L.seed_everything(int(cfg.seed), workers=True)
     task = build_task(cfg)
+    resume = str(cfg.get("resume", "auto"))
+    if ckpt_path and resume not in ("auto", "never"):
+        check_resume_checkpoint(resume, task)
     datamodule = build_datamodule(cfg, type(task))
-    trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg), logger=_loggers(cfg) or False)
+    timer = ChunkTimer(chunk) if chunk is not None and not fast else None
+    trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg) + ([timer] if timer else []),
+                                     logger=_loggers(cfg) or False)
 
-    ckpt_path = None if fast or restart else _resume_path(cfg, run_dir, task)
     if ckpt_path:
         print(f"[train] resuming from {ckpt_path}", flush=True)
     else:
@@ -231,21 +271,23 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         best = str(run_dir / "checkpoints" / ("fast_dev_run.ckpt" if fast else "final.ckpt"))
         trainer.save_checkpoint(best, weights_only=False)  # the whole state: it may be resumed
     score = getattr(ckpt_cb, "best_model_score", None) if ckpt_cb is not None else None
+    unfinished = timer is not None and timer.stopped
     test_metrics: dict[str, float] = {}
-    if cfg.get("test", True):
+    if cfg.get("test", True) and not unfinished:
         ckpt_for_test = None if fast or not getattr(ckpt_cb, "best_model_path", "") else "best"
         out = trainer.test(task, datamodule=datamodule, ckpt_path=ckpt_for_test, verbose=False, weights_only=True)
         test_metrics = {k: float(v) for k, v in (out[0] if out else {}).items()}
 
-    stopped_by = stop_reason(trainer)
+    stopped_by = "chunk" if unfinished else stop_reason(trainer)
     result = {
         "best_checkpoint": str(Path(best).resolve()),
         "best_score": float(score) if score is not None and math.isfinite(float(score)) else None,
         "monitor": str(cfg.model.monitor),
         "epochs": int(trainer.current_epoch),
         "max_epochs": _max_epochs(cfg),
-        "stopped_early": stopped_by is not None,
+        "stopped_early": stopped_by not in (None, "chunk"),
         "stopped_by": stopped_by,
+        "unfinished": unfinished,
         "train_minutes": round(minutes, 3),
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
@@ -254,6 +296,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         from data_gen.atomic import atomic_json
 
         atomic_json(result_file, result, indent=2, sort_keys=False)
+    if unfinished:
+        raise TrainingUnfinished(f"{run_dir}: trained a chunk of chunk_minutes={chunk:g} ({result['epochs']} of "
+                                 f"{result['max_epochs']} epochs); run the same command again to continue")
     return result
 
 
