@@ -34,11 +34,23 @@ def _say(msg: str) -> None:
     print(f"[estimate] {msg}", file=sys.stderr, flush=True)
 
 
+def _command_line_keys() -> set[str]:
+    """The keys set on the command line (empty outside a Hydra run)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return set()
+    return {str(o).split("=", 1)[0].lstrip("+~") for o in HydraConfig.get().overrides.task}
+
+
 def recnn_net(cfg: DictConfig) -> dict[str, Any]:
-    """The RecNN's ``net`` node with the sizes ``recnn_sizes.<recnn.name>`` puts over it."""
+    """The RecNN's ``net`` node with the sizes ``recnn_sizes.<recnn.name>`` put over its defaults; a
+    ``recnn.net.<key>=...`` given on the command line wins over both."""
     net = OmegaConf.to_container(cfg.recnn.net, resolve=True)
-    sizes = (cfg.get("recnn_sizes") or {}).get(str(cfg.recnn.name)) or {}
-    return {**net, **OmegaConf.to_container(OmegaConf.create(dict(sizes)), resolve=True)}
+    sizes = OmegaConf.to_container(OmegaConf.create(dict((cfg.get("recnn_sizes") or {}).get(str(cfg.recnn.name)) or {})),
+                                   resolve=True)
+    explicit = {k[len("recnn.net."):] for k in _command_line_keys() if k.startswith("recnn.net.")}
+    return {**net, **{k: v for k, v in sizes.items() if k not in explicit}}
 
 
 def estimate_settings(cfg: DictConfig) -> dict[str, Any]:

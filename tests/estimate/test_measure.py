@@ -109,3 +109,10 @@ def test_cli_exception_bad_settings(tmp_path, override, match):
     assert r.returncode != 0
     last = r.stderr.strip().splitlines()[-1]
     assert match in last and "Traceback" not in r.stderr
+
+
+def test_cli_a_recnn_net_override_wins_over_the_default_sizes(tmp_path):
+    r = _cli(tmp_path, "recnn.net.channels=6")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
+    assert est["settings"]["recnn"]["channels"] == 6 and est["settings"]["recnn"]["blocks"] == 1
