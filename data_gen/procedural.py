@@ -1,6 +1,6 @@
 """Deterministic procedural volumes, so that the main job needs no data file.
 
-Four generators of distinct character (:data:`PROCEDURAL_GENERATORS`):
+Generators of distinct character (:data:`PROCEDURAL_GENERATORS`):
 
 * ``tiny`` (32^3): three Gaussian blobs and a tilted torus; cheap, for CI, with clear structure.
 * ``marschner_lobb`` (64^3): the Marschner-Lobb test signal (fM = 6, alpha = 0.25) on [-1, 1]^3;
@@ -10,6 +10,15 @@ Four generators of distinct character (:data:`PROCEDURAL_GENERATORS`):
   Fourier modes, and 3D turbulent modes (amplitude ~ k^-0.8) inside the mixing zone.
 * ``flame`` (64 x 64 x 96): a compact candle-like plume along +z with turbulent wrinkles that
   grow with height, a bright reaction front around a hot core, and empty space around it.
+
+Three more of the paper's regime (512^3 by default, detail at the scale of a voxel, so that at 512^2
+a bilinear upsampling of a 256^2 render loses clearly; stream them with ``scene.volume.stream_to``),
+with widths of thin structures given in voxels of the volume generated:
+
+* ``rayleigh_taylor``: heavy over light fluid, a sharp interface folded into bubbles and spikes and
+  wrinkled down to ~6 voxels.
+* ``flame_sheets``: a flame whose two reaction sheets are ~2 voxels thick, wrinkled at several scales.
+* ``seed_shell``: a CT-like seed (beechnut-like): pitted, wrinkled shell, septa, fibres, porous tissue.
 
 Every generator is a function ``fn(dims_xyz, seed, z0, z1) -> float32 (z1 - z0, Y, X)`` that can
 evaluate any z-slab of the volume on its own: its random parameters come from ``seed`` alone, so a
@@ -216,6 +225,146 @@ def flame(dims, seed: int, z0: int, z1: int) -> np.ndarray:
     return (gate * heat * (F32(0.5) * core + F32(0.6) * front)).astype(F32, copy=False)
 
 
+def _by_slabs(body: Callable[[int, int], np.ndarray], dims, z0: int, z1: int, rows: int = 16) -> np.ndarray:
+    """Evaluate ``body(a, b) -> (b - a, Y, X)`` over rows of ``rows`` z-slices (cache-sized
+    temporaries for paper-size volumes); every operation is elementwise, so any split of
+    ``[z0, z1)`` gives the same bits."""
+    out = np.empty((z1 - z0, int(dims[1]), int(dims[0])), F32)
+    for a in range(z0, z1, rows):
+        b = min(z1, a + rows)
+        out[a - z0:b - z0] = body(a, b)
+    return out
+
+
+def _voxel(dims) -> float:
+    """One voxel in normalized units (the longest axis spans [-1, 1])."""
+    return 2.0 / (max(int(d) for d in dims) - 1)
+
+
+def rayleigh_taylor(dims, seed: int, z0: int, z1: int) -> np.ndarray:
+    """Paper-regime Rayleigh-Taylor mixing layer: heavy fluid (3) on top (+z) of light fluid (1)
+    with a sharp interface (a sigmoid 1.5 voxels wide) folded into bubbles and spikes.
+
+    The level set ``z - h(x, y) - env * (0.3 n + 0.02 f)``: ``h`` is 64 2D modes (RMS 0.06);
+    inside a Gaussian envelope (half width 0.55) ``n`` is 32 3D modes (k = 2 pi .. 24 pi,
+    amplitude ~ 1/k, stretched along z) that make the bubbles and spikes, and ``f`` 24 finer modes
+    (k = 20 pi .. 90 pi, wavelengths down to ~6 voxels at 512^3) that wrinkle the interfaces.
+    """
+    rng = _rng("rayleigh_taylor", seed)
+    vox = _voxel(dims)
+    interface = fourier_modes(rng, 64, 1.0 * np.pi, 40 * np.pi, 1.6, ndim=2)
+    bubbles = fourier_modes(rng, 32, 2 * np.pi, 24 * np.pi, 1.0)
+    bubbles[0][:, 2] *= 0.6  # stretched along gravity
+    wrinkles = fourier_modes(rng, 24, 20 * np.pi, 90 * np.pi, 0.5)
+    x, y, _, _ = grid_axes(dims)
+    h = F32(0.06) * eval_modes(interface, x, y)[None]
+    w = F32(1.5 * vox)
+
+    def body(a: int, b: int) -> np.ndarray:
+        z = grid_axes(dims, a, b)[2]
+        zz = z[:, None, None]
+        env = np.exp(-(((zz - h) / F32(0.55)) ** 2)).astype(F32)
+        phi = zz - h - env * (F32(0.3) * eval_modes(bubbles, x, y, z) + F32(0.02) * eval_modes(wrinkles, x, y, z))
+        return F32(1.0) + F32(2.0) * _sigmoid(phi / w)
+
+    return _by_slabs(body, dims, z0, z1)
+
+
+def flame_sheets(dims, seed: int, z0: int, z1: int) -> np.ndarray:
+    """Paper-regime flame: two thin reaction sheets (Gaussian profile 1.5 voxels wide) on a
+    candle-shaped front wrinkled at several scales, empty space around it; values 0 .. ~1.
+
+    The front ``d = r - radius(z) - a(z) n - b(z) f`` (``n``: 24 3D modes k = 3 pi .. 24 pi,
+    stretched along z; ``f``: 20 modes k = 20 pi .. 90 pi; both grow towards the tip); the outer
+    sheet lies on ``d = 0``, an inner one (inner cone, 0.7 as bright) at a depth 0.05 .. 0.1 shifted
+    by 12 independent modes, so the two sheets fold, approach and pinch off on their own.
+    """
+    rng = _rng("flame_sheets", seed)
+    vox = _voxel(dims)
+    big = fourier_modes(rng, 24, 3 * np.pi, 24 * np.pi, 1.0)
+    big[0][:, 2] *= 0.5  # tongues stretched along the flow
+    fine = fourier_modes(rng, 20, 20 * np.pi, 90 * np.pi, 0.5)
+    mid = fourier_modes(rng, 12, 8 * np.pi, 30 * np.pi, 0.8)
+    wobble = rng.uniform(0, 2 * np.pi, 4).astype(F32)
+    x, y, _, e = grid_axes(dims)
+    zb, zt = -0.88 * e[2], 0.72 * e[2]  # base and tip
+    r0 = 0.48 * min(e[0], e[1])
+    w = F32(1.5 * vox)
+    X, Y = x[None, None, :], y[None, :, None]
+
+    def body(a: int, b: int) -> np.ndarray:
+        z = grid_axes(dims, a, b)[2]
+        zz = z[:, None, None]
+        s = (zz - F32(zb)) / F32(zt - zb)
+        sc = np.clip(s, 0.0, 1.0)
+        xc = F32(0.05) * np.sin(F32(4.0) * zz + wobble[0]) + F32(0.02) * np.sin(F32(11.0) * zz + wobble[1])
+        yc = F32(0.05) * np.sin(F32(3.0) * zz + wobble[2]) + F32(0.02) * np.sin(F32(13.0) * zz + wobble[3])
+        r = np.sqrt((X - xc) ** 2 + (Y - yc) ** 2)
+        radius = F32(r0 / ((1 / 3) ** 0.6 * (2 / 3) ** 1.2)) * sc ** F32(0.6) * (F32(1.0) - sc) ** F32(1.2)
+        nb = eval_modes(big, x, y, z)
+        d = r - radius - (F32(0.01) + F32(0.10) * sc) * nb
+        d -= (F32(0.002) + F32(0.012) * sc) * eval_modes(fine, x, y, z)
+        d2 = d + F32(0.05) + F32(0.05) * sc + F32(0.03) * eval_modes(mid, x, y, z)
+        sheets = np.maximum(np.exp(-((d / w) ** 2)), F32(0.7) * np.exp(-((d2 / w) ** 2)))
+        gate = np.clip(F32(10.0) * s, 0.0, 1.0) * _sigmoid((F32(1.0) - s + F32(0.06) * nb) / F32(0.04))
+        heat = (F32(1.0) - F32(0.4) * sc) * np.clip((F32(e[2]) - zz) / F32(0.25), 0.0, 1.0)
+        return (gate * heat * sheets).astype(F32, copy=False)
+
+    return _by_slabs(body, dims, z0, z1)
+
+
+def seed_shell(dims, seed: int, z0: int, z1: int) -> np.ndarray:
+    """Paper-regime CT-like specimen (a beechnut-like seed): a pitted, wrinkled shell 4 voxels
+    thick (density 1) around a three-ridged, slightly twisted nut; inside, three septa (0.7) and a
+    ring of 9 fibres (0.78) running along the nut, and a porous tissue layer under the shell (thin
+    cell walls, 0.4); air (0) around it.
+
+    The surface ``rho0(z) (1 + 0.13 cos 3 theta) + 0.02 l + 0.015 w`` (``l``: 12 3D modes
+    k = 2.5 pi .. 10 pi; ``w``: 24 modes k = 12 pi .. 100 pi); the cell walls lie on the zero set
+    of 16 modes (k = 15 pi .. 40 pi) whose high values also pit the shell.
+    """
+    rng = _rng("seed_shell", seed)
+    vox = _voxel(dims)
+    lumps = fourier_modes(rng, 12, 2.5 * np.pi, 10 * np.pi, 1.0)
+    wrinkles = fourier_modes(rng, 24, 12 * np.pi, 100 * np.pi, 0.5)
+    cells = fourier_modes(rng, 16, 15 * np.pi, 40 * np.pi, 0.0)
+    twist0 = rng.uniform(0, 2 * np.pi)
+    # RMS gradient of the cell noise: widths in its units become widths in space
+    kc = float(np.sqrt(np.sum(cells[1] ** 2 * np.sum(cells[0] ** 2, axis=1)) / np.sum(cells[1] ** 2)))
+    x, y, _, e = grid_axes(dims)
+    zb, zt = -0.82 * e[2], 0.86 * e[2]  # blunt base, pointed apex
+    rm = 0.52 * min(e[0], e[1])
+    thick, edge = F32(4.0 * vox), F32(0.7 * vox)
+    X, Y = x[None, None, :], y[None, :, None]
+
+    def body(a: int, b: int) -> np.ndarray:
+        z = grid_axes(dims, a, b)[2]
+        zz = z[:, None, None]
+        t = np.clip((zz - F32(zb)) / F32(zt - zb), 0.0, 1.0)
+        rho0 = F32(rm) * np.maximum(np.sin(F32(np.pi) * t ** F32(0.75)), F32(0.0)) ** F32(0.6)
+        rho = np.sqrt(X * X + Y * Y)
+        th = np.arctan2(Y, X) - (F32(twist0) + F32(0.8) * zz)  # the three ridges twist a little
+        nl = eval_modes(lumps, x, y, z)
+        nw = eval_modes(wrinkles, x, y, z)
+        surf = rho0 * (F32(1.0) + F32(0.13) * np.cos(F32(3.0) * th)) + F32(0.02) * nl + F32(0.015) * nw
+        d = rho - surf  # < 0 inside
+        ends = _sigmoid((zz - F32(zb)) / edge) * _sigmoid((F32(zt) - zz) / edge)
+        gap = F32(3.0 * vox) + F32(0.012) * np.maximum(nl + F32(0.3), F32(0.0))
+        inner = _sigmoid(-(d + thick + gap) / edge) * ends
+        nc = eval_modes(cells, x, y, z)
+        shell = _sigmoid((d + thick) / edge) * _sigmoid(-d / edge) * ends
+        shell *= F32(1.0) - F32(0.85) * _sigmoid((nc - F32(1.0)) / F32(vox * kc))  # pits through the shell
+        walls = np.exp(-((nc / F32(vox * kc)) ** 2))
+        layer = _sigmoid((d + thick + gap + F32(0.06)) / F32(4 * vox))  # tissue under the shell, a cavity inside
+        tissue = inner * layer * walls * (F32(0.4) + F32(0.04) * nw)
+        septa = np.exp(-((rho * np.sin(F32(1.5) * th + F32(0.05) * nl) / F32(1.5 * vox)) ** 2)) * inner
+        fr = rho - F32(0.55) * surf
+        fibres = np.exp(-((fr / F32(1.6 * vox)) ** 2 + (rho * np.sin(F32(4.5) * th + F32(0.5)) / F32(4.5 * 1.6 * vox)) ** 2)) * inner
+        return np.maximum(np.maximum(shell, F32(0.7) * septa), np.maximum(F32(0.78) * fibres, tissue)).astype(F32, copy=False)
+
+    return _by_slabs(body, dims, z0, z1)
+
+
 @dataclass(frozen=True)
 class ProceduralGenerator:
     """A registered generator: ``fn(dims_xyz, seed, z0, z1) -> float32 (z1 - z0, Y, X)``."""
@@ -234,6 +383,12 @@ PROCEDURAL_GENERATORS: dict[str, ProceduralGenerator] = {
         ProceduralGenerator("marschner_lobb", marschner_lobb, (64, 64, 64), "Marschner-Lobb test signal, fM=6, alpha=0.25"),
         ProceduralGenerator("mixing_layer", mixing_layer, (96, 96, 96), "Rayleigh-Taylor-like turbulent mixing layer filling the box"),
         ProceduralGenerator("flame", flame, (64, 64, 96), "compact flame-like plume with turbulent wrinkles, empty around"),
+        ProceduralGenerator("rayleigh_taylor", rayleigh_taylor, (512, 512, 512),
+                            "paper-size Rayleigh-Taylor mixing layer, sharp folded interfaces down to a few voxels"),
+        ProceduralGenerator("flame_sheets", flame_sheets, (512, 512, 512),
+                            "paper-size flame: thin reaction sheets wrinkled at several scales, empty around"),
+        ProceduralGenerator("seed_shell", seed_shell, (512, 512, 512),
+                            "paper-size CT-like seed: pitted wrinkled shell, septa, fibres, porous tissue"),
     ]
 }
 

@@ -14,7 +14,9 @@ from data_gen.scene import (Scene, auto_transfer_function, build_scene, default_
 from data_gen.volume import Volume
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "scene"
-PROCEDURAL = ["tiny", "marschner_lobb", "mixing_layer", "flame"]
+PROCEDURAL = ["tiny", "marschner_lobb", "mixing_layer", "flame", "rayleigh_taylor", "flame_sheets", "seed_shell"]
+#: presets of paper-size (512^3) volumes: built at a small size in CI, streamed to a temporary directory
+PAPER_SIZE = {"rayleigh_taylor", "flame_sheets", "seed_shell"}
 REAL = {
     "ct_head": "ct_head_256x256x108_int16.raw",
     "mri_head": "mri_head_128x128x84_uint8.raw",
@@ -42,12 +44,27 @@ def test_preset_files_cover_the_issue():
 
 
 @pytest.mark.parametrize("name", PROCEDURAL)
-def test_smoke_procedural_presets_build(name):
-    s = build_scene(_preset(name))
+def test_smoke_procedural_presets_build(name, tmp_path):
+    small = {"volume.size": 24, "volume.stream_to": str(tmp_path)} if name in PAPER_SIZE else {}
+    s = build_scene(_preset(name, **small))
     assert s.name == name and s.sample_distance_voxels == 0.5   # sample_distance: auto
+    if name in PAPER_SIZE:
+        assert s.volume.dims == (24, 24, 24) and [p.name for p in tmp_path.iterdir()] == [f"{name}_24x24x24_float32.raw"]
     assert s.volume.source.startswith(f"procedural:{name}")
     assert s.config is not None and s.config["name"] == name
     assert float(s.transfer_function.opacity[:, 1].max()) >= 0.3
+
+
+@pytest.mark.parametrize("name", sorted(PAPER_SIZE))
+def test_paper_size_presets_default_to_512_streamed(name, monkeypatch, tmp_path):
+    """The preset asks for the generator's 512^3 default and streams it to the cache directory."""
+    from data_gen.procedural import PROCEDURAL_GENERATORS
+
+    monkeypatch.setenv("IMLS_CACHE_DIR", str(tmp_path))
+    cfg = _preset(name)
+    assert cfg.volume.kind == "procedural" and cfg.volume.generator == name and cfg.volume.size is None
+    assert PROCEDURAL_GENERATORS[name].default_size == (512, 512, 512)
+    assert cfg.volume.stream_to == f"{tmp_path}/volumes"
 
 
 @pytest.mark.real_volume
