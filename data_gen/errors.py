@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence, TypeVar
 
+from .overrides import quote_override_value
+
 F = TypeVar("F", bound=Callable)
 
 
@@ -107,7 +109,7 @@ _HYDRA_SPECIAL = set("[]{}(),'\"$\\=")
 def quote_non_ascii(argv: Sequence[str]) -> list[str]:
     """Hydra's override parser takes non-ASCII characters only inside quotes: quote the value of
     ``key=value`` when it has some (``scene.volume.path=/data/volumes_é/x.raw`` ->
-    ``scene.volume.path="/data/volumes_é/x.raw"``). A value that also holds Hydra's own syntax
+    ``scene.volume.path='/data/volumes_é/x.raw'``, :func:`~data_gen.overrides.quote_override_value`). A value that also holds Hydra's own syntax
     (lists, sweeps, quotes, interpolations) is not guessed at: one-line :class:`InputError` showing
     how to quote it."""
     out = []
@@ -124,7 +126,7 @@ def quote_non_ascii(argv: Sequence[str]) -> list[str]:
             raise InputError(f"{arg}: Hydra reads non-ASCII characters only inside quotes; quote each string that holds them, "
                              f"e.g. '{key}=[\"/data/volumes_é/a.raw\", ...]' (single quotes around it all, for the shell)")
         else:
-            out.append(f'{key}="{value}"')
+            out.append(f"{key}={quote_override_value(value)}")
     return out
 
 

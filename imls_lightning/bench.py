@@ -41,7 +41,6 @@ import hashlib
 import json
 import math
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -51,6 +50,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError, cli_errors
+from data_gen.overrides import quote_override_value
 
 from .report import atomic_write_text as atomic_write
 from .report.tables import fmt, md_table
@@ -72,13 +72,6 @@ def log(msg: str) -> None:
 
 # ------------------------------------------------------------------------------------------------
 # small helpers
-
-
-def quote(value: str) -> str:
-    """A path as a Hydra override value (quoted when it holds characters the grammar reserves)."""
-    if re.fullmatch(r"[A-Za-z0-9_./+\-]+", value):
-        return value
-    return "'" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
 
 
 def args_hash(args: Sequence[str], length: int = 8) -> str:
@@ -555,9 +548,9 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
     las_ckpt: dict[str, str] = {}
     train = ["-m", "imls_lightning.train"]
     for scene in scenes:
-        common = [f"scene={scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={quote(cache)}",
+        common = [f"scene={scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}", f"data.cache_dir={quote_override_value(cache)}",
                   *override_list(cfg, "common")]
-        base_train = [*common, f"paths.runs_dir={quote(str(runs))}", f"seed={int(cfg.seed)}", *override_list(cfg, "train")]
+        base_train = [*common, f"paths.runs_dir={quote_override_value(str(runs))}", f"seed={int(cfg.seed)}", *override_list(cfg, "train")]
         if not progress:
             base_train.append("trainer.enable_progress_bar=false")
         for recnn in recnns:
@@ -567,16 +560,16 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
             recnn_ckpt = stage(pair, "recnn", "RecNN", [*train, "model=recnn", *tc, *override_list(cfg, "stages.recnn")])
 
             sweep = [*train, "-m", "model=iml", *tc, *override_list(cfg, "stages.iml"), "hydra/sweeper=orp",
-                     f"recnn.checkpoint={quote(recnn_ckpt)}", *override_list(cfg, "stages.orp")]
+                     f"recnn.checkpoint={quote_override_value(recnn_ckpt)}", *override_list(cfg, "stages.orp")]
             sweep_dir = runs / "orp" / f"{label[scene]}-{recnn}-{args_hash(sweep)}"
             orp_yaml = sweep_dir / "orp.yaml"
             if dry:
-                stage(pair, "orp", "ORP search", [*sweep, f"hydra.sweep.dir={quote(str(sweep_dir))}"])
+                stage(pair, "orp", "ORP search", [*sweep, f"hydra.sweep.dir={quote_override_value(str(sweep_dir))}"])
             elif orp_yaml.is_file() and read_orp_finished(orp_yaml):
                 log(f"\n[bench] {pair}: ORP search already finished; reusing {orp_yaml}")
                 pair_times.setdefault(pair, {})["orp"] = times.data.get(str(orp_yaml), math.nan)
             else:
-                line = stage(pair, "orp", "ORP search", [*sweep, f"hydra.sweep.dir={quote(str(sweep_dir))}"],
+                line = stage(pair, "orp", "ORP search", [*sweep, f"hydra.sweep.dir={quote_override_value(str(sweep_dir))}"],
                              result_key=lambda _: str(orp_yaml))
                 if not line.startswith("[orp] ") or not orp_yaml.is_file():
                     raise StageFailed(f"{pair} ORP search: expected '[orp] {orp_yaml}' as its last line, got {line!r}")
@@ -587,8 +580,8 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
                 log(f"[bench] {pair}: ORP {'found' if orp['found'] else 'NOT found'}: u={orp['mean']:g}, "
                     f"C-share {pct(orp['c_share'])}, gap {fmt(orp['gap_db'])} dB")
 
-            ims_ckpt = stage(pair, "ims", "IMS", [*train, "model=ims", *tc, f"iml.checkpoint={quote(orp['iml_checkpoint'])}",
-                                                  f"recnn.checkpoint={quote(recnn_ckpt)}", *override_list(cfg, "stages.ims")])
+            ims_ckpt = stage(pair, "ims", "IMS", [*train, "model=ims", *tc, f"iml.checkpoint={quote_override_value(orp['iml_checkpoint'])}",
+                                                  f"recnn.checkpoint={quote_override_value(recnn_ckpt)}", *override_list(cfg, "stages.ims")])
             with_las = recnn in las_with
             if with_las and scene not in las_ckpt:
                 las_ckpt[scene] = stage(pair, "las", "LAS", [*train, "model=las", *base_train, f"recnn={cfg.las_recnn}",
@@ -596,12 +589,12 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
             elif with_las:
                 pair_times.setdefault(pair, {})["las"] = times.data.get(las_ckpt[scene], math.nan)
             means = sweep_means(las_iprs, orp["pattern_ipr"])
-            ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={quote(str(runs))}",
-                  f"checkpoints.ims={quote(ims_ckpt)}", f"checkpoints.recnn={quote(recnn_ckpt)}",
+            ev = ["-m", "imls_lightning.evaluate", *common, f"paths.runs_dir={quote_override_value(str(runs))}",
+                  f"checkpoints.ims={quote_override_value(ims_ckpt)}", f"checkpoints.recnn={quote_override_value(recnn_ckpt)}",
                   f"las_iprs=[{','.join(repr(x) for x in las_iprs)}]", f"mean_values=[{','.join(repr(u) for u in means)}]",
                   f"progress={progress}", "reuse=true", *override_list(cfg, "evaluate")]
             if with_las:
-                ev.append(f"checkpoints.las={quote(las_ckpt[scene])}")
+                ev.append(f"checkpoints.las={quote_override_value(las_ckpt[scene])}")
             report = Path(stage(pair, "evaluate", "evaluation", ev))
             if dry:
                 continue

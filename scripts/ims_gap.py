@@ -30,7 +30,7 @@ from data_gen.cache import ViewImageCache
 from imls_lightning.inference.baselines import iml_pim_at, mask_at_share
 from imls_lightning.data import ViewImageDataset
 from imls_lightning.core.metrics import psnr_from_mse, psnr_per_image
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import background_mask
 
 SPLITS = ("train", "val", "test")

@@ -60,7 +60,7 @@ def iml_overrides(args, mode: str, mean: float, recnn_ckpt: Path) -> list[str]:
 @torch.no_grad()
 def evaluate_recnn_alone(recnn_ckpt: Path, result: dict, batch_size: int) -> dict:
     """The RecNN on the full C-Image (the reference an IML is compared with)."""
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     net = load_task(recnn_ckpt, expect="RecNNTask").net
     m, n = mr.ImageMetrics(), 0

@@ -226,7 +226,7 @@ def nearest_fill(c_image: torch.Tensor, nearest: torch.Tensor, fr_size: int) -> 
 @torch.no_grad()
 def evaluate_enhancenet(ckpt: Path, result: dict, batch_size: int = 8) -> dict[str, dict[str, float]]:
     """EnhanceNet, F.interpolate bicubic and grid-aligned bicubic on the test trajectory."""
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     task = load_task(ckpt, expect="RecNNTask")
     net = task.net
@@ -244,7 +244,7 @@ def evaluate_enhancenet(ckpt: Path, result: dict, batch_size: int = 8) -> dict[s
 @torch.no_grad()
 def evaluate_fovolnet(ckpt: Path, result: dict, batch_size: int = 8) -> dict[str, dict[str, float]]:
     """FoVolNet and the nearest-pattern-pixel fill on the test trajectory."""
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     task = load_task(ckpt, expect="RecNNTask")
     pat = task.pattern

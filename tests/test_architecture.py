@@ -1,7 +1,8 @@
 """Architecture rules of the package (issue 16), checked on the source with ``ast`` (fast, no imports).
 
 * no import cycles between the modules of ``imls_lightning/`` and ``data_gen/``, counting imports
-  inside functions too (a lazy import only hides a cycle);
+  inside functions too (a lazy import only hides a cycle), and the module names a module loads by
+  string (``importlib.import_module``, ``hydra.utils.get_class``, ...; :func:`_loaded_by_name`);
 * no module imports another module's private ``_name``: what is shared has a public name in its one
   home. Only the package is checked; tests may reach private names;
 * no module imports the top-level package ``imls_lightning`` (its lazy public API, see
@@ -36,6 +37,21 @@ def _absolute(module: str, path: Path, node: ast.ImportFrom) -> str:
         base = base[:-1]
     base = base[: len(base) - (node.level - 1)]
     return ".".join(base + ([node.module] if node.module else []))
+
+
+#: calls that import a module named by a string
+LOADERS = ("import_module", "__import__", "get_class", "get_method", "get_object", "locate", "_locate")
+
+
+def _loaded_by_name(tree: ast.AST, mods) -> set[str]:
+    """The package modules a module may load by name: in a module that calls one of :data:`LOADERS`,
+    every string constant naming a package module (``"pkg.mod"``) or a name in one (``"pkg.mod.Class"``).
+    A string names its module only; the scan does not follow which string reaches which call."""
+    calls = (n.func for n in ast.walk(tree) if isinstance(n, ast.Call))
+    if not any((f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")) in LOADERS for f in calls):
+        return set()
+    names = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+    return {s if s in mods else s.rpartition(".")[0] for s in names if s in mods or s.rpartition(".")[0] in mods}
 
 
 def _private(name: str) -> bool:
@@ -77,6 +93,7 @@ def _scan():
                 target = aliases.get(target, target)
                 if target in mods and target != mod:
                     private.append((mod, node.lineno, f"{target}.{node.attr}"))
+        deps |= _loaded_by_name(tree, mods)
         edges[mod] = {d for d in deps if d in mods and d != mod}
     return edges, private
 
@@ -135,6 +152,19 @@ def test_top_level_package_is_imported_by_no_module():
     homes = next(ast.literal_eval(n.value) for n in tree.body
                  if isinstance(n, ast.AnnAssign) and getattr(n.target, "id", "") == "HOMES")
     assert set(homes.values()) <= set(edges), "every home of a public name is a module of the package"
+
+
+def test_modules_loaded_by_name_count_as_imports():
+    """A registry of module names that ``importlib`` loads is an import the ``import`` statements hide:
+    ``inference.checkpoints`` loads the tasks by name, so no task may import it back."""
+    mods = {"pkg.a", "pkg.b", "pkg.c"}
+    loads = ast.parse('import importlib\nTASKS = {"B": "pkg.b", "C": "pkg.c.C", "x": "pkg.d"}\n'
+                      'def load(n):\n    return importlib.import_module(TASKS[n])')
+    assert _loaded_by_name(loads, mods) == {"pkg.b", "pkg.c"}
+    assert _loaded_by_name(ast.parse('CMD = ["-m", "pkg.b"]'), mods) == set()  # a string alone is no import
+    edges, _ = _scan()
+    assert {"imls_lightning.tasks.ims", "imls_lightning.tasks.las"} <= edges["imls_lightning.inference.checkpoints"]
+    assert "imls_lightning.tasks.ims" in edges["imls_lightning"]  # the lazy public API (HOMES)
 
 
 def test_cycle_finder_finds_a_cycle():

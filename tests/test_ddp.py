@@ -39,7 +39,7 @@ def test_ddp_config_is_sane():
 
 @pytest.mark.slow
 def test_ddp_trains_every_model_one_epoch(tmp_path):
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     results = {}
     rec, _ = _train(["model=recnn"], tmp_path)

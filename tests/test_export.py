@@ -24,7 +24,7 @@ from data_gen.scene import build_scene
 from data_gen.views import sample_training_views
 from imls_lightning.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available, parse_args
 from imls_lightning.inference.pipeline import IMLSRenderer
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask
 from imls_lightning.tasks.recnn import RecNNTask

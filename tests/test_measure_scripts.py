@@ -154,7 +154,7 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     torch = pytest.importorskip("torch")
     from data_gen.cache import ViewImageCache
     from imls_lightning.inference.baselines import equal_share_rows
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     mod = _script_module("ims_gap")
     fr_size = int(load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims").hparams["fr_size"])
@@ -187,7 +187,7 @@ def test_smoke_measure_backends_on_real_checkpoints(tiny_checkpoints, tmp_path, 
     that says so, not an error."""
     from data_gen.cache import ViewImageCache
     from imls_lightning.export import onnx_available
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     mod = _script_module("measure_backends")
     fr_size = int(load_task(str(tiny_checkpoints["ims"]), expect="IMSTask", what="ims").hparams["fr_size"])

@@ -40,7 +40,14 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def run_dir_of(checkpoint: str | Path) -> Path:
-    """The training run directory of a checkpoint (``<run>/checkpoints/x.ckpt`` -> ``<run>``)."""
+    """The training run directory of a checkpoint (``<run>/checkpoints/x.ckpt`` -> ``<run>``).
+
+    Example:
+        >>> run_dir_of("/runs/ims-1a2b/checkpoints/last.ckpt").as_posix()
+        '/runs/ims-1a2b'
+        >>> run_dir_of("/runs/ims-1a2b/model.ckpt").as_posix()
+        '/runs/ims-1a2b'
+    """
     p = Path(str(checkpoint)).expanduser().resolve()
     return p.parent.parent if p.parent.name == "checkpoints" else p.parent
 

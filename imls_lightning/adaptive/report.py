@@ -17,14 +17,26 @@ from .tradeoff import TradeoffPoint
 
 
 def fmt(x: Any, spec: str = ".3f") -> str:
-    """``x`` formatted with ``spec``; None or a non-finite float -> an en dash."""
+    """``x`` formatted with ``spec``; None or a non-finite float -> an en dash.
+
+    Example:
+        >>> fmt(0.12345), fmt(3, "d"), fmt(None), fmt(float("nan"), ".1f")
+        ('0.123', '3', '–', '–')
+    """
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "–"
     return format(x, spec)
 
 
 def reference_method(name: str, reference: str) -> str:
-    """The method whose per-view PSNR ``name`` must stay within epsilon of."""
+    """The method whose per-view PSNR ``name`` must stay within epsilon of.
+
+    Example:
+        >>> reference_method("imls_adaptive", "recnn"), reference_method("imls_adaptive", "iml")
+        ('recnn', 'imls_fixed')
+        >>> reference_method("iml_orp", "iml"), reference_method("recnn", "iml")
+        ('iml_fixed', 'recnn')
+    """
     if reference == "recnn" or name == "recnn":
         return "recnn"
     return "iml_fixed" if name.startswith("iml_") else "imls_fixed"

@@ -66,7 +66,19 @@ PREDICTOR_DEFAULTS = {"hidden": 64, "layers": 2, "epochs": 600, "lr": 3e-3, "wei
 
 
 def parse_settings(cfg) -> Settings:
-    """Validate ``cfg`` (``conf/adaptive.yaml``); bad values raise a one-line :class:`InputError`."""
+    """Validate ``cfg`` (``conf/adaptive.yaml``); bad values raise a one-line :class:`InputError`.
+
+    Example:
+        >>> import tempfile
+        >>> from omegaconf import OmegaConf
+        >>> with tempfile.NamedTemporaryFile(suffix=".ckpt") as ckpt:
+        ...     s = parse_settings(OmegaConf.create({"ims_checkpoint": ckpt.name, "epsilon_db": 0.5}))
+        ...     parse_settings(OmegaConf.create({"ims_checkpoint": ckpt.name, "views": "train"}))
+        Traceback (most recent call last):
+        data_gen.errors.InputError: views=train: expected 'test' (the trajectory) or 'val'
+        >>> s.epsilon_db, s.reference, s.orp_path, s.predictor["hidden"]
+        (0.5, 'recnn', 'product', 64)
+    """
     from omegaconf import OmegaConf
 
     from ..config import to_plain

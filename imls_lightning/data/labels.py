@@ -166,7 +166,8 @@ def ensure_labels(
     """
     from data_gen.cache import ViewImageCache
 
-    from ..inference.checkpoints import check_resolution, load_task
+    from ..inference.checkpoint_checks import check_resolution
+    from ..tasks.iml import IMLTask
 
     if not (isinstance(batch_size, int) and batch_size >= 1):
         raise InputError(f"labels batch_size={batch_size}: expected an integer >= 1")
@@ -176,7 +177,7 @@ def ensure_labels(
     if _is_complete(out):
         return out  # nothing to do: not even the checkpoint is loaded
     cache = ViewImageCache.open(cache_path)
-    task = load_task(iml_checkpoint, expect="IMLTask", what="iml.checkpoint")
+    task = IMLTask.from_checkpoint(iml_checkpoint, what="iml.checkpoint")
     hp = task.hparams
     m = cache.resolution
     check_resolution(hp, m, key="iml.checkpoint", path=iml_checkpoint, network="IML", against=f"the cache {cache.path} holds",

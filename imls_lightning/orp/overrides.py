@@ -1,35 +1,13 @@
-"""Hydra override lines: a value quoted for the override grammar, the key a line sets, and the
-overrides of the IMS training an ORP job runs on its IML (torch-free, used by the sweeper plugin)."""
+"""Hydra override lines: the key a line sets, and the overrides of the IMS training an ORP job runs
+on its IML (torch-free, used by the sweeper plugin). Values are quoted by
+:func:`~data_gen.overrides.quote_override_value`, re-exported here."""
 from __future__ import annotations
 
-import re
-from typing import Any, Mapping, Sequence
+from typing import Sequence
 
+from data_gen.overrides import quote_override_value
 
-def quote_override_value(value: Any) -> str:
-    """A value written so that Hydra's override grammar reads it back unchanged.
-
-    Strings are single-quoted (``'`` escaped, and backslashes only where they precede a quote), lists/dicts recursively, ``None`` is
-    ``null``; numbers and booleans as such.
-
-    Example:
-        >>> quote_override_value({"a": [1, "x=y"], "b": None, "c": True})
-        "{a:[1,'x=y'],b:null,c:true}"
-    """
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, Mapping):
-        return "{" + ",".join(f"{k}:{quote_override_value(v)}" for k, v in value.items()) + "}"
-    if isinstance(value, (list, tuple)):
-        return "[" + ",".join(quote_override_value(v) for v in value) + "]"
-    # Hydra reads a backslash literally unless a run of them precedes a quote (an escaped one, or the
-    # closing one): only those runs are doubled, then the quotes escaped
-    s = re.sub(r"(\\+)(?='|$)", lambda m: m.group(1) * 2, str(value))
-    return "'" + s.replace("'", "\\'") + "'"
+__all__ = ["quote_override_value", "override_key", "ims_overrides_for"]
 
 
 def override_key(text: str) -> str:
@@ -49,7 +27,7 @@ def ims_overrides_for(task_overrides: Sequence[str], iml_checkpoint: str, extra:
 
     Example:
         >>> ims_overrides_for(["model=iml", "model.mean=0.1", "scene=tiny", "++orp_job={k:1}"], "/r/a.ckpt")
-        ['scene=tiny', 'model=ims', "iml.checkpoint='/r/a.ckpt'"]
+        ['scene=tiny', 'model=ims', 'iml.checkpoint=/r/a.ckpt']
     """
     drop = ("model", "orp_job", "iml.checkpoint") + (("recnn.checkpoint",) if recnn_checkpoint else ())
     keep = [o for o in task_overrides if not any(override_key(o) == d or override_key(o).startswith(d + ".") for d in drop)]

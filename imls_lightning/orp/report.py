@@ -63,7 +63,20 @@ def orp_report(result: ORPResult, settings: ORPSettings, *, job_dirs: Mapping[in
 
 
 def format_table(report: Mapping[str, Any]) -> str:
-    """A short text table of the jobs tried and the ORP found."""
+    """A short text table of the jobs tried and the ORP found.
+
+    Example:
+        >>> from imls_lightning.orp.search import ORPSettings, batched
+        >>> settings = ORPSettings.from_mapping({"max_rounds": 2})
+        >>> result = settings.search().run(batched(lambda u: {"gap_db": 0.5 if u > 0.05 else 2.0,
+        ...                                                    "c_share": 0.3, "ipr": 0.1}))
+        >>> print(format_table(orp_report(result, settings)))
+        job round      mean status   gap dB  IML+RecNN    RecNN    IML/S  C-share     IPR  ok
+          0     1       0.1     ok    0.500          -        -        -    0.300   0.100  yes
+          1     2  0.031623     ok    2.000          -        -        -    0.300   0.100  no
+        ORP: 30.0% of the C-Image (IPR 10.00%) at model.mean=0.1, gap 0.500 dB <= 1.0 dB
+        (2 jobs in 2 rounds; stopped: max_rounds)
+    """
 
     def f(x: Any, spec: str) -> str:
         return format(x, spec) if isinstance(x, (int, float)) and not isinstance(x, bool) else "-"

@@ -67,7 +67,14 @@ def _nanmean(values: Iterable[float]) -> float:
 
 
 def summarize_rows(rows: Sequence[Mapping[str, Any]], key: str = "method") -> dict[str, dict[str, Any]]:
-    """Per-method (or per ``key``) averages of metric rows; see :func:`summary`."""
+    """Per-method (or per ``key``) averages of metric rows; see :func:`summary`.
+
+    Example:
+        >>> rows = [{"method": "recnn", "total_ms": 2.0, "psnr": 30.0}, {"method": "recnn", "total_ms": "4", "psnr": ""}]
+        >>> s = summarize_rows(rows)["recnn"]
+        >>> s["label"], s["views"], s["latency_ms"], s["psnr"]
+        ('RecNN alone', 2, {'total': 3.0}, 30.0)
+    """
     groups: dict[str, list[Mapping[str, Any]]] = {}
     for r in rows:
         groups.setdefault(str(r[key]), []).append(r)
@@ -88,7 +95,12 @@ def summarize_rows(rows: Sequence[Mapping[str, Any]], key: str = "method") -> di
 
 
 def number(v: Any) -> float:
-    """A cell as a float: None, an empty or a non-numeric cell -> NaN."""
+    """A cell as a float: None, an empty or a non-numeric cell -> NaN.
+
+    Example:
+        >>> number("2.5"), number(3), number(""), number(None), number("n/a")
+        (2.5, 3.0, nan, nan, nan)
+    """
     try:
         return float(v) if v not in (None, "") else math.nan
     except (TypeError, ValueError):

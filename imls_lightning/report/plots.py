@@ -129,7 +129,14 @@ def plot_options(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
 
 
 def error_map(image: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """``|image - truth|`` of two ``(m, m, 3)`` uint8 images, averaged over channels: ``(m, m)`` in [0, 1]."""
+    """``|image - truth|`` of two ``(m, m, 3)`` uint8 images, averaged over channels: ``(m, m)`` in [0, 1].
+
+    Example:
+        >>> truth = np.zeros((2, 2, 3), np.uint8)
+        >>> image = truth.copy(); image[0, 1] = (255, 0, 0)
+        >>> error_map(image, truth).tolist()
+        [[0.0, 0.3333333432674408], [0.0, 0.0]]
+    """
     a = np.asarray(image, np.float32) / 255.0
     b = np.asarray(truth, np.float32) / 255.0
     if a.shape != b.shape:

@@ -13,7 +13,15 @@ from .names import MASK_LABELS, METHOD_LABELS, STAGE_LABELS
 
 
 def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]], align: str | None = None) -> str:
-    """A GitHub Markdown table; ``align`` one of ``l``/``r`` per column (default: first left, rest right)."""
+    """A GitHub Markdown table; ``align`` one of ``l``/``r`` per column (default: first left, rest right).
+
+    Example:
+        >>> print(md_table(["method", "ms"], [["RecNN", fmt(1.5)], ["a|b", fmt(None)]]))
+        | method | ms |
+        | --- | ---: |
+        | RecNN | 1.50 |
+        | a\\|b | – |
+    """
     align = align or ("l" + "r" * (len(header) - 1))
     sep = ["---" if a == "l" else "---:" for a in align]
     lines = ["| " + " | ".join(str(h) for h in header) + " |", "| " + " | ".join(sep) + " |"]
@@ -70,7 +78,12 @@ def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:
 
 
 def speedup(slow_ms: Any, fast_ms: Any) -> str:
-    """``slow / fast`` as ``2.07×`` (the paper's speed-up); missing or non-positive -> an en dash."""
+    """``slow / fast`` as ``2.07×`` (the paper's speed-up); missing or non-positive -> an en dash.
+
+    Example:
+        >>> speedup(4.14, "2.0"), speedup(4.0, 0), speedup(None, 1.0), fmt_pct(0.1234)
+        ('2.07×', '–', '–', '12.3%')
+    """
     try:
         slow, fast = float(slow_ms), float(fast_ms)
     except (TypeError, ValueError):

@@ -2,18 +2,42 @@
 
 A task owns one or more ``nn.Module`` networks (from ``imls_lightning.models``), its losses, its
 metrics and its optimizer. Hyperparameters are saved as plain data, so that checkpoints load with
-``torch.load(weights_only=True)`` through :func:`~imls_lightning.inference.checkpoints.load_task`.
+``torch.load(weights_only=True)``: :meth:`ImlsTask.from_checkpoint` for a known class,
+:func:`~imls_lightning.inference.checkpoints.load_task` for the class a checkpoint names.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any, Mapping
 
 import lightning as L
 import torch
 
-# load_task lives in ..checkpoints; imported here too, where callers long found it
-from ..inference.checkpoints import load_task  # noqa: F401
+from data_gen.errors import InputError
+
+from ..config import load_checkpoint
 from ..core.metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
+
+
+def checkpoint_task_name(ckpt: Mapping[str, Any], path: str | Path, *, expect: str | None = None,
+                         what: str = "checkpoint") -> str:
+    """The task class name a loaded checkpoint records (``imls_task``, see :meth:`ImlsTask.on_save_checkpoint`).
+
+    Raises:
+        InputError: it records none (not a checkpoint of this project), or another task than ``expect``.
+
+    Example:
+        >>> checkpoint_task_name({"imls_task": "IMLTask"}, "iml.ckpt", expect="RecNNTask", what="recnn.checkpoint")
+        Traceback (most recent call last):
+        ...
+        data_gen.errors.InputError: recnn.checkpoint=iml.ckpt: is a IMLTask checkpoint, expected a RecNNTask checkpoint
+    """
+    name = ckpt.get("imls_task")
+    if name is None:
+        raise InputError(f"{what}={path}: not a checkpoint of this project (no task name)")
+    if expect is not None and name != expect:
+        raise InputError(f"{what}={path}: is a {name} checkpoint, expected a {expect} checkpoint")
+    return name
 
 
 class ImlsTask(L.LightningModule):
@@ -22,7 +46,7 @@ class ImlsTask(L.LightningModule):
     A task is built in two ways. Training instantiates the ``model`` config node
     (:func:`imls_lightning.training.fit.build_task`): every model setting, its one default in
     ``conf/model/<name>.yaml``, plus :meth:`config_context`, what comes from outside that node.
-    :func:`~imls_lightning.inference.checkpoints.load_task` builds it again from a checkpoint's saved hyperparameters. Constructors take
+    :meth:`from_checkpoint` builds it again from a checkpoint's saved hyperparameters. Constructors take
     ``**_`` and ignore it, on purpose: the node's keys for the training run rather than the networks
     (``name``, ``patience``, ``monitor``, ...) and hyperparameters that older checkpoints saved pass
     both paths alike, with no list of them to keep in step (``tests/training/test_fit.py`` checks
@@ -46,6 +70,30 @@ class ImlsTask(L.LightningModule):
     def optional_state_prefixes(cls) -> tuple[str, ...]:
         """State-dict prefixes a checkpoint may lack (e.g. frozen pretrained backbones)."""
         return ()
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, *, what: str = "checkpoint", ckpt: Mapping[str, Any] | None = None):
+        """This task rebuilt from its checkpoint (``weights_only=True``), in eval mode on the CPU,
+        ``checkpoint_path`` set.
+
+        Args:
+            path: a ``.ckpt`` of this task, written by this project's training.
+            what: the config key the path came from, for error messages.
+            ckpt: the checkpoint of ``path`` when it is loaded already.
+
+        Raises:
+            InputError: the file is missing or damaged, is not a checkpoint of this class, or its
+                weights do not fit the network it describes.
+        """
+        ckpt = load_checkpoint(path, what=what) if ckpt is None else ckpt
+        checkpoint_task_name(ckpt, path, expect=cls.__name__, what=what)
+        task = cls(**ckpt["hyper_parameters"])
+        missing, unexpected = task.load_state_dict(ckpt["state_dict"], strict=False)
+        if unexpected or [k for k in missing if not k.startswith(task.optional_state_prefixes())]:
+            raise InputError(f"{what}={path}: weights do not fit the network it describes (missing {missing[:3]}, unexpected {unexpected[:3]})")
+        task.eval()
+        task.checkpoint_path = str(path)
+        return task
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["imls_task"] = type(self).__name__

@@ -31,7 +31,7 @@ from ..models.iml import IMLNet
 from ..models.pull_push import pull_push_inpaint
 from ..core.patterns import build_pattern, plastic_rank_pattern
 from ..core.metrics import psnr_per_image
-from ..inference.checkpoints import check_same_pattern, load_task
+from ..inference.checkpoint_checks import check_same_pattern
 from .base import ImlsTask
 from .recnn import RecNNTask
 
@@ -175,7 +175,7 @@ class IMLTask(ImlsTask):
         hyperparameters and weights). Without that checkpoint the constructor names the missing key."""
         context = {"pattern": cfg.pattern, "fr_size": cfg.data.resolution, "recnn_name": cfg.recnn.name}
         if cfg.model.mode == "end_to_end" and cfg.recnn.get("checkpoint"):
-            rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
+            rt = RecNNTask.from_checkpoint(cfg.recnn.checkpoint, what="recnn.checkpoint")
             context.update(recnn_hparams=dict(rt.hparams), pretrained={"recnn": rt.net.state_dict()})
         return context
 

@@ -77,7 +77,7 @@ from data_gen.errors import InputError, config_keys
 from data_gen.validate import check_number
 
 from ..models.backbones import BACKBONES, VGG16_LAYERS
-from ..inference.checkpoints import check_same_pattern, load_task, require_pim_target
+from ..inference.checkpoint_checks import check_same_pattern, require_pim_target
 from ..config import to_plain
 from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
@@ -279,7 +279,7 @@ def _input_iml(cfg, pattern) -> tuple[str, IMLTask]:
     if cfg.get("iml") is None or not cfg.iml.get("checkpoint"):
         raise InputError("model=ims needs a trained IML network: set iml.checkpoint=<path to an IML .ckpt> (python -m imls_lightning.train model=iml ...)")
     ck = str(cfg.iml.checkpoint)
-    iml_task = load_task(ck, expect="IMLTask", what="iml.checkpoint")
+    iml_task = IMLTask.from_checkpoint(ck, what="iml.checkpoint")
     check_same_pattern(iml_task.hparams, pattern, key="iml.checkpoint", path=ck, network="IML",
                        hint="choose the recnn/pattern and data.resolution it was trained with")
     return ck, iml_task
@@ -299,7 +299,7 @@ def _input_recnn(cfg, iml_task: IMLTask, pattern) -> tuple[Optional[dict], Optio
     if not cfg.recnn.get("checkpoint"):
         print("[ims] no RecNN (standalone IML and no recnn.checkpoint): the final FR PSNR/SSIM metrics are skipped", flush=True)
         return None, None, None
-    rt = load_task(cfg.recnn.checkpoint, expect="RecNNTask", what="recnn.checkpoint")
+    rt = RecNNTask.from_checkpoint(cfg.recnn.checkpoint, what="recnn.checkpoint")
     check_same_pattern(rt.hparams, pattern, key="recnn.checkpoint", path=cfg.recnn.checkpoint, network="RecNN",
                        against="the IML", hint="use a RecNN trained on the IML's pattern and resolution")
     return dict(rt.hparams), rt.net.state_dict(), "recnn.checkpoint"

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 
 
 # ---- fixtures ----------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from imls_lightning.adaptive import (
     quality_at_means,
     view_complexity,
 )
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 
 
 def _c_fr(cache, rows, pattern):

@@ -8,7 +8,7 @@ import torch
 from data_gen.errors import InputError
 from imls_lightning.adaptive import AdaptiveIMLPlusRecNN, AdaptiveIMLSRenderer, ConstantMean, scaled_pim_im
 from imls_lightning.inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 
 CPU = NetOptions(device="cpu")
 

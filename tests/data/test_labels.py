@@ -69,7 +69,7 @@ def world(tmp_path_factory):
 
 def direct_labels(cache_path: Path, ckpt: Path) -> tuple[np.ndarray, np.ndarray]:
     """The IML's inference path written out: compact -> encoder -> softplus -> normalize -> PIM' > P, 0 on padding."""
-    from imls_lightning.tasks.base import load_task
+    from imls_lightning.inference.checkpoints import load_task
 
     task = load_task(ckpt, expect="IMLTask")
     cache = ViewImageCache.open(cache_path)

@@ -37,7 +37,7 @@ def test_config_keys_names_the_users_key():
 def test_non_ascii_values_are_quoted_for_hydra():
     """A volume path with non-ASCII characters ended in Hydra's lexer traceback (issue 17, 13)."""
     argv = ["scene=file", "scene.volume.path=/data/volumes_é/x y.raw", "--cfg", "job", 'a="already é"']
-    assert quote_non_ascii(argv) == ["scene=file", 'scene.volume.path="/data/volumes_é/x y.raw"', "--cfg", "job", 'a="already é"']
+    assert quote_non_ascii(argv) == ["scene=file", "scene.volume.path='/data/volumes_é/x y.raw'", "--cfg", "job", 'a="already é"']
     with pytest.raises(InputError, match=r"quote each string that holds them") as e:
         quote_non_ascii(["x.paths=[/é/a,/é/b]"])
     assert "\n" not in str(e.value)

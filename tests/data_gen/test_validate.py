@@ -14,7 +14,8 @@ from data_gen.validate import check_integer, check_mapping, check_number, check_
 
 
 def test_doctests():
-    assert doctest.testmod(validate).failed == 0
+    result = doctest.testmod(validate)
+    assert result.attempted > 0 and result.failed == 0, result
 
 
 # ---- shown / expected -------------------------------------------------------------------------

@@ -150,6 +150,24 @@ def test_exception_load_task(tiny_checkpoints, tmp_path):
         load_task(tmp_path / "misfit.ckpt")
 
 
+def test_a_task_loads_its_own_class_without_the_registry(tiny_checkpoints):
+    """Tasks load the tasks they build on by class (``from_checkpoint``): no task imports this module,
+    which loads the tasks by name (``tests/test_architecture.py``)."""
+    from imls_lightning.inference import checkpoint_checks, checkpoints
+    from imls_lightning.tasks.iml import IMLTask
+    from imls_lightning.tasks.recnn import RecNNTask
+
+    ck = tiny_checkpoints["recnn"]
+    task = RecNNTask.from_checkpoint(ck, what="recnn.checkpoint")
+    assert type(task) is RecNNTask and not task.training and task_path(task) == str(ck)
+    for a, b in zip(task.state_dict().values(), load_task(ck).state_dict().values()):
+        assert torch.equal(a, b)
+    with pytest.raises(InputError) as err:
+        IMLTask.from_checkpoint(ck, what="iml.checkpoint")
+    assert one_line(err) == f"iml.checkpoint={ck}: is a RecNNTask checkpoint, expected a IMLTask checkpoint"
+    assert checkpoints.check_same_pattern is checkpoint_checks.check_same_pattern  # one home, re-exported
+
+
 def test_load_ims_and_recnn(tiny_checkpoints):
     task, recnn = load_ims_and_recnn(str(tiny_checkpoints["ims"]))
     assert type(task).__name__ == "IMSTask" and recnn is None

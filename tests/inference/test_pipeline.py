@@ -28,7 +28,7 @@ from imls_lightning.inference.pipeline import (
     time_method,
     to_uint8_image,
 )
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 
 ROOT = Path(__file__).resolve().parents[2]
 CPU = NetOptions(device="cpu")

@@ -20,7 +20,8 @@ from torch.utils.data import DataLoader
 
 from data_gen.errors import InputError
 from imls_lightning.models.las import las_loss
-from imls_lightning.tasks.base import load_task, psnr_per_image
+from imls_lightning.inference.checkpoints import load_task
+from imls_lightning.tasks.base import psnr_per_image
 from imls_lightning.tasks.las import LASTask, check_low_res
 from imls_lightning.report.viz import image_grid
 

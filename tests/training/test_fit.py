@@ -18,7 +18,7 @@ from omegaconf import OmegaConf, open_dict
 from data_gen.errors import InputError
 from data_gen.scene import register_resolvers as register_scene_resolvers
 from imls_lightning.config import is_checkpoint_key, register_resolvers
-from imls_lightning.tasks.base import load_task
+from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask
 from imls_lightning.tasks.recnn import RecNNTask

@@ -84,6 +84,12 @@ def test_exception_cli_without_checkpoint_is_one_line():
     assert p.returncode != 0 and "ims_checkpoint" in p.stderr
 
 
+def test_selenium_manager_is_told_to_send_no_statistics():
+    """Selenium Manager (run by ``webdriver.Chrome`` where it looks for a driver) otherwise sends usage
+    statistics to an outside host; ``conftest.py`` sets this for every test here."""
+    assert os.environ.get("SE_AVOID_STATS") == "true"
+
+
 def _chrome():
     webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (pip install -e '.[dev]')")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
