@@ -178,6 +178,45 @@ def format_report(est: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+#: the columns of the estimates table (``table=...``): one row per (scene, RecNN), the newest estimate
+TABLE_COLUMNS = ("scene", "recnn", "volume_dims", "full_frame_ms", "c_render_ms", "object_fraction", "ims_ms", "decoder_ms",
+                 "nets_ms", "recnn_ms", "render_to_nets", "bilinear_db", "half", "bound_10", "bound_20", "bound_40",
+                 "limit_20", "target", "share_for_target", "seconds", "path")
+
+
+def table_row(est: Mapping[str, Any], path: Path) -> dict[str, Any]:
+    """The estimate as a row of :data:`TABLE_COLUMNS`."""
+    bound = {round(r["share"], 1): r["speedup"] for r in est["bound"]}
+    limit = {round(r["share"], 1): r["speedup"] for r in est["limit"]}
+    row = {k: est.get(k, "") for k in TABLE_COLUMNS}
+    row.update(half=est["options"]["half"], bound_10=bound[0.1], bound_20=bound[0.2], bound_40=bound[0.4], limit_20=limit[0.2],
+               share_for_target=est["share_for_target"] if est["share_for_target"] is not None else "", path=str(path))
+    return row
+
+
+def update_table(path: Path, row: Mapping[str, Any]) -> Path:
+    """Put ``row`` into the CSV at ``path`` (replacing the row of the same scene and RecNN); a CSV with other
+    columns is refused in one line."""
+    import csv
+    import io
+
+    rows: list[dict[str, Any]] = []
+    if path.is_file():
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            if tuple(reader.fieldnames or ()) != TABLE_COLUMNS:
+                raise InputError(f"table={path}: its columns are not an estimates table's; choose another file")
+            rows = [r for r in reader if (r["scene"], r["recnn"]) != (str(row["scene"]), str(row["recnn"]))]
+    rows.append({k: row[k] for k in TABLE_COLUMNS})
+    rows.sort(key=lambda r: (str(r["recnn"]), str(r["scene"])))
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=TABLE_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: f"{v:.4g}" if isinstance(v, float) else v for k, v in r.items()})
+    return atomic_write(path, lambda f: f.write(buf.getvalue().encode("utf-8")))
+
+
 def run_estimate(cfg: DictConfig) -> Path:
     """Measure (or reuse) and write ``<output_dir>/estimate.json``; returns its path."""
     settings = estimate_settings(cfg)
@@ -191,6 +230,8 @@ def run_estimate(cfg: DictConfig) -> Path:
         out_dir.mkdir(parents=True, exist_ok=True)
         est = dict(measure(cfg, out_dir), settings=settings)
         atomic_json(path, est)
+    if cfg.get("table"):
+        update_table(Path(str(cfg.table)), table_row(est, path))
     print(format_report(est), flush=True)
     return path
 

@@ -93,9 +93,17 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     assert 0 <= est["object_fraction"] <= 1 and np.isfinite(est["bilinear_db"])
     assert (path.parent / "contact_sheet.png").is_file()
     assert "speed-up" in r.stdout
-    again = _cli(tmp_path)
-    assert again.returncode == 0 and again.stdout.strip().splitlines()[-1] == str(path)
-    assert "reusing" in again.stderr
+    table = tmp_path / "estimates.csv"
+    again = _cli(tmp_path, f"table={table}")   # the same settings: reused, and its row goes into the table
+    assert again.returncode == 0 and "reusing" in again.stderr
+    import csv
+
+    rows = list(csv.DictReader(table.open()))
+    assert len(rows) == 1 and rows[0]["scene"] == "tiny" and rows[0]["path"] == str(path)
+    assert float(rows[0]["bound_10"]) == pytest.approx(est["bound"][0]["speedup"], rel=1e-3)
+    _cli(tmp_path, f"table={table}")
+    assert len(list(csv.DictReader(table.open()))) == 1   # replaced, not appended
+    assert again.stdout.strip().splitlines()[-1] == str(path)
 
 
 @pytest.mark.parametrize("override,match", [
@@ -116,3 +124,14 @@ def test_cli_a_recnn_net_override_wins_over_the_default_sizes(tmp_path):
     assert r.returncode == 0, r.stderr
     est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
     assert est["settings"]["recnn"]["channels"] == 6 and est["settings"]["recnn"]["blocks"] == 1
+
+
+def test_exception_update_table_refuses_a_foreign_csv(tmp_path):
+    from data_gen.errors import InputError
+    from imls_lightning.estimate.run import update_table
+
+    f = tmp_path / "other.csv"
+    f.write_text("a,b\n1,2\n")
+    with pytest.raises(InputError, match=f"table={f}: its columns") as e:
+        update_table(f, {})
+    assert "\n" not in str(e.value) and f.read_text() == "a,b\n1,2\n"
