@@ -60,7 +60,8 @@ def estimate_settings(cfg: DictConfig) -> dict[str, Any]:
         "scene": scene, "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
         "pattern": OmegaConf.to_container(cfg.pattern, resolve=True), "resolution": int(cfg.resolution),
         "recnn": recnn_net(cfg), "iml": OmegaConf.to_container(cfg.iml, resolve=True),
-        "ims": OmegaConf.to_container(cfg.ims, resolve=True), "views": int(cfg.views), "seed": int(cfg.seed),
+        "ims": OmegaConf.to_container(cfg.ims, resolve=True),
+        "candidates": OmegaConf.to_container(cfg.get("candidates") or OmegaConf.create([]), resolve=True), "views": int(cfg.views), "seed": int(cfg.seed),
         "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
         "background_density": float(cfg.background_density), "target": cfg.target,
     })
@@ -122,6 +123,7 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     scene = build_scene(cfg.scene)
     pattern = build_pattern(cfg.pattern, int(cfg.resolution))
     target = _target(cfg, pattern)
+    check_candidates(cfg)
     nets = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)  # bad sizes fail before any render
     renderer = make_renderer(scene, cfg.renderer)
     # random views as the training views are drawn (another seed): never the test trajectory
@@ -140,7 +142,9 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
                         background_density=density)
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
+    candidates = candidate_rows(cfg, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
     return {
+        "candidates": candidates,
         "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
         "recnn": str(cfg.recnn.name), "pattern": pattern.kind, "fr_size": pattern.fr_size, "c_size": pattern.c_size,
         "c_render_ms": c_render_ms, "full_frame_ms": float(np.median([v.full_ms for v in measured])),
@@ -159,6 +163,37 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     }
 
 
+def check_candidates(cfg: DictConfig) -> list[dict[str, Any]]:
+    """``candidates`` as a list of non-empty mappings (a one-line error otherwise)."""
+    cands = OmegaConf.to_container(cfg.get("candidates") or OmegaConf.create([]), resolve=True)
+    if not isinstance(cands, list):
+        raise InputError(f"candidates={cands!r}: expected a list of mappings of sizes, e.g. [{{channels: 8, blocks: 2}}]")
+    for i, cand in enumerate(cands):
+        if not isinstance(cand, dict) or not cand:
+            raise InputError(f"candidates[{i}]={cand!r}: expected a mapping of sizes, e.g. {{channels: 8, blocks: 2}}")
+    return cands
+
+
+def candidate_rows(cfg: DictConfig, pattern, opts: NetOptions, cost, c_render_ms: float, target: float, density: float,
+                   repeats: int, warmup: int) -> list[dict[str, Any]]:
+    """The latency half of the size table ("model only what a scene requires"): for each entry of
+    ``candidates`` (a mapping of sizes put over the RecNN's ``net``; ``iml.*`` / ``ims.*`` keys size those
+    networks), the networks' times and the bound, on the render costs measured once."""
+    rows = []
+    for cand in check_candidates(cfg):
+        iml = {**OmegaConf.to_container(cfg.iml, resolve=True), **{k[4:]: v for k, v in cand.items() if k.startswith("iml.")}}
+        ims = {**OmegaConf.to_container(cfg.ims, resolve=True), **{k[4:]: v for k, v in cand.items() if k.startswith("ims.")}}
+        net = {**recnn_net(cfg), **{k: v for k, v in cand.items() if not k.startswith(("iml.", "ims."))}}
+        t = network_ms(build_networks(pattern, net, iml, ims), pattern, opts, repeats=max(repeats, 10), warmup=max(warmup, 2))
+        nets_ms = t["ims_ms"] + t["decoder_ms"]
+        table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=t["recnn_ms"], background_density=density)
+        rows.append({"sizes": cand, **t, "nets_ms": nets_ms, "bound_20": table[1]["speedup"],
+                     "share_for_target": share_for_speedup(table, target)})
+        _say(f"candidate {cand}: RecNN {t['recnn_ms']:.1f} ms, networks IML/S adds {nets_ms:.1f} ms, "
+             f"bound at 20% of C {table[1]['speedup']:.2f}x")
+    return rows
+
+
 def format_report(est: Mapping[str, Any]) -> str:
     """The estimate as a few lines of text (stdout)."""
     lines = [
@@ -172,6 +207,10 @@ def format_report(est: Mapping[str, Any]) -> str:
         "  speed-up     " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound"]),
         "  no networks  " + " ".join(f"{r['speedup']:>5.2f}" for r in est["limit"]),
     ]
+    for c in est.get("candidates") or []:
+        reach = f"up to {c['share_for_target']:.0%} of C" if c["share_for_target"] is not None else "nowhere"
+        lines.append(f"  sizes {c['sizes']}: RecNN {c['recnn_ms']:.1f} ms, IML/S adds {c['nets_ms']:.1f} ms, "
+                     f"{c['bound_20']:.2f}x at 20% of C, {est['target']:g}x {reach}")
     s = est["share_for_target"]
     lines.append(f"  {est['target']:g}x is reachable up to {s:.0%} of C" if s is not None else
                  f"  {est['target']:g}x is out of reach at any share of C (best {est['bound'][0]['speedup']:.2f}x at 10%)")

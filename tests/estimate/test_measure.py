@@ -135,3 +135,15 @@ def test_exception_update_table_refuses_a_foreign_csv(tmp_path):
     with pytest.raises(InputError, match=f"table={f}: its columns") as e:
         update_table(f, {})
     assert "\n" not in str(e.value) and f.read_text() == "a,b\n1,2\n"
+
+
+def test_cli_candidates_time_more_sizes_on_the_same_render_measurements(tmp_path):
+    r = _cli(tmp_path, "candidates=[{channels: 2, blocks: 0}, {channels: 8, blocks: 2, iml.depth: 2}]")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
+    small, big = est["candidates"]
+    assert small["sizes"] == {"channels": 2, "blocks": 0} and big["sizes"]["iml.depth"] == 2
+    assert all(np.isfinite(c[k]) and c[k] > 0 for c in (small, big) for k in ("recnn_ms", "nets_ms", "bound_20"))
+    assert "sizes {'channels': 2, 'blocks': 0}" in r.stdout
+    bad = _cli(tmp_path, "candidates=[3]")
+    assert bad.returncode == 2 and "candidates[0]=3" in bad.stderr.strip().splitlines()[-1]
