@@ -24,7 +24,10 @@ alone (``options_sweep_options``: half, channels_last, compile) on ``options_swe
 Output (``output_dir``): ``metrics.csv`` (view x method), ``sweep.csv``, ``options.csv``,
 ``config.yaml``, PNG plots, ``image_grid.png`` and ``report.md`` (written last, atomically; a run
 deletes a previous report.md first, so a directory without one holds no finished evaluation). The
-report's path is the last line of stdout.
+report's path is the last line of stdout. After the report, the ORP IML/S ran at (mean value, lift,
+share of C and IPR on the validation views, epsilon) is recorded beside the IMS checkpoint,
+``<ims.ckpt>.orp.json``, naming the checkpoint's SHA-256: renderers and viewers built from the
+checkpoint alone run there (:mod:`imls_lightning.inference.operating_point`).
 
 Python:
     >>> from hydra import compose, initialize_config_dir          # doctest: +SKIP
@@ -491,7 +494,29 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         machine=rep.machine_info(str(device)), command=command or _command(), cache=str(cache.path),
         orp=orp_summary, equal_share=equal_share,
     )
-    return rep.write_report(ctx)
+    report = rep.write_report(ctx)
+    if orp_summary is not None:  # after the report: only a finished evaluation records its point
+        _record_operating_point(s, orp_summary, scene.name, report, len(spaced(len(cache.splits["val"]), s.orp_max_views)))
+    return report
+
+
+def _record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report: Path, views: int) -> None:
+    """Record the ORP IML/S ran at beside the IMS checkpoint (``<ims.ckpt>.orp.json``, see
+    :mod:`imls_lightning.inference.operating_point`), where renderers built from the checkpoint alone
+    find it; a folder that cannot be written is a one-line warning (the report holds the point)."""
+    from .inference.operating_point import OperatingPoint, write_operating_point
+
+    opt = lambda k: None if orp.get(k) is None else float(orp[k])  # noqa: E731
+    point = OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
+                           ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
+                           scene=scene, report=str(Path(report).resolve()))
+    try:
+        path = write_operating_point(s.ims, point)
+    except OSError as err:
+        print(f"[evaluate] warning: cannot record the operating point beside {s.ims} ({err.strerror or type(err).__name__}): "
+              "renderers built from the checkpoint alone run at its trained mean", file=sys.stderr, flush=True)
+        return
+    print(f"[evaluate] operating point {point.describe()} recorded for the IMS checkpoint: {path}", file=sys.stderr, flush=True)
 
 
 def _loader(cache, rows, pattern, batch_size: int = 16):
@@ -634,7 +659,7 @@ def _options_sweep(s: Settings, renderer, cache, rows_all, positions) -> list[di
         opts = NetOptions(device=s.options.device, **kw)
         row: dict[str, Any] = {"option": name}
         try:
-            method = IMLSRenderer.from_checkpoints(s.ims, renderer=renderer, recnn_checkpoint=s.recnn, opts=opts)
+            method = IMLSRenderer.from_checkpoints(s.ims, renderer=renderer, recnn_checkpoint=s.recnn, opts=opts, mean="trained")
             first = int(rows_all[positions[0]])
             t0 = time.perf_counter()
             method.render(cache.views[first])  # first call: pays torch.compile's compilation

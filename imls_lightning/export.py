@@ -1,7 +1,7 @@
 """Export the networks of the IML/S + RecNN renderer to TorchScript or ONNX, and render with them.
 
 ``python -m imls_lightning.export ims_checkpoint=ims.ckpt format=torchscript|onnx out=DIR
-[recnn_checkpoint=recnn.ckpt] [overwrite=true]``
+[recnn_checkpoint=recnn.ckpt] [overwrite=true] [mean=null]``
 
 An IMS checkpoint carries every network the product runs (see :mod:`imls_lightning.tasks.ims`);
 the export writes the three that run per view, each on its own so that a deployment can time and
@@ -11,7 +11,7 @@ place them like :class:`~imls_lightning.inference.pipeline.IMLSRenderer` does:
 file              input -> output                               what
 ================  ===========================================  ===============================
 ``im.*``          view ``(1, 9)`` float32 -> ``(1, 1, n, n)``   IMS generator + thresholding
-                  bool                                          (``IMSTask.output_to_im``): the IM
+                  bool                                          (``IMSTask.output_to_im_at``): the IM
 ``decoder.*``     ``[PR-C-Image, IM]`` ``(1, 4, n, n)`` ->      the IML decoder
                   ``(1, 3, n, n)`` float32
 ``recnn.*``       C-Image ``(1, 3, n, n)`` -> ``(1, 3, m, m)``  the RecNN (not clamped)
@@ -23,6 +23,11 @@ FR raster indices of the sampling pattern: the loader needs no pattern code that
 files need the optional package ``onnx`` to write and ``onnxruntime`` to run (``pip install
 imls-lightning[export]``; opset 17, written by torch's TorchScript-based exporter). The directory is written under a temporary name and
 renamed when complete.
+
+The IM is made at the operating point the evaluation recorded beside the IMS checkpoint
+(``<ims.ckpt>.orp.json``: its mean value, the masks lifted if it lifted them), else at the trained
+mean; ``mean=`` (a number, or ``trained``) overrides it. ``export.json`` carries the mean value
+(``mean``, ``lift``) and the record (``operating_point``).
 
 The selective ray cast between the networks is not a network: :class:`ExportedIMLSRenderer` takes
 the scene's renderer for it, exactly as :class:`~imls_lightning.inference.pipeline.IMLSRenderer` (whose
@@ -85,34 +90,83 @@ def _onnxruntime():
 class IMPredictor(nn.Module):
     """IMS generator + thresholding: view ``(B, 9)`` float32 -> IM ``(B, 1, n, n)`` bool.
 
-    The same arithmetic as :meth:`IMSTask.output_to_im` applied to ``generator(view)``:
-    ``target="im"``: ``g > 0``; ``target="pim"``: ``(g + 1) / 2 > P  or  g >= 1``; False on the
-    C-Image padding (``valid``). ``target`` is fixed at construction, so tracing sees one branch.
+    The same arithmetic as :meth:`IMSTask.output_to_im_at` applied to ``generator(view)``:
+    ``target="im"``: ``g > 0``; ``target="pim"``: ``(g + 1) / 2 > P  or  g >= 1`` at the trained
+    mean, PIM' rescaled to ``mean`` otherwise (:func:`~imls_lightning.tasks.ims.scaled_pim_im`, lifted
+    to the share ``mean`` with ``lift``); False on the C-Image padding (``valid``). ``target``, the
+    mean and the lift are fixed at construction, so tracing sees one branch.
 
     Args:
         generator: the :class:`~imls_lightning.models.ims.IMSGenerator` (eval mode).
         target: ``"im"`` or ``"pim"``.
         P: ``(n, n)`` plastic rank pattern (used by ``target="pim"``).
         valid: ``(n, n)`` bool, the pattern's C-Image pixels.
+        mean: the mean value ``u`` to threshold at (``None``: the trained one; ``target="pim"`` only).
+        trained_mean, lower: the IML's trained mean and normalization lower bound (with ``mean``).
+        lift: lift the rescaled PIM' to the share ``u`` above the trained mean, as
+            ``IMSTask.lift_to_mean`` does (with ``mean``).
     """
 
-    def __init__(self, generator: nn.Module, target: str, P: torch.Tensor, valid: torch.Tensor):
+    def __init__(self, generator: nn.Module, target: str, P: torch.Tensor, valid: torch.Tensor,
+                 mean: float | None = None, trained_mean: float | None = None, lower: float = 0.0, lift: bool = False):
         super().__init__()
         if target not in ("im", "pim"):
             raise InputError(f"model.target={target!r}: expected 'im' or 'pim'")
+        if mean is not None and (target != "pim" or trained_mean is None):
+            raise InputError(f"mean={mean}: rescaling the IMS's mask needs model.target=pim and the trained mean")
         self.generator = generator
         self.target = target
         n = valid.shape[-1]
         self.register_buffer("P", P.detach().float().reshape(1, 1, n, n).clone())
         self.register_buffer("valid", valid.detach().bool().reshape(1, 1, n, n).clone())
+        self.mean, self.lower = (None if mean is None else float(mean)), float(lower)
+        if self.mean is not None:
+            # the scale of scaled_pim_im, in its float32 arithmetic (the same IM bit for bit)
+            scale = (torch.tensor([self.mean], dtype=torch.float32) - self.lower) / torch.tensor(float(trained_mean) - self.lower,
+                                                                                                  dtype=torch.float32)
+            self.register_buffer("scale", scale.reshape(1, 1, 1, 1))
+            self.saturates = bool(scale >= 1.0)
+            self.lift = bool(lift) and bool(scale > 1.0)  # below the trained mean nothing is lifted
+            self.register_buffer("valid_index", torch.nonzero(self.valid.flatten()).flatten())
+            self.mean32 = float(torch.tensor(self.mean, dtype=torch.float32))  # u as scaled_pim_im lifts to it
 
     def forward(self, view: torch.Tensor) -> torch.Tensor:
         g = self.generator(view).float()
         if self.target == "im":
             im = g > 0
-        else:
+        elif self.mean is None:
             im = ((g + 1.0) * 0.5 > self.P) | (g >= 1.0)
+        else:
+            pim = (g + 1.0) * 0.5
+            pim_u = pim * self.scale if self.lower == 0.0 else (pim - self.lower) * self.scale + self.lower
+            saturated = (g >= 1.0) if self.saturates else torch.zeros_like(g, dtype=torch.bool)
+            im = (pim_u > self.P) | saturated
+            if self.lift:
+                im = im | self._lifted(torch.where(saturated, pim_u.clamp_min(1.0), pim_u))
         return im & self.valid
+
+    def _lifted(self, x: torch.Tensor) -> torch.Tensor:
+        """:func:`~imls_lightning.core.importance.lift_to_share` and :func:`lifted_mask` at the share
+        ``mean``, in tensor operations only (traceable): per view the smallest multiplier ``m >= 1``
+        with ``mean(min(m x, 1)) = u`` over the pattern's pixels, or every pixel with importance and a
+        blue-noise floor ``f`` on the rest."""
+        vals = x.flatten(1).index_select(1, self.valid_index).double().clamp_min(0.0)  # (B, K)
+        k = vals.shape[1]
+        target = self.mean32 * k
+        reached = vals.clamp(max=1.0).sum(1) >= target          # the rescale reaches u by itself
+        npos = (vals > 0).sum(1)
+        take_all = (npos.double() <= target) & ~reached          # every pixel with importance, then the floor
+        floor = ((target - npos.double()) / (k - npos).clamp_min(1).double()).clamp(0.0, 1.0)
+        xs = vals.sort(1, descending=True).values                # zeros last: they add nothing below
+        rest = xs.flip(1).cumsum(1).flip(1)                      # rest[j] = sum of xs[j:]
+        ranks = torch.arange(k, dtype=torch.float64, device=x.device)
+        at_saturation = torch.where(xs > 0, ranks + rest / xs, torch.full_like(xs, float("inf")))
+        j = torch.minimum((at_saturation < target).sum(1), (npos - 1).clamp_min(0))
+        mult = ((target - j.double()) / rest.gather(1, j[:, None])[:, 0]).clamp_min(1.0)
+        mult = torch.where(reached | take_all, torch.ones_like(mult), mult).float().view(-1, 1, 1, 1)
+        f = torch.where(take_all, floor, torch.zeros_like(floor)).float().view(-1, 1, 1, 1)
+        scaled = torch.where(take_all.view(-1, 1, 1, 1), (x > 0).to(x.dtype), x * mult)
+        return (scaled > self.P) | (scaled >= 1.0) | (f > self.P) | (f >= 1.0)
 
 
 class PackedDecoder(nn.Module):
@@ -164,10 +218,14 @@ class _OnnxModule(nn.Module):
 # ---------------------------------------------------------------------------------------------
 # export
 # ---------------------------------------------------------------------------------------------
-def _parts_from_task(task, recnn: nn.Module | None) -> dict[str, nn.Module]:
+def _parts_from_task(task, recnn: nn.Module | None, mean: float | None = None) -> dict[str, nn.Module]:
+    """The three exported modules; ``im`` thresholds at ``mean`` (``None``: the trained mean), lifted
+    as ``task.lift_to_mean`` says."""
     recnn = require_recnn(task.recnn if recnn is None else recnn, key="ims_checkpoint", path=task_path(task))
     task.eval()
-    im = IMPredictor(task.generator, task.target, task.P, task.pattern.valid).eval()
+    rescale = {} if mean is None else {"mean": mean, "trained_mean": float(task.iml.mean),
+                                       "lower": float(task.iml.normalization.lower), "lift": bool(task.lift_to_mean)}
+    im = IMPredictor(task.generator, task.target, task.P, task.pattern.valid, **rescale).eval()
     return {"im": im, "decoder": PackedDecoder(task.decoder).eval(), "recnn": recnn.eval()}
 
 
@@ -214,8 +272,14 @@ def _sha256(path: Path, length: int = 16) -> str:
 
 
 def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, format: str = "torchscript",
-                    recnn_checkpoint: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
+                    recnn_checkpoint: str | os.PathLike | None = None, overwrite: bool = False,
+                    mean: float | str | None = None) -> Path:
     """Export the per-view networks of an IMS checkpoint (see the module doc); returns ``out``.
+
+    The ``im`` network thresholds at the operating point the evaluation recorded for the checkpoint
+    (``<ims.ckpt>.orp.json``; :mod:`imls_lightning.inference.operating_point`), else at the trained
+    mean (one line on stderr says which); ``export.json`` carries the record (``operating_point``)
+    and the mean value exported (``mean``, ``lift``).
 
     Args:
         ims_checkpoint: a ``.ckpt`` of ``model=ims`` (it carries the IML decoder and the RecNN).
@@ -224,6 +288,8 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
         recnn_checkpoint: a RecNN checkpoint to use instead of the one in the IMS checkpoint
             (needed when the IML was standalone and no RecNN was stored).
         overwrite: replace an existing export directory.
+        mean: ``None``: the recorded operating point, else the trained mean; a number in
+            ``[0.01, 1]`` or ``"trained"``: that mean value (nothing is read).
 
     Raises:
         InputError: a bad format, a missing/wrong checkpoint, ``out`` exists, ONNX not installed.
@@ -241,8 +307,15 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
     if not out.parent.is_dir():
         raise InputError(f"out={out}: directory {out.parent} does not exist")
 
+    from dataclasses import asdict
+
+    from .inference.operating_point import mean_to_run
+
     task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
-    parts = _parts_from_task(task, recnn)
+    u, point = mean_to_run(task, ims_checkpoint, mean)
+    if u is not None and task.target != "pim":
+        raise InputError(f"mean={mean}: the IMS was trained with model.target={task.target}; only its trained mean can be exported")
+    parts = _parts_from_task(task, recnn, u)
     pattern = task.pattern
     examples = _example_inputs(pattern)
 
@@ -270,6 +343,11 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
                         "fingerprint": pattern.fingerprint(), "indices": INDICES,
                         "indices_sha256": hashlib.sha256(idx.tobytes()).hexdigest()},
             "target": task.target,
+            # the mean value the im network thresholds at, and the evaluation's record it came from (null: none)
+            "mean": float(task.iml.mean) if u is None else u,
+            "trained_mean": float(task.iml.mean),
+            "lift": u is not None and bool(task.lift_to_mean),
+            "operating_point": None if point is None else asdict(point),
             "inputs": {"im": [1, 9], "decoder": [1, 4, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
             "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
             "ims_checkpoint_sha256": _sha256(Path(ims_checkpoint).expanduser()),
@@ -364,13 +442,16 @@ class ExportedIMLSRenderer(IMLSRenderer):
         r = cls(renderer, pattern, mods["im"], UnpackedDecoder(mods["decoder"]), mods["recnn"], NetOptions(device=str(dev)))
         r.meta = meta
         r.export_path = p
+        r.mean = meta.get("mean")  # the mean value its im network thresholds at (None: an export made before it was recorded)
+        r.operating_point = meta.get("operating_point")  # the evaluation's record it came from (dict), or None
         return r
 
 
 # ---------------------------------------------------------------------------------------------
 # command line
 # ---------------------------------------------------------------------------------------------
-_KEYS = {"ims_checkpoint": None, "format": "torchscript", "out": None, "recnn_checkpoint": None, "overwrite": "false"}
+_KEYS = {"ims_checkpoint": None, "format": "torchscript", "out": None, "recnn_checkpoint": None, "overwrite": "false",
+         "mean": None}
 
 
 def parse_args(argv: Sequence[str]) -> dict[str, Any]:
@@ -389,8 +470,9 @@ def parse_args(argv: Sequence[str]) -> dict[str, Any]:
     if ov not in ("true", "false"):
         raise InputError(f"overwrite={args['overwrite']}: expected true or false")
     args["overwrite"] = ov == "true"
-    if args["recnn_checkpoint"] in ("", "null", "None"):
-        args["recnn_checkpoint"] = None
+    for key in ("recnn_checkpoint", "mean"):
+        if args[key] in ("", "null", "None"):
+            args[key] = None
     return args
 
 
@@ -398,8 +480,11 @@ def parse_args(argv: Sequence[str]) -> dict[str, Any]:
 def main(argv: Sequence[str] | None = None) -> Path:
     """Export, print a summary line per file on stderr and the export directory as the last stdout line."""
     args = parse_args(sys.argv[1:] if argv is None else argv)
-    out = export_renderer(args["ims_checkpoint"], args["out"], args["format"], args["recnn_checkpoint"], args["overwrite"])
+    out = export_renderer(args["ims_checkpoint"], args["out"], args["format"], args["recnn_checkpoint"], args["overwrite"],
+                          mean=args["mean"])
     meta = json.loads((out / META).read_text())
+    print(f"[export] im thresholds at u = {meta['mean']:.3f}" + (" (masks lifted)" if meta["lift"] else "")
+          + (" (the evaluation's operating point)" if meta["operating_point"] else ""), file=sys.stderr)
     for name, fname in meta["files"].items():
         print(f"[export] {name}: {out / fname} ({(out / fname).stat().st_size / 1e6:.2f} MB)", file=sys.stderr)
     print(out, flush=True)

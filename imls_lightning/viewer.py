@@ -1,7 +1,7 @@
 """Interactive viewer: orbit the volume and compare the IML/S + RecNN frame with the ray cast, live.
 
 ``python -m imls_lightning.viewer ims_checkpoint=PATH [recnn_checkpoint=PATH] [screenshot=out.png]
-[azimuth=30] [elevation=20] [distance=null] [mask=true]``
+[azimuth=30] [elevation=20] [distance=null] [mask=true] [mean=null]``
 
 A matplotlib window with two image panels side by side, **IML/S + RecNN** (the product:
 :class:`~imls_lightning.inference.pipeline.IMLSRenderer`) and **ray cast (ground truth)** (the same scene
@@ -13,7 +13,9 @@ against the ray cast and the speed-up. Latencies are those of the frame on scree
 median: :mod:`imls_lightning.evaluate` measures medians).
 
 The IMS checkpoint alone is enough: it records the scene and renderer it was trained on (see
-:meth:`IMLSRenderer.from_checkpoints`); ``recnn_checkpoint=`` swaps in another RecNN.
+:meth:`IMLSRenderer.from_checkpoints`); ``recnn_checkpoint=`` swaps in another RecNN. The frame is
+rendered at the operating point the evaluation recorded beside the checkpoint (``<ims.ckpt>.orp.json``),
+else at the trained mean; ``mean=`` (a number, or ``trained``) overrides it; the panel's title shows u.
 
 Controls
     ==================  ==============================================================
@@ -301,7 +303,8 @@ class Viewer(OrbitCamera):
         blank = np.zeros((m, m, 3), np.uint8)
         self.axes: dict[str, Any] = {}
         self._artists: dict[str, Any] = {}
-        titles = {"imls": "IML/S + RecNN", "truth": "ray cast (ground truth)", "mask": "importance mask\n(FR pixels ray-cast)"}
+        mean = getattr(self.renderer, "mean", None)
+        titles = {"imls": "IML/S + RecNN" + ("" if mean is None else f" (u = {float(mean):.2f})"), "truth": "ray cast (ground truth)", "mask": "importance mask\n(FR pixels ray-cast)"}
         for name in ("imls", "truth", "mask"):
             ax = fig.add_axes((0, 0, 1, 1))
             ax.set_xticks([]), ax.set_yticks([])
@@ -498,9 +501,9 @@ def viewer(cfg: DictConfig) -> Path | None:
     opts = NetOptions(**OmegaConf.to_container(cfg.options, resolve=True)) if cfg.get("options") else NetOptions()
     t0 = time.perf_counter()
     renderer = IMLSRenderer.from_checkpoints(str(cfg.ims_checkpoint), recnn_checkpoint=cfg.get("recnn_checkpoint") or None,
-                                             opts=opts)
+                                             opts=opts, mean=cfg.get("mean"))
     print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (scene FR {renderer.fr_size}^2, "
-          f"networks on {renderer.device})", file=sys.stderr, flush=True)
+          f"networks on {renderer.device}, mean value u = {float(renderer.mean):.3f})", file=sys.stderr, flush=True)
     try:
         v = Viewer(renderer, azimuth=cfg.azimuth, elevation=cfg.elevation, distance=cfg.get("distance"),
                    show_mask=show_mask, interactive=screenshot is None, figsize=tuple(cfg.figsize), dpi=cfg.dpi,

@@ -58,7 +58,9 @@ def test_pair_config_smoke_crop_net_and_las_per_recnn():
     fov = bp.pair_config(cfg, "mri_head", "fovolnet")
     assert fov.stages.las is None  # LAS does not do foveated rendering (the paper)
     assert not any(a.startswith("data.crop") for st in ("recnn", "iml") for a in fov.stages[st])
-    assert bp.pairs(cfg) == [("ct_head", "enhancenet"), ("mri_head", "enhancenet"), ("ct_head", "fovolnet"), ("mri_head", "fovolnet")]
+    # the paper-regime scenes by default (issue 31), the super-resolution rows first
+    scenes = ["rayleigh_taylor", "flame_sheets", "seed_shell"]
+    assert bp.pairs(cfg) == [(s, "enhancenet") for s in scenes] + [(s, "fovolnet") for s in scenes]
     assert bp.pairs(_cfg(scene="flame", recnns="[enhancenet]")) == [("flame", "enhancenet")]
 
 

@@ -301,6 +301,115 @@ def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):
         evaluate(_compose(*_args(run["ck"], "timed_views=0")))
 
 
+# ---- the operating point travels with the IMS checkpoint -------------------------------------------
+def _orp_views(ck: dict) -> list:
+    """The validation views the evaluation searched the ORP on (at most orp_max_views=4 of the cache's)."""
+    import numpy as np
+
+    from data_gen.cache import ViewImageCache, ensure_cache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluate import spaced
+
+    cfg = _compose(*_args(ck))
+    cache = ViewImageCache.open(ensure_cache(build_scene(cfg.scene), cfg.data, cfg.renderer, progress=False))
+    rows = cache.splits["val"]
+    return [np.asarray(cache.views[r], np.float64) for r in rows[spaced(len(rows), 4)]]
+
+
+def _trained_mean(ckpt) -> float:
+    from imls_lightning.inference.checkpoints import load_task
+
+    return float(load_task(str(ckpt), expect="IMSTask").iml.mean)
+
+
+def _orp_lines(capsys) -> list[str]:
+    return [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
+
+
+def test_the_evaluation_records_its_orp_beside_the_ims_checkpoint(run):
+    import json
+
+    from imls_lightning.config import file_hash
+    from imls_lightning.inference.operating_point import read_operating_point, sidecar_path
+
+    ims = run["ck"]["ims_pim"]
+    side = sidecar_path(ims)
+    assert side == Path(str(ims) + ".orp.json") and f"recorded for the IMS checkpoint: {side}" in run["proc"].stderr
+    rec = json.loads(side.read_text())
+    orp = json.loads((run["out"] / "summary.json").read_text())["orp"]
+    assert orp["found"]  # ims_lift=auto: lifted, u = 1 renders the whole pattern, so an ORP exists
+    assert rec["ims_checkpoint_sha256"] == file_hash(ims, length=64)
+    assert (rec["mean"], rec["lift"], rec["c_share"], rec["ipr"], rec["gap_db"]) == (
+        orp["mean"], orp["lift"], orp["c_share"], orp["ipr"], orp["gap_db"])
+    assert (rec["epsilon_db"], rec["views"], rec["scene"], rec["report"]) == (1.0, len(_orp_views(run["ck"])), "tiny",
+                                                                              str(run["report"].resolve()))
+    point = read_operating_point(ims, log=None)
+    assert point.mean == orp["mean"] and point.lift == orp["lift"] and point.c_share == orp["c_share"]
+
+
+def test_a_renderer_from_the_ims_checkpoint_alone_runs_at_the_reports_orp(run, capsys):
+    """The report's operating point, within 5 points of its share of C on the views it was chosen on;
+    an explicit mean value overrides it, without reading the record."""
+    import json
+
+    import numpy as np
+
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
+
+    ims, cpu = str(run["ck"]["ims_pim"]), NetOptions(device="cpu")
+    orp = json.loads((run["out"] / "summary.json").read_text())["orp"]
+    capsys.readouterr()
+    r = IMLSRenderer.from_checkpoints(ims, opts=cpu)
+    lines = _orp_lines(capsys)
+    assert len(lines) == 1 and "running at the evaluation's operating point" in lines[0] and f"u = {orp['mean']:.3f}" in lines[0]
+    assert r.mean == orp["mean"] and r.operating_point.lift == orp["lift"] and r.operating_point.c_share == orp["c_share"]
+    views = _orp_views(run["ck"])
+    share = float(np.mean([r.run(v).info["c_share"] for v in views]))
+    assert abs(share - orp["c_share"]) <= 0.05, (share, orp["c_share"])
+    # an explicit mean value (or the trained one) overrides the record, which is then not read
+    trained = IMLSRenderer.from_checkpoints(ims, opts=cpu, mean="trained")
+    assert trained.mean == pytest.approx(_trained_mean(ims)) and trained.operating_point is None
+    at = IMLSRenderer.from_checkpoints(ims, opts=cpu, mean=0.05)
+    assert at.mean == 0.05 and at.operating_point is None and _orp_lines(capsys) == []
+    assert float(np.mean([at.run(v).info["c_share"] for v in views])) < share
+    with pytest.raises(InputError, match=r"^mean=1.5: expected a number in \[0.01, 1\]"):
+        IMLSRenderer.from_checkpoints(ims, opts=cpu, mean=1.5)
+
+
+def test_the_record_is_checked_by_the_checkpoints_bytes(run, tmp_path, capsys):
+    """The sidecar travels with a copy of the checkpoint; without one, or with another checkpoint's or
+    an unreadable one, the renderer runs at the trained mean and says so in one line."""
+    import json
+    import shutil
+
+    from imls_lightning.config import file_hash
+    from imls_lightning.inference.operating_point import sidecar_path
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
+
+    src, copy, cpu = run["ck"]["ims_pim"], tmp_path / "copy.ckpt", NetOptions(device="cpu")
+    shutil.copy(src, copy)
+    u0 = _trained_mean(src)
+    capsys.readouterr()
+    r = IMLSRenderer.from_checkpoints(str(copy), opts=cpu)
+    lines = _orp_lines(capsys)
+    assert r.mean == pytest.approx(u0) and r.operating_point is None
+    assert len(lines) == 1 and "no recorded operating point" in lines[0] and f"running at the trained mean u = {u0:.3f}" in lines[0]
+    shutil.copy(sidecar_path(src), sidecar_path(copy))
+    mean = json.loads(sidecar_path(src).read_text())["mean"]
+    assert IMLSRenderer.from_checkpoints(str(copy), opts=cpu).mean == mean
+    capsys.readouterr()
+    rec = json.loads(sidecar_path(copy).read_text())
+    sidecar_path(copy).write_text(json.dumps({**rec, "ims_checkpoint_sha256": file_hash(run["ck"]["ims"], length=64)}))
+    for broken, why in ((None, "it belongs to another checkpoint"), ("{not json", "unreadable")):
+        if broken is not None:
+            sidecar_path(copy).write_text(broken)
+        r = IMLSRenderer.from_checkpoints(str(copy), opts=cpu)
+        lines = _orp_lines(capsys)
+        assert r.mean == pytest.approx(u0) and r.operating_point is None
+        assert len(lines) == 1 and lines[0].startswith(f"[orp] warning: {sidecar_path(copy)} ignored: {why}"), lines
+        assert lines[0].endswith(f"running at the trained mean u = {u0:.3f}")
+
+
 # ---- the IMS's masks lifted to their mean value (ims_lift) ---------------------------------------
 @pytest.mark.parametrize("value,expected", [(None, "auto"), ("true", True), ("false", False), ("auto", "auto")])
 def test_ims_lift_setting(tiny_checkpoints, value, expected):

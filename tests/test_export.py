@@ -163,6 +163,70 @@ def test_im_predictor_is_the_tasks_thresholding(target):
     assert 0 < int(want.sum()) < want[:, :, ims.pattern.valid].numel()
 
 
+def _low_pim_ims(recnn: str, shift: float) -> IMSTask:
+    """A ``target=pim`` IMS whose PIM' sits low (the generator's pre-tanh output lowered by ``shift``):
+    at a mean value above the trained one the plain rescale saturates short of u, so the lift works
+    (``shift=8``: every PIM' is 0, only the lift's blue-noise floor samples)."""
+    ims, _ = make_ims_task(recnn, target="pim")
+    with torch.no_grad():
+        ims.generator.net[-2].bias -= shift
+    return ims
+
+
+@pytest.mark.parametrize("recnn, shift", [("enhancenet", 3.0), ("fovolnet", 3.0), ("fovolnet", 8.0)])
+def test_im_predictor_at_a_mean_is_the_tasks_rescale_and_lift(recnn, shift):
+    """At another mean value the exported IM is IMSTask.output_to_im_at's bit for bit, plain and lifted
+    (the lift in tensor operations only: the trace of one view serves a batch)."""
+    ims = _low_pim_ims(recnn, shift)
+    views = torch.from_numpy(_views(8, 3))
+    k = ims.pattern.count
+    for lift in (False, True):
+        ims.lift_to_mean = lift
+        for u in (0.05, 0.35, 0.95):  # below and above the trained mean (0.1)
+            pred = IMPredictor(ims.generator, "pim", ims.P, ims.pattern.valid, mean=u, trained_mean=float(ims.iml.mean),
+                               lower=float(ims.iml.normalization.lower), lift=lift).eval()
+            with torch.no_grad():
+                want = ims.predict_im(views, mean=u)
+                traced = torch.jit.trace(pred, (views[:1],), check_trace=False)
+                assert torch.equal(pred(views), want) and torch.equal(traced(views), want), (lift, u)
+            if lift and u > 0.1:  # the lift reaches u's share, which the rescale alone does not
+                assert float(want.sum()) / (8 * k) == pytest.approx(u, abs=0.02)
+    ims.lift_to_mean = False
+    assert float(ims.predict_im(views, mean=0.95).sum()) / (8 * k) < 0.5
+
+
+def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys):
+    """export.json carries the evaluation's record; the exported renderer thresholds at its mean value
+    (lifted) by default, the same IMs as IMLSRenderer.from_checkpoints; mean= overrides it."""
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+
+    ims = _low_pim_ims("enhancenet", 3.0)
+    ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
+    point = OperatingPoint(mean=0.6, lift=True, c_share=0.6, ipr=0.15, epsilon_db=1.0, gap_db=0.8, views=4)
+    write_operating_point(ckpt, point)
+    out = export_renderer(ckpt, tmp_path / "ts")
+    meta = json.loads((out / "export.json").read_text())
+    assert (meta["mean"], meta["lift"], meta["trained_mean"]) == (0.6, True, pytest.approx(0.1))
+    assert meta["operating_point"]["mean"] == 0.6 and meta["operating_point"]["gap_db"] == 0.8
+    ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
+    assert ref.mean == 0.6 and ref.operating_point == point
+    exp = ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu")
+    assert exp.mean == 0.6 and exp.operating_point["c_share"] == 0.6
+    sizes = _compare(ref, exp, _views(3, 7), tol=1)
+    assert np.mean(sizes) / ref.pattern.count == pytest.approx(0.6, abs=0.05)
+    assert "operating point u = 0.600 (masks lifted)" in capsys.readouterr().err
+    # an explicit mean value overrides the record
+    out = export_renderer(ckpt, tmp_path / "trained", mean="trained")
+    meta = json.loads((out / "export.json").read_text())
+    assert meta["mean"] == pytest.approx(0.1) and meta["operating_point"] is None and not meta["lift"]
+    ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer, mean="trained")
+    trained = _compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), _views(2, 7), tol=1)
+    assert np.mean(trained) / ref.pattern.count < 0.3  # PIM' low: the trained mean renders little
+    assert parse_args(["ims_checkpoint=a", "out=b", "mean=0.4"])["mean"] == "0.4"
+    with pytest.raises(InputError, match=r"^mean=2: expected a number in \[0.01, 1\]"):
+        export_renderer(ckpt, tmp_path / "bad", mean=2)
+
+
 def test_standalone_ims_needs_recnn_checkpoint(ckpts, renderer, tmp_path):
     with pytest.raises(InputError, match="recnn_checkpoint=<RecNN .ckpt>"):
         export_renderer(ckpts["standalone"], tmp_path / "a")

@@ -404,12 +404,20 @@ class IMLSRenderer(_PatternMethod):
 
         method = cls(renderer, task.pattern, predict_im, task.decoder, recnn, opts)
         method.mean = task.iml.mean if mean is None else float(mean)
+        method.operating_point = None
         return method
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
-                         recnn_checkpoint: str | None = None, opts: NetOptions | None = None) -> "IMLSRenderer":
+                         recnn_checkpoint: str | None = None, opts: NetOptions | None = None,
+                         mean: float | str | None = None) -> "IMLSRenderer":
         """Build the renderer from an IMS checkpoint (it carries the IML decoder and the RecNN).
+
+        By default it runs at the operating point the evaluation recorded for this checkpoint
+        (``<ims.ckpt>.orp.json``, checked against the checkpoint's bytes: the report's ORP, its
+        masks lifted if the evaluation lifted them), else at the trained mean; one line on stderr
+        says which (:mod:`imls_lightning.inference.operating_point`). :attr:`mean` is the mean value
+        it runs at, :attr:`operating_point` the record used (``None``: none).
 
         Args:
             ims_checkpoint: a ``.ckpt`` of ``model=ims``.
@@ -417,9 +425,17 @@ class IMLSRenderer(_PatternMethod):
                 by default the scene and renderer the IMS was trained on (stored in its checkpoint).
             recnn_checkpoint: use this RecNN instead of the one stored in the IMS checkpoint.
             opts: :class:`NetOptions` (device, half, channels_last, compile).
+            mean: ``None``: the recorded operating point, else the trained mean; a number in
+                ``[0.01, 1]``: that mean value (the paper's rescale; needs ``model.target=pim``);
+                ``"trained"``: the trained mean. Neither reads the record.
         """
+        from .operating_point import mean_to_run
+
         task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
-        return cls.from_task(task, renderer_for_task(task, scene, renderer, renderer_cfg), recnn, opts)
+        u, point = mean_to_run(task, ims_checkpoint, mean)
+        method = cls.from_task(task, renderer_for_task(task, scene, renderer, renderer_cfg), recnn, opts, mean=u)
+        method.operating_point = point
+        return method
 
     def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
         """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""

@@ -332,7 +332,8 @@ def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, i
                "iml": IMLPlusRecNN(renderer, pattern, iml_task.iml, recnn_iml, opts)}
     if ims_ckpt:
         # a standalone IML's IMS uses the off-the-shelf RecNN, the one IML + RecNN is timed with
-        methods["imls"] = IMLSRenderer.from_checkpoints(ims_ckpt, renderer=renderer, opts=opts, recnn_checkpoint=recnn_checkpoint)
+        methods["imls"] = IMLSRenderer.from_checkpoints(ims_ckpt, renderer=renderer, opts=opts, recnn_checkpoint=recnn_checkpoint,
+                                                        mean="trained")  # the IML's mean, as IML + RecNN above
     rows = np.linspace(0, len(dataset) - 1, num=min(s.latency_views, len(dataset))).round().astype(int)
     per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
     important: list[float] = []

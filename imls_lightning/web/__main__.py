@@ -52,7 +52,7 @@ def serve(cfg: DictConfig, *, exec_mode: str = "main"):
     def load() -> ViewerSession:
         return ViewerSession.from_checkpoints(ims, recnn, las, cfg.adaptive_predictor, opts=opts,
                                               azimuth=float(cfg.azimuth), elevation=float(cfg.elevation),
-                                              distance=cfg.distance, method=str(cfg.method))
+                                              distance=cfg.distance, method=str(cfg.method), mean=cfg.get("mean"))
 
     server = get_server(name="imls-web", client_type="vue3")
     WebViewer(server, load)

@@ -87,6 +87,8 @@ class ViewerSession(OrbitCamera):
         azimuth, elevation, distance: start camera (degrees, degrees, normalized units; ``None``:
             the middle of the scene's camera distance range).
         method: the start method (:data:`METHODS`).
+        start_mean: the start mean value of IML/S (``None``: the trained mean);
+            :meth:`from_checkpoints` passes the operating point the evaluation recorded for the IMS.
     """
 
     task: Any
@@ -99,6 +101,7 @@ class ViewerSession(OrbitCamera):
     elevation: float = 20.0
     distance: float | None = None
     method: str = "imls"
+    start_mean: float | None = None
 
     def __post_init__(self):
         scene = getattr(self.renderer, "scene", None)
@@ -113,6 +116,10 @@ class ViewerSession(OrbitCamera):
         self.trained_mean = float(self.task.iml.mean)
         self.mean = self.trained_mean
         self.rescalable = str(self.task.hparams.get("target", "pim")) == "pim"
+        if self.start_mean is not None:
+            self.set_mean(self.start_mean)  # checked there
+            self.mean = float(self.start_mean)  # exactly the recorded point, not rounded like a slider value
+        self.operating_point = None  # the record the start mean came from (from_checkpoints)
         self._imls: dict[float, IMLSRenderer] = {}
         self.truth_method = FullRayCast(self.renderer, self.task.pattern.fr_size, self.opts)
         self.recnn_method = RecNNAlone(self.renderer, self.task.pattern, self.recnn, self.opts)
@@ -130,10 +137,19 @@ class ViewerSession(OrbitCamera):
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, recnn_checkpoint: str | None = None, las_checkpoint: str | None = None,
-                         predictor: str | None = None, *, opts: NetOptions | None = None, **camera) -> "ViewerSession":
+                         predictor: str | None = None, *, opts: NetOptions | None = None, mean: float | str | None = None,
+                         **camera) -> "ViewerSession":
         """Load the IMS (and optionally another RecNN, a LAS checkpoint and a mean predictor); the
-        scene and renderer are those the IMS was trained on. Bad or mismatched files fail in one line."""
+        scene and renderer are those the IMS was trained on. Bad or mismatched files fail in one line.
+
+        The session opens at the operating point the evaluation recorded for the IMS checkpoint
+        (its masks lifted if the evaluation lifted them), else at the trained mean, as
+        :meth:`IMLSRenderer.from_checkpoints` does; ``mean`` (a number or ``"trained"``) overrides it.
+        """
+        from ..inference.operating_point import mean_to_run
+
         task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
+        start_mean, point = mean_to_run(task, ims_checkpoint, mean)
         recnn = recnn if recnn is not None else task.recnn
         if recnn is None:
             raise InputError(f"ims_checkpoint={ims_checkpoint}: holds no RecNN; pass recnn_checkpoint=<RecNN .ckpt>")
@@ -149,7 +165,10 @@ class ViewerSession(OrbitCamera):
             from ..adaptive.predictor import MeanPredictor
 
             mean_predictor = MeanPredictor.load(predictor)
-        return cls(task, recnn, renderer_for_task(task), las=las, predictor=mean_predictor, opts=opts or NetOptions(), **camera)
+        session = cls(task, recnn, renderer_for_task(task), las=las, predictor=mean_predictor, opts=opts or NetOptions(),
+                      start_mean=start_mean, **camera)
+        session.operating_point = point
+        return session
 
     # -- controls ----------------------------------------------------------------------------------
     @property

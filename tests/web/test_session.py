@@ -94,3 +94,25 @@ def test_exception_bad_inputs_are_one_line(session, tiny_checkpoints, tmp_path):
     assert "adaptive" not in binary.methods and "las" not in binary.methods
     with pytest.raises(InputError, match="model.target=im"):
         binary.set_mean(0.5)  # a binary-mask IMS cannot be rescaled
+
+
+def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp_path, capsys):
+    """The browser viewer opens where the evaluation's record (beside the IMS checkpoint) says, its
+    masks lifted if the evaluation lifted them; mean= overrides it; without a record, the trained mean."""
+    import shutil
+
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+
+    ckpt, cpu = tmp_path / "ims.ckpt", NetOptions(device="cpu")
+    shutil.copy(tiny_checkpoints["ims_pim"], ckpt)
+    plain = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
+    assert plain.mean == plain.trained_mean and plain.operating_point is None
+    assert "no recorded operating point" in capsys.readouterr().err
+    point = OperatingPoint(mean=0.4567, lift=True, c_share=0.45, ipr=0.11, epsilon_db=1.0)
+    write_operating_point(ckpt, point)
+    s = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
+    assert s.mean == 0.4567 and s.operating_point == point and s.task.lift_to_mean is True
+    f = s.frame()
+    assert f.mean == 0.4567 and s._imls_at(0.4567).mean == 0.4567
+    over = ViewerSession.from_checkpoints(str(ckpt), opts=cpu, mean=0.3)
+    assert over.mean == 0.3 and over.operating_point is None and over.task.lift_to_mean is False

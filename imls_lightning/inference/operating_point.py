@@ -1,0 +1,192 @@
+"""The operating point an evaluation chose for an IMS checkpoint, recorded beside it.
+
+:mod:`imls_lightning.evaluate` searches the ORP on the product path (the smallest mean value ``u``
+whose IML/S + RecNN stays within ``epsilon_db`` of the RecNN alone on the validation views) and runs
+IML/S there. :func:`write_operating_point` records that point in a sidecar file next to the IMS
+checkpoint, ``<ims.ckpt>.orp.json`` (beside the file a symbolic link points to), so that a user who
+has only the checkpoint finds it; its content names the checkpoint by the SHA-256 of its bytes.
+:func:`read_operating_point` reads and checks it: a sidecar of another checkpoint (a retrained or
+replaced file), an unreadable one or one of another format is ignored with a one-line warning,
+never trusted.
+
+Every consumer reads it the same way and runs at the recorded point by default; an explicit mean
+overrides it, and without a record they fall back to the trained mean, saying so in one line on
+stderr: :meth:`IMLSRenderer.from_checkpoints <imls_lightning.inference.pipeline.IMLSRenderer.from_checkpoints>`
+(so the desktop viewer), the browser viewer's session, and :func:`imls_lightning.export.export_renderer`
+(whose ``export.json`` carries the record).
+
+Example:
+    >>> p = OperatingPoint(mean=0.52, lift=False, c_share=0.393, ipr=0.098, epsilon_db=1.0)
+    >>> p.describe()
+    'u = 0.520, 39.3 % of C, IPR 0.098 on the validation views (within 1 dB of the RecNN alone)'
+    >>> write_operating_point("ims.ckpt", p)              # doctest: +SKIP
+    >>> read_operating_point("ims.ckpt", trained_mean=0.2).mean   # doctest: +SKIP
+    0.52
+"""
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+__all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run"]
+
+#: appended to the checkpoint's file name
+SUFFIX = ".orp.json"
+KIND = "imls-operating-point"
+VERSION = 1
+
+
+def _log(msg: str) -> None:
+    print(f"[orp] {msg}", file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """An evaluation's operating point for one IMS checkpoint.
+
+    Attributes:
+        mean: the mean value ``u`` IML/S runs at (``None``: the search found no ORP within
+            ``epsilon_db``; the evaluation ran at the trained mean).
+        lift: whether the IMS's masks were lifted to their mean value (the evaluation's ``ims_lift``;
+            :attr:`IMSTask.lift_to_mean <imls_lightning.tasks.ims.IMSTask>`).
+        c_share, ipr: the share of the C-Image and of the FR-Image ray-cast at ``mean``, averaged
+            over the validation views the search ran on.
+        epsilon_db: the search's bound; ``gap_db``: the RecNN alone's PSNR minus IML/S's there.
+        views: the number of validation views searched; ``scene``: the scene evaluated;
+            ``report``: the evaluation's ``report.md``.
+    """
+
+    mean: float | None
+    lift: bool
+    c_share: float | None
+    ipr: float | None
+    epsilon_db: float
+    gap_db: float | None = None
+    views: int | None = None
+    scene: str | None = None
+    report: str | None = None
+
+    @property
+    def found(self) -> bool:
+        return self.mean is not None
+
+    def describe(self) -> str:
+        """One line: the mean value, the share and IPR it gave, and the bound."""
+        if not self.found:
+            return f"no ORP within {self.epsilon_db:g} dB of the RecNN alone on the validation views"
+        share = "" if self.c_share is None else f", {100 * self.c_share:.1f} % of C"
+        ipr = "" if self.ipr is None else f", IPR {self.ipr:.3f}"
+        return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{share}{ipr} on the validation views "
+                f"(within {self.epsilon_db:g} dB of the RecNN alone)")
+
+    def apply(self, task) -> float | None:
+        """Make the IMS ``task``'s masks as the evaluation made them (its ``lift_to_mean``); returns
+        the mean value to render at (``None``: the trained one)."""
+        task.lift_to_mean = bool(self.lift) if self.found else False
+        return self.mean
+
+
+def sidecar_path(ims_checkpoint: str | Path) -> Path:
+    """``<ims.ckpt>.orp.json`` beside the checkpoint's file (a symbolic link is followed)."""
+    p = Path(ims_checkpoint).expanduser().resolve()
+    return p.with_name(p.name + SUFFIX)
+
+
+def _checkpoint_hash(ims_checkpoint: str | Path) -> str:
+    from ..config import file_hash
+
+    return file_hash(Path(ims_checkpoint).expanduser(), length=64)
+
+
+def write_operating_point(ims_checkpoint: str | Path, point: OperatingPoint) -> Path:
+    """Record ``point`` for ``ims_checkpoint`` in its sidecar (atomically; replaces an older one).
+
+    Returns the sidecar's path. Raises ``OSError`` where the checkpoint's folder is not writable.
+    """
+    from data_gen.atomic import atomic_json
+
+    record = {"kind": KIND, "version": VERSION, "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
+              "ims_checkpoint_sha256": _checkpoint_hash(ims_checkpoint), **asdict(point)}
+    return atomic_json(sidecar_path(ims_checkpoint), record)
+
+
+def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
+    """``(point, None)`` for a record of this checkpoint, else ``(None, why)``."""
+    if not isinstance(record, dict) or record.get("kind") != KIND or record.get("version") != VERSION:
+        return None, "not an operating-point record of this version"
+    if record.get("ims_checkpoint_sha256") != sha:
+        return None, (f"it belongs to another checkpoint (SHA-256 {str(record.get('ims_checkpoint_sha256'))[:12]}..., "
+                      f"this one is {sha[:12]}...)")
+    try:
+        mean = record["mean"]
+        mean = None if mean is None else float(mean)
+        if mean is not None and not 0.01 <= mean <= 1.0:
+            raise ValueError(f"mean={mean} outside [0.01, 1]")
+        opt = lambda k, f=float: None if record.get(k) is None else f(record[k])  # noqa: E731
+        point = OperatingPoint(mean=mean, lift=bool(record["lift"]), c_share=opt("c_share"), ipr=opt("ipr"),
+                               epsilon_db=float(record["epsilon_db"]), gap_db=opt("gap_db"), views=opt("views", int),
+                               scene=opt("scene", str), report=opt("report", str))
+    except (KeyError, TypeError, ValueError) as err:
+        return None, f"malformed ({type(err).__name__}: {err})"
+    return point, None
+
+
+def read_operating_point(ims_checkpoint: str | Path, trained_mean: float | None = None, *,
+                         log: Callable[[str], None] | None = _log) -> OperatingPoint | None:
+    """The operating point recorded for ``ims_checkpoint`` (checked against its bytes), or ``None``.
+
+    Says in one line (``log``, by default stderr; ``None``: silent) which point a renderer built from
+    the checkpoint runs at: the recorded one, or the trained mean ``trained_mean`` because there is
+    no sidecar, the sidecar is ignored (another checkpoint's, unreadable, another format: a
+    warning) or the evaluation found no ORP. ``None`` is returned in each of those cases.
+    """
+    say = log or (lambda _msg: None)
+    side = sidecar_path(ims_checkpoint)
+    fallback = "the trained mean" + ("" if trained_mean is None else f" u = {float(trained_mean):.3f}")
+    if not side.is_file():
+        say(f"no recorded operating point for {ims_checkpoint} (python -m imls_lightning.evaluate records one "
+            f"in {side.name}): running at {fallback}")
+        return None
+    try:
+        point, why = _check(json.loads(side.read_text()), _checkpoint_hash(ims_checkpoint))
+    except (OSError, ValueError) as err:
+        point, why = None, f"unreadable ({type(err).__name__})"
+    if point is None:
+        say(f"warning: {side} ignored: {why}; running at {fallback}")
+        return None
+    if not point.found:
+        say(f"{side.name}: the evaluation found {point.describe()}; running at {fallback}")
+        return None
+    say(f"running at the evaluation's operating point {point.describe()} ({side.name})")
+    return point
+
+
+def mean_to_run(task, ims_checkpoint: str | Path, mean: float | str | None = None, *,
+                log: Callable[[str], None] | None = _log) -> tuple[float | None, OperatingPoint | None]:
+    """The mean value a renderer of the IMS ``task`` (loaded from ``ims_checkpoint``) runs at, and the
+    recorded point it came from: ``(mean or None for the trained one, point or None)``.
+
+    ``mean``: ``None``: the recorded operating point (its ``lift`` is set on ``task``), else the
+    trained mean (one line says which, see :func:`read_operating_point`); a number in
+    ``[0.01, 1]``: that mean value (the paper's rescale; nothing is read); ``"trained"``: the
+    trained mean. An IMS trained with ``model.target=im`` has only its trained mean: nothing is read.
+
+    Raises:
+        InputError: a ``mean`` that is neither of those.
+    """
+    from data_gen.errors import InputError, finite_number
+
+    if isinstance(mean, str) and mean == "trained":
+        return None, None
+    if mean is not None:
+        u = finite_number(mean, "mean", "a number in [0.01, 1], 'trained' or null (the recorded operating point)")
+        if not 0.01 <= u <= 1.0:
+            raise InputError(f"mean={mean}: expected a number in [0.01, 1], 'trained' or null (the recorded operating point)")
+        return u, None
+    if str(task.hparams.get("target", "pim")) != "pim":
+        return None, None
+    point = read_operating_point(ims_checkpoint, float(task.iml.mean), log=log)
+    return (None, None) if point is None else (point.apply(task), point)
