@@ -1,0 +1,78 @@
+"""Is a scene in the paper's regime? The classical upsampling against a trained RecNN on a cache's test views.
+
+For a finished cache (``python -m data_gen``) and, optionally, RecNN run directories trained on it, prints per
+method the mean PSNR over the cache's test trajectory: the classical C -> FR upsampling of the estimate
+(:func:`imls_lightning.estimate.measure.upsample_c_image`: bilinear for the downsampling pattern) and each
+RecNN's own test PSNR (its ``result.json``), with the RecNN's lead over the upsampling. Issue 31's bar: the
+upsampling at most 35 dB, the RecNN 30-40 dB and at least 2 dB above it. ``--json`` writes the numbers.
+
+    python scripts/regime_evidence.py cache/rayleigh_taylor-741027e0c9e6 runs/paper/recnn-enhancenet-rayleigh_taylor-*
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from data_gen.cache_reader import ViewImageCache  # noqa: E402
+from data_gen.errors import InputError, cli_errors  # noqa: E402
+from imls_lightning.core.patterns import downsample_pattern  # noqa: E402
+from imls_lightning.estimate.measure import psnr_db, upsample_c_image  # noqa: E402
+
+
+def upsampling_psnr(cache: ViewImageCache, factor: int = 2, max_views: int | None = None) -> list[float]:
+    """Per test view: PSNR of the classical upsampling of the downsampling pattern's C-Image against the FR image."""
+    _, images = cache.split("test")
+    if max_views:
+        images = images[np.linspace(0, len(images) - 1, max_views).round().astype(int)]
+    pattern = downsample_pattern(cache.resolution, factor)
+    out = []
+    for img in images:
+        fr = torch.from_numpy(np.asarray(img, np.float32) / 255.0).permute(2, 0, 1)[None]
+        c = fr.flatten(2)[:, :, pattern.indices].view(1, 3, pattern.c_size, pattern.c_size)
+        out.append(psnr_db(upsample_c_image(c, pattern)[0], fr))
+    return out
+
+
+def recnn_row(run: Path) -> dict:
+    """A RecNN run's test PSNR and size from its ``result.json`` (refused in one line if it is not one)."""
+    try:
+        r = json.loads((run / "result.json").read_text())
+        psnr = float(r["test"]["test/fr_psnr"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise InputError(f"{run}: not a finished RecNN run with a test PSNR ({err})") from None
+    net = r.get("config", {}).get("recnn", {}).get("net", {})
+    return {"run": str(run), "net": {k: v for k, v in net.items() if k != "_target_"}, "psnr_db": psnr,
+            "train_minutes": r.get("train_minutes"), "epochs": r.get("epochs")}
+
+
+@cli_errors
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cache", type=Path)
+    ap.add_argument("runs", type=Path, nargs="*")
+    ap.add_argument("--max-views", type=int, default=None, help="test views scored (evenly spaced; default all)")
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args()
+    cache = ViewImageCache.open(a.cache)
+    up = upsampling_psnr(cache, max_views=a.max_views)
+    bil = float(np.mean(up))
+    rows = [recnn_row(r) for r in a.runs]
+    print(f"{cache.path.name}: bilinear C->FR {bil:.2f} dB (min {min(up):.2f}, max {max(up):.2f}) on {len(up)} test views")
+    for r in rows:
+        print(f"  RecNN {r['net']}: {r['psnr_db']:.2f} dB ({r['psnr_db'] - bil:+.2f} dB over bilinear), "
+              f"{r['epochs']} epochs in {r['train_minutes']:.1f} min")
+    if a.json:
+        a.json.write_text(json.dumps({"cache": str(cache.path), "bilinear_db": bil, "bilinear_db_per_view": up,
+                                      "recnns": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
