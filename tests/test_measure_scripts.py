@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from data_gen.errors import InputError
+
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 TINY = ["--scene", "tiny", "--data", "tiny", "--enhancenet-epochs", "1", "--enhancenet-channels", "4",
@@ -216,3 +218,39 @@ def test_exception_measure_backends_bad_cache(tiny_checkpoints, tmp_path):
     mod = _script_module("measure_backends")
     with pytest.raises(SystemExit, match=f"--cache {tmp_path}: .*no manifest.json"):
         mod.main([str(tiny_checkpoints["ims"]), "--cache", str(tmp_path)])
+
+
+def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_checkpoints, tmp_path, capsys):
+    """scripts/regime_evidence.py on the tiny cache: the upsampling's PSNR equals a direct bilinear loop, and a
+    RecNN run's row reads its test PSNR; a folder without result.json is refused in one line."""
+    from data_gen.cache_reader import ViewImageCache
+    from imls_lightning.core.metrics import psnr_from_mse
+
+    mod = _script_module("regime_evidence")
+    cache_dir = next(p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if (p / "manifest.json").is_file())
+    cache = ViewImageCache.open(cache_dir)
+    got = mod.upsampling_psnr(cache, max_views=2)
+    _, images = cache.split("test")
+    picks = np.linspace(0, len(images) - 1, 2).round().astype(int)
+    for value, img in zip(got, images[picks]):
+        fr = np.asarray(img, np.float64) / 255.0
+        m, n = fr.shape[0], fr.shape[0] // 2
+        c = fr[::2, ::2]
+        up = np.zeros_like(fr)
+        for i in range(m):
+            for j in range(m):
+                y, x = min(i / 2, n - 1), min(j / 2, n - 1)
+                y0, x0 = int(y), int(x)
+                y1, x1 = min(y0 + 1, n - 1), min(x0 + 1, n - 1)
+                ty, tx = y - y0, x - x0
+                up[i, j] = ((1 - ty) * (1 - tx) * c[y0, x0] + (1 - ty) * tx * c[y0, x1] + ty * (1 - tx) * c[y1, x0]
+                            + ty * tx * c[y1, x1])
+        assert value == pytest.approx(float(psnr_from_mse(float(np.mean((up - fr) ** 2)))), abs=1e-3)
+    run = tmp_path / "recnn-run"
+    run.mkdir()
+    (run / "result.json").write_text(json.dumps({"test": {"test/fr_psnr": 33.5}, "epochs": 20, "train_minutes": 9.5,
+                                                  "config": {"recnn": {"net": {"_target_": "x", "channels": 16, "blocks": 4}}}}))
+    row = mod.recnn_row(run)
+    assert row["psnr_db"] == 33.5 and row["net"] == {"channels": 16, "blocks": 4}
+    with pytest.raises(InputError, match="not a finished RecNN run"):
+        mod.recnn_row(tmp_path)
