@@ -487,6 +487,8 @@ def write_results(cfg: DictConfig, records: Mapping[str, Mapping[str, Any]], old
     the breakdown plot, ``paper_scale.md`` and the BENCHMARKS.md section (``cfg.benchmarks_md``)."""
     out_dir = Path(str(cfg.output_dir))
     summaries = [r["summary"] for r in records.values()]
+    # the machine the newest pair was measured on (summarize_only runs elsewhere must not relabel its times)
+    machine = next((r["machine"] for r in reversed(list(records.values())) if r.get("machine")), machine)
     all_rows = merge_rows(old_rows, [csv_row(r["summary"], r.get("estimate")) for r in records.values()])
     ad_rows = [a for a in (adaptive_row(x) for x in summaries) if a is not None]
     atomic_write_text(out_dir / "paper_scale_pairs.json", json.dumps(records, indent=1, default=str))
@@ -538,7 +540,8 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
         if results.get("adaptive"):
             summary["adaptive"] = read_adaptive(Path(results["adaptive"]))
         records.pop(name, None)  # a pair run again moves to the end, with its new record
-        records[name] = {"summary": summary, "estimate": estimate, "minutes": (time.perf_counter() - t0) / 60, "command": command,
+        records[name] = {"summary": summary, "estimate": estimate, "machine": machine,
+                         "minutes": (time.perf_counter() - t0) / 60, "command": command,
                          "settings": {st: (list(v) if v is not None else None) for st, v in stages.stages.items()}}
         write_results(cfg, records, old_rows, partial=k + 1 < len(todo), command=command, machine=machine)
         log(f"[bench-paper] {name} done in {records[name]['minutes']:.1f} min -> {csv_path}")

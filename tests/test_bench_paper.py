@@ -261,7 +261,8 @@ def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypat
     import json
 
     (out / "paper_scale_pairs.json").write_text(json.dumps({"mri_head, enhancenet": {
-        "summary": s, "minutes": 61.0, "command": "python -m imls_lightning.bench_paper scenes=[mri_head]", "settings": {"ims": ["a=1"]}}}))
+        "summary": s, "minutes": 61.0, "command": "python -m imls_lightning.bench_paper scenes=[mri_head]", "settings": {"ims": ["a=1"]},
+        "machine": {"cpu": "The CPU it was measured on"}}}))
     monkeypatch.setattr(bp, "demo", lambda *a, **k: pytest.fail("summarize_only must not run a stage"))
     # a pair recorded before the estimate existed gets one (and only that)
     monkeypatch.setattr(bp, "pair_estimate", lambda cfg, stages, ov: _estimate(stages.scene))
@@ -269,4 +270,5 @@ def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypat
     assert json.loads((out / "paper_scale_pairs.json").read_text())["mri_head, enhancenet"]["estimate"]["volume_dims"] == "128x128x84"
     text = md.read_text()
     assert "| mri_head, enhancenet | 61.0 |" in text and "enhancenet, per-view u" in text
+    assert "| cpu | The CPU it was measured on |" in text  # not relabelled with the machine that summarizes
     assert bp.read_rows(out / "paper_scale.csv")[0]["scene"] == "mri_head" and (out / "paper_scale_breakdown.png").is_file()
