@@ -199,6 +199,8 @@ def test_exception_bad_scene_override_stops_before_any_stage(tmp_path, module):
     assert not (tmp_path / "runs").exists() and not (tmp_path / "cache").exists()
 
 
+# slow: the default suite took 18 min on an AVX2-only 2-core EPYC (issue 31's machine); make test-all runs it
+@pytest.mark.slow
 def test_smoke_demo_on_your_own_nifti_file(tmp_path):
     """The whole demo, CI-sized, on a NIfTI file of one's own with scene overrides (auto transfer
     function, an explicit spacing and sample distance): every stage sees the same scene."""
