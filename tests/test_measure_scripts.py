@@ -225,6 +225,7 @@ def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_che
     RecNN run's row reads its test PSNR; a folder without result.json is refused in one line."""
     from data_gen.cache_reader import ViewImageCache
     from imls_lightning.core.metrics import psnr_from_mse
+    from tests.estimate.test_measure import direct_bilinear
 
     mod = _script_module("regime_evidence")
     cache_dir = next(p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if (p / "manifest.json").is_file())
@@ -233,18 +234,8 @@ def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_che
     _, images = cache.split("test")
     picks = np.linspace(0, len(images) - 1, 2).round().astype(int)
     for value, img in zip(got, images[picks]):
-        fr = np.asarray(img, np.float64) / 255.0
-        m, n = fr.shape[0], fr.shape[0] // 2
-        c = fr[::2, ::2]
-        up = np.zeros_like(fr)
-        for i in range(m):
-            for j in range(m):
-                y, x = min(i / 2, n - 1), min(j / 2, n - 1)
-                y0, x0 = int(y), int(x)
-                y1, x1 = min(y0 + 1, n - 1), min(x0 + 1, n - 1)
-                ty, tx = y - y0, x - x0
-                up[i, j] = ((1 - ty) * (1 - tx) * c[y0, x0] + (1 - ty) * tx * c[y0, x1] + ty * (1 - tx) * c[y1, x0]
-                            + ty * tx * c[y1, x1])
+        fr = np.asarray(img, np.float64).transpose(2, 0, 1) / 255.0
+        up = direct_bilinear(fr[:, ::2, ::2], fr.shape[-1], 2)
         assert value == pytest.approx(float(psnr_from_mse(float(np.mean((up - fr) ** 2)))), abs=1e-3)
     run = tmp_path / "recnn-run"
     run.mkdir()

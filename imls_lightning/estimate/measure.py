@@ -16,7 +16,8 @@ import torch.nn.functional as F
 
 from data_gen.errors import InputError
 
-from ..core.metrics import psnr_from_mse
+from ..core.compaction import decompact
+from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern, plastic_rank_pattern
 from ..inference.pipeline import NetOptions, pick_device, prepare_net
 from ..models.ims import IMSGenerator
@@ -70,15 +71,13 @@ def upsample_c_image(c: torch.Tensor, pattern: SamplingPattern) -> tuple[torch.T
         grid = torch.stack(torch.meshgrid(g, g, indexing="xy"), dim=-1)[None].expand(c.shape[0], m, m, 2)
         return F.grid_sample(c.float(), grid.to(c.device), mode="bilinear", padding_mode="border", align_corners=True), "bilinear"
     idx = pattern.indices.to(c.device)
-    flat = c.float().flatten(2)[:, :, : pattern.count]
-    values = torch.zeros(c.shape[0], 3, m * m, device=c.device).index_copy_(2, idx, flat)
-    mask = torch.zeros(c.shape[0], 1, m * m, device=c.device).index_fill_(2, idx, 1.0)
-    return pull_push_inpaint(values.view(-1, 3, m, m), mask.view(-1, 1, m, m)), "pull-push"
+    ones = torch.ones(c.shape[0], 1, pattern.c_size, pattern.c_size, device=c.device)
+    return pull_push_inpaint(decompact(c.float(), idx, m), decompact(ones, idx, m)), "pull-push"
 
 
 def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
-    """PSNR of two ``[0, 1]`` images (the project's formula)."""
-    return float(psnr_from_mse(float(torch.mean((a.double().clamp(0, 1) - b.double()) ** 2))))
+    """PSNR of one ``(1, 3, m, m)`` image in ``[0, 1]`` against another (the project's formula)."""
+    return float(psnr_per_image(a, b)[0])
 
 
 @dataclass

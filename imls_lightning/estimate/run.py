@@ -123,7 +123,7 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     scene = build_scene(cfg.scene)
     pattern = build_pattern(cfg.pattern, int(cfg.resolution))
     target = _target(cfg, pattern)
-    check_candidates(cfg)
+    cands = check_candidates(cfg)  # before any render
     nets = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)  # bad sizes fail before any render
     renderer = make_renderer(scene, cfg.renderer)
     # random views as the training views are drawn (another seed): never the test trajectory
@@ -142,7 +142,7 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
                         background_density=density)
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
-    candidates = candidate_rows(cfg, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
+    candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
     return {
         "candidates": candidates,
         "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
@@ -174,13 +174,13 @@ def check_candidates(cfg: DictConfig) -> list[dict[str, Any]]:
     return cands
 
 
-def candidate_rows(cfg: DictConfig, pattern, opts: NetOptions, cost, c_render_ms: float, target: float, density: float,
-                   repeats: int, warmup: int) -> list[dict[str, Any]]:
+def candidate_rows(cfg: DictConfig, cands: list[dict[str, Any]], pattern, opts: NetOptions, cost, c_render_ms: float,
+                   target: float, density: float, repeats: int, warmup: int) -> list[dict[str, Any]]:
     """The latency half of the size table ("model only what a scene requires"): for each entry of
     ``candidates`` (a mapping of sizes put over the RecNN's ``net``; ``iml.*`` / ``ims.*`` keys size those
     networks), the networks' times and the bound, on the render costs measured once."""
     rows = []
-    for cand in check_candidates(cfg):
+    for cand in cands:
         iml = {**OmegaConf.to_container(cfg.iml, resolve=True), **{k[4:]: v for k, v in cand.items() if k.startswith("iml.")}}
         ims = {**OmegaConf.to_container(cfg.ims, resolve=True), **{k[4:]: v for k, v in cand.items() if k.startswith("ims.")}}
         net = {**recnn_net(cfg), **{k: v for k, v in cand.items() if not k.startswith(("iml.", "ims."))}}
@@ -237,7 +237,8 @@ def update_table(path: Path, row: Mapping[str, Any]) -> Path:
     """Put ``row`` into the CSV at ``path`` (replacing the row of the same scene and RecNN); a CSV with other
     columns is refused in one line."""
     import csv
-    import io
+
+    from ..report.metrics_csv import write_metrics_csv
 
     rows: list[dict[str, Any]] = []
     if path.is_file():
@@ -248,12 +249,7 @@ def update_table(path: Path, row: Mapping[str, Any]) -> Path:
             rows = [r for r in reader if (r["scene"], r["recnn"]) != (str(row["scene"]), str(row["recnn"]))]
     rows.append({k: row[k] for k in TABLE_COLUMNS})
     rows.sort(key=lambda r: (str(r["recnn"]), str(r["scene"])))
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=TABLE_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    for r in rows:
-        writer.writerow({k: f"{v:.4g}" if isinstance(v, float) else v for k, v in r.items()})
-    return atomic_write(path, lambda f: f.write(buf.getvalue().encode("utf-8")))
+    return write_metrics_csv(rows, path, TABLE_COLUMNS)
 
 
 def run_estimate(cfg: DictConfig) -> Path:
