@@ -15,10 +15,13 @@ Three more of the paper's regime (512^3 by default, detail at the scale of a vox
 a bilinear upsampling of a 256^2 render loses clearly; stream them with ``scene.volume.stream_to``),
 with widths of thin structures given in voxels of the volume generated:
 
-* ``rayleigh_taylor``: heavy over light fluid, a sharp interface folded into bubbles and spikes and
-  wrinkled down to ~6 voxels.
-* ``flame_sheets``: a flame whose two reaction sheets are ~2 voxels thick, wrinkled at several scales.
+* ``rayleigh_taylor``: heavy over light fluid, a sharp interface folded into bubbles and spikes down
+  to ~13 voxels.
+* ``flame_sheets``: a flame whose two reaction sheets are ~2.5 voxels thick, folded at several scales.
 * ``seed_shell``: a CT-like seed (beechnut-like): pitted, wrinkled shell, septa, fibres, porous tissue.
+
+Their detail is coherent: folds at several scales of one surface, never a random-phase band finer than
+the folds, which no network could infer from a half-resolution render.
 
 Every generator is a function ``fn(dims_xyz, seed, z0, z1) -> float32 (z1 - z0, Y, X)`` that can
 evaluate any z-slab of the volume on its own: its random parameters come from ``seed`` alone, so a
@@ -241,41 +244,43 @@ def _voxel(dims) -> float:
     return 2.0 / (max(int(d) for d in dims) - 1)
 
 
-def rayleigh_taylor(dims, seed: int, z0: int, z1: int) -> np.ndarray:
+def rayleigh_taylor(dims, seed: int, z0: int, z1: int, *, interface_voxels: float = 2.5) -> np.ndarray:
     """Paper-regime Rayleigh-Taylor mixing layer: heavy fluid (3) on top (+z) of light fluid (1)
-    with a sharp interface (a sigmoid 1.5 voxels wide) folded into bubbles and spikes.
+    with a sharp interface (a sigmoid ``interface_voxels`` wide) folded into bubbles and spikes.
 
-    The level set ``z - h(x, y) - env * (0.3 n + 0.02 f)``: ``h`` is 64 2D modes (RMS 0.06);
-    inside a Gaussian envelope (half width 0.55) ``n`` is 32 3D modes (k = 2 pi .. 24 pi,
-    amplitude ~ 1/k, stretched along z) that make the bubbles and spikes, and ``f`` 24 finer modes
-    (k = 20 pi .. 90 pi, wavelengths down to ~6 voxels at 512^3) that wrinkle the interfaces.
+    The level set ``z - h(x, y) - 0.3 env n``: ``h`` is 64 2D modes (RMS 0.06); inside a Gaussian
+    envelope (half width 0.55) ``n`` is 48 3D modes (k = 2 pi .. 40 pi, amplitude ~ 1/k, stretched
+    along z) that fold the interface into bubbles and spikes down to ~13 voxels at 512^3. Every scale
+    is a fold of the one interface, coherent across scales: no random-phase band finer than the
+    folds (a first version wrinkled the interfaces with 24 modes down to ~6 voxels, a texture no
+    network can infer from a half-resolution render; BENCHMARKS.md, "The paper's regime").
     """
     rng = _rng("rayleigh_taylor", seed)
     vox = _voxel(dims)
     interface = fourier_modes(rng, 64, 1.0 * np.pi, 40 * np.pi, 1.6, ndim=2)
-    bubbles = fourier_modes(rng, 32, 2 * np.pi, 24 * np.pi, 1.0)
+    bubbles = fourier_modes(rng, 48, 2 * np.pi, 40 * np.pi, 1.0)
     bubbles[0][:, 2] *= 0.6  # stretched along gravity
-    wrinkles = fourier_modes(rng, 24, 20 * np.pi, 90 * np.pi, 0.5)
     x, y, _, _ = grid_axes(dims)
     h = F32(0.06) * eval_modes(interface, x, y)[None]
-    w = F32(1.5 * vox)
+    w = F32(interface_voxels * vox)
 
     def body(a: int, b: int) -> np.ndarray:
         z = grid_axes(dims, a, b)[2]
         zz = z[:, None, None]
         env = np.exp(-(((zz - h) / F32(0.55)) ** 2)).astype(F32)
-        phi = zz - h - env * (F32(0.3) * eval_modes(bubbles, x, y, z) + F32(0.02) * eval_modes(wrinkles, x, y, z))
+        phi = zz - h - env * (F32(0.3) * eval_modes(bubbles, x, y, z))
         return F32(1.0) + F32(2.0) * _sigmoid(phi / w)
 
     return _by_slabs(body, dims, z0, z1)
 
 
-def flame_sheets(dims, seed: int, z0: int, z1: int) -> np.ndarray:
-    """Paper-regime flame: two thin reaction sheets (Gaussian profile 1.5 voxels wide) on a
-    candle-shaped front wrinkled at several scales, empty space around it; values 0 .. ~1.
+def flame_sheets(dims, seed: int, z0: int, z1: int, *, sheet_voxels: float = 2.5) -> np.ndarray:
+    """Paper-regime flame: two thin reaction sheets (Gaussian profile ``sheet_voxels`` wide) on a
+    candle-shaped front folded at several scales, empty space around it; values 0 .. ~1.
 
     The front ``d = r - radius(z) - a(z) n - b(z) f`` (``n``: 24 3D modes k = 3 pi .. 24 pi,
-    stretched along z; ``f``: 20 modes k = 20 pi .. 90 pi; both grow towards the tip); the outer
+    stretched along z; ``f``: 16 folds k = 10 pi .. 36 pi, amplitude ~ 1/k, down to ~14 voxels
+    at 512^3; both grow towards the tip: coherent folds, no random-phase band finer than them); the outer
     sheet lies on ``d = 0``, an inner one (inner cone, 0.7 as bright) at a depth 0.05 .. 0.1 shifted
     by 12 independent modes, so the two sheets fold, approach and pinch off on their own.
     """
@@ -283,13 +288,13 @@ def flame_sheets(dims, seed: int, z0: int, z1: int) -> np.ndarray:
     vox = _voxel(dims)
     big = fourier_modes(rng, 24, 3 * np.pi, 24 * np.pi, 1.0)
     big[0][:, 2] *= 0.5  # tongues stretched along the flow
-    fine = fourier_modes(rng, 20, 20 * np.pi, 90 * np.pi, 0.5)
+    folds = fourier_modes(rng, 24, 10 * np.pi, 64 * np.pi, 1.0)
     mid = fourier_modes(rng, 12, 8 * np.pi, 30 * np.pi, 0.8)
     wobble = rng.uniform(0, 2 * np.pi, 4).astype(F32)
     x, y, _, e = grid_axes(dims)
     zb, zt = -0.88 * e[2], 0.72 * e[2]  # base and tip
     r0 = 0.48 * min(e[0], e[1])
-    w = F32(1.5 * vox)
+    w = F32(sheet_voxels * vox)
     X, Y = x[None, None, :], y[None, :, None]
 
     def body(a: int, b: int) -> np.ndarray:
@@ -303,7 +308,7 @@ def flame_sheets(dims, seed: int, z0: int, z1: int) -> np.ndarray:
         radius = F32(r0 / ((1 / 3) ** 0.6 * (2 / 3) ** 1.2)) * sc ** F32(0.6) * (F32(1.0) - sc) ** F32(1.2)
         nb = eval_modes(big, x, y, z)
         d = r - radius - (F32(0.01) + F32(0.10) * sc) * nb
-        d -= (F32(0.002) + F32(0.012) * sc) * eval_modes(fine, x, y, z)
+        d -= (F32(0.008) + F32(0.04) * sc) * eval_modes(folds, x, y, z)
         d2 = d + F32(0.05) + F32(0.05) * sc + F32(0.03) * eval_modes(mid, x, y, z)
         sheets = np.maximum(np.exp(-((d / w) ** 2)), F32(0.7) * np.exp(-((d2 / w) ** 2)))
         gate = np.clip(F32(10.0) * s, 0.0, 1.0) * _sigmoid((F32(1.0) - s + F32(0.06) * nb) / F32(0.04))
@@ -313,20 +318,21 @@ def flame_sheets(dims, seed: int, z0: int, z1: int) -> np.ndarray:
     return _by_slabs(body, dims, z0, z1)
 
 
-def seed_shell(dims, seed: int, z0: int, z1: int) -> np.ndarray:
+def seed_shell(dims, seed: int, z0: int, z1: int, *, edge_voxels: float = 1.0) -> np.ndarray:
     """Paper-regime CT-like specimen (a beechnut-like seed): a pitted, wrinkled shell 4 voxels
     thick (density 1) around a three-ridged, slightly twisted nut; inside, three septa (0.7) and a
     ring of 9 fibres (0.78) running along the nut, and a porous tissue layer under the shell (thin
     cell walls, 0.4); air (0) around it.
 
     The surface ``rho0(z) (1 + 0.13 cos 3 theta) + 0.02 l + 0.015 w`` (``l``: 12 3D modes
-    k = 2.5 pi .. 10 pi; ``w``: 24 modes k = 12 pi .. 100 pi); the cell walls lie on the zero set
-    of 16 modes (k = 15 pi .. 40 pi) whose high values also pit the shell.
+    k = 2.5 pi .. 10 pi; ``w``: 16 folds k = 12 pi .. 36 pi, amplitude ~ 1/k: coherent wrinkles,
+    none finer than ~14 voxels at 512^3); the cell walls lie on the zero set of 16 modes
+    (k = 15 pi .. 40 pi) whose high values also pit the shell; edges ``edge_voxels`` wide.
     """
     rng = _rng("seed_shell", seed)
     vox = _voxel(dims)
     lumps = fourier_modes(rng, 12, 2.5 * np.pi, 10 * np.pi, 1.0)
-    wrinkles = fourier_modes(rng, 24, 12 * np.pi, 100 * np.pi, 0.5)
+    wrinkles = fourier_modes(rng, 24, 12 * np.pi, 64 * np.pi, 1.0)
     cells = fourier_modes(rng, 16, 15 * np.pi, 40 * np.pi, 0.0)
     twist0 = rng.uniform(0, 2 * np.pi)
     # RMS gradient of the cell noise: widths in its units become widths in space
@@ -334,7 +340,7 @@ def seed_shell(dims, seed: int, z0: int, z1: int) -> np.ndarray:
     x, y, _, e = grid_axes(dims)
     zb, zt = -0.82 * e[2], 0.86 * e[2]  # blunt base, pointed apex
     rm = 0.52 * min(e[0], e[1])
-    thick, edge = F32(4.0 * vox), F32(0.7 * vox)
+    thick, edge = F32(4.0 * vox), F32(edge_voxels * vox)
     X, Y = x[None, None, :], y[None, :, None]
 
     def body(a: int, b: int) -> np.ndarray:
@@ -346,12 +352,14 @@ def seed_shell(dims, seed: int, z0: int, z1: int) -> np.ndarray:
         th = np.arctan2(Y, X) - (F32(twist0) + F32(0.8) * zz)  # the three ridges twist a little
         nl = eval_modes(lumps, x, y, z)
         nw = eval_modes(wrinkles, x, y, z)
+        nc = eval_modes(cells, x, y, z)
         surf = rho0 * (F32(1.0) + F32(0.13) * np.cos(F32(3.0) * th)) + F32(0.02) * nl + F32(0.015) * nw
+        # scales: grooves 3 voxels deep along the cell field's zero set, a crisp network of lines on the surface
+        surf -= F32(3.0 * vox) * np.exp(-((nc / F32(1.2 * vox * kc)) ** 2))
         d = rho - surf  # < 0 inside
         ends = _sigmoid((zz - F32(zb)) / edge) * _sigmoid((F32(zt) - zz) / edge)
         gap = F32(3.0 * vox) + F32(0.012) * np.maximum(nl + F32(0.3), F32(0.0))
         inner = _sigmoid(-(d + thick + gap) / edge) * ends
-        nc = eval_modes(cells, x, y, z)
         shell = _sigmoid((d + thick) / edge) * _sigmoid(-d / edge) * ends
         shell *= F32(1.0) - F32(0.85) * _sigmoid((nc - F32(1.0)) / F32(vox * kc))  # pits through the shell
         walls = np.exp(-((nc / F32(vox * kc)) ** 2))

@@ -18,7 +18,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import math
 import platform
 import shlex
 import sys
@@ -36,8 +35,13 @@ FRACTIONS = (1, 5, 10, 20, 50, 100)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR in dB of two uint8 images (or pixel lists) of any shape: the one formula, ``core.metrics.psnr_from_mse``."""
+    import torch
+
+    from imls_lightning.core.metrics import psnr_from_mse
+
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 10.0 * math.log10(255.0 ** 2 / max(mse, 1e-12))
+    return float(psnr_from_mse(torch.tensor(mse, dtype=torch.float64), data_range=255.0))
 
 
 def load_scene(name: str):

@@ -36,7 +36,8 @@ def test_smoke_deterministic_finite_nonconstant(gen):
 @pytest.mark.parametrize("gen", GENERATORS)
 def test_seeds_give_distinct_volumes(gen):
     a, b = make_procedural(gen, SMALL, 0).data, make_procedural(gen, SMALL, 1).data
-    assert np.abs(a - b).mean() > 0.01 * (a.max() - a.min())
+    # against the content's own spread (a small object in empty space, like seed_shell's, differs in few voxels)
+    assert np.abs(a - b).mean() > 0.1 * np.abs(a - np.median(a)).mean()
 
 
 #: generators of the paper's regime: 512^3 by default, far too large to build in CI
@@ -119,9 +120,10 @@ def test_flame_sheets_thin_sheets_and_empty_surroundings():
     assert sides.max() < 0.01 * vmax  # empty space around the flame
     assert d[-3:].max() < 0.1 * vmax  # pockets above the tip fade out before the top
     assert (d > 0.1 * vmax).mean() < 0.15  # thin sheets: most of the box and of the flame is empty
-    # along rays through the flame at a third of its height, the sheets are crossed in short runs
+    # along rays through the flame at a third of its height, the sheets are crossed in short runs: a 2.5-voxel
+    # Gaussian profile is 4.8 voxels wide above 0.4 of its peak (grazing crossings of the folds are longer)
     runs = [r for j in range(40, 56, 3) for r in _runs(d[32, j] > 0.4 * vmax)]
-    assert len(runs) >= 6 and np.median(runs) <= 4 and np.mean(np.array(runs) <= 6) >= 0.8  # (grazing crossings are longer)
+    assert len(runs) >= 6 and np.median(runs) <= 7 and np.mean(np.array(runs) <= 9) >= 0.8
 
 
 def test_seed_shell_thin_shell_and_empty_surroundings():
@@ -130,17 +132,18 @@ def test_seed_shell_thin_shell_and_empty_surroundings():
     for corner in (d[:8, :8, :8], d[-8:, -8:, -8:], d[:8, -8:, :8], d[-8:, :8, -8:]):
         assert corner.max() < 0.01  # air around the specimen
     # along rays from the axis outward at mid height the density rises to the shell and falls to
-    # air within a few voxels (a shell ~4 voxels thick), with tissue of lower density inside
-    c = 48
+    # air within a few voxels (a shell ~4 voxels thick), with tissue of lower density inside; the
+    # grooves and pits thin the shell, so where a ray meets one it peaks at 0.3-0.6 instead of ~0.78
+    c, level = 48, 0.25
     rays = [d[c, c, c:], d[c, c, c::-1], d[c, c:, c], d[c, c::-1, c]]
     for ray in rays:
-        out = np.flatnonzero(ray > 0.5)
+        out = np.flatnonzero(ray > level)
         assert len(out), "no shell on the ray"
         last = out[-1]
         assert ray[last + 4:].max() < 0.1 and ray[last + 8:].max() < 0.02  # air a few voxels outside
-        shell = _runs(ray[: last + 1] > 0.5)[-1]
+        shell = _runs(ray[: last + 1] > level)[-1]
         assert 2 <= shell <= 7
-        assert ray[last - shell - 1: last - shell + 1].min() < 0.5  # the run is bounded inside
+        assert ray[last - shell - 1: last - shell + 1].min() < level  # the run is bounded inside
 
 
 def test_marschner_lobb_against_direct_formula():
