@@ -617,31 +617,28 @@ def read_orp_finished(path: Path) -> bool:
     return bool((rep.get("context") or {}).get("finished"))
 
 
-#: the scene overrides taken out of this process's command line by :func:`main`
-_SCENE_OVERRIDES: list[str] = []
-
-
-@hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="bench")
-@cli_errors
-def _main(cfg: DictConfig) -> None:
-    t0 = time.perf_counter()
-    try:
-        path = bench(cfg, _SCENE_OVERRIDES)
-    except StageFailed as err:
-        print(f"error: {err}", file=sys.stderr, flush=True)
-        print(f"[bench] partial tables (if any): {cfg.output}; run the same command again to resume", file=sys.stderr, flush=True)
-        sys.exit(1)
-    if path is None:  # dry_run
-        return
-    print(path.read_text(), flush=True)
-    log(f"[bench] finished in {(time.perf_counter() - t0) / 60:.1f} min")
-    print(path, flush=True)
-
-
 def main() -> None:
     """``python -m imls_lightning.bench``: the scene overrides leave the command line before Hydra
-    composes the pipeline's config (:func:`imls_lightning.demo.split_scene_overrides`)."""
-    sys.argv[1:], _SCENE_OVERRIDES[:] = split_scene_overrides(sys.argv[1:])
+    composes the pipeline's config (:func:`imls_lightning.demo.split_scene_overrides`); the Hydra entry
+    point gets them through its closure (no module state)."""
+    sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
+
+    @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="bench")
+    @cli_errors
+    def _main(cfg: DictConfig) -> None:
+        t0 = time.perf_counter()
+        try:
+            path = bench(cfg, scene_overrides)
+        except StageFailed as err:
+            print(f"error: {err}", file=sys.stderr, flush=True)
+            print(f"[bench] partial tables (if any): {cfg.output}; run the same command again to resume", file=sys.stderr, flush=True)
+            sys.exit(1)
+        if path is None:  # dry_run
+            return
+        print(path.read_text(), flush=True)
+        log(f"[bench] finished in {(time.perf_counter() - t0) / 60:.1f} min")
+        print(path, flush=True)
+
     _main()
 
 

@@ -89,6 +89,10 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
         extra = crop_args if name in ("recnn", "iml", "blue_noise") else []
         chunk = [f"chunk_minutes={cfg.chunk_minutes}"] if cfg.get("chunk_minutes") is not None else []
         stages[name] = [*net, *extra, *override_list(cfg, f"stages.{name}"), *chunk]
+    # the RecNN on a sparser pattern: the demo trains it as the recnn stage above plus the sparser pattern
+    # (demo.sparser_overrides) and stages.recnn_sparser's overrides; only `stages.recnn_sparser: null` skips it
+    explicit = cfg.get("stages") is not None and "recnn_sparser" in cfg.stages
+    stages["recnn_sparser"] = override_list(cfg, "stages.recnn_sparser") if not explicit or cfg.stages.recnn_sparser is not None else None
     return OmegaConf.create({
         "scene": scene, "data": str(cfg.data), "recnn": recnn, "renderer": str(cfg.renderer),
         "runs_dir": str(cfg.runs_dir), "cache_dir": str(cfg.cache_dir), "seed": int(cfg.seed),
@@ -352,6 +356,16 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
                     f"the fixed mean of the same IPR scores {fmt(a.get('psnr_fixed_same_ipr_db'))} dB. Timed in that run: "
                     f"{fmt(a.get('adaptive_ms'), 1)} ms against the RecNN alone's {fmt(a.get('recnn_ms'), 1)} ms "
                     f"({speedup(a.get('recnn_ms'), a.get('adaptive_ms'))}).", ""]
+        if s.get("front"):
+            from .report.front import front_markdown, front_verdict
+
+            op = (s.get("orp") or {})
+            out += ["### Speed-quality front", "", f"Every method on the evaluation's {len(s.get('front_views') or [])} sweep view(s), "
+                    "median latency against mean PSNR; ◆: on the Pareto front (the evaluation's report has the plot).", "",
+                    front_markdown(s["front"]), "", "Where IML/S lies: " + front_verdict(s["front"], f"{s['scene']}, {s['recnn']}"), ""]
+            if op.get("test"):
+                out += [f"ORP gap: {fmt(op.get('gap_db'))} dB on the validation views (bound {fmt(op.get('gap_bound_db'))} dB), "
+                        f"{fmt(op['test'].get('gap_db'))} dB on the {op['test'].get('views')} evaluated trajectory views.", ""]
         if s.get("equal_share"):
             out += ["Learned parts against the untrained baselines at equal share of C (PSNR after the RecNN, mean over the "
                     "evaluated trajectory views):", "", equal_share_markdown(s["equal_share"]), ""]
@@ -548,20 +562,18 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
     return None if cfg.dry_run or cfg.get("train_only", False) else md_path
 
 
-_SCENE_OVERRIDES: list[str] = []
-
-
-@hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="bench_paper")
-@cli_errors
-def _main(cfg: DictConfig) -> None:
-    command = "python -m imls_lightning.bench_paper " + " ".join(sys.argv[1:] + _SCENE_OVERRIDES)
-    run_pipeline(lambda: bench_paper(cfg, _SCENE_OVERRIDES, command.strip()))
-
-
 def main() -> None:
     """``python -m imls_lightning.bench_paper``: scene overrides leave the command line first
-    (:func:`imls_lightning.demo.split_scene_overrides`)."""
-    sys.argv[1:], _SCENE_OVERRIDES[:] = split_scene_overrides(sys.argv[1:])
+    (:func:`imls_lightning.demo.split_scene_overrides`); the Hydra entry point gets them through its
+    closure (no module state)."""
+    sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
+
+    @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="bench_paper")
+    @cli_errors
+    def _main(cfg: DictConfig) -> None:
+        command = "python -m imls_lightning.bench_paper " + " ".join(sys.argv[1:] + scene_overrides)
+        run_pipeline(lambda: bench_paper(cfg, scene_overrides, command.strip()))
+
     _main()
 
 

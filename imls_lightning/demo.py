@@ -5,13 +5,16 @@ overrides), so the demo exercises exactly the product's CLIs:
 
 1. ``python -m data_gen ... contact_sheet=true``       the (view, image) cache and a contact sheet
 2. ``python -m imls_lightning.train model=recnn``      the RecNN on its sampling pattern
+   ... ``model=recnn pattern.factor=4``                the same RecNN on a sparser pattern of its own
+   (:data:`SPARSER_PATTERN`; ``stages.recnn_sparser=null`` skips it): what a user would do instead of IML/S
 3. ``python -m imls_lightning.train model=iml``        the IML network, end to end through the RecNN
 4. ``python -m imls_lightning.train model=ims``        the IMS network on the IML's labels
 5. ``python -m imls_lightning.train model=iml model.importance=uniform``  the blue-noise mask
    baseline's decoder (``stages.blue_noise=null`` skips it)
 6. ``python -m imls_lightning.train model=las``        the LAS baseline (``stages.las=null`` skips it)
 7. ``python -m imls_lightning.evaluate``               the ORP on the product path (validation
-   views), then every method and the untrained baselines on the 120-view test trajectory
+   views), then every method and the untrained baselines on the 120-view test trajectory, and the
+   speed-quality front
 
 Each CLI prints its result (cache directory, best checkpoint, report) as its last stdout line and
 reuses a finished run of the same settings, so running the demo again costs seconds. The report's
@@ -202,6 +205,29 @@ def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
     return list(merged.values())
 
 
+#: the sparser pattern of each RecNN kind, as overrides of its training: a quarter of the C-pixels of its
+#: default pattern (EnhanceNet 4x instead of 2x: one pixel of every 4x4 block; FoVolNet: a C-Image half the side)
+SPARSER_PATTERN = {"enhancenet": ["pattern.factor=4"], "fovolnet": ["pattern.c_size_ratio=0.25"]}
+
+
+def sparser_overrides(cfg: DictConfig) -> list[str]:
+    """The training overrides of the RecNN on a sparser pattern: the RecNN stage's own (trained the same
+    way), the sparser pattern of its kind (:data:`SPARSER_PATTERN`), then ``stages.recnn_sparser``'s
+    (whose keys replace the same keys before them).
+
+    Example:
+        >>> cfg = OmegaConf.create({"recnn": "enhancenet", "stages": {"recnn": ["trainer.max_epochs=10"], "recnn_sparser": []}})
+        >>> sparser_overrides(cfg)
+        ['trainer.max_epochs=10', 'pattern.factor=4']
+    """
+    kind = str(cfg.recnn)
+    if kind not in SPARSER_PATTERN:
+        raise InputError(f"recnn={kind}: no sparser pattern known for it (expected one of {sorted(SPARSER_PATTERN)}); "
+                         "set stages.recnn_sparser=null to skip the sparser-pattern RecNN")
+    ordered = [*stage_overrides(cfg, "recnn"), *SPARSER_PATTERN[kind], *stage_overrides(cfg, "recnn_sparser")]
+    return list({override_key(o): o for o in ordered}.values())
+
+
 def stage_args(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> tuple[list[str], list[str]]:
     """The arguments every stage's command shares: ``(common, train_common)``, the scene, data,
     renderer and cache for every CLI, plus the RecNN, runs folder, seed (and no progress bar) for
@@ -238,7 +264,7 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
 
     ``scene_overrides`` (``scene.<key>=...``, see :func:`split_scene_overrides`) follow
     ``scene=<cfg.scene>`` in every stage's command. ``results``, when given, gets every stage's result
-    by name (``cache``, ``recnn``, ``iml``, ``ims``, ``blue_noise``, ``las``, ``report``, ``adaptive``)."""
+    by name (``cache``, ``recnn``, ``recnn_sparser``, ``iml``, ``ims``, ``blue_noise``, ``las``, ``report``, ``adaptive``)."""
     runs = str(cfg.runs_dir)
     dry = bool(cfg.get("dry_run", False))
     check_scene_overrides(str(cfg.scene), scene_overrides)
@@ -253,6 +279,10 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
 
     train = ["-m", "imls_lightning.train"]
     recnn = stage("RecNN", [*train, "model=recnn", *train_common, *stage_overrides(cfg, "recnn")])
+    sparser = None
+    if OmegaConf.select(cfg, "stages.recnn_sparser") is not None:
+        # what a user would do instead of IML/S: the same RecNN, trained the same way, on a sparser pattern
+        sparser = stage("RecNN, sparser pattern", [*train, "model=recnn", *train_common, *sparser_overrides(cfg)])
     iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *stage_overrides(cfg, "iml")])
     ims = stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
                         *stage_overrides(cfg, "ims")])
@@ -277,6 +307,8 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
         ev.append(f"checkpoints.las={las}")
     if blue:
         ev.append(f"checkpoints.blue_noise={blue}")
+    if sparser:
+        ev.append(f"checkpoints.recnn_sparser={sparser}")
     report = Path(stage("evaluation", ev))
     adaptive = None
     if OmegaConf.select(cfg, "adaptive") is not None:
@@ -286,23 +318,14 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
                                            f"recnn_checkpoint={recnn}", f"ims_lift={lift}", f"progress={bool(cfg.progress)}",
                                            "reuse=true", *override_list(cfg, "adaptive")])
     if results is not None:
-        results.update(cache=cache, recnn=recnn, iml=iml, ims=ims, blue_noise=blue, las=las, report=str(report), adaptive=adaptive)
+        results.update(cache=cache, recnn=recnn, recnn_sparser=sparser, iml=iml, ims=ims, blue_noise=blue, las=las,
+                       report=str(report), adaptive=adaptive)
     if dry:
         return None
     minutes = (time.perf_counter() - t0) / 60
     print(f"\n[demo] finished in {minutes:.1f} min. Contact sheet: {sheet}", file=sys.stderr, flush=True)
     print(f"[demo] report (tables, plots, image grid): {report}", file=sys.stderr, flush=True)
     return report
-
-
-#: the scene overrides taken out of this process's command line by :func:`main`
-_SCENE_OVERRIDES: list[str] = []
-
-
-@hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="demo")
-@cli_errors
-def _main(cfg: DictConfig) -> None:
-    run_pipeline(lambda: demo(cfg, _SCENE_OVERRIDES))
 
 
 def run_pipeline(body) -> None:
@@ -323,8 +346,15 @@ def run_pipeline(body) -> None:
 
 def main() -> None:
     """``python -m imls_lightning.demo``: the scene overrides leave the command line before Hydra
-    composes the pipeline's config (:func:`split_scene_overrides`)."""
-    sys.argv[1:], _SCENE_OVERRIDES[:] = split_scene_overrides(sys.argv[1:])
+    composes the pipeline's config (:func:`split_scene_overrides`); the Hydra entry point gets them
+    through its closure (no module state)."""
+    sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
+
+    @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="demo")
+    @cli_errors
+    def _main(cfg: DictConfig) -> None:
+        run_pipeline(lambda: demo(cfg, scene_overrides))
+
     _main()
 
 

@@ -347,28 +347,25 @@ class SizeFront(Callback):
         summarize(config)
 
 
-#: the scene overrides taken out of this process's command line by :func:`main`
-_SCENE_OVERRIDES: list[str] = []
-
-
-@hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="size_search")
-@cli_errors
-def _main(cfg: DictConfig) -> Any:
-    if bool(cfg.get("summarize_only", False)):
-        return run_pipeline(lambda: summarize(cfg).get("md"))
-    record: dict[str, Any] = {}
-
-    def body():
-        record.update(size_job(cfg, _SCENE_OVERRIDES))
-        return record.get("report")
-
-    run_pipeline(body)
-    return record
-
-
 def main() -> None:
-    """``python -m imls_lightning.size_search``: scene overrides as for the demo (:func:`split_scene_overrides`)."""
-    sys.argv[1:], _SCENE_OVERRIDES[:] = split_scene_overrides(sys.argv[1:])
+    """``python -m imls_lightning.size_search``: scene overrides as for the demo (:func:`split_scene_overrides`);
+    every job of the sweep gets them through the entry point's closure (no module state)."""
+    sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
+
+    @hydra.main(version_base="1.3", config_path=str(ROOT / "conf" / "pipelines"), config_name="size_search")
+    @cli_errors
+    def _main(cfg: DictConfig) -> Any:
+        if bool(cfg.get("summarize_only", False)):
+            return run_pipeline(lambda: summarize(cfg).get("md"))
+        record: dict[str, Any] = {}
+
+        def body():
+            record.update(size_job(cfg, scene_overrides))
+            return record.get("report")
+
+        run_pipeline(body)
+        return record
+
     _main()
 
 

@@ -5,7 +5,7 @@ The same IMS checkpoint, views and mask (the trained mean) run through :class:`I
 
 * PyTorch float32, bfloat16 autocast (``NetOptions.half``, what the paper-scale benchmark uses),
   bfloat16 + channels_last, and optionally ``torch.compile`` (``--compile``: its first call compiles);
-* the exported networks (:func:`imls_lightning.export.export_renderer`): TorchScript, and ONNX Runtime
+* the exported networks (:func:`imls_lightning.inference.export.export_renderer`): TorchScript, and ONNX Runtime
   when ``onnx`` and ``onnxruntime`` are installed (``pip install -e '.[export]'``; otherwise the row
   says it was skipped).
 
@@ -37,9 +37,9 @@ NETWORKS = ("importance", "decoder", "recnn")
 
 def build_backends(ims_checkpoint: str, recnn_checkpoint: str | None, compile_: bool, export_dir: Path) -> dict:
     """``{name: method or reason skipped}``: every method renders with the same renderer object."""
-    from imls_lightning.export import ExportedIMLSRenderer, export_renderer, onnx_available
-    from imls_lightning.inference.checkpoints import load_ims_and_recnn
-    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions, renderer_for_task
+    from imls_lightning.inference.export import ExportedIMLSRenderer, export_renderer, onnx_available
+    from imls_lightning.inference.checkpoints import load_ims_nets, renderer_for
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 
     options = {"PyTorch float32": NetOptions(device="cpu"),
                "PyTorch bfloat16": NetOptions(device="cpu", half=True),
@@ -49,9 +49,9 @@ def build_backends(ims_checkpoint: str, recnn_checkpoint: str | None, compile_: 
     renderer = None
     out: dict = {}
     for name, opts in options.items():
-        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)  # each method prepares its own copy
-        renderer = renderer or renderer_for_task(task)
-        out[name] = IMLSRenderer.from_task(task, renderer, recnn, opts)
+        nets = load_ims_nets(ims_checkpoint, recnn_checkpoint)  # each method prepares its own copy
+        renderer = renderer or renderer_for(nets.hparams)
+        out[name] = IMLSRenderer.from_nets(nets, renderer, opts)
     for fmt in ("torchscript", "onnx"):
         name = {"torchscript": "TorchScript float32 (export)", "onnx": "ONNX Runtime float32 (export)"}[fmt]
         if fmt == "onnx" and not onnx_available():

@@ -49,7 +49,8 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
     IMS on the IML's labels (``ims``: target=im, ``ims_pim``: target=pim), the blue-noise decoder
     (``blue``: an IML with importance=uniform), and LAS. About 30 s on 2 cores.
 
-    Returns ``{"recnn", "iml", "ims", "ims_pim", "blue", "las": Path of the .ckpt, "cache_dir", "runs_dir": Path}``.
+    Returns ``{"recnn", "iml", "ims", "ims_pim", "blue", "las", "recnn_sparser" (pattern.factor=4): Path of the .ckpt,
+    "cache_dir", "runs_dir": Path}``.
     """
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -71,6 +72,8 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
         return path
 
     recnn = run("recnn", ["model=recnn"])
+    # the same RecNN on a sparser pattern of its own (EnhanceNet 4x: a quarter of the C-pixels), the front's alternative
+    recnn_sparser = run("recnn_sparser", ["model=recnn", "pattern.factor=4"])
     iml = run("iml", ["model=iml", "model.mode=end_to_end", f"recnn.checkpoint={recnn}", "model.depth=2",
                       "model.base_channels=4"])
     # bce instead of the perceptual loss: no VGG16 to load, same networks
@@ -85,5 +88,5 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
                         "model.base_channels=4", "model.importance=uniform"])
     las = run("las", ["model=las", "model.low_res=16", "model.importance_channels=4", "model.importance_blocks=1",
                       "model.recon_channels=4", "model.recon_blocks=1"])
-    return {"recnn": recnn, "iml": iml, "ims": ims, "ims_pim": ims_pim, "blue": blue, "las": las,
+    return {"recnn": recnn, "iml": iml, "ims": ims, "ims_pim": ims_pim, "blue": blue, "las": las, "recnn_sparser": recnn_sparser,
             "cache_dir": base / "cache", "runs_dir": base / "runs"}

@@ -174,3 +174,43 @@ def test_cycle_finder_finds_a_cycle():
 def test_no_private_imports_across_modules():
     _, private = _scan()
     assert private == [], "\n".join(f"{m}:{line}: {what}" for m, line, what in private)
+
+
+#: what a function may call on a module-level container to change it
+_MUTATORS = {"append", "extend", "insert", "update", "clear", "pop", "remove", "add", "discard", "setdefault"}
+
+
+def _module_state_filled_by_functions(tree: ast.Module) -> list[tuple[str, int]]:
+    """``(name, line)`` of every module-level list / dict / set that a function of the module fills
+    (item or slice assignment, a mutating method) or rebinds (``global``)."""
+    names = set()
+    for node in tree.body:
+        target = node.targets[0] if isinstance(node, ast.Assign) and len(node.targets) == 1 else getattr(node, "target", None)
+        if isinstance(target, ast.Name) and isinstance(getattr(node, "value", None), (ast.List, ast.Dict, ast.Set)):
+            names.add(target.id)
+    out = []
+    for fn in (n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))):
+        for n in ast.walk(fn):
+            if isinstance(n, ast.Global):
+                out += [(name, n.lineno) for name in n.names]
+            targets = n.targets if isinstance(n, ast.Assign) else [n.target] if isinstance(n, ast.AugAssign) else []
+            for t in (x for tt in targets for x in ast.walk(tt)):
+                if isinstance(t, ast.Subscript) and isinstance(t.value, ast.Name) and t.value.id in names:
+                    out.append((t.value.id, n.lineno))
+            if (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in _MUTATORS
+                    and isinstance(n.func.value, ast.Name) and n.func.value.id in names):
+                out.append((n.func.value.id, n.lineno))
+    return out
+
+
+def test_entry_points_keep_no_module_state():
+    """An entry point (a module directly under ``imls_lightning/`` with a ``main``) hands its command
+    line to Hydra without a module-level list that ``main`` fills (the scene overrides reach the
+    ``@hydra.main`` function through its closure): a later call cannot see an earlier one's."""
+    assert _module_state_filled_by_functions(ast.parse("X = []\ndef main():\n    X[:] = [1]")) == [("X", 3)]
+    found = []
+    for path in sorted((ROOT / "imls_lightning").glob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        if any(isinstance(n, ast.FunctionDef) and n.name == "main" for n in tree.body):
+            found += [f"{path.name}:{line}: {name}" for name, line in _module_state_filled_by_functions(tree)]
+    assert found == [], "\n".join(found)

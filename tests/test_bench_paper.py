@@ -55,6 +55,8 @@ def test_pair_config_smoke_crop_net_and_las_per_recnn():
         assert "data.crop=128" in enh.stages[stage] and "recnn.net.channels=16" in enh.stages[stage]
     assert not any(a.startswith("data.crop") for a in enh.stages.ims)
     assert enh.stages.las is not None and any("timed_views" in a for a in enh.evaluate)
+    assert list(enh.stages.recnn_sparser) == []  # the demo trains it as the recnn stage on a sparser pattern
+    assert bp.pair_config(_cfg(**{"+stages.recnn_sparser": "null"}), "ct_head", "enhancenet").stages.recnn_sparser is None
     fov = bp.pair_config(cfg, "mri_head", "fovolnet")
     assert fov.stages.las is None  # LAS does not do foveated rendering (the paper)
     assert not any(a.startswith("data.crop") for st in ("recnn", "iml") for a in fov.stages[st])
@@ -120,6 +122,17 @@ def test_report_and_breakdown_plot(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "speed-up" in bp.section_text(rows, partial=False) and "| 30.0% |" in bp.section_text(rows, partial=False)
     assert bp.orp_cell({"mean": "", "c_share": "0.2"}) == "none (ran at 20.0%)"
+    # the evaluation's speed-quality front, per pair
+    front = [{"method": "recnn", "label": "RecNN alone", "note": "its pattern", "latency_ms": 500.0, "psnr": 40.0, "ssim": 0.9,
+              "views": 2, "on_front": True},
+             {"method": "imls", "label": "IML/S + RecNN", "note": "ORP u=0.31", "latency_ms": 200.0, "psnr": 39.1, "ssim": 0.9,
+              "views": 2, "on_front": True}]
+    s2 = dict(s, front=front, front_views=[0, 119], orp=dict(s["orp"], gap_bound_db=0.95, test={"gap_db": 0.9, "views": 120}))
+    text = bp.report_markdown([bp.csv_row(s2)], [s2], partial=False, stage_minutes={}, command="cmd", machine={})
+    part = text.split("### Speed-quality front")[1]
+    assert "Every method on the evaluation's 2 sweep view(s)" in part and "| **IML/S + RecNN** | ORP u=0.31 |" in part
+    assert "Where IML/S lies: **ct_head, enhancenet**: 1 of the 1 IML/S + RecNN points lie on the Pareto front" in part
+    assert "0.90 dB on the validation views (bound 0.95 dB), 0.90 dB on the 120 evaluated trajectory views" in part
 
 
 def test_cli_dry_run_prints_every_stage_command():
@@ -127,7 +140,9 @@ def test_cli_dry_run_prints_every_stage_command():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
-    assert len(lines) == 9 and lines[1].startswith("python -m data_gen scene=ct_head data=paper_cpu")
+    assert len(lines) == 10 and lines[1].startswith("python -m data_gen scene=ct_head data=paper_cpu")
+    assert lines[3] == lines[2] + " pattern.factor=4"  # the RecNN on a sparser pattern, trained the same way
+    assert "checkpoints.recnn_sparser=" in lines[-2]
     # the before-training estimate first, with the sizes the stages train
     assert lines[0].startswith("python -m imls_lightning.estimate scene=ct_head recnn=enhancenet renderer=numba")
     assert all(k in lines[0] for k in ("recnn.net.channels=16", "recnn.net.blocks=4", "iml.depth=4", "iml.base_channels=8",
@@ -144,7 +159,7 @@ def test_cli_gpu_schedule_train_only_prints_the_training_stages():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
-    assert len(lines) == 6 and not any("imls_lightning.evaluate" in ln for ln in lines)
+    assert len(lines) == 7 and not any("imls_lightning.evaluate" in ln for ln in lines)
     iml = next(ln for ln in lines if "model=iml" in ln and "importance=uniform" not in ln)
     assert "data.crop=128" in iml and "trainer.max_epochs=40" in iml and "test=false" in iml
 

@@ -63,11 +63,12 @@ def test_smoke_demo_pipeline_on_tiny_and_reuse(tmp_path):
     assert list(report.parent.glob("*.png")), "the report has no figures"
     sheets = list((tmp_path / "cache").rglob("contact_sheet.png"))
     assert len(sheets) == 1
-    for stage in ("cache", "RecNN", "IML", "IMS", "blue-noise decoder", "LAS", "evaluation"):
+    for stage in ("cache", "RecNN", "RecNN, sparser pattern", "IML", "IMS", "blue-noise decoder", "LAS", "evaluation"):
         assert f"[demo] {stage} done in" in p.stderr, stage
     text = report.read_text()
     for method in ("RecNN", "LAS", "IML/S", "## ORP on the product path", "IML/S mask + fill", "blue noise + decoder",
-                   "## Learned parts against untrained baselines, at equal share"):
+                   "## Learned parts against untrained baselines, at equal share", "## Speed-quality front",
+                   "RecNN alone, sparser pattern"):
         assert method in text, method
 
     # a second run reuses every stage and prints the same report path last
@@ -165,8 +166,12 @@ def test_demo_dry_run_passes_scene_overrides_to_every_stage(tmp_path):
                        cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     cmds = _commands(p.stdout)
-    # cache, RecNN, IML, IMS, blue-noise decoder, LAS, evaluation
-    assert [c[2] for c in cmds] == ["data_gen", *["imls_lightning.train"] * 5, "imls_lightning.evaluate"]
+    # cache, RecNN, RecNN on a sparser pattern, IML, IMS, blue-noise decoder, LAS, evaluation
+    assert [c[2] for c in cmds] == ["data_gen", *["imls_lightning.train"] * 6, "imls_lightning.evaluate"]
+    # the sparser RecNN: the RecNN stage's training on EnhanceNet 4x, passed to the evaluation
+    recnn, sparser = cmds[1], cmds[2]
+    assert sparser == [*recnn, "pattern.factor=4"]
+    assert "checkpoints.recnn_sparser=<RecNN,-sparser-pattern>" in cmds[-1]
     for c in cmds:
         i = c.index("scene=file")
         assert c[i + 1:i + 1 + len(overrides)] == overrides, c
@@ -220,6 +225,22 @@ def test_smoke_demo_on_your_own_nifti_file(tmp_path):
     assert m["scene"]["name"] == "mine" and m["scene"]["volume"]["spacing_xyz"] == [1.0, 1.0, 2.0]
     assert m["sample_distance"]["voxels"] == 1.0 and m["scene_config"]["transfer_function"]["auto"] is True
     assert len(list((tmp_path / "runs").glob("*-mine-*"))) == 4  # RecNN, IML, IMS, blue-noise runs of this scene
+
+
+def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
+    from omegaconf import OmegaConf
+
+    from data_gen.errors import InputError
+    from imls_lightning.demo import sparser_overrides
+
+    cfg = OmegaConf.create({"recnn": "fovolnet", "scene": "ct_head",
+                            "stages": {"recnn": ["trainer.max_epochs=10", "pattern.c_size_ratio=0.5"], "recnn_sparser": ["seed=3"]},
+                            "scene_stages": {"ct_head": {"recnn": ["trainer.max_epochs=20"]}}})
+    # the RecNN stage's overrides (its scene entries included), its sparser pattern replacing the same key, then the stage's own
+    assert sparser_overrides(cfg) == ["trainer.max_epochs=20", "pattern.c_size_ratio=0.25", "seed=3"]
+    cfg.recnn = "unet"
+    with pytest.raises(InputError, match="recnn=unet: no sparser pattern known for it.*stages.recnn_sparser=null"):
+        sparser_overrides(cfg)
 
 
 def test_stage_overrides_scene_entries_replace_the_same_keys():

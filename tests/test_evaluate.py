@@ -9,11 +9,13 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -24,23 +26,26 @@ from imls_lightning.report import METHOD_ORDER, summary
 ROOT = Path(__file__).resolve().parents[1]
 MEANS = [0.1, 0.3]
 LAS_IPRS = [0.1]
+FRONT_SHARES = [0.2, 1.0]
 # the stages each method reports (pipeline.py's table); every other stage column stays empty
 METHOD_STAGES = {
     "full": {"render"},
     "recnn": {"selective_render", "recnn"},
+    "recnn_sparser": {"selective_render", "recnn"},
     "las": {"low_res_render", "importance", "selective_render", "recnn"},
     "iml": {"selective_render", "importance", "decoder", "recnn"},
     "imls": {"importance", "selective_render", "decoder", "recnn"},
     "imls_fill": {"importance", "selective_render", "decoder", "recnn"},
     "blue_noise": {"importance", "selective_render", "decoder", "recnn"},
 }
-PLOTS = ("stage_breakdown.png", "psnr_per_view.png", "latency_vs_psnr.png", "image_grid.png")
+PLOTS = ("stage_breakdown.png", "psnr_per_view.png", "latency_vs_psnr.png", "image_grid.png", "speed_quality_front.png")
 
 
 def _args(ck: dict, *extra: str) -> list[str]:
     return ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={ck['cache_dir']}",
             f"paths.runs_dir={ck['runs_dir']}", f"checkpoints.ims={ck['ims_pim']}", f"checkpoints.las={ck['las']}",
-            f"checkpoints.blue_noise={ck['blue']}", "orp_max_views=4",
+            f"checkpoints.blue_noise={ck['blue']}", f"checkpoints.recnn_sparser={ck['recnn_sparser']}", "orp_max_views=4",
+            f"front_shares=[{','.join(map(str, FRONT_SHARES))}]",
             "progress=false", "max_views=2", "sweep_views=1", f"mean_values=[{','.join(map(str, MEANS))}]",
             f"las_iprs=[{','.join(map(str, LAS_IPRS))}]", "grid_views=2", "warmup=0", *extra]
 
@@ -96,6 +101,8 @@ def test_metrics_csv_has_every_method_and_stage(run):
     assert all(float(r["psnr"]) == 100.0 and float(r["ipr"]) == 1.0 for r in full)  # the cache's own renderer
     recnn = [r for r in rows if r["method"] == "recnn"]
     assert all(float(r["ipr"]) == 0.25 for r in recnn)  # EnhanceNet's downsampling pattern: a quarter of the pixels
+    sparser = [r for r in rows if r["method"] == "recnn_sparser"]
+    assert all(float(r["ipr"]) == 1 / 16 and float(r["c_share"]) == 1.0 for r in sparser)  # 4x: a quarter of C
     s = summary(run["out"] / "metrics.csv")
     assert list(s) == list(METHOD_ORDER) and s["imls"]["views"] == 2
 
@@ -123,7 +130,8 @@ def test_stage_times_are_medians_of_at_least_ten_runs(run):
 def test_sweep_csv_means_and_las_iprs(run):
     _, rows = _rows(run["out"] / "sweep.csv")
     got = {(r["method"], float(r["value"])) for r in rows}
-    assert got == {(m, u) for m in ("iml", "iml_selective") for u in MEANS} | {("las", p) for p in LAS_IPRS}
+    assert got == ({(m, u) for m in ("iml", "iml_selective") for u in MEANS} | {("las", p) for p in LAS_IPRS}
+                   | {("imls", s) for s in FRONT_SHARES} | {("blue_noise", s) for s in FRONT_SHARES if s < 1})
     by = {(r["method"], float(r["value"]), r["view"]): r for r in rows}
     for u in MEANS:
         for (m, v, view), r in by.items():
@@ -149,7 +157,8 @@ def test_report_has_the_paper_tables(run):
     table = text.split("## Average latency per method and stage (ms)")[1].split("\n\n")[1]
     lines = table.splitlines()
     assert lines[0].startswith("| Method | IPR |") and "RecNN (ms)" in lines[0] and "decoder (ms)" in lines[0]
-    assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "LAS", "IML + RecNN", "IML/S + RecNN",
+    assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "RecNN alone, sparser pattern", "LAS",
+                                                              "IML + RecNN", "IML/S + RecNN",
                                                               "IML/S mask + fill + RecNN", "blue noise + decoder + RecNN"]
     # the speed-up over the RecNN alone is its total over IML/S's total
     s = summary(run["out"] / "metrics.csv")
@@ -186,6 +195,83 @@ def test_orp_on_the_product_path_and_the_untrained_baselines(run):
     by = {(r["view"], r["method"]): r for r in rows}
     for v in {r["view"] for r in rows}:
         assert by[(v, "imls_fill")]["rendered_pixels"] == by[(v, "imls")]["rendered_pixels"]
+
+
+def test_the_speed_quality_front_puts_every_method_on_the_same_views(run):
+    import json
+
+    text = run["report"].read_text()
+    front = text.split("## Speed-quality front")[1].split("\n## ")[0]
+    for needle in ("RecNN alone, sparser pattern", "| IML/S + RecNN | 20% of C |", "100% of C", "ORP u=", "IPR=0.1",
+                   "u=0.3", "blue noise + decoder + RecNN", "Full ray cast", "◆", "Where IML/S lies: **tiny**",
+                   "](speed_quality_front.png)"):
+        assert needle in front, needle
+    assert "IML IM, selectively rendered" not in front  # no method a user can run
+    summ = json.loads((run["out"] / "summary.json").read_text())
+    pts, views = summ["front"], summ["front_views"]
+    assert len(views) == 1 and all(p["views"] == 1 for p in pts)  # sweep_views=1: every point on that view
+    assert {p["method"] for p in pts} >= {"full", "recnn", "recnn_sparser", "las", "iml", "imls", "imls_fill", "blue_noise"}
+    assert sum(p["method"] == "imls" for p in pts) == 1 + len(FRONT_SHARES)
+    # the marks are the Pareto front of the points (report.front.pareto_front, tested against its definition)
+    from imls_lightning.report import pareto_front
+
+    assert [p["on_front"] for p in pts] == pareto_front([p["latency_ms"] for p in pts], [p["psnr"] for p in pts])
+    # IML/S at 100% of C renders the whole pattern: the RecNN alone's image (the decoder keeps every given pixel)
+    full_c = next(p for p in pts if p["method"] == "imls" and p.get("value") == 1.0)
+    assert full_c["c_share"] == 1.0
+    _, rows = _rows(run["out"] / "metrics.csv")
+    recnn = next(r for r in rows if r["method"] == "recnn" and int(r["view"]) == views[0])
+    assert full_c["psnr"] == pytest.approx(float(recnn["psnr"]), abs=1e-6)
+
+
+def test_orp_gap_on_validation_and_test_views_side_by_side(run):
+    import json
+
+    orp = json.loads((run["out"] / "summary.json").read_text())["orp"]
+    assert orp["confidence"] == 0.95 and orp["test"]["views"] == 2 and orp["future_views"] == 2
+    # searched on held-out views: 4 (orp_max_views) of their own, drawn with data.seed + 1
+    assert orp["where"] == "4 held-out views (seed 1: no network trained on them)" and orp["views"] == 4
+    if orp["found"]:
+        assert orp["gap_db"] <= orp["gap_bound_db"] <= orp["epsilon_db"]
+    s = summary(run["out"] / "metrics.csv")
+    assert orp["test"]["gap_db"] == pytest.approx(s["recnn"]["psnr"] - s["imls"]["psnr"], abs=1e-6)
+    section = run["report"].read_text().split("## ORP on the product path")[1].split("\n## ")[0]
+    if orp["found"]:
+        assert "| 4 held-out views (seed 1: no network trained on them) (the ORP is chosen here) | 4 |" in section
+        assert "the test trajectory, evaluated (never tuned on)" in section
+    assert "gap bound (dB)" in section
+
+
+def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluate import orp_search_views, parse_settings
+
+    cfg = _compose(*_args(run["ck"]))
+    s = parse_settings(cfg)
+    caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
+    main = next(c for c in caches if c.manifest["data"]["seed"] == 0)  # the training cache (the held-out one is seed 1)
+    held, rows, where = orp_search_views(s, cfg, main, build_scene(cfg.scene))
+    assert held.path != main.path and len(rows) == 4 and held.manifest["data"]["seed"] == 1
+    # no held-out eye direction is one of the evaluated cache's (the IMS's cache shares those of the same seed)
+    d = lambda v: v[:, :3] / np.linalg.norm(v[:, :3], axis=1, keepdims=True)  # noqa: E731
+    cos = d(np.asarray(held.views[rows])) @ d(np.asarray(main.views)).T
+    assert cos.max() < 0.9999
+    val_cache, val_rows, val_where = orp_search_views(parse_settings(_compose(*_args(run["ck"], "orp_views=val"))), cfg, main, None)
+    assert val_cache is main and list(val_rows) == list(main.splits["val"]) and val_where.endswith("validation views")
+    with pytest.raises(InputError, match=re.escape("orp_views=test: expected one of ['heldout', 'val']")):
+        parse_settings(_compose(*_args(run["ck"], "orp_views=test")))
+
+
+def test_exception_sparser_recnn_must_be_sparser_and_of_the_same_kind(run):
+    from imls_lightning.evaluate import evaluate
+
+    with pytest.raises(InputError, match=r"checkpoints.recnn_sparser=.*its pattern has 256 pixels, not at most half of the evaluation's 256"):
+        evaluate(_compose(*_args(run["ck"], f"checkpoints.recnn_sparser={run['ck']['recnn']}", "output_dir=" + str(run["out"] / "x"))))
+    for bad, needle in (("orp_confidence=1.0", "orp_confidence=1.0: expected a confidence in [0.5, 1)"),
+                        ("front_shares=[0,0.5]", "front_shares=[0, 0.5]: expected numbers in (0.0, 1.0]")):
+        with pytest.raises(InputError, match=re.escape(needle)):
+            evaluate(_compose(*_args(run["ck"], bad)))
 
 
 # ---- reuse and errors -------------------------------------------------------------------------------
@@ -303,17 +389,18 @@ def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):
 
 # ---- the operating point travels with the IMS checkpoint -------------------------------------------
 def _orp_views(ck: dict) -> list:
-    """The validation views the evaluation searched the ORP on (at most orp_max_views=4 of the cache's)."""
+    """The views the evaluation searched the ORP on (orp_max_views=4 held-out views: evaluate.orp_search_views)."""
     import numpy as np
 
     from data_gen.cache import ViewImageCache, ensure_cache
     from data_gen.scene import build_scene
-    from imls_lightning.evaluate import spaced
+    from imls_lightning.evaluate import orp_search_views, parse_settings
 
     cfg = _compose(*_args(ck))
-    cache = ViewImageCache.open(ensure_cache(build_scene(cfg.scene), cfg.data, cfg.renderer, progress=False))
-    rows = cache.splits["val"]
-    return [np.asarray(cache.views[r], np.float64) for r in rows[spaced(len(rows), 4)]]
+    scene = build_scene(cfg.scene)
+    cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=False))
+    held, rows, _ = orp_search_views(parse_settings(cfg), cfg, cache, scene)
+    return [np.asarray(held.views[r], np.float64) for r in rows]
 
 
 def _trained_mean(ckpt) -> float:
@@ -429,22 +516,18 @@ def test_exception_ims_lift_is_one_line(tiny_checkpoints):
 def test_orp_with_lift_auto_searches_again_lifted_only_when_the_rescale_finds_none(capsys):
     """The control flow of ims_lift=auto with the real ORP search (the gap is a function of the
     lifted state; the lift itself is tested on a real IMS in tests/adaptive/test_renderer.py)."""
-    from types import SimpleNamespace
-
     from imls_lightning.evaluate import orp_with_lift
     from imls_lightning.orp import ORPSearch, batched
 
-    def search_for(ims):
+    def search(lift: bool):  # the lift is the search's argument, not state
         # the rescale's gap never drops below 2 dB; lifted, every u >= 0.5 is within 1 dB
-        gap = lambda u: (0.0 if u >= 0.5 else 3.0) if ims.lift_to_mean else 2.0  # noqa: E731
-        return lambda: ORPSearch(epsilon_db=1.0).run(batched(lambda u: {"gap_db": gap(u), "c_share": min(u, 0.6)}))
+        gap = lambda u: (0.0 if u >= 0.5 else 3.0) if lift else 2.0  # noqa: E731
+        return ORPSearch(epsilon_db=1.0).run(batched(lambda u: {"gap_db": gap(u), "c_share": min(u, 0.6)}))
 
-    ims = SimpleNamespace(lift_to_mean=None)
-    res = orp_with_lift(search_for(ims), ims, "auto")
-    assert res.found and 0.5 <= res.mean <= 0.56 and ims.lift_to_mean is True
-    assert res.rescale_points and all(g == 2.0 for _, g, _ in res.rescale_points)
+    res = orp_with_lift(search, "auto")
+    assert res.found and 0.5 <= res.mean <= 0.56 and res.lifted is True
+    assert res.rescale_points and all(p[1] == 2.0 for p in res.rescale_points)
     assert "ORP: none with the paper's rescale (largest share 60.0% of C)" in capsys.readouterr().err
     for lift in (False, True):
-        ims = SimpleNamespace(lift_to_mean=None)
-        res = orp_with_lift(search_for(ims), ims, lift)
-        assert ims.lift_to_mean is lift and res.found is lift and getattr(res, "rescale_points", None) is None
+        res = orp_with_lift(search, lift)
+        assert res.lifted is lift and res.found is lift and getattr(res, "rescale_points", None) is None

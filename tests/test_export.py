@@ -1,5 +1,5 @@
-"""Export of the IML/S + RecNN networks (imls_lightning.export): TorchScript and ONNX files that
-render the same images as IMLSRenderer, the loader, the CLI and its errors.
+"""Export of the IML/S + RecNN networks (imls_lightning.inference.export; the CLI imls_lightning.export):
+TorchScript and ONNX files that render the same images as IMLSRenderer, the loader, the CLI and its errors.
 
 Fast tests build IMS checkpoints in-process (real tasks, random weights; the generator's output
 bias is set so that about half of the C-Image is important: an empty or full IM would hide a
@@ -22,7 +22,8 @@ from data_gen.errors import InputError
 from data_gen.renderers import make_renderer
 from data_gen.scene import build_scene
 from data_gen.views import sample_training_views
-from imls_lightning.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available, parse_args
+from imls_lightning.export import parse_args
+from imls_lightning.inference.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available
 from imls_lightning.inference.pipeline import IMLSRenderer
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
@@ -151,7 +152,7 @@ def test_onnx_export_renders_the_same_images_within_one_level(ckpts, renderer, t
 @pytest.mark.parametrize("target", ["im", "pim"])
 def test_im_predictor_is_the_tasks_thresholding(target):
     ims, _ = make_ims_task("fovolnet", target=target)
-    pred = IMPredictor(ims.generator, ims.target, ims.P, ims.pattern.valid).eval()
+    pred = IMPredictor(ims.mask_head).eval()
     views = torch.from_numpy(_views(8, 3))
     with torch.no_grad():
         want = ims.predict_im(views)
@@ -173,26 +174,25 @@ def _low_pim_ims(recnn: str, shift: float) -> IMSTask:
     return ims
 
 
-@pytest.mark.parametrize("recnn, shift", [("enhancenet", 3.0), ("fovolnet", 3.0), ("fovolnet", 8.0)])
+# the thresholding itself is checked against the reference on both kinds of pattern in tests/models/test_ims.py;
+# here the export of it: a padded (foveal) pattern, with the rescale's lift and with only the floor sampling
+@pytest.mark.parametrize("recnn, shift", [("fovolnet", 3.0), ("fovolnet", 8.0)])
 def test_im_predictor_at_a_mean_is_the_tasks_rescale_and_lift(recnn, shift):
-    """At another mean value the exported IM is IMSTask.output_to_im_at's bit for bit, plain and lifted
-    (the lift in tensor operations only: the trace of one view serves a batch)."""
+    """At another mean value the exported IM is the mask head's (IMSTask.predict_im's) bit for bit, plain
+    and lifted (the lift in tensor operations only: the trace of one view serves a batch)."""
     ims = _low_pim_ims(recnn, shift)
     views = torch.from_numpy(_views(8, 3))
     k = ims.pattern.count
     for lift in (False, True):
-        ims.lift_to_mean = lift
         for u in (0.05, 0.35, 0.95):  # below and above the trained mean (0.1)
-            pred = IMPredictor(ims.generator, "pim", ims.P, ims.pattern.valid, mean=u, trained_mean=float(ims.iml.mean),
-                               lower=float(ims.iml.normalization.lower), lift=lift).eval()
+            pred = IMPredictor(ims.mask_head, mean=u, lift=lift).eval()
             with torch.no_grad():
-                want = ims.predict_im(views, mean=u)
+                want = ims.predict_im(views, mean=u, lift=lift)
                 traced = torch.jit.trace(pred, (views[:1],), check_trace=False)
                 assert torch.equal(pred(views), want) and torch.equal(traced(views), want), (lift, u)
             if lift and u > 0.1:  # the lift reaches u's share, which the rescale alone does not
                 assert float(want.sum()) / (8 * k) == pytest.approx(u, abs=0.02)
-    ims.lift_to_mean = False
-    assert float(ims.predict_im(views, mean=0.95).sum()) / (8 * k) < 0.5
+    assert float(ims.predict_im(views, mean=0.95).sum()) / (8 * k) < 0.5  # the paper's rescale unless asked
 
 
 def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys):

@@ -188,7 +188,7 @@ def test_smoke_measure_backends_on_real_checkpoints(tiny_checkpoints, tmp_path, 
     exports give the same image (PSNR within 0.01 dB), bfloat16 close to it; a missing ONNX Runtime is a row
     that says so, not an error."""
     from data_gen.cache import ViewImageCache
-    from imls_lightning.export import onnx_available
+    from imls_lightning.inference.export import onnx_available
     from imls_lightning.inference.checkpoints import load_task
 
     mod = _script_module("measure_backends")

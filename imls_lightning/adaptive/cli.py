@@ -24,7 +24,6 @@ from ..config import register_resolvers
 from ..core.importance import MEAN_RANGE
 from ..inference.checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
 from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, pick_device
-from ..tasks.ims import scaled_pim_im
 from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
 from .predictor import ConstantMean, TableMean, train_predictor
@@ -87,9 +86,9 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     recnn = require_recnn(recnn if recnn is not None else ims.recnn, key="ims_checkpoint", path=s.ims)
     device = pick_device(s.device)
     opts = s.options
-    # every IML/S mask of this run (labels, trade-off curve, renderers) comes from scaled_pim_im, which
-    # reads this: lifted past the paper's rescale when the evaluation's ORP needed it (evaluate ims_lift)
-    ims.lift_to_mean = s.ims_lift
+    # every IML/S mask of this run (labels, ORP, trade-off curve, renderers) is the IMS mask head's, lifted
+    # past the paper's rescale when the evaluation's ORP needed it (evaluate's ims_lift)
+    lift = bool(s.ims_lift)
     iml = ims.iml
     u_train = float(iml.mean)
     pattern = ims.pattern
@@ -131,7 +130,8 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
             lambda rows=rows, split=split: compute_labels(cache, rows, pattern, iml, recnn, recnn, s.epsilon_db, s.steps,
                                                          s.batch_size, device, s.progress, desc=f"labels {split}",
                                                          reference=s.reference, bracket=bracket,
-                                                         unreachable=s.unreachable, source=s.label_source, ims=ims),
+                                                         unreachable=s.unreachable, source=s.label_source, ims=ims,
+                                                         lift=lift),
             split)
         timing[f"labels_{split}_s"] = round(time.perf_counter() - t0, 2)
         timing[f"labels_{split}_reused"] = reused
@@ -161,7 +161,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
 
         with torch.inference_mode():
             batches = list(DataLoader(orp_ds, batch_size=s.batch_size, shuffle=False, num_workers=0))
-            orp_res = product_orp(ims.to(device).eval(), ims.decoder, recnn.to(device).eval(), batches, s.epsilon_db,
+            orp_res = product_orp(ims.to(device).eval().mask_head, ims.decoder, recnn.to(device).eval(), batches, s.epsilon_db, lift=lift,
                                   device=device)
     else:
         def orp_quality(u: float) -> dict[str, float]:
@@ -193,19 +193,23 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
 
     def imls_ipr(u: float | np.ndarray) -> float:
         with torch.inference_mode():
-            im = scaled_pim_im(ims, g_all, torch.as_tensor(u, dtype=torch.float32).expand(len(rows)), u_train)
+            im = ims.mask_head.threshold(g_all, torch.as_tensor(u, dtype=torch.float32).expand(len(rows)), lift)
         return float(im.flatten(1).sum(1).double().mean()) / m**2
 
     adaptive_ipr_est = imls_ipr(u_pred)
     u_match = mean_for_ipr(imls_ipr, adaptive_ipr_est)
     const = {"fixed": u_train, "orp": u_orp, "matched": u_match}
     methods: dict[str, Any] = {"recnn": RecNNAlone(renderer, pattern, recnn, opts),
-                               "imls_fixed": IMLSRenderer.from_task(ims, renderer, recnn, opts)}
+                               "imls_fixed": IMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, recnn, opts)}
+
+    def adaptive(mean_of) -> AdaptiveIMLSRenderer:
+        return AdaptiveIMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, recnn, mean_of, opts, lift=lift)
+
     for k in ("orp", "matched"):
-        methods[f"imls_{k}"] = AdaptiveIMLSRenderer(renderer, ims, ConstantMean(clamp_mean(const[k])), recnn, opts)
-    methods["imls_adaptive"] = AdaptiveIMLSRenderer(renderer, ims, predictor, recnn, opts)
+        methods[f"imls_{k}"] = adaptive(ConstantMean(clamp_mean(const[k])))
+    methods["imls_adaptive"] = adaptive(predictor)
     oracle = TableMean(ev.views, ev.u)
-    methods["imls_oracle"] = AdaptiveIMLSRenderer(renderer, ims, oracle, recnn, opts)
+    methods["imls_oracle"] = adaptive(oracle)
     methods["iml_fixed"] = IMLPlusRecNN(renderer, pattern, iml, recnn, opts)
     methods["iml_orp"] = IMLPlusRecNN(renderer, pattern, iml, recnn, opts, mean=clamp_mean(u_orp))
     methods["iml_adaptive"] = AdaptiveIMLPlusRecNN(renderer, pattern, iml, recnn, predictor, opts)
@@ -246,7 +250,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
         means["oracle (labels)"] = ev.u
         if s.reference == "iml":  # the reference is the path itself at the trained mean: measured in the same pass
             means["reference"] = u_train
-        q = quality_at_means(cache, rows, pattern, iml, recnn, means, source=s.label_source, ims=ims,
+        q = quality_at_means(cache, rows, pattern, iml, recnn, means, source=s.label_source, ims=ims, lift=lift,
                              batch_size=s.batch_size, device=device, progress=s.progress)
         ref_psnr = q.pop("reference" if s.reference == "iml" else "recnn")["psnr"]
         q.pop("recnn", None)

@@ -22,7 +22,6 @@ from data_gen.errors import InputError, finite_number
 from ..core.importance import MEAN_RANGE, normalize_importance
 from ..core.metrics import psnr_per_image
 from ..inference.pipeline import pick_device
-from ..tasks.ims import scaled_pim_im
 from .checks import check_epsilon, check_integer, clamp_mean
 
 REFERENCES = ("recnn", "iml")
@@ -219,31 +218,35 @@ def view_complexity(images: np.ndarray, background: Sequence[float] = (0.0, 0.0,
 
 
 def check_source(source: str, ims) -> None:
-    """``source`` is ``"ims"`` (then ``ims`` must be an IMS task with ``target="pim"``) or ``"iml"``."""
+    """``source`` is ``"ims"`` (then ``ims`` must be an IMS with ``target="pim"``: its mask head or its
+    task) or ``"iml"``."""
     if source not in SOURCES:
         raise InputError(f"label_source={source!r}: expected one of {list(SOURCES)}")
     if source == "ims" and (ims is None or getattr(ims, "target", None) != "pim"):
         raise InputError("label_source=ims: needs the IMS task (an IMS trained with model.target=pim)")
 
 
-def mask_function(source: str, iml: nn.Module, ims, c: torch.Tensor, view: torch.Tensor) -> Callable[[Any], torch.Tensor]:
+def mask_function(source: str, iml: nn.Module, ims, c: torch.Tensor, view: torch.Tensor,
+                  lift: bool = False) -> Callable[[Any], torch.Tensor]:
     """``u (B,) -> IM (B, 1, n, n)`` in ``c``'s dtype for one batch: the IML's mask at ``u`` from the
     rendered C-Image ``c`` (``source="iml"``) or the IMS's PIM' for ``view`` scaled to ``u``
-    (``source="ims"``, the IML/S path). The network runs once here, not per ``u``."""
+    (``source="ims"``, the IML/S path: ``ims``'s :class:`~imls_lightning.models.ims.IMSMaskHead`, or an
+    IMS task's ``mask_head``; lifted to the share ``u`` with ``lift``). The network runs once here, not
+    per ``u``."""
     if source == "iml":
         pim = iml_pim(iml, c)
         return lambda u: im_at_means(iml, pim, u).to(c.dtype)
-    g = ims.generator(view.float()).float()
-    u_train = float(iml.mean)
-    return lambda u: scaled_pim_im(ims, g, torch.as_tensor(u, dtype=torch.float32).reshape(-1).expand(c.shape[0]),
-                                   u_train).to(c.dtype)
+    head = getattr(ims, "mask_head", ims)
+    g = head.generator(view.float()).float()
+    return lambda u: head.threshold(g, torch.as_tensor(u, dtype=torch.float32).reshape(-1).expand(c.shape[0]),
+                                    lift).to(c.dtype)
 
 
 def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: nn.Module, recnn_alone: nn.Module,
                    epsilon_db: float = 1.0, steps: int = 8, batch_size: int = 16, device: str | torch.device = "cpu",
                    progress: bool = True, desc: str = "labels", reference: str = "recnn",
                    bracket: Sequence[float] = MEAN_RANGE, unreachable: str = "hi", source: str = "iml",
-                   ims=None) -> MeanLabels:
+                   ims=None, lift: bool = False) -> MeanLabels:
     """Per-view smallest mean value meeting epsilon, for the cache ``rows`` (see :func:`bisect_mean`).
 
     For each batch of views: the RecNN alone on the C-Image (once), the IML encoder (once), then per
@@ -266,8 +269,8 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
         device: where the networks run.
         source: whose importance is bisected: ``"iml"`` (the IML encoder on the rendered C-Image, the
             upper bound) or ``"ims"`` (the product path IML/S: the IMS's PIM' from the view alone,
-            scaled to ``u`` by :func:`scaled_pim_im`; needs ``ims``, an IMS task with
-            ``target="pim"``). With ``"ims"`` and ``reference="iml"`` the reference is IML/S at the
+            scaled to ``u`` (its mask head's thresholding, lifted with ``lift``); needs ``ims``, an IMS
+            with ``target="pim"``). With ``"ims"`` and ``reference="iml"`` the reference is IML/S at the
             trained mean.
     """
     from torch.utils.data import DataLoader
@@ -293,7 +296,7 @@ def compute_labels(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn_iml: 
         for batch in tqdm(loader, total=len(loader), desc=desc, unit="batch", file=sys.stderr,
                           disable=not progress, dynamic_ncols=True):
             c, fr = batch["c"].to(dev), batch["fr"].to(dev)
-            mask_at = mask_function(source, iml, ims, c, batch["view"].to(dev))
+            mask_at = mask_function(source, iml, ims, c, batch["view"].to(dev), lift)
             if reference == "recnn":
                 psnr_ref = psnr_per_image(recnn_alone(c), fr)
             else:

@@ -8,17 +8,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..inference.checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
-from ..inference.pipeline import (
-    IMLPlusRecNN,
-    IMLSRenderer,
-    NetOptions,
-    StageTimer,
-    pick_device,
-    prepare_net,
-    renderer_for_task,
-)
-from ..tasks.ims import scaled_pim_im
+from ..inference.checkpoints import load_ims_nets, renderer_for, require_pim_target, require_recnn
+from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, StageTimer
+from ..models.ims import IMSMaskHead
 from .labels import im_at_means, iml_pim
 from .predictor import MeanPredictor
 
@@ -42,11 +34,13 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
 
     Args:
         renderer: the scene's renderer.
-        task: a loaded :class:`~imls_lightning.tasks.ims.IMSTask` with ``target="pim"`` (moved to the
-            options' device and prepared in place, like :meth:`IMLSRenderer.from_task`).
+        pattern: the sampling pattern.
+        head: the IMS's :class:`~imls_lightning.models.ims.IMSMaskHead`, ``target="pim"`` (its generator
+            moved to the options' device and prepared, as :class:`IMLSRenderer` does).
+        decoder, recnn: the IML decoder and the RecNN.
         predictor: ``view (1, 9) -> u (1,)``, e.g. :class:`MeanPredictor` or :class:`ConstantMean`.
-        recnn: a RecNN to use instead of the task's.
         opts: :class:`NetOptions`.
+        lift: lift the masks to the share ``u_v`` (the evaluation's ``ims_lift``).
 
     Raises:
         InputError: the IMS was trained with ``target="im"`` (a binary mask cannot be rescaled), or
@@ -60,18 +54,13 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
 
     name = "imls_adaptive"
 
-    def __init__(self, renderer, task, predictor: nn.Module, recnn: nn.Module | None = None,
-                 opts: NetOptions | None = None):
-        require_pim_target(task.hparams, path=task_path(task), what="the adaptive renderer, which scales the regressed PIM',")
-        opts = opts or NetOptions()
-        recnn = require_recnn(task.recnn if recnn is None else recnn, key="ims_checkpoint", path=task_path(task))
-        device = pick_device(opts.device)
-        task.to(device).eval()
-        self.task = task
-        self.u_train = float(task.iml.mean)
-        self.generator = prepare_net(task.generator, device, opts)
-        self.predictor = predictor.to(device).eval()
-        super().__init__(renderer, task.pattern, self._predict_im, task.decoder, recnn, opts)
+    def __init__(self, renderer, pattern, head: IMSMaskHead, decoder: nn.Module, recnn: nn.Module | None,
+                 predictor: nn.Module, opts: NetOptions | None = None, *, lift: bool = False):
+        require_pim_target({"target": head.target}, what="the adaptive renderer, which scales the regressed PIM',")
+        recnn = require_recnn(recnn, key="ims_checkpoint")
+        super().__init__(renderer, pattern, head, decoder, recnn, opts, lift=lift)
+        self.u_train = float(head.trained_mean)
+        self.predictor = predictor.to(self.device).eval()
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, predictor: str | nn.Module, *, scene=None, renderer=None,
@@ -82,20 +71,21 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
         Scene and renderer default to those stored in the IMS checkpoint (as
         :meth:`IMLSRenderer.from_checkpoints`); ``margin`` overrides the predictor file's margin.
         """
-        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
+        nets = load_ims_nets(ims_checkpoint, recnn_checkpoint)
         if not isinstance(predictor, nn.Module):
             predictor = MeanPredictor.load(predictor, margin=margin)
         elif margin is not None:
             predictor.margin = margin
-        return cls(renderer_for_task(task, scene, renderer, renderer_cfg), task, predictor, recnn, opts)
+        recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=ims_checkpoint)
+        return cls(renderer_for(nets.hparams, scene, renderer, renderer_cfg), nets.pattern, nets.head, nets.decoder, recnn,
+                   predictor, opts)
 
-    def _predict_im(self, view: torch.Tensor, u: torch.Tensor | float | None = None) -> torch.Tensor:
+    def predict_im(self, view: torch.Tensor, u: torch.Tensor | float | None = None) -> torch.Tensor:
         """IM ``(B, 1, n, n)`` of views ``(B, 9)`` at mean ``u`` (``None``: the predictor's)."""
         if u is None:
             u = _mean_of(self.predictor, view)
         with self.opts.autocast(self.device):
-            g = self.generator(view)
-        return scaled_pim_im(self.task, g, u, self.u_train)
+            return self.mask_head(view, u, self.lift)
 
     def mean_for(self, view) -> float:
         """The predictor's ``u_v`` for one view (no rendering)."""
@@ -108,7 +98,7 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
             u = _mean_of(self.predictor, v)
         info["mean"] = float(u[0])
         with timer.stage("importance"):
-            return self._predict_im(v, u)[0, 0].bool()
+            return self.predict_im(v, u)[0, 0].bool()
 
 
 class AdaptiveIMLPlusRecNN(IMLPlusRecNN):

@@ -23,7 +23,7 @@ from .labels import check_source, mask_function
 
 
 def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn.Module, means: Mapping[str, Any], *,
-                     source: str = "ims", ims=None, batch_size: int = 16, device: str | torch.device = "cpu",
+                     source: str = "ims", ims=None, lift: bool = False, batch_size: int = 16, device: str | torch.device = "cpu",
                      progress: bool = False, desc: str = "trade-off") -> dict[str, dict[str, np.ndarray]]:
     """Per-view PSNR and IPR of the IML/S (``source="ims"``) or IML (``"iml"``) + RecNN path at given means.
 
@@ -34,7 +34,7 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
 
     Args:
         means: ``name -> u``: a number (one fixed mean) or an ``(N,)`` array (one mean per row).
-        source, ims: as :func:`compute_labels`.
+        source, ims, lift: as :func:`compute_labels`.
 
     Returns:
         ``name -> {"psnr": (N,), "ipr": (N,)}`` plus ``"recnn" -> {"psnr": (N,)}`` (the RecNN alone);
@@ -77,7 +77,7 @@ def quality_at_means(cache, rows: np.ndarray, pattern, iml: nn.Module, recnn: nn
             sl = slice(start, start + c.shape[0])
             start += c.shape[0]
             out["recnn"]["psnr"].append(psnr_per_image(recnn(c), fr).double().cpu().numpy())
-            mask_at = mask_function(source, iml, ims, c, batch["view"].to(dev))
+            mask_at = mask_function(source, iml, ims, c, batch["view"].to(dev), lift)
             for name, u in table.items():
                 im = mask_at(torch.as_tensor(u[sl]))
                 out[name]["psnr"].append(psnr_per_image(recnn(iml.decode(im * c, im)), fr).double().cpu().numpy())

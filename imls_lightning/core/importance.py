@@ -156,6 +156,10 @@ def lift_to_share(
     sorted values: with the ``k`` largest saturated the share is ``(k + m R_k) / N``, ``R_k`` the sum
     of the others.
 
+    Tensor operations only, on ``pim_norm``'s device, all images at once: ``torch.jit.trace`` and the
+    ONNX exporter record it (the exported IMS mask, :mod:`imls_lightning.inference.export`). Only a ``valid`` that
+    differs between images is solved image by image.
+
     Args:
         pim_norm: ``(B, 1, H, W)`` normalized importance PIM' (``>= 0``).
         mean: the share to reach per image: a number or a ``(B,)`` tensor in ``[0, 1]``.
@@ -179,42 +183,51 @@ def lift_to_share(
     if pim_norm.dim() != 4:
         raise ValueError(f"pim_norm: expected a (B, C, H, W) tensor, got shape {tuple(pim_norm.shape)}")
     b = pim_norm.shape[0]
-    u = torch.as_tensor(mean, dtype=torch.float64).reshape(-1).cpu()
-    if u.numel() == 1:
-        u = u.expand(b)
-    if u.numel() != b:
-        raise ValueError(f"mean: expected a number or {b} mean values, got {u.numel()}")
-    for v in u.tolist():
-        if not (0.0 <= v <= 1.0 + 1e-6):  # a float32 1.0 passes
-            check_number(v, "mean", 0.0, 1.0)
-    u = u.clamp(0.0, 1.0)
     x = pim_norm.detach().to(torch.float64).clamp_min(0.0)
-    if valid is not None:
-        v = valid.to(device=x.device, dtype=torch.bool)
-        while v.dim() < 4:
-            v = v.unsqueeze(0)
-        v = v.expand(b, 1, x.shape[2], x.shape[3])
-    mult = torch.ones(b, dtype=torch.float64)
-    floor = torch.zeros(b, dtype=torch.float64)
-    for i in range(b):
-        vals = (x[i][v[i]] if valid is not None else x[i].reshape(-1)).cpu()
-        n = vals.numel()
-        target = float(u[i]) * n
-        if n == 0 or float(vals.clamp(max=1.0).sum()) >= target:
-            continue  # the rescale reaches u by itself
-        pos = vals[vals > 0]
-        if target >= pos.numel():  # every pixel with importance is taken; the rest comes from the floor
-            mult[i] = math.inf
-            floor[i] = min(max((target - pos.numel()) / max(n - pos.numel(), 1), 0.0), 1.0)
-            continue
-        xs, _ = torch.sort(pos, descending=True)
-        rest = xs.flip(0).cumsum(0).flip(0)                   # rest[k] = sum of xs[k:]
-        k = torch.arange(xs.numel(), dtype=torch.float64)
-        at_saturation = k + rest / xs                         # share * N when xs[k] reaches 1; non-decreasing
-        j = int(torch.searchsorted(at_saturation, torch.tensor([target], dtype=torch.float64)))
-        j = min(j, xs.numel() - 1)
-        mult[i] = max((target - j) / float(rest[j]), 1.0)
-    return mult.view(b, 1, 1, 1).to(pim_norm.device), floor.view(b, 1, 1, 1).to(pim_norm.device)
+    u = torch.as_tensor(mean, dtype=torch.float64).reshape(-1)
+    if u.numel() != 1 and u.numel() != b:
+        raise ValueError(f"mean: expected a number or {b} mean values, got {u.numel()}")
+    if not torch.jit.is_tracing():  # a traced mean is the constant it was checked as
+        for v in u.tolist():
+            if not (0.0 <= v <= 1.0 + 1e-6):  # a float32 1.0 passes
+                check_number(v, "mean", 0.0, 1.0)
+    u = u.to(x.device).clamp(0.0, 1.0).expand(b)
+    flat = x.flatten(1)
+    if valid is None:
+        return _lift_rows(flat, u)
+    v = valid.to(device=x.device, dtype=torch.bool)
+    while v.dim() < 4:
+        v = v.unsqueeze(0)
+    if v.shape[0] == 1:  # one set of pixels for every image: gathered once, solved at once
+        index = torch.nonzero(v.flatten()).flatten()
+        return _lift_rows(flat.index_select(1, index), u)
+    v = v.expand(b, 1, x.shape[2], x.shape[3]).flatten(1)
+    parts = [_lift_rows(flat[i][v[i]][None], u[i:i + 1]) for i in range(b)]
+    return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
+
+
+def _lift_rows(vals: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`lift_to_share` of the rows of ``vals`` ``(B, N)`` float64 (the counted pixels of each
+    image) at the shares ``u`` ``(B,)``: ``(m, f)`` ``(B, 1, 1, 1)``."""
+    b, n = vals.shape
+    one = torch.ones(b, dtype=torch.float64, device=vals.device)
+    if not torch.jit.is_tracing() and n == 0:  # no pixel counts: nothing to reach (a traced n is never 0)
+        return one.view(b, 1, 1, 1), torch.zeros_like(one).view(b, 1, 1, 1)
+    target = u * n
+    reached = vals.clamp(max=1.0).sum(1) >= target           # the rescale reaches u by itself
+    npos = (vals > 0).sum(1).to(torch.float64)
+    take_all = ~reached & (target >= npos)                     # every pixel with importance, then the floor
+    floor = ((target - npos) / (n - npos).clamp_min(1.0)).clamp(0.0, 1.0)
+    xs = vals.sort(1, descending=True).values                  # zeros last: they add nothing below
+    rest = xs.flip(1).cumsum(1).flip(1)                        # rest[:, k] = sum of xs[:, k:]
+    ranks = torch.arange(n, dtype=torch.float64, device=vals.device)
+    # share * N when xs[k] reaches 1; non-decreasing over the pixels with importance, inf past them
+    at_saturation = torch.where(xs > 0, ranks + rest / xs, torch.full_like(xs, math.inf))
+    j = torch.minimum((at_saturation < target[:, None]).sum(1), (npos.long() - 1).clamp_min(0))
+    mult = ((target - j.to(torch.float64)) / rest.gather(1, j[:, None])[:, 0]).clamp_min(1.0)
+    mult = torch.where(take_all, torch.full_like(mult, math.inf), torch.where(reached, one, mult))
+    floor = torch.where(take_all, floor, torch.zeros_like(floor))
+    return mult.view(b, 1, 1, 1), floor.view(b, 1, 1, 1)
 
 
 def lifted_mask(pim_norm: torch.Tensor, mult: torch.Tensor, floor: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
@@ -232,7 +245,8 @@ def lifted_mask(pim_norm: torch.Tensor, mult: torch.Tensor, floor: torch.Tensor,
         P = _p_like(P, x)
         m, f = mult.to(device=x.device, dtype=x.dtype), floor.to(device=x.device, dtype=x.dtype)
         # m = inf takes every pixel with importance (x * inf would be NaN at x = 0)
-        scaled = torch.where(torch.isinf(m), (x > 0).to(x.dtype), x * m.nan_to_num(posinf=1.0))
+        inf = torch.isinf(m)
+        scaled = torch.where(inf, (x > 0).to(x.dtype), x * torch.where(inf, torch.ones_like(m), m))
         return (scaled > P) | (scaled >= 1.0) | (f > P) | (f >= 1.0)
 
 

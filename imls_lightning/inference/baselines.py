@@ -103,7 +103,8 @@ def _densities(im: torch.Tensor, c: torch.Tensor, valid: torch.Tensor) -> tuple[
 @torch.no_grad()
 def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | None, recnn: torch.nn.Module,
                      iml: torch.nn.Module | None = None, ims_task: Any = None, blue: torch.nn.Module | None = None,
-                     shares: Sequence[float] = SHARES, valid: torch.Tensor | None = None, pattern: Any = None) -> list[dict[str, Any]]:
+                     shares: Sequence[float] = SHARES, valid: torch.Tensor | None = None, pattern: Any = None,
+                     ims_lift: bool = False) -> list[dict[str, Any]]:
     """Per-image PSNR after the RecNN for every (share, mask, reconstruction) on one batch.
 
     Args:
@@ -121,6 +122,7 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
         valid: ``(n, n)`` bool pattern pixels (default: ``iml.valid`` or all).
         pattern: the C-Images' sampling pattern: a foveal one is filled at the samples' FR positions
             (:func:`~imls_lightning.models.pull_push.fill_c_image`); ``None``: filled as a grid.
+        ims_lift: lift the IMS's masks to the share of each mean value (the evaluation's ``ims_lift``).
 
     Returns:
         rows ``{"share", "mask", "reconstruction", "psnr" (B,), "c_share" (B,), "density_background",
@@ -145,7 +147,7 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
     if ims_task is not None and views is not None and ims_task.target == "pim":
         g = ims_task.generator(views.to(c.device).float()).float()
         # the product's decoder: the IML's, or the one fine-tuned on the IMS's masks (model.decoder_lr > 0)
-        sources["ims"] = (lambda u: ims_task.output_to_im_at(g, u.to(c.device)), ims_task.decoder)
+        sources["ims"] = (lambda u: ims_task.output_to_im_at(g, u.to(c.device), ims_lift), ims_task.decoder)
     sources["blue_noise"] = (lambda u: u.to(c.device).view(-1, 1, 1, 1) > P, blue.decoder if blue is not None else None)
 
     rows: list[dict[str, Any]] = []
@@ -189,29 +191,45 @@ def summarize_equal_share(batches: Sequence[Sequence[Mapping[str, Any]]]) -> lis
 
 
 @torch.no_grad()
-def product_orp(ims_task: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
-                epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu"):
+def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
+                epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu",
+                confidence: float = 0.5, lift: bool = False, future_views: int | None = None):
     """The ORP on the product path: the smallest mean value ``u`` whose IML/S + RecNN (IMS mask from
     the view at ``u``, exactly those C-pixels, the IML decoder, the RecNN) stays within
-    ``epsilon_db`` of the RecNN alone, in mean PSNR over the given (validation) views.
+    ``epsilon_db`` of the RecNN alone on the given (validation) views, with a margin for unseen views:
+    the one-sided upper bound at ``confidence`` on the mean per-view gap (of all such views, or of
+    ``future_views`` new ones; :func:`~imls_lightning.orp.search.gap_upper_bound`) must stay within
+    ``epsilon_db`` (``confidence=0.5``: the mean gap itself).
 
     One IMS serves every ``u``: it regresses PIM' at its trained mean, rescaled to ``u``
-    (:meth:`~imls_lightning.tasks.ims.IMSTask.output_to_im_at`; needs ``target=pim``).
+    (:meth:`IMSMaskHead.threshold <imls_lightning.models.ims.IMSMaskHead.threshold>`; needs ``target=pim``).
 
     Args:
+        mask_head: the IMS's :class:`~imls_lightning.models.ims.IMSMaskHead` (on ``device``).
         batches: dicts with ``view (B, 9)``, ``c (B, 3, n, n)``, ``fr (B, 3, m, m)``.
+        confidence: in ``[0.5, 1)``.
+        future_views: the number of new views the bound is for (``None``: a confidence bound on the mean).
+        lift: lift the IMS's masks to the share ``u`` (the evaluation's ``ims_lift``).
 
     Returns:
-        :class:`~imls_lightning.orp.ORPResult`; each evaluation's ``record`` has ``gap_db``,
-        ``psnr_imls``, ``psnr_recnn``, ``c_share``, ``ipr``.
+        :class:`~imls_lightning.orp.ORPResult`; each evaluation's ``record`` has ``gap_db`` (the mean
+        per-view gap), ``gap_std_db``, ``gap_bound_db`` (what the search compares with epsilon),
+        ``views``, ``confidence``, ``future_views``, ``psnr_imls``, ``psnr_recnn``, ``c_share``, ``ipr``.
+
+    Example:
+        >>> res = product_orp(ims.mask_head, ims.decoder, recnn, batches, 1.0, confidence=0.95)   # doctest: +SKIP
+        >>> res.best.record["gap_db"] <= res.best.record["gap_bound_db"] <= 1.0         # doctest: +SKIP
+        True
     """
-    from ..orp import ORPSearch
+    from ..orp import ORPSearch, gap_upper_bound
+
+    gap_upper_bound([0.0], confidence, future_views)  # a bad confidence fails before any network runs
 
     prepared = []
     for b in batches:
         c, fr, v = b["c"].to(device), b["fr"].to(device), b["view"].to(device).float()
-        prepared.append((c, fr, ims_task.generator(v).float(), psnr_per_image(recnn(c), fr)))
-    valid = ims_task.valid.to(device)
+        prepared.append((c, fr, mask_head.generator(v).float(), psnr_per_image(recnn(c), fr)))
+    valid = mask_head.valid.to(device)
     k = float(valid.sum())
     m2 = float(prepared[0][1].shape[-1]) ** 2 if prepared else 1.0
 
@@ -220,13 +238,16 @@ def product_orp(ims_task: Any, decoder: torch.nn.Module, recnn: torch.nn.Module,
         for u in us:
             ps, pr, shares = [], [], []
             for c, fr, g, p_rec in prepared:
-                im = ims_task.output_to_im_at(g, torch.full((c.shape[0],), float(u))).float()
+                im = mask_head.threshold(g, torch.full((c.shape[0],), float(u)), lift).float()
                 ps.append(psnr_per_image(recnn(decoder(im * c, im)), fr))
                 pr.append(p_rec)
                 shares.append(im.flatten(1).sum(1))
-            p_imls, p_rec, cnt = torch.cat(ps).mean(), torch.cat(pr).mean(), torch.cat(shares).float().mean()
-            out.append({"gap_db": float(p_rec - p_imls), "psnr_imls": float(p_imls), "psnr_recnn": float(p_rec),
+            p_imls, p_rec, cnt = torch.cat(ps), torch.cat(pr), torch.cat(shares).float().mean()
+            b = gap_upper_bound((p_rec - p_imls).double().cpu().tolist(), confidence, future_views)
+            out.append({"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
+                        "confidence": b.confidence, "future_views": b.future_views,
+                        "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
                         "c_share": float(cnt) / k, "ipr": float(cnt) / m2})
         return out
 
-    return ORPSearch(epsilon_db=epsilon_db, tolerance=tolerance, max_rounds=12).run(objective)
+    return ORPSearch(epsilon_db=epsilon_db, tolerance=tolerance, max_rounds=12, criterion="gap_bound_db").run(objective)

@@ -1,5 +1,10 @@
-"""Loading task checkpoints: :func:`load_task` rebuilds the task a checkpoint names, and
-:func:`load_ims_and_recnn` the product's pair; the cross-checks of
+"""Loading checkpoints: :func:`load_task` rebuilds the task a checkpoint names (training, evaluation);
+inference loads bare networks instead (:func:`load_nets`: the weights of a state-dict prefix into the
+network the task class builds from the saved hyperparameters, no task built), the product's networks
+(:func:`load_ims_nets`: the IMS mask head, the IML decoder, the RecNN) and the product as it runs
+(:func:`load_product`: those networks at the operating point recorded for the checkpoint, which
+:meth:`IMLSRenderer.from_checkpoints <imls_lightning.inference.pipeline.IMLSRenderer.from_checkpoints>`
+composes with a ray caster). Every checkpoint is read with ``weights_only=True``. The cross-checks of
 :mod:`~imls_lightning.inference.checkpoint_checks` ("does this checkpoint fit what it is used with")
 are re-exported here.
 
@@ -18,11 +23,18 @@ Example:
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Mapping
+
+from torch import nn
 
 from data_gen.errors import InputError
 
-from ..config import load_checkpoint
+from ..config import load_checkpoint, to_plain
+from ..core.importance import check_mean
+from ..core.patterns import SamplingPattern, build_pattern
+from ..models.ims import IMSMaskHead
 from ..tasks.base import checkpoint_task_name
 from .checkpoint_checks import (
     check_resolution,
@@ -34,7 +46,8 @@ from .checkpoint_checks import (
     same_pattern,
 )
 
-__all__ = ["TASKS", "task_class", "task_path", "load_task", "load_ims_and_recnn", "same_pattern", "check_same_pattern",
+__all__ = ["TASKS", "task_class", "task_path", "load_task", "load_nets", "load_recnn", "IMSNets", "load_ims_nets",
+           "Product", "load_product", "renderer_for", "load_ims_and_recnn", "same_pattern", "check_same_pattern",
            "check_resolution", "check_trained_on", "require_recnn", "require_pim_target", "config_diff"]
 
 # tasks that checkpoints may name (never import an arbitrary class from a file); imported by name on
@@ -87,13 +100,180 @@ def load_task(path: str | Path, *, expect: str | None = None, what: str = "check
 
 
 # ------------------------------------------------------------------------------------------------
+# bare networks
+
+
+def load_nets(path: str | Path, *, expect: str, what: str = "checkpoint",
+              ckpt: Mapping[str, Any] | None = None) -> tuple[dict[str, nn.Module], dict[str, Any], Mapping[str, Any]]:
+    """The networks inference runs from a checkpoint of task ``expect``, without building the task.
+
+    The task class builds them from the saved hyperparameters
+    (:meth:`~imls_lightning.tasks.base.ImlsTask.inference_nets`); each gets the weights under its
+    state-dict prefix, all of them (strict), in eval mode on the CPU.
+
+    Returns:
+        ``(nets by state-dict prefix, hyperparameters, state dict)``.
+
+    Raises:
+        InputError: the file is missing or damaged, is not a checkpoint of ``expect``, or its weights
+            do not fit the networks it describes.
+
+    Example:
+        >>> nets, hp, _ = load_nets("recnn.ckpt", expect="RecNNTask")  # doctest: +SKIP
+        >>> nets["net"]                                                 # doctest: +SKIP
+    """
+    ckpt = load_checkpoint(path, what=what) if ckpt is None else ckpt
+    checkpoint_task_name(ckpt, path, expect=expect, what=what)
+    hp = dict(ckpt["hyper_parameters"])
+    try:
+        nets = task_class(expect).inference_nets(hp)
+    except KeyError as err:
+        raise InputError(f"{what}={path}: its hyperparameters lack {err}; not a complete {expect} checkpoint") from None
+    state = ckpt["state_dict"]
+    for prefix, net in nets.items():
+        sub = {k[len(prefix) + 1:]: v for k, v in state.items() if k.startswith(prefix + ".")}
+        missing, unexpected = net.load_state_dict(sub, strict=False)
+        if missing or unexpected:
+            raise InputError(f"{what}={path}: weights do not fit the network it describes ({prefix}: missing "
+                             f"{missing[:3]}, unexpected {unexpected[:3]})")
+        net.eval()
+    return nets, hp, state
+
+
+def load_recnn(path: str | Path, *, what: str = "recnn_checkpoint") -> tuple[nn.Module, dict[str, Any]]:
+    """``(the RecNN, its task's hyperparameters)`` of a RecNN checkpoint (:func:`load_nets`; no task built).
+
+    Example:
+        >>> recnn, hp = load_recnn("runs/recnn/checkpoints/last.ckpt")  # doctest: +SKIP
+    """
+    nets, hp, _ = load_nets(path, expect="RecNNTask", what=what)
+    return nets["net"], hp
+
+
+# ------------------------------------------------------------------------------------------------
 # the product's checkpoints
+
+
+@dataclass
+class IMSNets:
+    """The product's networks from an IMS checkpoint (:func:`load_ims_nets`), no training task built.
+
+    Attributes:
+        head: the :class:`~imls_lightning.models.ims.IMSMaskHead` (generator, ``P``, ``valid``, target,
+            trained mean): view -> IM at a mean value.
+        decoder: the IML decoder ``(pr_c_image, im) -> C-Image`` (fine-tuned on the IMS's masks when
+            the IMS was trained with ``decoder_lr > 0``).
+        recnn: the RecNN ``C-Image -> FR-Image`` (the checkpoint's or a replacement), or None.
+        pattern: the sampling pattern; hparams: the IMS checkpoint's hyperparameters (scene, renderer,
+            provenance); path: the checkpoint file.
+    """
+
+    head: IMSMaskHead
+    decoder: nn.Module
+    recnn: nn.Module | None
+    pattern: SamplingPattern
+    hparams: dict[str, Any]
+    path: str | None = None
+
+    @property
+    def target(self) -> str:
+        return self.head.target
+
+    @property
+    def trained_mean(self) -> float:
+        return float(self.head.trained_mean)
+
+
+def load_ims_nets(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | None = None, *,
+                  keys: tuple[str, str] = ("ims_checkpoint", "recnn_checkpoint")) -> IMSNets:
+    """The product's networks of an IMS checkpoint (:class:`IMSNets`), and when given a RecNN checkpoint
+    that replaces the RecNN stored in it (checked to use the same sampling pattern and resolution).
+    Only the generator, the IML decoder and the RecNN are built (:func:`load_nets`).
+
+    Raises:
+        InputError: a missing or wrong checkpoint, or a RecNN of another sampling pattern.
+
+    Example:
+        >>> nets = load_ims_nets("ims.ckpt")        # doctest: +SKIP
+        >>> nets.head(view, mean=0.4).shape          # doctest: +SKIP
+        torch.Size([1, 1, 128, 128])
+    """
+    nets, hp, state = load_nets(ims_checkpoint, expect="IMSTask", what=keys[0])
+    pattern = build_pattern(to_plain(hp["pattern"]), int(hp["fr_size"]))
+    iml = hp["iml_hparams"]
+    if "iml.sampling.P" not in state:
+        raise InputError(f"{keys[0]}={ims_checkpoint}: holds no rank pattern (iml.sampling.P); not an IMS checkpoint of this project")
+    # the IML's normalization settings, as its IMLNet validates them
+    head = IMSMaskHead(nets["generator"], state["iml.sampling.P"].float(), pattern.valid, str(hp.get("target", "im")),
+                       trained_mean=check_mean(iml.get("mean", 0.1)), lower=float(iml.get("lower", 0.0))).eval()
+    recnn = nets.get("recnn")
+    if recnn_checkpoint:
+        recnn, rh = load_recnn(recnn_checkpoint, what=keys[1])
+        check_same_pattern(rh, pattern, key=keys[1], path=recnn_checkpoint, network="RecNN",
+                           against="the IMS/IML", hint="use a RecNN trained on the IMS's pattern and data.resolution")
+    return IMSNets(head, nets["iml.decoder"], recnn, pattern, hp, str(ims_checkpoint))
+
+
+@dataclass
+class Product:
+    """The product as it runs from an IMS checkpoint (:func:`load_product`): its networks and the mean
+    value and lift they run at (``mean=None``: the trained mean), from ``operating_point`` (the
+    evaluation's record, :mod:`~imls_lightning.inference.operating_point`) or as asked."""
+
+    nets: IMSNets
+    mean: float | None
+    lift: bool
+    operating_point: Any = None
+
+
+def load_product(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | None = None, *,
+                 mean: float | str | None = None,
+                 keys: tuple[str, str] = ("ims_checkpoint", "recnn_checkpoint")) -> Product:
+    """:func:`load_ims_nets` and the mean value to run at: by default the operating point the
+    evaluation recorded for this checkpoint (its masks lifted if it lifted them), else the trained
+    mean (one line on stderr says which); ``mean`` (a number in ``[0.01, 1]``, or ``"trained"``)
+    overrides it (:func:`~imls_lightning.inference.operating_point.mean_to_run`).
+
+    Example:
+        >>> p = load_product("ims.ckpt")                   # doctest: +SKIP
+        >>> p.mean, p.lift, p.operating_point              # doctest: +SKIP
+        (0.52, False, OperatingPoint(...))
+    """
+    from .operating_point import mean_to_run
+
+    nets = load_ims_nets(ims_checkpoint, recnn_checkpoint, keys=keys)
+    u, lift, point = mean_to_run(ims_checkpoint, mean, target=nets.target, trained_mean=nets.trained_mean)
+    return Product(nets, u, lift, point)
+
+
+def renderer_for(hparams: Mapping[str, Any], scene=None, renderer=None, renderer_cfg=None):
+    """``renderer`` if given, else one made for ``scene`` (+ ``renderer_cfg``), by default the scene and
+    renderer config an IMS checkpoint with hyperparameters ``hparams`` was trained on (stored in it).
+
+    Raises:
+        InputError: no renderer or scene given and the checkpoint stores no scene.
+    """
+    if renderer is not None:
+        return renderer
+    if scene is None and hparams.get("scene"):
+        from data_gen.scene import build_scene
+
+        scene = build_scene(hparams["scene"])
+        if renderer_cfg is None:
+            renderer_cfg = hparams.get("renderer")
+    if scene is None:
+        raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
+    from data_gen.renderers import make_renderer
+
+    return make_renderer(scene, renderer_cfg)
 
 
 def load_ims_and_recnn(ims_checkpoint: str, recnn_checkpoint: str | None = None, *,
                        keys: tuple[str, str] = ("ims_checkpoint", "recnn_checkpoint")):
-    """``(IMSTask, RecNN module or None)``: the IMS checkpoint and, when given, a RecNN checkpoint
-    that replaces the RecNN stored in it (checked to use the same sampling pattern and resolution).
+    """``(IMSTask, RecNN module or None)``: the IMS checkpoint's whole task (for evaluations that need
+    its IML encoder too; the product needs only :func:`load_ims_nets`) and, when given, a RecNN
+    checkpoint that replaces the RecNN stored in it (checked to use the same sampling pattern and
+    resolution; the bare RecNN, :func:`load_recnn`).
 
     Args:
         ims_checkpoint: a ``.ckpt`` of ``model=ims``.
@@ -109,7 +289,7 @@ def load_ims_and_recnn(ims_checkpoint: str, recnn_checkpoint: str | None = None,
     task = load_task(ims_checkpoint, expect="IMSTask", what=keys[0])
     if not recnn_checkpoint:
         return task, None
-    rt = load_task(recnn_checkpoint, expect="RecNNTask", what=keys[1])
-    check_same_pattern(rt.hparams, task.pattern, key=keys[1], path=recnn_checkpoint, network="RecNN",
+    recnn, rh = load_recnn(recnn_checkpoint, what=keys[1])
+    check_same_pattern(rh, task.pattern, key=keys[1], path=recnn_checkpoint, network="RecNN",
                        against="the IMS/IML", hint="use a RecNN trained on the IMS's pattern and data.resolution")
-    return task, rt.net
+    return task, recnn

@@ -9,10 +9,11 @@ has only the checkpoint finds it; its content names the checkpoint by the SHA-25
 replaced file), an unreadable one or one of another format is ignored with a one-line warning,
 never trusted.
 
-Every consumer reads it the same way and runs at the recorded point by default; an explicit mean
-overrides it, and without a record they fall back to the trained mean, saying so in one line on
-stderr: :meth:`IMLSRenderer.from_checkpoints <imls_lightning.inference.pipeline.IMLSRenderer.from_checkpoints>`
-(so the desktop viewer), the browser viewer's session, and :func:`imls_lightning.export.export_renderer`
+Every consumer reads it the same way (:func:`mean_to_run`, through
+:func:`~imls_lightning.inference.checkpoints.load_product`) and runs at the recorded point by default; an
+explicit mean overrides it, and without a record they fall back to the trained mean, saying so in one
+line on stderr: :meth:`IMLSRenderer.from_checkpoints <imls_lightning.inference.pipeline.IMLSRenderer.from_checkpoints>`
+(so the desktop viewer), the browser viewer's session, and :func:`imls_lightning.inference.export.export_renderer`
 (whose ``export.json`` carries the record).
 
 Example:
@@ -51,7 +52,7 @@ class OperatingPoint:
         mean: the mean value ``u`` IML/S runs at (``None``: the search found no ORP within
             ``epsilon_db``; the evaluation ran at the trained mean).
         lift: whether the IMS's masks were lifted to their mean value (the evaluation's ``ims_lift``;
-            :attr:`IMSTask.lift_to_mean <imls_lightning.tasks.ims.IMSTask>`).
+            the ``lift`` argument of :class:`~imls_lightning.models.ims.IMSMaskHead`).
         c_share, ipr: the share of the C-Image and of the FR-Image ray-cast at ``mean``, averaged
             over the validation views the search ran on.
         epsilon_db: the search's bound; ``gap_db``: the RecNN alone's PSNR minus IML/S's there.
@@ -82,11 +83,10 @@ class OperatingPoint:
         return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{share}{ipr} on the validation views "
                 f"(within {self.epsilon_db:g} dB of the RecNN alone)")
 
-    def apply(self, task) -> float | None:
-        """Make the IMS ``task``'s masks as the evaluation made them (its ``lift_to_mean``); returns
-        the mean value to render at (``None``: the trained one)."""
-        task.lift_to_mean = bool(self.lift) if self.found else False
-        return self.mean
+    @property
+    def lifted(self) -> bool:
+        """Whether masks made at this point are lifted (the evaluation lifted them and found a point)."""
+        return bool(self.lift) if self.found else False
 
 
 def sidecar_path(ims_checkpoint: str | Path) -> Path:
@@ -164,29 +164,35 @@ def read_operating_point(ims_checkpoint: str | Path, trained_mean: float | None 
     return point
 
 
-def mean_to_run(task, ims_checkpoint: str | Path, mean: float | str | None = None, *,
-                log: Callable[[str], None] | None = _log) -> tuple[float | None, OperatingPoint | None]:
-    """The mean value a renderer of the IMS ``task`` (loaded from ``ims_checkpoint``) runs at, and the
-    recorded point it came from: ``(mean or None for the trained one, point or None)``.
+def mean_to_run(ims_checkpoint: str | Path, mean: float | str | None = None, *, target: str = "pim",
+                trained_mean: float | None = None, log: Callable[[str], None] | None = _log
+                ) -> tuple[float | None, bool, OperatingPoint | None]:
+    """The mean value a renderer of the IMS checkpoint ``ims_checkpoint`` runs at, whether its masks are
+    lifted, and the recorded point they came from: ``(mean or None for the trained one, lift, point or None)``.
 
-    ``mean``: ``None``: the recorded operating point (its ``lift`` is set on ``task``), else the
-    trained mean (one line says which, see :func:`read_operating_point`); a number in
-    ``[0.01, 1]``: that mean value (the paper's rescale; nothing is read); ``"trained"``: the
-    trained mean. An IMS trained with ``model.target=im`` has only its trained mean: nothing is read.
+    ``mean``: ``None``: the recorded operating point (its mean and lift), else the trained mean (one
+    line says which, see :func:`read_operating_point`); a number in ``[0.01, 1]``: that mean value (the
+    paper's rescale; nothing is read); ``"trained"``: the trained mean. An IMS trained with
+    ``target="im"`` (``target``) has only its trained mean: nothing is read. ``trained_mean`` names
+    the fallback in the message.
 
     Raises:
         InputError: a ``mean`` that is neither of those.
+
+    Example:
+        >>> mean_to_run("ims.ckpt", 0.4), mean_to_run("ims.ckpt", "trained")
+        ((0.4, False, None), (None, False, None))
     """
     from data_gen.errors import InputError, finite_number
 
     if isinstance(mean, str) and mean == "trained":
-        return None, None
+        return None, False, None
     if mean is not None:
         u = finite_number(mean, "mean", "a number in [0.01, 1], 'trained' or null (the recorded operating point)")
         if not 0.01 <= u <= 1.0:
             raise InputError(f"mean={mean}: expected a number in [0.01, 1], 'trained' or null (the recorded operating point)")
-        return u, None
-    if str(task.hparams.get("target", "pim")) != "pim":
-        return None, None
-    point = read_operating_point(ims_checkpoint, float(task.iml.mean), log=log)
-    return (None, None) if point is None else (point.apply(task), point)
+        return u, False, None
+    if str(target) != "pim":
+        return None, False, None
+    point = read_operating_point(ims_checkpoint, trained_mean, log=log)
+    return (None, False, None) if point is None else (point.mean, point.lifted, point)

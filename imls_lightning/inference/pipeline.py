@@ -10,7 +10,7 @@ method                 stages
 ``recnn``              ``selective_render`` (the whole sampling pattern), ``recnn``
 ``iml``                ``selective_render`` (whole pattern), ``importance`` (IML encoder),
                        ``decoder``, ``recnn`` - importance from the rendered C-Image: an upper bound
-``imls``               ``importance`` (IMS generator, view only), ``selective_render`` (only the
+``imls``               ``importance`` (IMS mask head, view only), ``selective_render`` (only the
                        important pixels), ``decoder``, ``recnn`` - the product
 ``las``                ``low_res_render``, ``importance``, ``selective_render`` (at FR), ``recnn``
 =====================  =====================================================================
@@ -27,6 +27,14 @@ Options (:class:`NetOptions`) apply to every network's ``forward``: ``torch.comp
 modules called directly (IMS generator, IML decoder, RecNN, LAS nets); the IML encoder path of
 ``iml`` (``IMLNet.importance``) and LAS's importance/reconstruction methods run uncompiled.
 
+The product is a composition of plain modules, in the manner of pytorch3d's renderer:
+:class:`IMLSRenderer` ``(ray caster, sampling pattern, mask head, decoder, RecNN)``, the mask head an
+:class:`~imls_lightning.models.ims.IMSMaskHead` run at the mean value and lift given at construction.
+What a method returns depends on its construction and its call's arguments only: the mean, the lift,
+an oracle mask (:meth:`IMLSRenderer.run`'s ``im``) and LAS's IPR (:meth:`LASMethod.run`'s ``ipr``)
+are arguments. Reading the networks from checkpoints is
+:mod:`~imls_lightning.inference.checkpoints`' (:func:`~imls_lightning.inference.checkpoints.load_product`).
+
 Example:
     >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
     >>> image, timings = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                                       # doctest: +SKIP
@@ -40,7 +48,7 @@ import contextlib
 import copy
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 import numpy as np
 import torch
@@ -48,9 +56,10 @@ import torch
 from data_gen.camera import validate_view
 from data_gen.errors import InputError
 
-from .checkpoints import load_ims_and_recnn, require_pim_target, require_recnn, task_path
+from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
 from ..core.importance import check_ipr
 from ..core.patterns import SamplingPattern, c_pixels_to_fr
+from ..models.ims import IMSMaskHead
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
 
@@ -205,8 +214,8 @@ class Method(abc.ABC):
         return x.contiguous(memory_format=torch.channels_last) if self.opts.channels_last else x
 
     @abc.abstractmethod
-    def run(self, view) -> RenderResult:
-        """Render a validated view, timing each stage."""
+    def run(self, view, **kwargs) -> RenderResult:
+        """Render a validated view, timing each stage (``kwargs``: the method's per-call arguments)."""
 
     @torch.inference_mode()
     def render(self, view) -> tuple[np.ndarray, dict[str, float]]:
@@ -326,92 +335,69 @@ class IMLPlusRecNN(_PatternMethod):
                              "rendered_pixels": self.pattern.count, "im": im_cpu, **info})
 
 
-def renderer_for_task(task, scene=None, renderer=None, renderer_cfg=None):
-    """``renderer`` if given, else one made for ``scene`` (+ ``renderer_cfg``), by default the scene
-    and renderer config the IMS ``task`` was trained on (stored in its checkpoint).
-
-    Raises:
-        InputError: no renderer or scene given and the checkpoint stores no scene.
-    """
-    if renderer is not None:
-        return renderer
-    if scene is None and task.hparams.get("scene"):
-        from data_gen.scene import build_scene
-
-        scene = build_scene(task.hparams["scene"])
-        if renderer_cfg is None:
-            renderer_cfg = task.hparams.get("renderer")
-    if scene is None:
-        raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
-    from data_gen.renderers import make_renderer
-
-    return make_renderer(scene, renderer_cfg)
+def prepare_mask_head(head: IMSMaskHead, device: torch.device, opts: NetOptions) -> IMSMaskHead:
+    """``head`` on ``device`` in eval mode, its generator prepared as ``opts`` asks (:func:`prepare_net`;
+    the thresholding is never compiled). The generator module is moved in place, the head is a new one."""
+    return head.with_generator(prepare_net(head.generator, device, opts)).to(device).eval()
 
 
 class IMLSRenderer(_PatternMethod):
-    """The product: IML/S + RecNN. View -> IMS -> IM -> ray-cast only those pixels -> decoder -> RecNN.
+    """The product: IML/S + RecNN. View -> mask head -> IM -> ray-cast only those pixels -> decoder -> RecNN.
 
     Args:
-        renderer: the scene's renderer (``render_pixels`` is used).
+        renderer: the ray caster, the scene's renderer (``render_pixels`` is used).
         pattern: the RecNN's sampling pattern.
-        predict_im: view ``(1, 9)`` float32 tensor on the device -> ``(1, 1, n, n)`` bool IM (the
-            IMS generator + thresholding; padding already zero).
+        mask: the mask head: an :class:`~imls_lightning.models.ims.IMSMaskHead` (run at ``mean`` with
+            ``lift``; its generator prepared as ``opts`` asks), or any module or callable view
+            ``(1, 9)`` float32 on the device -> ``(1, 1, n, n)`` bool IM with its mean bound (an
+            exported ``im`` network, a fixed mask); padding already zero.
         decoder: the IML decoder ``(pr_c_image (1, 3, n, n), im (1, 1, n, n)) -> (1, 3, n, n)``.
         recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
         opts: :class:`NetOptions`.
-        generator: the module ``predict_im`` calls, if any; moved to the device here (use
-            :meth:`from_task` / :meth:`from_checkpoints` to have the options applied to it too).
+        mean: the mean value an :class:`IMSMaskHead` runs at (``None``: the trained one; another needs
+            ``target="pim"``); ``lift``: lift its masks to the share ``mean``.
+
+    Attributes:
+        mean: the mean value the masks are made at (the trained one for ``mean=None``; ``None`` when a
+            bound mask does not say); lift; operating_point (the evaluation's record it came from, or
+            None); mask (``view -> IM``), mask_head (the prepared head, or None).
 
     Example:
         >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
         >>> image, timings = r.render(view)          # (m, m, 3) uint8, {stage: seconds, "total": ...}  # doctest: +SKIP
+        >>> r = IMLSRenderer(ray_caster, pattern, nets.head, nets.decoder, nets.recnn, mean=0.4)      # doctest: +SKIP
     """
 
     name = "imls"
 
-    def __init__(self, renderer, pattern, predict_im: Callable[[torch.Tensor], torch.Tensor],
-                 decoder: torch.nn.Module, recnn: torch.nn.Module, opts: NetOptions | None = None,
-                 generator: torch.nn.Module | None = None):
+    def __init__(self, renderer, pattern, mask, decoder: torch.nn.Module, recnn: torch.nn.Module,
+                 opts: NetOptions | None = None, *, mean: float | None = None, lift: bool = False):
         super().__init__(renderer, pattern, opts)
-        if generator is not None:
-            generator.to(self.device).eval()
-        self.predict_im = predict_im
+        self.mask_head = None
+        if isinstance(mask, IMSMaskHead):
+            self.mask_head = prepare_mask_head(mask, self.device, self.opts)
+            mask = self.mask_head.at(mean, lift)  # InputError for a mean of a target=im head
+            mean = mask.head.trained_mean if mean is None else float(mean)
+        self.mask = mask
+        self.mean, self.lift = mean, bool(lift)
+        self.operating_point = None
         self.decoder = prepare_net(decoder, self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @classmethod
-    def from_task(cls, task, renderer, recnn: torch.nn.Module | None = None,
-                  opts: NetOptions | None = None, mean: float | None = None) -> "IMLSRenderer":
-        """Build from a loaded ``IMSTask`` (its generator, IML decoder and RecNN, or ``recnn``).
-
-        ``mean``: render at this mean value instead of the trained one (e.g. the ORP; needs an IMS
-        trained with ``model.target=pim``, whose regressed PIM' is rescaled). The task's modules are
-        moved to the options' device and prepared in place (share a task between methods only with
-        the same options).
-        """
-        if mean is not None:
-            require_pim_target(task.hparams, key="mean", path=mean, what="rescaling the IMS's mask")
-        opts = opts or NetOptions()
-        recnn = require_recnn(task.recnn if recnn is None else recnn, key="ims_checkpoint", path=task_path(task))
-        device = pick_device(opts.device)
-        task.to(device).eval()  # buffers (valid, P) follow the networks
-        generator = prepare_net(task.generator, device, opts)
-
-        def predict_im(view: torch.Tensor) -> torch.Tensor:
-            with opts.autocast(device):
-                g = generator(view)
-            return task.output_to_im_at(g, mean)  # float32 thresholding (against P for target=pim)
-
-        method = cls(renderer, task.pattern, predict_im, task.decoder, recnn, opts)
-        method.mean = task.iml.mean if mean is None else float(mean)
-        method.operating_point = None
-        return method
+    def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, mean: float | None = None,
+                  lift: bool = False) -> "IMLSRenderer":
+        """The renderer of the product's networks (:class:`~imls_lightning.inference.checkpoints.IMSNets`:
+        mask head, decoder, RecNN) and a ray caster, at ``mean`` (``None``: the trained mean)."""
+        recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
+        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, mean=mean, lift=lift)
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
                          recnn_checkpoint: str | None = None, opts: NetOptions | None = None,
                          mean: float | str | None = None) -> "IMLSRenderer":
-        """Build the renderer from an IMS checkpoint (it carries the IML decoder and the RecNN).
+        """Build the renderer from an IMS checkpoint (it carries the IML decoder and the RecNN):
+        :func:`~imls_lightning.inference.checkpoints.load_product` composed with a ray caster.
 
         By default it runs at the operating point the evaluation recorded for this checkpoint
         (``<ims.ckpt>.orp.json``, checked against the checkpoint's bytes: the report's ORP, its
@@ -429,13 +415,17 @@ class IMLSRenderer(_PatternMethod):
                 ``[0.01, 1]``: that mean value (the paper's rescale; needs ``model.target=pim``);
                 ``"trained"``: the trained mean. Neither reads the record.
         """
-        from .operating_point import mean_to_run
-
-        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
-        u, point = mean_to_run(task, ims_checkpoint, mean)
-        method = cls.from_task(task, renderer_for_task(task, scene, renderer, renderer_cfg), recnn, opts, mean=u)
-        method.operating_point = point
+        product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
+        ray_caster = renderer_for(product.nets.hparams, scene, renderer, renderer_cfg)
+        method = cls.from_nets(product.nets, ray_caster, opts, mean=product.mean, lift=product.lift)
+        method.operating_point = product.operating_point
         return method
+
+    def predict_im(self, view: torch.Tensor) -> torch.Tensor:
+        """The IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` (float32, on the device): the mask, the
+        generator under the options' autocast, the thresholding in float32."""
+        with self.opts.autocast(self.device):
+            return self.mask(view)
 
     def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
         """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
@@ -443,19 +433,24 @@ class IMLSRenderer(_PatternMethod):
             v = torch.as_tensor(np.asarray(view, np.float32))[None].to(self.device)
             return self.predict_im(v)[0, 0].bool()
 
-    def run(self, view) -> RenderResult:
+    def run(self, view, im: torch.Tensor | None = None) -> RenderResult:
+        """Render a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the
+        mask still runs and is timed: "the IML's IM, selectively rendered" of the evaluation)."""
         timer = StageTimer(self.device)
         info: dict = {}
-        im = self._importance(view, timer, info)
+        mask = self._importance(view, timer, info)
+        if im is not None:
+            with timer.stage("importance"):
+                mask = torch.as_tensor(im).to(self.device).bool().reshape(mask.shape)
         with timer.stage("selective_render"):
-            pr_c, count = self._render_c_pixels(view, im)
+            pr_c, count = self._render_c_pixels(view, mask)
         with timer.stage("decoder"), self.opts.autocast(self.device):
-            c_rec = self.decoder(pr_c, im.to(pr_c.dtype).view(1, 1, *im.shape[-2:]))
+            c_rec = self.decoder(pr_c, mask.to(pr_c.dtype).view(1, 1, *mask.shape[-2:]))
         with timer.stage("recnn"), self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
         return RenderResult(to_uint8_image(fr), timer.result(),
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
-                             "rendered_pixels": count, "im": im.cpu(), **info})
+                             "rendered_pixels": count, "im": mask.cpu(), **info})
 
 
 def las_mean_for_ipr(las: torch.nn.Module, raw: torch.Tensor, ipr: float, steps: int = 30) -> torch.Tensor:
@@ -482,13 +477,13 @@ class LASMethod(Method):
     sampling at full resolution -> ray-cast those pixels -> reconstruction with the mask channel.
 
     Args:
-        las_net: a trained :class:`~imls_lightning.models.las.LASNet` (``LASTask.net``).
+        las_net: a trained :class:`~imls_lightning.models.las.LASNet`.
         fr_size, low_res: FR side ``m`` and low-res side ``h`` it was trained with.
         ipr: sample this share of the FR pixels (LAS's evaluation protocol: the mean ``u`` is
             bisected per view). The bisection is a calibration, not part of LAS at inference (a
             deployed LAS uses a fixed ``u``): it runs outside the timed stages; the timed
             ``importance`` stage is the importance net + one normalization + sampling.
-            ``None``: the trained mean.
+            ``None``: the trained mean. :meth:`run` takes another per call.
     """
 
     name = "las"
@@ -500,7 +495,10 @@ class LASMethod(Method):
         self.low_res = int(low_res)
         self.ipr = None if ipr is None else check_ipr(ipr)
 
-    def run(self, view) -> RenderResult:
+    def run(self, view, ipr: float | None = None) -> RenderResult:
+        """Render a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;
+        ``None``: the method's own)."""
+        ipr = self.ipr if ipr is None else check_ipr(ipr)
         timer = StageTimer(self.device)
         m = self.fr_size
         net = getattr(self.las, "_orig_mod", self.las)  # attributes of a compiled LASNet
@@ -509,7 +507,7 @@ class LASMethod(Method):
             low_t = self._tensor(torch.from_numpy(low).permute(2, 0, 1).float().div(255.0)[None])
         with timer.stage("importance"), self.opts.autocast(self.device):
             raw = net.importance_net(low_t)
-        u = net.mean if self.ipr is None else las_mean_for_ipr(net, raw, self.ipr)  # untimed calibration
+        u = net.mean if ipr is None else las_mean_for_ipr(net, raw, ipr)  # untimed calibration
         with timer.stage("importance"):
             mask = las_mask(net, raw, u)[0, 0]
             idx = np.flatnonzero(mask.cpu().numpy().reshape(-1))
@@ -529,8 +527,10 @@ def c_mask_to_fr_pixels(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch
     return c_pixels_to_fr(pattern, c_mask)
 
 
-def time_method(method: Method, view, repeats: int = 10, warmup: int = 1) -> tuple[np.ndarray, dict[str, float], dict[str, Any]]:
-    """Render a view ``warmup + repeats`` times; per-stage medians over the repeats.
+def time_method(method: Method, view, repeats: int = 10, warmup: int = 1,
+                **run_args: Any) -> tuple[np.ndarray, dict[str, float], dict[str, Any]]:
+    """Render a view ``warmup + repeats`` times; per-stage medians over the repeats. ``run_args`` go to
+    each ``method.run`` (e.g. an oracle ``im`` for :class:`IMLSRenderer`, an ``ipr`` for :class:`LASMethod`).
 
     Returns the last image ``(m, m, 3)`` uint8, ``{stage: median seconds}`` (``total`` is the median
     of the per-run totals, not the sum of the stage medians), and the method's info of the last run.
@@ -547,7 +547,7 @@ def time_method(method: Method, view, repeats: int = 10, warmup: int = 1) -> tup
     last = None
     with torch.inference_mode():
         for i in range(warmup + repeats):
-            last = method.run(v)
+            last = method.run(v, **run_args)
             if i >= warmup:
                 runs.append(last.timings)
     keys = runs[0].keys()

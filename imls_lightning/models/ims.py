@@ -24,6 +24,13 @@ component is ~N(0, 1). Components that never vary (std < 1e-6, e.g. a fixed up v
 
 Targets. The IM ``{0, 1}`` is trained as ``{-1, 1}`` (:func:`im_to_target`); the generated IM is
 ``output > 0`` (:func:`output_to_im`).
+
+The mask. :class:`IMSMaskHead` is the generator with its thresholding: view -> IM at the trained mean,
+or at a mean value ``u`` given to each call (``target="pim"``: the regressed PIM' rescaled, optionally
+lifted to the share ``u``). It is the one home of that arithmetic: training
+(:class:`~imls_lightning.tasks.ims.IMSTask`), the product pipeline
+(:class:`~imls_lightning.inference.pipeline.IMLSRenderer`) and the exported ``im`` network
+(:mod:`imls_lightning.inference.export`) all call it.
 """
 from __future__ import annotations
 
@@ -34,7 +41,13 @@ from torch import nn
 
 from data_gen.errors import InputError
 
-__all__ = ["IMSGenerator", "IMSDiscriminator", "im_to_target", "output_to_im", "generator_plan"]
+from ..core.importance import lift_to_share, lifted_mask
+
+__all__ = ["IMSGenerator", "IMSDiscriminator", "IMSMaskHead", "MaskAt", "TARGETS", "im_to_target", "output_to_im",
+           "generator_plan"]
+
+#: what an IMS generator regresses: the binary IM (paper) or the continuous PIM'
+TARGETS = ("im", "pim")
 
 
 def im_to_target(im: torch.Tensor) -> torch.Tensor:
@@ -203,6 +216,157 @@ class IMSDiscriminator(nn.Module):
         if im.dim() != 4 or tuple(im.shape[1:]) != (self.in_channels, n, n):
             raise ValueError(f"IMSDiscriminator: expected (B, {self.in_channels}, {n}, {n}), got {tuple(im.shape)}")
         return self.net(im).flatten(1).squeeze(1)
+
+
+class IMSMaskHead(nn.Module):
+    """The IMS's importance mask: view ``(B, 9)`` -> IM ``(B, 1, n, n)`` bool, False on C-Image padding.
+
+    The generator ``g = G(view)`` in ``(-1, 1)`` and its thresholding (:meth:`threshold`):
+
+    * ``target="im"`` (paper): ``IM = g > 0``;
+    * ``target="pim"``: the regressed ``PIM' = (g + 1) / 2``, normalized to the trained mean ``u_train``,
+      dithered as the IML does against the plastic rank pattern ``P``: ``IM = PIM' > P  or  g >= 1``.
+      At a mean value ``u`` (an argument of each call) the IML normalization, affine in ``u``, rescales it:
+      ``PIM'(u) = l + (PIM' - l) (u - l) / (u_train - l)``, ``IM = PIM'(u) > P`` (a saturated ``g = 1``
+      stays important when ``u >= u_train``). With ``lift``, above ``u_train``, PIM'(u) is lifted until
+      the expected share is ``u`` (:func:`~imls_lightning.core.importance.lift_to_share`): the same masks
+      as the rescale, reached at their share, then a blue-noise floor; ``u = 1`` takes every pixel.
+
+    No state changes what a call returns: the mean value and the lift are arguments (:class:`MaskAt`
+    binds them for a caller that passes views only, e.g. an export). Tensor operations only: traceable.
+
+    Args:
+        generator: the :class:`IMSGenerator` (any module ``(B, 9) -> (B, 1, n, n)``).
+        P: ``(n, n)`` plastic rank pattern the IML's labels were dithered with (``target="pim"``).
+        valid: ``(n, n)`` bool, the sampling pattern's C-Image pixels.
+        target: ``"im"`` or ``"pim"``.
+        trained_mean: the IML's mean value ``u_train`` the PIM' targets were normalized to.
+        lower: the IML normalization's lower bound ``l``. Default 0 (paper).
+
+    Example:
+        >>> n = 8
+        >>> head = IMSMaskHead(IMSGenerator(n, layers=3, base_channels=4).eval(), torch.rand(n, n),
+        ...                    torch.ones(n, n, dtype=torch.bool), "pim", trained_mean=0.2)
+        >>> view = torch.tensor([[0.0, 0.0, 3.5, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+        >>> head(view).shape, head(view).dtype
+        (torch.Size([1, 1, 8, 8]), torch.bool)
+        >>> bool(head(view, mean=1.0, lift=True).all())   # u = 1 lifted: every pixel
+        True
+    """
+
+    def __init__(self, generator: nn.Module, P: torch.Tensor, valid: torch.Tensor, target: str,
+                 trained_mean: float | None = None, lower: float = 0.0):
+        super().__init__()
+        if target not in TARGETS:
+            raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
+        n = int(valid.shape[-1])
+        if tuple(P.shape[-2:]) != (n, n) or P.numel() != n * n or valid.numel() != n * n:
+            raise InputError(f"P {tuple(P.shape)} and valid {tuple(valid.shape)}: expected two (n, n) maps of one size")
+        if target == "pim" and trained_mean is None:
+            raise InputError("trained_mean: an IMS with model.target=pim needs the IML's trained mean value")
+        self.generator = generator
+        self.target = target
+        self.trained_mean = None if trained_mean is None else float(trained_mean)
+        self.lower = float(lower)
+        # (1, 1, n, n) views of the given tensors (not copies): a head made from a task's buffers follows them
+        self.register_buffer("P", P.detach().reshape(1, 1, n, n))
+        self.register_buffer("valid", valid.detach().to(torch.bool).reshape(1, 1, n, n))
+
+    @property
+    def c_size(self) -> int:
+        return int(self.valid.shape[-1])
+
+    def with_generator(self, generator: nn.Module) -> "IMSMaskHead":
+        """The same head around another generator module (e.g. a compiled or channels-last one); the
+        buffers are shared."""
+        return IMSMaskHead(generator, self.P, self.valid, self.target, self.trained_mean, self.lower)
+
+    def forward(self, view: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False) -> torch.Tensor:
+        """IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` at the trained mean (``mean=None``) or at ``mean``
+        (a number or ``(B,)``; ``target="pim"`` only), lifted to the share ``mean`` with ``lift``. Run
+        the generator under autocast if wanted: the thresholding is float32 whatever its output."""
+        return self.threshold(self.generator(view), mean, lift)
+
+    def threshold(self, g: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False) -> torch.Tensor:
+        """Generator output ``g`` ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool (see the class doc).
+
+        ``mean=None``: the trained mean. A number or ``(B,)`` tensor: the PIM' rescaled to it (at
+        ``u == u_train``, the same float32, bit for bit the trained-mean IM), lifted with ``lift``.
+
+        Raises:
+            InputError: a mean value for an IMS trained with ``target="im"`` (a binary IM cannot be rescaled).
+        """
+        with torch.autocast(device_type=g.device.type, enabled=False):
+            g = g.float()
+            P, valid = self.P.to(g.device), self.valid.to(g.device)
+            if mean is None:
+                if self.target == "im":
+                    im = g > 0
+                else:
+                    # g = 1 is the target of every PIM' >= 1, which the IML always keeps, also where P = 1
+                    im = ((g + 1.0) * 0.5 > P) | (g >= 1.0)
+                return im & valid
+            if self.target != "pim":
+                raise InputError(f"mean={mean if not torch.is_tensor(mean) else 'per view'}: its IMS was trained with "
+                                 "model.target=im; rescaling the IMS's mask to another mean value needs an IMS trained "
+                                 "with model.target=pim")
+            return self._rescaled(g, mean, bool(lift), P, valid)
+
+    def _rescaled(self, g: torch.Tensor, mean, lift: bool, P: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+        lower = self.lower
+        ut = torch.as_tensor(mean, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
+        scale = (ut - lower) / torch.tensor(self.trained_mean - lower, dtype=torch.float32, device=g.device)
+        pim = (g + 1.0) * 0.5
+        pim_u = pim * scale if lower == 0.0 else (pim - lower) * scale + lower
+        # a pixel at g = 1 had PIM' >= 1 (the target was clamped at 1): important at any u >= u_train
+        saturated = (g >= 1.0) & (scale >= 1.0)
+        im = (pim_u > P) | saturated
+        if lift:
+            # above the trained mean only (below it nothing saturates and the IM stays the paper's): m = 1,
+            # f = 0 add nothing, so where the rescale reaches u the IM is bit-for-bit the rescaled one
+            x = torch.where(saturated, pim_u.clamp_min(1.0), pim_u)
+            m, f = lift_to_share(x, ut.flatten(), valid)
+            above = (scale > 1.0).to(m.device)
+            m = torch.where(above, m, torch.ones_like(m))
+            f = torch.where(above, f, torch.zeros_like(f))
+            im = im | lifted_mask(x, m, f, P)
+        return im & valid
+
+    def at(self, mean: float | None = None, lift: bool = False) -> "MaskAt":
+        """This head with its mean value and lift bound: ``view -> IM`` (see :class:`MaskAt`)."""
+        return MaskAt(self, mean, lift)
+
+    def extra_repr(self) -> str:
+        return f"target={self.target}, c_size={self.c_size}, trained_mean={self.trained_mean}, lower={self.lower}"
+
+
+class MaskAt(nn.Module):
+    """An :class:`IMSMaskHead` at a fixed mean value and lift: ``forward(view (B, 9)) -> IM (B, 1, n, n)``
+    bool. What a caller that passes views only needs (the exported ``im`` network; tracing then sees one
+    branch). The binding is made once, at construction.
+
+    Example:
+        >>> n = 8
+        >>> head = IMSMaskHead(IMSGenerator(n, layers=3, base_channels=4).eval(), torch.rand(n, n),
+        ...                    torch.ones(n, n, dtype=torch.bool), "pim", trained_mean=0.2)
+        >>> view = torch.rand(2, 9)
+        >>> torch.equal(head.at(0.5, lift=True)(view), head(view, 0.5, lift=True))
+        True
+    """
+
+    def __init__(self, head: IMSMaskHead, mean: float | None = None, lift: bool = False):
+        super().__init__()
+        if mean is not None and head.target != "pim":
+            raise InputError(f"mean={mean}: rescaling the IMS's mask needs model.target=pim and the trained mean")
+        self.head = head
+        self.mean = None if mean is None else float(mean)
+        self.lift = bool(lift) and self.mean is not None
+
+    def forward(self, view: torch.Tensor) -> torch.Tensor:
+        return self.head(view, self.mean, self.lift)
+
+    def extra_repr(self) -> str:
+        return f"mean={self.mean}, lift={self.lift}"
 
 
 def _init_dcgan(module: nn.Module) -> None:

@@ -56,6 +56,7 @@ from .search import (
     MEAN_RANGE,
     SCALES,
     Evaluation,
+    GapBound,
     ORPJobError,
     ORPResult,
     ORPSearch,
@@ -63,6 +64,7 @@ from .search import (
     batched,
     describe_error,
     evaluation_from,
+    gap_upper_bound,
     round_mean,
 )
 
@@ -77,6 +79,8 @@ __all__ = [
     "ORPSearch",
     "batched",
     "evaluation_from",
+    "gap_upper_bound",
+    "GapBound",
     "round_mean",
     "quote_override_value",
     "ORPJobError",

@@ -151,6 +151,72 @@ def round_mean(u: float) -> float:
     return float(f"{float(u):.5g}")
 
 
+@dataclass(frozen=True)
+class GapBound:
+    """The per-view PSNR gaps of one mean value, summarized: ``mean`` and sample ``std`` (dB) over
+    ``views`` views, and ``bound``, the one-sided upper bound at ``confidence`` on the mean gap of all
+    such views (``future_views=None``) or of ``future_views`` new ones (:func:`gap_upper_bound`)."""
+
+    mean: float
+    std: float
+    views: int
+    bound: float
+    confidence: float
+    future_views: int | None = None
+
+    @property
+    def margin(self) -> float:
+        """``bound - mean`` (dB): what the spread of the views adds."""
+        return self.bound - self.mean
+
+
+def gap_upper_bound(gaps: Sequence[float], confidence: float = 0.95, future_views: int | None = None) -> GapBound:
+    """One-sided upper bound on the mean PSNR gap over views (the ORP's margin for unseen views).
+
+    ``bound = mean + z * s * sqrt(1/n + 1/m)``: ``s`` the sample standard deviation (``n - 1``) of
+    the ``n`` per-view gaps, ``z`` the standard normal quantile at ``confidence`` (1.645 at 0.95; 0 at
+    0.5, where the bound is the mean gap). With ``future_views=m`` it bounds the mean gap that ``m``
+    new views will show (a prediction bound: the search views' mean and the new views' mean both
+    vary); with ``None`` the ``1/m`` term is left out and it bounds the mean gap of all such views
+    (a confidence bound). The ORP search requires ``bound <= epsilon``, so an operating point chosen on
+    few or very different views keeps a margin for the views it was not chosen on. One view gives no
+    spread: its bound is its gap.
+
+    Args:
+        gaps: ``(n,)`` per-view gaps (dB), ``PSNR_RecNN - PSNR_IML/S``; ``n >= 1``, all finite.
+        confidence: in ``[0.5, 1)``.
+        future_views: ``m >= 1`` or ``None``.
+
+    Returns:
+        :class:`GapBound`.
+
+    Raises:
+        InputError: no gaps, a non-finite gap, ``confidence`` outside ``[0.5, 1)`` or ``future_views < 1``.
+
+    Example:
+        >>> b = gap_upper_bound([0.5, 1.0, 1.5, 1.0], confidence=0.95)
+        >>> round(b.mean, 3), round(b.std, 3), round(b.bound, 3)
+        (1.0, 0.408, 1.336)
+        >>> round(gap_upper_bound([0.5, 1.0, 1.5, 1.0], 0.95, future_views=4).bound, 3)
+        1.475
+    """
+    from statistics import NormalDist
+
+    conf = check_number(confidence, "orp_confidence", 0.5, 1.0, hi_open=True, what="a confidence in [0.5, 1)")
+    m = None if future_views is None else check_integer(future_views, "future_views", 1)
+    xs = [float(g) for g in gaps]
+    if not xs:
+        raise InputError("gap_upper_bound: no per-view gaps (expected at least one validation view)")
+    if not all(math.isfinite(x) for x in xs):
+        raise InputError(f"gap_upper_bound: non-finite per-view gap in {xs[:8]}")
+    n = len(xs)
+    mean = math.fsum(xs) / n
+    std = math.sqrt(math.fsum((x - mean) ** 2 for x in xs) / (n - 1)) if n > 1 else 0.0
+    z = NormalDist().inv_cdf(conf) if conf > 0.5 else 0.0
+    spread = std * math.sqrt(1.0 / n + (1.0 / m if m else 0.0))
+    return GapBound(mean=mean, std=std, views=n, bound=mean + z * spread, confidence=conf, future_views=m)
+
+
 @dataclass
 class Evaluation:
     """One mean value tried: its gap (dB), status and the job's record.
@@ -184,12 +250,13 @@ class ORPJobError(RuntimeError):
     """
 
 
-def evaluation_from(u: float, round_: int, outcome: Any) -> Evaluation:
+def evaluation_from(u: float, round_: int, outcome: Any, criterion: str = "gap_db") -> Evaluation:
     """Normalize what an objective returned for ``u`` into an :class:`Evaluation`.
 
-    ``outcome`` may be a gap (float), a record (mapping with ``gap_db``; an ``error`` key or a
-    ``status`` other than ``"ok"`` marks a failure), an exception, or ``None`` (missing result).
-    Non-finite gaps are failures.
+    ``outcome`` may be a gap (float), a record (mapping with the ``criterion`` key, ``gap_db`` by
+    default: the value compared with epsilon, e.g. ``gap_bound_db`` for a confidence bound; an
+    ``error`` key or a ``status`` other than ``"ok"`` marks a failure), an exception, or ``None``
+    (missing result). Non-finite gaps are failures.
     """
     if isinstance(outcome, BaseException):
         # ORPJobError already names the cause ("InputError: ...")
@@ -202,9 +269,9 @@ def evaluation_from(u: float, round_: int, outcome: Any) -> Evaluation:
         record = dict(outcome)
         if record.get("error") or record.get("status", "ok") != "ok":
             return Evaluation(u, round_, "failed", None, str(record.get("error") or f"status {record.get('status')}"), record)
-        if "gap_db" not in record:
-            return Evaluation(u, round_, "failed", None, "missing result (the job returned no gap_db)", record)
-        outcome = record["gap_db"]
+        if criterion not in record:
+            return Evaluation(u, round_, "failed", None, f"missing result (the job returned no {criterion})", record)
+        outcome = record[criterion]
     try:
         gap = float(outcome)
     except (TypeError, ValueError):
@@ -269,6 +336,8 @@ class ORPSearch:
         k: interior points per round (evaluated together, e.g. in parallel).
         max_rounds: k-section rounds at most.
         scale: ``"log"`` (points evenly spaced in ``log u``) or ``"linear"``.
+        criterion: the key of an outcome record whose value must stay within epsilon
+            (:func:`evaluation_from`; ``"gap_db"``, or ``"gap_bound_db"`` for a confidence bound).
 
     Ask/tell: ``batch = s.next_batch()`` (empty when done) -> evaluate -> ``s.tell(outcomes)``;
     or ``s.run(objective)`` with ``objective(list of u) -> list of outcomes``
@@ -281,10 +350,11 @@ class ORPSearch:
     """
 
     def __init__(self, epsilon_db: float = 1.0, bracket: Sequence[float] = (0.01, 1.0), tolerance: float = 0.1,
-                 k: int = 1, max_rounds: int = 10, scale: str = "log"):
+                 k: int = 1, max_rounds: int = 10, scale: str = "log", criterion: str = "gap_db"):
         s = ORPSettings.from_mapping({"epsilon_db": epsilon_db, "bracket": list(bracket), "tolerance": tolerance,
                                       "k": k, "max_rounds": max_rounds, "scale": scale, "param": "u"}, prefix="")
         self.epsilon_db, self.tolerance, self.k, self.max_rounds, self.scale = s.epsilon_db, s.tolerance, s.k, s.max_rounds, s.scale
+        self.criterion = str(criterion)
         self.bracket0 = (round_mean(s.bracket[0]), round_mean(s.bracket[1]))
         self.lo, self.hi = self.bracket0
         self.evaluations: list[Evaluation] = []
@@ -350,7 +420,8 @@ class ORPSearch:
         us, self._pending = self._pending, None
         self.rounds += 1
         outcomes = list(outcomes)
-        new = [evaluation_from(u, self.rounds, outcomes[i] if i < len(outcomes) else None) for i, u in enumerate(us)]
+        new = [evaluation_from(u, self.rounds, outcomes[i] if i < len(outcomes) else None, self.criterion)
+               for i, u in enumerate(us)]
         self.evaluations.extend(new)
         best = self.best()
         self.hi = best.u if best is not None else self.bracket0[1]

@@ -17,12 +17,14 @@ Example:
 One idea per module, every public name re-exported here: :mod:`~imls_lightning.report.names`
 (labels, colours, CSV columns), :mod:`~imls_lightning.report.metrics_csv` (atomic files, the CSVs,
 the per-method summary), :mod:`~imls_lightning.report.machine` (command line, machine),
-:mod:`~imls_lightning.report.tables` (Markdown tables), :mod:`~imls_lightning.report.plots` and
+:mod:`~imls_lightning.report.tables` (Markdown tables), :mod:`~imls_lightning.report.front` (the
+speed-quality front: its points, the Pareto front, where IML/S lies), :mod:`~imls_lightning.report.plots` and
 :mod:`~imls_lightning.report.document` (``report.md``).
 """
 from __future__ import annotations
 
 from .document import ReportContext, render_markdown, write_report
+from .front import front_markdown, front_point, front_points, front_verdict, pareto_front
 from .machine import hydra_command, machine_info
 from .metrics_csv import atomic_write_text, number, read_csv, summarize_rows, summary, write_metrics_csv
 from .names import (
@@ -42,6 +44,7 @@ from .plots import (
     new_figure,
     plot_image_grid,
     plot_latency_vs_psnr,
+    plot_front,
     plot_options,
     plot_psnr_per_view,
     plot_stage_breakdown,
@@ -58,4 +61,5 @@ __all__ = [
     "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "new_figure", "save_figure", "ReportContext", "write_report",
     "render_markdown",
     "STAGE_COLORS", "METHOD_COLORS", "MASK_LABELS", "hydra_command", "equal_share_markdown", "number", "sweep_label",
+    "pareto_front", "front_point", "front_points", "front_markdown", "front_verdict", "plot_front",
 ]

@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from .front import front_markdown, front_verdict
 from .metrics_csv import atomic_write_text, summarize_rows
 from .names import METHOD_LABELS, METHOD_ORDER
-from .plots import plot_image_grid, plot_latency_vs_psnr, plot_options, plot_psnr_per_view, plot_stage_breakdown
+from .plots import plot_front, plot_image_grid, plot_latency_vs_psnr, plot_options, plot_psnr_per_view, plot_stage_breakdown
 from .tables import (
     equal_share_markdown,
     fmt,
@@ -63,6 +64,8 @@ class ReportContext:
     cache: str = ""
     orp: dict[str, Any] | None = None
     equal_share: list[dict[str, Any]] = field(default_factory=list)
+    #: the speed-quality front's points on ``sweep_positions`` (:func:`~imls_lightning.report.front.front_points`)
+    front: list[dict[str, Any]] = field(default_factory=list)
 
 
 def _latency_points(ctx: ReportContext, summ, points) -> tuple[dict, dict, float | None]:
@@ -92,6 +95,7 @@ def write_report(ctx: ReportContext) -> Path:
     """Write the plots, the image grid and (last, atomically) ``report.md`` into ``ctx.out``.
 
     Files: ``stage_breakdown.png``, ``psnr_per_view.png``, ``latency_vs_psnr.png`` (with sweep rows),
+    ``speed_quality_front.png`` (with front points),
     ``options.png`` (with option rows), ``image_grid.png`` (with grid views), ``report.md``.
     Returns the path of ``report.md``.
     """
@@ -112,6 +116,9 @@ def write_report(ctx: ReportContext) -> Path:
     curves, pts, full_ms = _latency_points(ctx, summ, points)
     plot_latency_vs_psnr(curves, pts, full_ms, out / "latency_vs_psnr.png")
     figures.append(("latency_vs_psnr.png", "Latency vs PSNR"))
+    if ctx.front:
+        plot_front(ctx.front, out / "speed_quality_front.png", title=f"Speed-quality front: {ctx.scene}, {ctx.recnn_name}")
+        figures.append(("speed_quality_front.png", "Speed-quality front"))
     if ctx.option_rows:
         ok = [r for r in ctx.option_rows if not r.get("error")]
         if ok:
@@ -170,25 +177,42 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         o = ctx.orp
         L.append("## ORP on the product path")
         L.append("")
+        conf, m = o.get("confidence"), o.get("future_views")
+        where = o.get("where") or "the validation views"
+        if conf is not None and conf > 0.5 and m:
+            rule = (f"the one-sided {fmt_pct(conf, 0)} upper bound on the mean gap the {m} evaluated views will show "
+                    "(mean + z·std·√(1/n + 1/m) over the n search views' per-view gaps: a margin for views it was not chosen on)")
+        elif conf is not None and conf > 0.5:
+            rule = (f"the one-sided {fmt_pct(conf, 0)} upper confidence bound on its mean per-view gap (mean + z·std/√n over "
+                    "the n search views: a margin for views it was not chosen on)")
+        else:
+            rule = "its mean gap"
         if o["found"]:
             L.append(f"The smallest mean value u whose IML/S + RecNN (IMS mask from the view, exactly those pixels "
                      f"ray-cast, IML decoder, RecNN) stays within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN alone on "
-                     f"the validation views: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
-                     f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB ({o['evaluations']} means tried). IML/S + RecNN "
+                     f"{where}, judged by {rule}: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
+                     f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB (bound {fmt(o.get('gap_bound_db'), 2)} dB; "
+                     f"{o['evaluations']} means tried). IML/S + RecNN "
                      "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u"
                      + (", lifted so that its share of C reaches u)." if o.get("lift") else ", not lifted).") )
         else:
             L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
-                     "alone on the validation views; IML/S runs at its trained mean.")
+                     f"alone on {where}, judged by {rule}; IML/S runs at its trained mean.")
         L.append("")
-        L.append(md_table(["u", "gap (dB)", "C-share"], [[fmt(u, 4), fmt(g, 2), fmt_pct(c)] for u, g, c in o["points"]], "rrr"))
+        L.extend(_gap_lines(o, ctx.views))
+        L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
+                          [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["points"]], "rrrr"))
         L.append("")
         if o.get("rescale_points"):
             L.append("The paper's rescale (`ims_lift=false`) found no ORP first: its share of C saturates. Its search:")
             L.append("")
-            L.append(md_table(["u", "gap (dB)", "C-share"],
-                              [[fmt(u, 4), fmt(g, 2), fmt_pct(c)] for u, g, c in o["rescale_points"]], "rrr"))
+            L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
+                              [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["rescale_points"]],
+                              "rrrr"))
             L.append("")
+
+    if ctx.front:
+        L.extend(_front_lines(ctx))
 
     if "imls" in summ:
         L.append("## Speed-up of IML/S + RecNN")
@@ -256,6 +280,44 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         L.append(_md_image(name, alt))
         L.append("")
     return "\n".join(L)
+
+
+def _gap_lines(o: dict[str, Any], split: str = "test") -> list[str]:
+    """The ORP's gap on the validation views (where it was chosen) beside its gap on the evaluated views."""
+    t = o.get("test")
+    if not o.get("found"):
+        return []
+    eps = float(o["epsilon_db"])
+    within = lambda g: "–" if g is None or not math.isfinite(float(g)) else ("yes" if float(g) <= eps else "**no**")  # noqa: E731
+    rows = [[f"{o.get('where') or 'validation views'} (the ORP is chosen here)", o.get("views") or "–", fmt(o.get("psnr_recnn"), 2), fmt(o.get("psnr_imls"), 2),
+             fmt(o["gap_db"], 2), fmt(o.get("gap_std_db"), 2), fmt(o.get("gap_bound_db"), 2), within(o["gap_db"])]]
+    if t:
+        what = "the test trajectory" if split == "test" else f"the '{split}' views"
+        rows.append([f"{what}, evaluated (never tuned on)", t["views"], fmt(t["psnr_recnn"], 2), fmt(t["psnr_imls"], 2),
+                     fmt(t["gap_db"], 2), fmt(t["gap_std_db"], 2), "–", within(t["gap_db"])])
+    return ["The same operating point on the views it was chosen on and on the evaluated views:", "",
+            md_table(["views", "n", "RecNN alone PSNR", "IML/S PSNR", "mean gap (dB)", "gap std (dB)", "gap bound (dB)",
+                      f"within ε = {fmt(eps, 2)} dB"], rows, "lrrrrrrr"), ""]
+
+
+def _front_lines(ctx: ReportContext) -> list[str]:
+    """The section ``Speed-quality front``: the table, where IML/S lies, the plot."""
+    views = len(ctx.sweep_positions)
+    imls_note = next((p["note"] for p in ctx.front if p["method"] == "imls" and "setting" not in p), None)
+    L = ["## Speed-quality front", "",
+         f"Every method as one or more points, from this run on the same {views} view(s) (positions "
+         f"{_positions(ctx.sweep_positions)}): median latency (over the views, of the per-view medians of {ctx.repeats} runs) "
+         "against mean PSNR and SSIM. IML/S + RecNN at its operating point and at fixed shares of C (each view's IMS "
+         "mask brought to that share by bisection on u outside the timed stages; the IMS network runs inside them), "
+         "blue noise + decoder at the same shares, IML + RecNN (the bound: it renders the whole pattern) at each "
+         "mean value, LAS at each IPR, the RecNN alone on its pattern and on a sparser one (the same RecNN trained "
+         "the same way on fewer pixels: what a user would do instead), the full ray cast. ◆ and bold: on the Pareto "
+         "front (no other point is as fast and as good, and better in one). The per-view adaptive mean is reported by "
+         "`python -m imls_lightning.adaptive`, not in this run.", "",
+         front_markdown(ctx.front), "",
+         "Where IML/S lies: " + front_verdict(ctx.front, ctx.scene, operating_note=imls_note), "",
+         "![Speed-quality front](speed_quality_front.png)", ""]
+    return L
 
 
 def _positions(ps: Sequence[int], limit: int = 24) -> str:

@@ -8,6 +8,7 @@ from ..inference.pipeline import STAGES
 METHOD_LABELS = {
     "full": "Full ray cast",
     "recnn": "RecNN alone",
+    "recnn_sparser": "RecNN alone, sparser pattern",
     "las": "LAS",
     "iml": "IML + RecNN",
     "imls": "IML/S + RecNN",
@@ -15,7 +16,7 @@ METHOD_LABELS = {
     "blue_noise": "blue noise + decoder + RecNN",
     "iml_selective": "IML IM, selectively rendered",
 }
-METHOD_ORDER = ("full", "recnn", "las", "iml", "imls", "imls_fill", "blue_noise")
+METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "iml", "imls", "imls_fill", "blue_noise")
 STAGE_LABELS = {
     "low_res_render": "low-res render",
     "render": "render",
@@ -33,7 +34,7 @@ STAGE_COLORS = {
     "decoder": "#9467bd",
     "recnn": "#d62728",
 }
-METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "las": "#2ca02c", "iml": "#ff7f0e",
+METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "iml": "#ff7f0e",
                  "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f"}
 
 #: columns of metrics.csv, in order

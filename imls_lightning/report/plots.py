@@ -108,6 +108,58 @@ def plot_latency_vs_psnr(curves: Mapping[str, Sequence[tuple[float, float, str]]
     return save_figure(fig, path)
 
 
+def plot_front(points: Sequence[Mapping[str, Any]], path: str | Path, title: str = "Speed-quality front") -> Path:
+    """The speed-quality front: median latency (x) against PSNR (y), one colour per method (its sweep's
+    points joined in the order of their setting: share, mean value or IPR; its operating point a larger
+    marker), the Pareto front as a dashed step line through its points (ringed).
+
+    Args:
+        points: :func:`~imls_lightning.report.front.front_points`'s points (``method``, ``label``,
+            ``note``, ``latency_ms``, ``psnr``, ``on_front``). An exact point (the full ray cast,
+            PSNR >= 100 dB) is drawn as a vertical line instead of a point off the scale.
+    """
+    from .front import EXACT_PSNR_DB
+
+    fig = new_figure(8.0, 5.0)
+    ax = fig.add_subplot(111)
+    finite = [p for p in points if math.isfinite(number(p["latency_ms"])) and math.isfinite(number(p["psnr"]))]
+    drawn = [p for p in finite if p["psnr"] < EXACT_PSNR_DB]
+    markers = {"imls": "*", "recnn": "s", "recnn_sparser": "D", "las": "^", "iml": "o", "blue_noise": "v", "imls_fill": "P"}
+    by_method: dict[str, list[Mapping[str, Any]]] = {}
+    for p in drawn:
+        by_method.setdefault(str(p["method"]), []).append(p)
+    for m, ps in by_method.items():
+        color, marker = METHOD_COLORS.get(m), markers.get(m, "o")
+        swept = sorted((p for p in ps if "setting" in p), key=lambda p: (str(p["setting"]), float(p["value"])))
+        alone = [p for p in ps if "setting" not in p]
+        label = ps[0]["label"]
+        if swept:
+            ax.plot([p["latency_ms"] for p in swept], [p["psnr"] for p in swept], marker=marker, ms=6 if m == "imls" else 4,
+                    lw=1.0, alpha=0.85, color=color, label=label)
+            label = None
+        if alone:
+            ax.scatter([p["latency_ms"] for p in alone], [p["psnr"] for p in alone], marker=marker, s=110 if m == "imls" else 60,
+                       color=color, edgecolors="white", lw=0.8, zorder=5, label=label)
+        for p in ps:
+            ax.annotate(p["note"], (p["latency_ms"], p["psnr"]), textcoords="offset points", xytext=(3, 3), fontsize=6)
+    front = sorted((p for p in drawn if p["on_front"]), key=lambda p: p["latency_ms"])
+    if front:
+        ax.step([p["latency_ms"] for p in front], [p["psnr"] for p in front], where="post", ls="--", lw=1.2, color="black",
+                label="Pareto front")
+        ax.scatter([p["latency_ms"] for p in front], [p["psnr"] for p in front], s=140, facecolors="none",
+                   edgecolors="black", lw=1.0, zorder=6)
+    for p in finite:
+        if p["psnr"] >= EXACT_PSNR_DB:
+            ax.axvline(p["latency_ms"], color=METHOD_COLORS.get(str(p["method"]), "#555555"), ls=":", lw=1.2,
+                       label=f"{p['label']} (exact{', on the front' if p['on_front'] else ''})")
+    ax.set_xlabel("median latency (ms)")
+    ax.set_ylabel("mean PSNR (dB)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return save_figure(fig, path)
+
+
 def plot_options(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     """Bars of the IML/S network stages' time under each inference option."""
     fig = new_figure(6.0, 3.6)

@@ -127,13 +127,16 @@ def sweep_points(sweep_rows: Sequence[Mapping[str, Any]]) -> dict[tuple[str, flo
 
 
 def sweep_label(method: str, setting: str, value: float) -> str:
-    """A sweep point's setting as shown: ``u=0.1`` (a mean value) or ``IPR=0.05``."""
+    """A sweep point's setting as shown: ``u=0.1`` (a mean value), ``20% of C`` (a share of the
+    C-Image) or ``IPR=0.05``."""
+    if setting == "share":
+        return f"{100 * value:g}% of C"
     return f"u={value:g}" if setting == "mean" else f"IPR={value:g}"
 
 
 def sweep_table(points: Mapping[tuple[str, float], Mapping[str, Any]]) -> str:
     """The latency/PSNR sweep: one line per (method, setting value)."""
-    rank = {"iml": 0, "iml_selective": 1, "las": 2}
+    rank = {"iml": 0, "iml_selective": 1, "las": 2, "imls": 3, "blue_noise": 4}
     rows = []
     for (method, value), s in sorted(points.items(), key=lambda kv: (rank.get(kv[0][0], 9), kv[0][1])):
         rows.append([METHOD_LABELS.get(method, method), sweep_label(method, s["setting"], value),

@@ -67,6 +67,17 @@ class ImlsTask(L.LightningModule):
             self.get_submodule(name).load_state_dict(state)
 
     @classmethod
+    def inference_nets(cls, hparams: Mapping[str, Any]) -> dict[str, torch.nn.Module]:
+        """The bare networks inference runs, by their state-dict prefix, built from a checkpoint's saved
+        hyperparameters without building the task (no losses, no discriminator, no passengers):
+        :func:`~imls_lightning.inference.checkpoints.load_nets` loads each prefix's weights into them.
+
+        Raises:
+            InputError: this task has no inference networks.
+        """
+        raise InputError(f"{cls.__name__}: no inference networks to load without the task; use load_task")
+
+    @classmethod
     def optional_state_prefixes(cls) -> tuple[str, ...]:
         """State-dict prefixes a checkpoint may lack (e.g. frozen pretrained backbones)."""
         return ()

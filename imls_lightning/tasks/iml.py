@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from data_gen.errors import InputError, config_keys
 
 from ..config import to_plain
-from ..models.iml import IMLNet
+from ..models.iml import IMLNet, build_decoder
 from ..models.pull_push import pull_push_inpaint
 from ..core.patterns import build_pattern, plastic_rank_pattern
 from ..core.metrics import psnr_per_image
@@ -65,16 +65,32 @@ def end_to_end_loss(c_rec: torch.Tensor, c: torch.Tensor, fr_pred: Optional[torc
     return compaction_weight * comp + image_weight * img, comp, img
 
 
+#: the :class:`IMLNet` arguments an ``IMLTask``'s hyperparameters hold, with the value a checkpoint written
+#: before the hyperparameter existed was trained with (one place for these defaults)
+IML_NET_DEFAULTS = {"mean": 0.1, "alpha": 50.0, "depth": 5, "base_channels": 32, "lower": 0.0, "delta": 1e-7,
+                    "decoder": "plain", "importance": "learned", "straight_through": False}
+
+
+def iml_net_kwargs(h: Mapping) -> dict[str, Any]:
+    """The :class:`IMLNet` keyword arguments of an ``IMLTask`` with hyperparameters ``h`` (:data:`IML_NET_DEFAULTS`).
+
+    Example:
+        >>> iml_net_kwargs({"mean": 0.3})["mean"], iml_net_kwargs({})["decoder"]
+        (0.3, 'plain')
+    """
+    return {k: h.get(k, default) for k, default in IML_NET_DEFAULTS.items()}
+
+
 def iml_net_from_hparams(h: Mapping, pattern) -> IMLNet:
-    """The :class:`IMLNet` of an ``IMLTask`` with hyperparameters ``h`` (one place for the defaults:
-    checkpoints written before a hyperparameter existed get the behaviour they were trained with)."""
+    """The :class:`IMLNet` of an ``IMLTask`` with hyperparameters ``h`` (:func:`iml_net_kwargs`)."""
     n = pattern.c_size
-    return IMLNet(
-        n, plastic_rank_pattern(n), mean=h.get("mean", 0.1), alpha=h.get("alpha", 50.0), depth=h.get("depth", 5),
-        base_channels=h.get("base_channels", 32), lower=h.get("lower", 0.0), delta=h.get("delta", 1e-7),
-        valid=pattern.valid, decoder=h.get("decoder", "plain"), importance=h.get("importance", "learned"),
-        straight_through=h.get("straight_through", False),
-    )
+    return IMLNet(n, plastic_rank_pattern(n), valid=pattern.valid, **iml_net_kwargs(h))
+
+
+def iml_decoder_from_hparams(h: Mapping) -> torch.nn.Module:
+    """The decoder alone of :func:`iml_net_from_hparams` (the same module as its ``.decoder``; no encoder)."""
+    kw = iml_net_kwargs(h)
+    return build_decoder(kw["decoder"], kw["depth"], kw["base_channels"])
 
 
 def check_mean_range(value, key: str = "model.mean_range") -> list[float] | None:

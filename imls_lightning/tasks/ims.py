@@ -15,7 +15,9 @@ Targets (``target``):
   (``g = 1``, the target of every ``PIM' >= 1``, counts as important also on the one pixel where
   ``P = 1``).
 
-Either way :meth:`IMSTask.predict_im` gives the boolean IM, 0 on the C-Image padding.
+Either way the IM is boolean, 0 on the C-Image padding. The thresholding is
+:class:`~imls_lightning.models.ims.IMSMaskHead`'s (its one home): :attr:`IMSTask.mask_head` is the
+generator with it, and :meth:`IMSTask.predict_im` calls it.
 
 Optimization. Lightning manual optimization, one Adam per network, lr 1e-3 (paper), betas
 ``(0.5, 0.999)`` by default: DCGAN's choice (Radford et al. 2015) - the default ``beta1 = 0.9``
@@ -77,21 +79,19 @@ from data_gen.errors import InputError, config_keys
 from data_gen.validate import check_number
 
 from ..models.backbones import BACKBONES, VGG16_LAYERS
-from ..inference.checkpoint_checks import check_same_pattern, require_pim_target
+from ..inference.checkpoint_checks import check_same_pattern
 from ..config import to_plain
 from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
-from ..models.ims import IMSDiscriminator, IMSGenerator, generator_plan, im_to_target
-from ..core.importance import lift_to_share, lifted_mask
+from ..models.ims import TARGETS, IMSDiscriminator, IMSGenerator, IMSMaskHead, generator_plan, im_to_target
 from ..core.patterns import build_pattern
 from ..core.metrics import psnr_per_image
 from .base import ImlsTask
-from .iml import IMLTask, check_mean_range, end_to_end_loss, iml_net_from_hparams
+from .iml import IMLTask, check_mean_range, end_to_end_loss, iml_decoder_from_hparams, iml_net_from_hparams
 from .recnn import RecNNTask
 
 __all__ = ["IMSTask", "TARGETS", "shallow_start_hint", "loss_config", "build_criterion", "pim_to_target", "build_iml_net", "scaled_pim_im"]
 
-TARGETS = ("im", "pim")
 LOSS_TERMS = ("bce", "mse", "perceptual", "adversarial")
 PERCEPTUAL_DEFAULTS = {
     "weight": 1.0,
@@ -174,58 +174,26 @@ def pim_to_target(pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> to
 
 
 def scaled_pim_im(task, g: torch.Tensor, u: torch.Tensor | float, u_train: float | None = None,
-                  lift: bool | None = None) -> torch.Tensor:
-    """IM of an IMS (``target="pim"``) output at mean value ``u`` instead of the trained ``u_train``.
-
-    The IMS regresses ``PIM' = (g + 1) / 2`` normalized to mean ``u_train``; the IML normalization
-    ``PIM'(u) = l + (PIM'(u_train) - l) (u - l) / (u_train - l)`` is affine in ``u``, so the IM at
-    ``u`` is ``PIM'(u) > P`` (0 on padding). Exact while nothing saturates: the generator's target
-    was ``clamp(PIM', 0, 1)``, so a pixel at ``g = 1`` had ``PIM' >= 1``; it stays important when
-    ``u >= u_train`` and is compared at its lower bound otherwise. At ``u == u_train`` (same float32)
-    this is bit-for-bit :meth:`IMSTask.output_to_im`.
-
-    Rescaling alone cannot reach every share: a pixel regressed as 0 stays 0 at any ``u`` and pixels
-    pushed past 1 waste their excess, so the share stops short of ``u`` (66 % of C at ``u = 1`` for
-    the paper-scale ct_head IMS). With ``lift``, above the trained mean, PIM'(u) is lifted by
-    :func:`~imls_lightning.core.importance.lift_to_share`: scaled further until the expected share is
-    ``u`` (the same masks as the plain rescale, reached at their share), and once every pixel with
-    importance is taken, a blue-noise floor on the rest; ``u = 1`` renders every pixel. Where the
-    rescale already reaches ``u`` the IM is unchanged.
+                  lift: bool = False) -> torch.Tensor:
+    """IM of an IMS (``target="pim"``) output at mean value ``u`` instead of the trained ``u_train``:
+    :meth:`IMSMaskHead.threshold <imls_lightning.models.ims.IMSMaskHead.threshold>` of the task's
+    :attr:`~IMSTask.mask_head` (the one home of the arithmetic; see there).
 
     Args:
-        task: the :class:`~imls_lightning.tasks.ims.IMSTask` (its ``P``, ``valid``, IML ``lower``).
+        task: the :class:`~imls_lightning.tasks.ims.IMSTask`.
         g: ``(B, 1, n, n)`` generator output in ``[-1, 1]``.
         u: ``(B,)`` tensor or a number: the mean value per view.
         u_train: the mean the IMS targets were normalized to (default: the IML's trained mean).
-        lift: lift the rescaled PIM' to the share ``u`` (default: the task's ``lift_to_mean``, False).
+        lift: lift the rescaled PIM' to the share ``u`` above the trained mean (default False: the
+            paper's rescale).
 
     Returns:
         ``(B, 1, n, n)`` bool IM.
     """
-    require_pim_target({"target": task.target}, what="rescaling the regressed PIM' to another mean value")
-    g = g.float()
-    u_train = float(task.iml.mean) if u_train is None else float(u_train)
-    lower = float(task.iml.normalization.lower)
-    ut = torch.as_tensor(u, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
-    scale = (ut - lower) / torch.tensor(u_train - lower, dtype=torch.float32, device=g.device)
-    pim = (g + 1.0) * 0.5
-    if lower == 0.0:
-        pim_u = pim * scale
-    else:
-        pim_u = (pim - lower) * scale + lower
-    P, valid = task.P.to(g.device), task.valid.to(g.device)
-    saturated = (g >= 1.0) & (scale >= 1.0)
-    im = (pim_u > P) | saturated
-    if getattr(task, "lift_to_mean", False) if lift is None else lift:
-        # above the trained mean only (below it nothing saturates and the IM stays the paper's): m = 1,
-        # f = 0 add nothing, so where the rescale reaches u the IM is bit-for-bit the rescaled one
-        x = torch.where(saturated, pim_u.clamp_min(1.0), pim_u)
-        m, f = lift_to_share(x, ut.flatten(), valid)
-        above = (scale > 1.0).to(m.device)
-        m = torch.where(above, m, torch.ones_like(m))
-        f = torch.where(above, f, torch.zeros_like(f))
-        im = im | lifted_mask(x, m, f, P)
-    return im & valid
+    head = task.mask_head
+    if u_train is not None and float(u_train) != head.trained_mean:
+        head = IMSMaskHead(head.generator, head.P, head.valid, head.target, float(u_train), head.lower)
+    return head.threshold(g, u, lift)
 
 
 #: the widest start side the generator should have: the view reaches the first ``s0 x s0`` map through one
@@ -327,10 +295,9 @@ class IMSTask(ImlsTask):
 
     Attributes:
         generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
-        (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern; ``lift_to_mean``
-        (bool, default False, a run-time setting, not a hyperparameter): True makes :func:`scaled_pim_im`
-        lift the rescaled PIM' so that the share of C reaches the mean value (False: the paper's
-        rescale; training always uses that).
+        (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern; :attr:`mask_head`
+        (:class:`~imls_lightning.models.ims.IMSMaskHead`: the generator and its thresholding, the mean
+        value and lift given to each call).
 
     Example:
         >>> task = build_task(cfg)  # model=ims iml.checkpoint=...  # doctest: +SKIP
@@ -367,7 +334,6 @@ class IMSTask(ImlsTask):
         **_: Any,  # run keys of the model node (name, patience, labels_*, ...) and stale hyperparameters: see ImlsTask
     ):
         super().__init__()
-        self.lift_to_mean = False  # scaled_pim_im: the paper's rescale unless asked (evaluate's ims_lift)
         if target not in TARGETS:
             raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
         if not (isinstance(lr, (int, float)) and lr > 0 and math.isfinite(lr)):
@@ -495,6 +461,21 @@ class IMSTask(ImlsTask):
         }
 
     @classmethod
+    def inference_nets(cls, hparams: Mapping[str, Any]) -> dict[str, torch.nn.Module]:
+        """The product's networks of an IMS checkpoint, built from its hyperparameters without the task
+        (no discriminator, no IML encoder, no RecNN task): ``{"generator", "iml.decoder", "recnn"}``
+        (``recnn`` only when the checkpoint stores one). The rank pattern ``P`` is the buffer
+        ``iml.sampling.P`` of the checkpoint's state dict."""
+        pattern = build_pattern(to_plain(hparams["pattern"]), int(hparams["fr_size"]))
+        nets = {"generator": IMSGenerator(pattern.c_size, layers=int(hparams.get("layers", 8)),
+                                          base_channels=int(hparams.get("base_channels", 32)),
+                                          max_channels=int(hparams.get("max_channels", 512))),
+                "iml.decoder": iml_decoder_from_hparams(hparams["iml_hparams"])}
+        if hparams.get("recnn_hparams"):
+            nets["recnn"] = RecNNTask.inference_nets(hparams["recnn_hparams"])["net"]
+        return nets
+
+    @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
         # the DataModule labels the cache with the IML (once; imls_lightning.data.labels) and yields im / pim
         m = cfg.model
@@ -508,32 +489,33 @@ class IMSTask(ImlsTask):
             return im_to_target(batch["im"])
         return pim_to_target(batch["pim"], self.valid)
 
+    @property
+    def mask_head(self) -> IMSMaskHead:
+        """The generator with its thresholding (:class:`~imls_lightning.models.ims.IMSMaskHead`): the
+        task's generator and buffers (``P``, ``valid``), its target, the IML's trained mean and lower
+        bound. Made on each access (cheap, nothing copied), so it follows the task across devices."""
+        return IMSMaskHead(self.generator, self.P, self.valid, self.target, float(self.iml.mean),
+                           float(self.iml.normalization.lower))
+
     def output_to_im(self, g: torch.Tensor) -> torch.Tensor:
-        """Generator output ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool, False on C-Image padding.
+        """Generator output ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool at the trained mean, False on
+        C-Image padding (:meth:`IMSMaskHead.threshold <imls_lightning.models.ims.IMSMaskHead.threshold>`)."""
+        return self.mask_head.threshold(g)
 
-        ``target="im"``: ``g > 0``; ``target="pim"``: ``(g + 1) / 2 > P`` (the IML's dithering).
-        """
-        g = g.float()
-        if self.target == "im":
-            im = g > 0
-        else:
-            # g = 1 is the target of every PIM' >= 1, which the IML always keeps, also where P = 1
-            im = ((g + 1.0) * 0.5 > self.P.to(g.device)) | (g >= 1.0)
-        return im & self.valid.to(g.device)
-
-    def output_to_im_at(self, g: torch.Tensor, mean: torch.Tensor | float | None) -> torch.Tensor:
-        """:meth:`output_to_im` at mean value ``mean`` (``None``: the trained one; see :func:`scaled_pim_im`)."""
-        return self.output_to_im(g) if mean is None else scaled_pim_im(self, g, mean)
+    def output_to_im_at(self, g: torch.Tensor, mean: torch.Tensor | float | None, lift: bool = False) -> torch.Tensor:
+        """:meth:`output_to_im` at mean value ``mean`` (``None``: the trained one), lifted with ``lift``."""
+        return self.mask_head.threshold(g, mean, lift)
 
     @torch.no_grad()
-    def predict_im(self, view: torch.Tensor, mean: float | None = None) -> torch.Tensor:
+    def predict_im(self, view: torch.Tensor, mean: float | None = None, lift: bool = False) -> torch.Tensor:
         """Importance mask of views ``(B, 9)`` -> ``(B, 1, n, n)`` bool (the IMS product), at the
-        trained mean value or at ``mean`` (``target="pim"`` only: the regressed PIM' is rescaled).
+        trained mean value or at ``mean`` (``target="pim"`` only: the regressed PIM' is rescaled, lifted
+        with ``lift``): :attr:`mask_head`.
 
         Uses the generator in whatever mode the task is in (``eval()`` for inference).
         """
         view = torch.as_tensor(view, dtype=torch.float32, device=self.valid.device)
-        return self.output_to_im_at(self.generator(view), mean)
+        return self.mask_head(view, mean, lift)
 
     def reconstruct(self, im: torch.Tensor, c_image: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
         """IML/S path from an IM and the C-Image: ``(decoder C-Image (B, 3, n, n), FR (B, 3, m, m) or None)``."""
@@ -605,7 +587,7 @@ class IMSTask(ImlsTask):
         random mean values: what :attr:`decoder` is fine-tuned on."""
         c = batch["c"]
         with torch.no_grad():
-            im = scaled_pim_im(self, g.detach(), self._random_means(c.shape[0], c.device), lift=False).to(c.dtype)
+            im = self.output_to_im_at(g.detach(), self._random_means(c.shape[0], c.device)).to(c.dtype)
         c_rec = self.iml.decoder(im * c, im)
         end_to_end = self.recnn is not None and "fr" in batch
         fr_pred, fr = (self.recnn(c_rec).float(), batch["fr"].float()) if end_to_end else (None, None)

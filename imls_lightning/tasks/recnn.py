@@ -84,6 +84,11 @@ class RecNNTask(ImlsTask):
         # fully convolutional: trains on random patch crops when data.crop is set (paper scale)
         return {"fields": ("view", "fr", "c"), "crop": cfg.data.get("crop")}
 
+    @classmethod
+    def inference_nets(cls, hparams: Mapping[str, Any]) -> dict[str, torch.nn.Module]:
+        """``{"net": the RecNN}`` of these hyperparameters, built as the task builds it (no task)."""
+        return {"net": build_recnn(hparams["net"], build_pattern(to_plain(hparams["pattern"]), int(hparams["fr_size"])))}
+
     def forward(self, c_image: torch.Tensor) -> torch.Tensor:
         return self.net(c_image)
 

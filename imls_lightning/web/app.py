@@ -111,7 +111,7 @@ class WebViewer:
                 state.error, state.status = f"{type(err).__name__}: {err}", "Could not load the checkpoints."
             return
         self.session = session
-        log(f"loaded: scene {session.scene_name}, {session.task.pattern.fr_size}^2, trained mean {session.trained_mean:g}, "
+        log(f"loaded: scene {session.scene_name}, {session.pattern.fr_size}^2, trained mean {session.trained_mean:g}, "
             f"opens at u = {session.mean:.3f}" + (" (the evaluation's operating point)" if session.operating_point else ""))
         with state:
             state.methods = [{"title": v, "value": k} for k, v in session.methods.items()]

@@ -25,8 +25,8 @@ from data_gen.errors import InputError, finite_number
 
 from ..core.patterns import c_pixels_to_fr
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
-from ..inference.checkpoints import load_ims_and_recnn, load_task
-from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, renderer_for_task
+from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
+from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone
 from ..report.viz import error_map, to_uint8
 
 #: the methods a user can pick, with their labels
@@ -77,8 +77,9 @@ class ViewerSession(OrbitCamera):
     """Camera, method and mean value of one viewer, and the methods built from the checkpoints.
 
     Args:
-        task: the loaded ``IMSTask`` (its generator, IML decoder and RecNN).
-        recnn: the RecNN module (the task's, or another of the same pattern).
+        nets: the product's networks (:class:`~imls_lightning.inference.checkpoints.IMSNets`: the IMS
+            mask head, the IML decoder, the pattern).
+        recnn: the RecNN module (the checkpoint's, or another of the same pattern).
         renderer: the scene's renderer.
         las: an optional LAS network and its low-res side ``(net, low_res)``.
         predictor: an optional per-view mean predictor (``python -m imls_lightning.adaptive``'s
@@ -89,9 +90,10 @@ class ViewerSession(OrbitCamera):
         method: the start method (:data:`METHODS`).
         start_mean: the start mean value of IML/S (``None``: the trained mean);
             :meth:`from_checkpoints` passes the operating point the evaluation recorded for the IMS.
+        lift: IML/S's masks lifted to the share of the mean value (as the evaluation's operating point says).
     """
 
-    task: Any
+    nets: IMSNets
     recnn: torch.nn.Module
     renderer: Any
     las: tuple[torch.nn.Module, int] | None = None
@@ -102,6 +104,7 @@ class ViewerSession(OrbitCamera):
     distance: float | None = None
     method: str = "imls"
     start_mean: float | None = None
+    lift: bool = False
 
     def __post_init__(self):
         scene = getattr(self.renderer, "scene", None)
@@ -113,24 +116,25 @@ class ViewerSession(OrbitCamera):
         orbit_view(self.azimuth, self.elevation, self.distance)  # one-line InputError on bad angles
         self.home = (float(self.azimuth), float(self.elevation), float(self.distance))
         self.scene_name = getattr(scene, "name", "?")
-        self.trained_mean = float(self.task.iml.mean)
+        self.trained_mean = self.nets.trained_mean
         self.mean = self.trained_mean
-        self.rescalable = str(self.task.hparams.get("target", "pim")) == "pim"
+        self.rescalable = self.nets.target == "pim"
         if self.start_mean is not None:
             self.set_mean(self.start_mean)  # checked there
             self.mean = float(self.start_mean)  # exactly the recorded point, not rounded like a slider value
         self.operating_point = None  # the record the start mean came from (from_checkpoints)
         self._imls: dict[float, IMLSRenderer] = {}
-        self.truth_method = FullRayCast(self.renderer, self.task.pattern.fr_size, self.opts)
-        self.recnn_method = RecNNAlone(self.renderer, self.task.pattern, self.recnn, self.opts)
-        # LAS is built once; each frame only sets its IPR to IML/S's at that view
-        self.las_method = None if self.las is None else LASMethod(self.renderer, self.las[0], self.task.pattern.fr_size,
+        self.truth_method = FullRayCast(self.renderer, self.pattern.fr_size, self.opts)
+        self.recnn_method = RecNNAlone(self.renderer, self.pattern, self.recnn, self.opts)
+        # LAS is built once; each frame runs it at IML/S's IPR at that view (an argument of its run)
+        self.las_method = None if self.las is None else LASMethod(self.renderer, self.las[0], self.pattern.fr_size,
                                                                    self.las[1], ipr=1.0, opts=self.opts)
         self.adaptive_method = None
         if self.predictor is not None:
             from ..adaptive.renderer import AdaptiveIMLSRenderer
 
-            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.task, self.predictor, self.recnn, self.opts)
+            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder,
+                                                        self.recnn, self.predictor, self.opts, lift=self.lift)
         self.history: deque[tuple[str, float, float]] = deque(maxlen=HISTORY)
         self._truth_cache: tuple[bytes, np.ndarray] | None = None
         self.set_method(self.method)
@@ -146,29 +150,31 @@ class ViewerSession(OrbitCamera):
         (its masks lifted if the evaluation lifted them), else at the trained mean, as
         :meth:`IMLSRenderer.from_checkpoints` does; ``mean`` (a number or ``"trained"``) overrides it.
         """
-        from ..inference.operating_point import mean_to_run
-
-        task, recnn = load_ims_and_recnn(ims_checkpoint, recnn_checkpoint)
-        start_mean, point = mean_to_run(task, ims_checkpoint, mean)
-        recnn = recnn if recnn is not None else task.recnn
+        product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
+        nets, recnn = product.nets, product.nets.recnn
         if recnn is None:
             raise InputError(f"ims_checkpoint={ims_checkpoint}: holds no RecNN; pass recnn_checkpoint=<RecNN .ckpt>")
         las = None
         if las_checkpoint:
             lt = load_task(las_checkpoint, expect="LASTask", what="las_checkpoint")
-            if int(lt.hparams["fr_size"]) != int(task.pattern.fr_size):
+            if int(lt.hparams["fr_size"]) != int(nets.pattern.fr_size):
                 raise InputError(f"las_checkpoint={las_checkpoint}: trained at {lt.hparams['fr_size']}^2, the IMS at "
-                                 f"{task.pattern.fr_size}^2; use a LAS of the same resolution")
+                                 f"{nets.pattern.fr_size}^2; use a LAS of the same resolution")
             las = (lt.net, int(lt.hparams["low_res"]))
         mean_predictor = None
         if predictor:
             from ..adaptive.predictor import MeanPredictor
 
             mean_predictor = MeanPredictor.load(predictor)
-        session = cls(task, recnn, renderer_for_task(task), las=las, predictor=mean_predictor, opts=opts or NetOptions(),
-                      start_mean=start_mean, **camera)
-        session.operating_point = point
+        session = cls(nets, recnn, renderer_for(nets.hparams), las=las, predictor=mean_predictor, opts=opts or NetOptions(),
+                      start_mean=product.mean, lift=product.lift, **camera)
+        session.operating_point = product.operating_point
         return session
+
+    @property
+    def pattern(self):
+        """The sampling pattern of the IMS (and of the RecNN)."""
+        return self.nets.pattern
 
     # -- controls ----------------------------------------------------------------------------------
     @property
@@ -189,7 +195,7 @@ class ViewerSession(OrbitCamera):
         if not 0.01 <= u <= 1.0:
             raise InputError(f"mean={u}: expected a number in [0.01, 1]")
         if not self.rescalable and abs(u - self.trained_mean) > 1e-9:
-            raise InputError(f"mean={u}: this IMS was trained with model.target={self.task.hparams.get('target')}; only its "
+            raise InputError(f"mean={u}: this IMS was trained with model.target={self.nets.target}; only its "
                              f"trained mean {self.trained_mean:g} can be shown (train it with model.target=pim)")
         self.mean = round(u, 4)
 
@@ -197,7 +203,8 @@ class ViewerSession(OrbitCamera):
     def _imls_at(self, u: float) -> IMLSRenderer:
         if u not in self._imls:
             mean = None if abs(u - self.trained_mean) < 1e-9 else u
-            self._imls[u] = IMLSRenderer.from_task(self.task, self.renderer, self.recnn, self.opts, mean=mean)
+            self._imls[u] = IMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder, self.recnn, self.opts,
+                                         mean=mean, lift=self.lift)
         return self._imls[u]
 
     def _truth(self, view: np.ndarray):
@@ -210,7 +217,7 @@ class ViewerSession(OrbitCamera):
 
     def _fr_mask(self, c_mask: torch.Tensor | None) -> np.ndarray:
         """``(m, m)`` bool: the FR pixels of the set C-Image pixels (None: the whole pattern)."""
-        p = self.task.pattern
+        p = self.pattern
         mask = np.zeros(p.fr_size * p.fr_size, bool)
         mask[p.indices.numpy() if c_mask is None else c_pixels_to_fr(p, torch.as_tensor(c_mask)).numpy()] = True
         return mask.reshape(p.fr_size, p.fr_size)
@@ -218,7 +225,7 @@ class ViewerSession(OrbitCamera):
     def frame(self) -> Frame:
         """Render the current view with the current method (and the ground truth it is scored against)."""
         view = self.view()
-        m = self.task.pattern.fr_size
+        m = self.pattern.fr_size
         with torch.inference_mode():
             truth = self._truth(view)
             imls = self._imls_at(self.mean)
@@ -233,8 +240,7 @@ class ViewerSession(OrbitCamera):
                     mask = self._fr_mask(None)
                 else:  # LAS at the IPR IML/S has at this view and mean (the IMS alone decides it, no rendering)
                     im = imls.predict_im(torch.as_tensor(np.asarray(view, np.float32))[None].to(imls.device))
-                    self.las_method.ipr = max(float(im.sum()) / m**2, 1.0 / m**2)
-                    res = self.las_method.run(view)
+                    res = self.las_method.run(view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
                     mask = res.info["mask"].numpy().reshape(m, m)
                 image, stages = res.image, {k: 1e3 * v for k, v in res.timings.items()}
         psnr = frame_psnr(image, truth)

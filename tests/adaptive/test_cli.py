@@ -37,7 +37,7 @@ def _direct_product_orp(pim_ckpt, cache) -> float:
     ims = load_task(pim_ckpt, expect="IMSTask").eval()
     ds = ViewImageDataset(cache.path, cache.splits["val"], ims.pattern, fields=("view", "fr", "c"))
     with torch.inference_mode():
-        res = product_orp(ims, ims.decoder, ims.recnn.eval(), list(DataLoader(ds, batch_size=16)), 1.0)
+        res = product_orp(ims.mask_head, ims.decoder, ims.recnn.eval(), list(DataLoader(ds, batch_size=16)), 1.0)
     return float(res.mean) if res.found else MEAN_RANGE[1]
 
 

@@ -34,7 +34,7 @@ def test_scaled_pim_im_lift_reaches_the_share_of_u_and_every_pixel_at_one(pim_ta
     u0 = float(pim_task.iml.mean)
     plain = [float(scaled_pim_im(pim_task, g, u, lift=False)[0, 0][valid].float().mean()) for u in (0.9, 1.0)]
     assert plain[1] < 0.75  # the zeros stay zeros at any u
-    assert pim_task.lift_to_mean is False  # the paper's rescale unless asked
+    assert not hasattr(pim_task, "lift_to_mean")  # no run-time switch: the lift is an argument
     for u in (u0, min(2 * u0, 0.5), 0.7, 0.9):
         im, im_plain = scaled_pim_im(pim_task, g, u, lift=True), scaled_pim_im(pim_task, g, u)
         share, share_plain = (float(m[0, 0][valid].float().mean()) for m in (im, im_plain))
@@ -43,18 +43,15 @@ def test_scaled_pim_im_lift_reaches_the_share_of_u_and_every_pixel_at_one(pim_ta
         assert not bool((im_plain & ~im).any())  # scale first: it keeps every pixel the plain rescale samples
     full = scaled_pim_im(pim_task, g, 1.0, lift=True)
     assert int(full[0, 0][valid].sum()) == k and not bool(full[0, 0][~valid].any())
-    pim_task.lift_to_mean = True  # the task's run-time switch is the default of lift=None
-    try:
-        assert torch.equal(scaled_pim_im(pim_task, g, 1.0), full)
-    finally:
-        pim_task.lift_to_mean = False
+    assert torch.equal(pim_task.mask_head.threshold(g, 1.0, lift=True), full)  # the one home of the arithmetic
 
 
 # ---- adaptive renderers ------------------------------------------------------------------------------
 def test_adaptive_renderer_with_the_trained_mean_is_imls_renderer(pim_task, renderer, tiny_cache):
     u0 = float(pim_task.iml.mean)
-    base = IMLSRenderer.from_task(pim_task, renderer, opts=CPU)
-    ada = AdaptiveIMLSRenderer(renderer, pim_task, ConstantMean(u0), opts=CPU)
+    base = IMLSRenderer(renderer, pim_task.pattern, pim_task.mask_head, pim_task.decoder, pim_task.recnn, CPU)
+    ada = AdaptiveIMLSRenderer(renderer, pim_task.pattern, pim_task.mask_head, pim_task.decoder, pim_task.recnn,
+                               ConstantMean(u0), CPU)
     for r in tiny_cache.splits["test"][:3]:
         view = tiny_cache.views[int(r)]
         a, b = base.run(view), ada.run(view)
@@ -67,8 +64,8 @@ def test_adaptive_renderer_with_the_trained_mean_is_imls_renderer(pim_task, rend
 def test_adaptive_renderer_renders_more_pixels_at_a_larger_mean(pim_task, renderer, tiny_cache):
     u0 = float(pim_task.iml.mean)
     view = tiny_cache.views[int(tiny_cache.splits["test"][0])]
-    counts = [AdaptiveIMLSRenderer(renderer, pim_task, ConstantMean(u), opts=CPU).run(view).info["rendered_pixels"]
-              for u in (0.01, u0, 1.0)]
+    counts = [AdaptiveIMLSRenderer(renderer, pim_task.pattern, pim_task.mask_head, pim_task.decoder, pim_task.recnn,
+                                   ConstantMean(u), CPU).run(view).info["rendered_pixels"] for u in (0.01, u0, 1.0)]
     assert counts[0] < counts[1] < counts[2]
 
 
@@ -84,6 +81,6 @@ def test_exception_target_im_is_refused(tiny_checkpoints, renderer):
     task = load_task(tiny_checkpoints["ims"], expect="IMSTask")
     assert task.target == "im"
     with pytest.raises(InputError, match="target=pim"):
-        AdaptiveIMLSRenderer(renderer, task, ConstantMean(0.1), opts=CPU)
+        AdaptiveIMLSRenderer(renderer, task.pattern, task.mask_head, task.decoder, task.recnn, ConstantMean(0.1), CPU)
     with pytest.raises(InputError, match="target=pim"):
         scaled_pim_im(task, torch.zeros(1, 1, task.pattern.c_size, task.pattern.c_size), 0.1)

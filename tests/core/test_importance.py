@@ -323,3 +323,25 @@ def test_lift_module_smoke_equals_the_functions():
     u = torch.tensor([0.5, 0.9])
     expected = lifted_mask(pim, *lift_to_share(pim, u, valid), P)
     assert torch.equal(LiftToShare()(pim, u, P, valid), expected) and expected.dtype == torch.bool
+
+
+@pytest.mark.parametrize("valid_kind", ["none", "shared", "per_image"])
+def test_lift_equals_the_per_image_solution_bit_for_bit(valid_kind):
+    """The vectorized (traceable) lift gives the multipliers and floors the per-image solution gave
+    (frozen in tests/models/helpers.py), bit for bit: batches, ties, zeros, saturation, u = 1."""
+    from tests.models.helpers import reference_lift_to_share
+
+    g = torch.Generator().manual_seed(7)
+    for trial in range(40):
+        b, n = int(torch.randint(1, 5, (1,), generator=g)), int(torch.randint(2, 12, (1,), generator=g))
+        x = torch.rand(b, 1, n, n, generator=g) * float(torch.rand(1, generator=g) * 3)
+        x[torch.rand(b, 1, n, n, generator=g) < 0.4] = 0
+        if trial % 3 == 0:
+            x = (x * 4).round() / 4
+        u = torch.rand(b, generator=g)
+        if trial % 7 == 0:
+            u[:] = 1.0
+        valid = {"none": None, "shared": torch.rand(n, n, generator=g) < 0.8,
+                 "per_image": torch.rand(b, 1, n, n, generator=g) < 0.8}[valid_kind]
+        got, want = lift_to_share(x, u, valid), reference_lift_to_share(x, u, valid)
+        assert torch.equal(got[0], want[0]) and torch.equal(got[1], want[1]), trial

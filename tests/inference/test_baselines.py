@@ -13,6 +13,7 @@ from imls_lightning.inference.baselines import (
 )
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.iml import IMLNet
+from imls_lightning.models.ims import IMSMaskHead
 from imls_lightning.models.pull_push import pull_push_inpaint
 from imls_lightning.core.patterns import SamplingPattern, plastic_rank_pattern
 from imls_lightning.report import equal_share_markdown
@@ -103,29 +104,27 @@ def test_summary_and_markdown_smoke():
 # ---------------------------------------------------------------- product ORP
 
 
-class _FakeIMS(torch.nn.Module):
-    """An IMS whose regressed PIM' is 1 on the object and 0 on background (a perfect one)."""
-
-    target = "pim"
+class _ObjectGenerator(torch.nn.Module):
+    """An IMS generator whose regressed PIM' is 1 on the object and 0 on background (a perfect one)."""
 
     def __init__(self, c: torch.Tensor):
         super().__init__()
         self.c = c
-        self.register_buffer("valid", torch.ones(1, 1, N, N, dtype=torch.bool))
-        self.register_buffer("P", plastic_rank_pattern(N))
 
-    def generator(self, views: torch.Tensor) -> torch.Tensor:
+    def forward(self, views: torch.Tensor) -> torch.Tensor:
         obj = (self.c.amax(1, keepdim=True) > 0).float()
         return obj * 2 - 1  # g in {-1, 1}: PIM' = (g + 1) / 2
 
+
+class _FakeIMS(IMSMaskHead):
+    """The mask head of a perfect IMS (trained at u = 0.2): what product_orp takes."""
+
+    def __init__(self, c: torch.Tensor):
+        super().__init__(_ObjectGenerator(c), plastic_rank_pattern(N), torch.ones(N, N, dtype=torch.bool), "pim",
+                         trained_mean=0.2)
+
     def output_to_im_at(self, g, mean):
-        from imls_lightning.tasks.ims import scaled_pim_im
-
-        return scaled_pim_im(self, g, mean, u_train=0.2)
-
-    @property
-    def iml(self):
-        return IMLNet(N, self.P, mean=0.2, depth=1, base_channels=1)
+        return self.threshold(g, mean)
 
 
 def test_product_orp_finds_the_smallest_mean_within_epsilon():
@@ -140,3 +139,26 @@ def test_product_orp_finds_the_smallest_mean_within_epsilon():
     assert rec["gap_db"] <= 0.5 and 0 < rec["c_share"] <= 1
     # every evaluation below the ORP fails epsilon (the gap falls as u grows)
     assert all(e.gap_db > 0.5 for e in res.evaluations if e.u < res.mean and e.gap_db is not None)
+
+
+def test_product_orp_with_a_confidence_margin_keeps_the_bound_within_epsilon():
+    """confidence > 0.5: the bound on the mean per-view gap (not the mean) meets epsilon, so the ORP can only move up;
+    the record keeps the mean gap, its spread and the bound, computed from the per-view gaps at that mean."""
+    from imls_lightning.orp import gap_upper_bound
+
+    _, _, recnn = _nets()
+    c, fr = _scene(b=4)
+    ims = _FakeIMS(c)
+    batches = [{"c": c[:2], "fr": fr[:2], "view": torch.zeros(2, 9)}, {"c": c[2:], "fr": fr[2:], "view": torch.zeros(2, 9)}]
+    exact = type("Exact", (torch.nn.Module,), {"forward": lambda self, v, m: v * m})()
+    plain = product_orp(ims, exact, recnn, batches, epsilon_db=0.5)
+    safe = product_orp(ims, exact, recnn, batches, epsilon_db=0.5, confidence=0.95)
+    assert plain.found and safe.found and safe.mean >= plain.mean
+    rec = safe.best.record
+    assert rec["views"] == 4 and rec["confidence"] == 0.95 and rec["gap_bound_db"] <= 0.5
+    # direct: the per-view gaps at the chosen mean
+    im = ims.output_to_im_at(ims.generator(None), torch.full((4,), safe.mean)).float()
+    gaps = (psnr_per_image(recnn(c), fr) - psnr_per_image(recnn(exact(im * c, im)), fr)).tolist()
+    b = gap_upper_bound(gaps, 0.95)
+    assert rec["gap_db"] == pytest.approx(b.mean, abs=1e-5) and rec["gap_bound_db"] == pytest.approx(b.bound, abs=1e-5)
+    assert plain.best.record["gap_bound_db"] == pytest.approx(plain.best.record["gap_db"])  # confidence 0.5: the mean

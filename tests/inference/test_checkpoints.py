@@ -15,6 +15,9 @@ from imls_lightning.inference.checkpoints import (
     check_trained_on,
     config_diff,
     load_ims_and_recnn,
+    load_ims_nets,
+    load_nets,
+    load_product,
     load_task,
     require_pim_target,
     require_recnn,
@@ -190,3 +193,59 @@ def test_exception_load_ims_and_recnn(tiny_checkpoints, tmp_path):
         load_ims_and_recnn(str(tiny_checkpoints["ims"]), str(tiny_checkpoints["iml"]), keys=("checkpoints.ims", "checkpoints.recnn"))
     with pytest.raises(InputError, match=r"^ims_checkpoint=.*is a IMLTask checkpoint, expected a IMSTask"):
         load_ims_and_recnn(str(tiny_checkpoints["iml"]))
+
+
+def test_load_ims_nets_builds_the_product_without_the_task(tiny_checkpoints, monkeypatch):
+    """Inference builds the bare networks the IMS checkpoint needs (generator, IML decoder, RecNN) and
+    loads their weights; no task, discriminator or IML encoder is constructed, and the nets compute
+    what the whole task computes."""
+    from imls_lightning.models.ims import IMSMaskHead
+    from imls_lightning.tasks.ims import IMSTask
+    from imls_lightning.tasks.recnn import RecNNTask
+
+    ck = str(tiny_checkpoints["ims_pim"])
+    task = load_task(ck, expect="IMSTask")
+
+    def no_task(*args, **kwargs):
+        raise AssertionError("a task was built")
+
+    monkeypatch.setattr(IMSTask, "__init__", no_task)
+    monkeypatch.setattr(RecNNTask, "__init__", no_task)
+    nets = load_ims_nets(ck, str(tiny_checkpoints["recnn"]))  # the RecNN checkpoint replaces the stored one
+    monkeypatch.undo()
+    assert isinstance(nets.head, IMSMaskHead) and nets.target == "pim" and nets.trained_mean == float(task.iml.mean)
+    names = {type(m).__name__ for net in (nets.head, nets.decoder, nets.recnn) for m in net.modules()}
+    assert "IMSDiscriminator" not in names and "IMLNet" not in names and nets.pattern.fingerprint() == task.pattern.fingerprint()
+    # the IML's RecNN was frozen: the replacement has the stored weights (load_ims_and_recnn compares it with the task's)
+    assert all(torch.equal(a, b) for a, b in zip(nets.recnn.state_dict().values(), task.recnn.state_dict().values()))
+    views = torch.tensor([[0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [2.5, 1.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
+    with torch.inference_mode():
+        for mean, lift in ((None, False), (0.05, False), (0.9, False), (0.9, True)):
+            assert torch.equal(nets.head(views, mean, lift), task.predict_im(views, mean, lift)), (mean, lift)
+        im = task.predict_im(views).float()
+        c = torch.rand(2, 3, nets.pattern.c_size, nets.pattern.c_size, generator=torch.Generator().manual_seed(0))
+        assert torch.equal(nets.recnn(nets.decoder(im * c, im)), task.recnn(task.decoder(im * c, im)))
+
+
+def test_load_product_reads_the_operating_point_and_refuses_wrong_files(tiny_checkpoints, tmp_path, capsys):
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    import shutil
+
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(tiny_checkpoints["ims_pim"], ck)
+    plain = load_product(str(ck))
+    assert plain.mean is None and plain.lift is False and plain.operating_point is None
+    write_operating_point(ck, OperatingPoint(mean=0.6, lift=True, c_share=0.6, ipr=0.1, epsilon_db=1.0))
+    rec = load_product(str(ck))
+    assert rec.mean == 0.6 and rec.lift is True and rec.operating_point.mean == 0.6
+    over = load_product(str(ck), mean=0.3)
+    assert over.mean == 0.3 and over.lift is False and over.operating_point is None
+    with pytest.raises(InputError, match=r"^ims_checkpoint=.*is a IMLTask checkpoint, expected a IMSTask"):
+        load_ims_nets(str(tiny_checkpoints["iml"]))
+    with pytest.raises(InputError, match=r"^recnn_checkpoint=.*is a IMLTask checkpoint, expected a RecNNTask"):
+        load_ims_nets(str(ck), str(tiny_checkpoints["iml"]))
+    raw = torch.load(tiny_checkpoints["recnn"], map_location="cpu", weights_only=True)
+    raw["state_dict"] = {k: v for k, v in raw["state_dict"].items() if not k.endswith(".bias")}
+    torch.save(raw, tmp_path / "cut.ckpt")
+    with pytest.raises(InputError, match=r"weights do not fit the network it describes \(net: missing"):
+        load_nets(tmp_path / "cut.ckpt", expect="RecNNTask", what="recnn_checkpoint")

@@ -117,7 +117,8 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
 
 
 def test_imls_info_counts_the_pixels_of_its_mask(env):
-    r = IMLSRenderer.from_task(env["ims"], RecordingRenderer(env["renderer"]), opts=CPU)
+    ims = env["ims"]
+    r = IMLSRenderer(RecordingRenderer(env["renderer"]), ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU)
     m = r.fr_size
     for view in env["views"]:
         res = r.run(view)
@@ -209,6 +210,34 @@ def test_las_method_samples_its_ipr(env):
     assert abs(res.info["ipr"] - 0.25) < 0.05  # per-view bisection of u to the requested share
     # the trained mean when no IPR is given
     assert LASMethod(env["renderer"], las.net, m, int(las.hparams["low_res"]), opts=CPU).run(env["views"][0]).info["rendered_pixels"] > 0
+    # the IPR is an argument of each call too; the method keeps its own
+    other = method.run(env["views"][0], ipr=0.5)
+    assert method.ipr == 0.25 and abs(other.info["ipr"] - 0.5) < 0.05
+    fresh = LASMethod(env["renderer"], las.net, m, int(las.hparams["low_res"]), ipr=0.5, opts=CPU).run(env["views"][0])
+    assert np.array_equal(other.image, fresh.image) and torch.equal(other.info["mask"], fresh.info["mask"])
+
+
+def test_imls_run_renders_a_given_mask_and_still_times_the_ims(env):
+    """run(view, im=...) renders another mask than the IMS's ("the IML's IM, selectively rendered"):
+    the IMS still runs in the timed importance stage; the image is that of a renderer whose mask is
+    that IM."""
+    ims = env["ims"]
+    rec = RecordingRenderer(env["renderer"])
+    r = IMLSRenderer(rec, ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU)
+    with torch.inference_mode():
+        other = ims.predict_im(torch.tensor(env["views"][1], dtype=torch.float32)[None])[0, 0]  # another view's IM
+    image, med, info = time_method(r, env["views"][0], repeats=1, warmup=0, im=other)  # the argument reaches the run
+    assert torch.equal(info["im"], other) and info["rendered_pixels"] == int(other.sum()) == len(rec.calls[-1])
+    _check_timings(med, IMLS_STAGES)
+    fixed = IMLSRenderer(env["renderer"], ims.pattern, lambda v: other.to(v.device)[None, None], ims.decoder, ims.recnn, CPU)
+    assert np.array_equal(fixed.run(env["views"][0]).image, image)
+
+
+def test_the_pipeline_module_names_no_training_task():
+    """The product path is plain modules: inference/pipeline.py does not mention training tasks."""
+    import imls_lightning.inference.pipeline as pipeline
+
+    assert "task" not in Path(pipeline.__file__).read_text().lower()
 
 
 # ---- timing ---------------------------------------------------------------------------------------
@@ -337,7 +366,7 @@ def test_imls_renderer_at_another_mean_needs_a_pim_target(env):
     if ims.target == "pim":
         pytest.skip("the tiny IMS regresses PIM'")
     with pytest.raises(InputError, match="target=pim"):
-        IMLSRenderer.from_task(ims, env["renderer"], ims.recnn, CPU, mean=0.3)
+        IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, mean=0.3)
 
 
 def test_net_options_from_config_smoke_and_device_override():

@@ -7,7 +7,9 @@ import torch
 from torch import nn
 
 from data_gen.errors import InputError
-from imls_lightning.models.ims import IMSDiscriminator, IMSGenerator, generator_plan, im_to_target, output_to_im
+from imls_lightning.models.ims import (IMSDiscriminator, IMSGenerator, IMSMaskHead, MaskAt, generator_plan, im_to_target,
+                                      output_to_im)
+from tests.models.helpers import reference_ims_mask
 
 
 def views(b: int, seed: int = 0) -> torch.Tensor:
@@ -115,3 +117,70 @@ def test_invalid_parameters_refused():
         IMSGenerator(8, layers=2)(torch.rand(2, 6))
     with pytest.raises(ValueError):
         IMSDiscriminator(8)(torch.rand(2, 1, 16, 16))
+
+
+# ---- IMSMaskHead: the one home of the thresholding ------------------------------------------------------
+N = 12
+
+
+class _Fixed(nn.Module):
+    """A stand-in generator: a fixed output per view row (saturated pixels, zeros and a graded band)."""
+
+    def __init__(self, g: torch.Tensor):
+        super().__init__()
+        self.register_buffer("g", g)
+
+    def forward(self, view: torch.Tensor) -> torch.Tensor:
+        return self.g[view[:, 0].long()]
+
+
+def _outputs(seed: int, b: int = 4) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(seed)
+    g = torch.rand(b, 1, N, N, generator=gen) * 2 - 1
+    g[torch.rand(b, 1, N, N, generator=gen) < 0.3] = -1.0   # no importance
+    g[torch.rand(b, 1, N, N, generator=gen) < 0.05] = 1.0   # saturated
+    g[1] = (g[1] * 4).round() / 4                            # ties
+    g[2] = g[2] * 0.2 - 0.8                                  # low PIM': the lift's floor
+    return g
+
+
+@pytest.mark.parametrize("target, lower", [("pim", 0.0), ("pim", 0.02), ("im", 0.0)])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_mask_head_makes_the_masks_of_the_reference_thresholding(target, lower, seed):
+    """Same masks as before the head existed (IMSTask.output_to_im / scaled_pim_im, frozen in
+    tests/models/helpers.py), bit for bit: trained mean, a mean per call and per view, plain and lifted."""
+    gen = torch.Generator().manual_seed(100 + seed)
+    g = _outputs(seed)
+    P, valid = torch.rand(N, N, generator=gen), torch.rand(N, N, generator=gen) > 0.15
+    head = IMSMaskHead(_Fixed(g), P, valid, target, trained_mean=0.1, lower=lower)
+    views = torch.arange(4, dtype=torch.float32)[:, None].expand(4, 9).contiguous()
+    ref = dict(P=P, valid=valid.view(1, 1, N, N), target=target, trained_mean=0.1, lower=lower)
+    assert torch.equal(head(views), reference_ims_mask(g, **ref))
+    if target == "im":
+        with pytest.raises(InputError, match="target=pim"):
+            head(views, 0.3)
+        return
+    for lift in (False, True):
+        for u in (0.05, 0.1, 0.35, 0.8, 1.0, torch.tensor([0.05, 0.3, 0.9, 1.0])):
+            got = head(views, u, lift)
+            assert got.dtype == torch.bool and torch.equal(got, reference_ims_mask(g, mean=u, lift=lift, **ref)), (u, lift)
+            assert torch.equal(head.at(u if not torch.is_tensor(u) else None, lift)(views),
+                               head(views, None if torch.is_tensor(u) else u, lift))
+    lifted, plain = head(views, 0.9, True), head(views, 0.9)
+    assert int(lifted.sum()) > int(plain.sum()) and not bool((plain & ~lifted).any())  # the lift was exercised
+    assert bool(head(views, 1.0, True)[:, :, valid].all()) and not bool(head(views, 1.0, True)[:, :, ~valid].any())
+
+
+def test_mask_head_is_traceable_and_keeps_no_state():
+    g = _outputs(3)
+    head = IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "pim", trained_mean=0.2).eval()
+    view = torch.full((1, 9), 2.0)  # the low PIM' row: lifted, the floor samples
+    first = head(view, 0.9, True)
+    assert int(first.sum()) > int(head(view, 0.9).sum())
+    assert torch.equal(head(view), head(view)) and torch.equal(head(view, 0.9, True), first)  # calls change nothing
+    traced = torch.jit.trace(MaskAt(head, 0.9, lift=True), (view,), check_trace=False)
+    assert torch.equal(traced(view), first)
+    with pytest.raises(InputError, match="target=pim"):
+        MaskAt(IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "im"), 0.5)
+    with pytest.raises(InputError, match="model.target"):
+        IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "pix")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -136,6 +137,54 @@ def test_evaluation_from_normalizes_outcomes():
     assert evaluation_from(0.1, 1, float("inf")).status == "failed"
     e = evaluation_from(0.1, 1, orp.ORPJobError("InputError: model.lr=-1: expected a positive number"))
     assert e.error == "InputError: model.lr=-1: expected a positive number"
+
+
+# ---- the margin for unseen views: a one-sided confidence bound on the mean gap ------------------
+@pytest.mark.parametrize("confidence", [0.5, 0.8, 0.95, 0.99])
+def test_gap_upper_bound_against_a_direct_computation(confidence):
+    import numpy as np
+
+    gaps = [0.4, 1.3, 0.9, 0.2, 1.1, 0.75, 0.6]
+    z = {0.5: 0.0, 0.8: 0.8416212335729143, 0.95: 1.6448536269514722, 0.99: 2.3263478740408408}[confidence]
+    b = orp.gap_upper_bound(gaps, confidence)
+    direct = np.mean(gaps) + z * np.std(gaps, ddof=1) / np.sqrt(len(gaps))
+    assert b.views == 7 and b.confidence == confidence
+    assert b.mean == pytest.approx(np.mean(gaps)) and b.std == pytest.approx(np.std(gaps, ddof=1))
+    assert b.bound == pytest.approx(direct, abs=1e-9) and b.margin == pytest.approx(direct - np.mean(gaps), abs=1e-9)
+
+
+@pytest.mark.parametrize("future_views", [1, 24, 120])
+def test_gap_upper_bound_for_new_views_against_a_direct_computation(future_views):
+    """A prediction bound: the mean of m new views varies too, so the margin is z * s * sqrt(1/n + 1/m)."""
+    import numpy as np
+
+    gaps = [0.4, 1.3, 0.9, 0.2, 1.1, 0.75, 0.6, 2.0]
+    b = orp.gap_upper_bound(gaps, 0.95, future_views=future_views)
+    direct = np.mean(gaps) + 1.6448536269514722 * np.std(gaps, ddof=1) * np.sqrt(1 / len(gaps) + 1 / future_views)
+    assert b.bound == pytest.approx(direct, abs=1e-9) and b.future_views == future_views
+    assert b.bound > orp.gap_upper_bound(gaps, 0.95).bound  # wider than the bound on the mean
+    with pytest.raises(InputError, match="future_views=0"):
+        orp.gap_upper_bound(gaps, 0.95, future_views=0)
+
+
+def test_gap_upper_bound_one_view_and_bad_input():
+    assert orp.gap_upper_bound([0.7], 0.95).bound == 0.7  # no spread to estimate
+    for gaps, conf, needle in (([], 0.95, "no per-view gaps"), ([1.0, math.nan], 0.95, "non-finite per-view gap"),
+                               ([1.0], 1.0, "orp_confidence=1.0: expected a confidence in [0.5, 1)"),
+                               ([1.0], 0.3, "orp_confidence=0.3")):
+        with pytest.raises(InputError, match=re.escape(needle)):
+            orp.gap_upper_bound(gaps, conf)
+
+
+def test_the_search_judges_the_criterion_key():
+    """criterion="gap_bound_db": the bound decides; the mean gap stays in the record."""
+    # mean gap 1 - 2u (within 1 dB everywhere), bound = mean + 0.5: within 1 dB from u = 0.25
+    rec = lambda u: {"gap_db": 1.0 - 2 * u, "gap_bound_db": 1.5 - 2 * u}  # noqa: E731
+    plain = ORPSearch(epsilon_db=1.0, bracket=(0.01, 1.0), tolerance=0.02).run(batched(rec))
+    margin = ORPSearch(epsilon_db=1.0, bracket=(0.01, 1.0), tolerance=0.02, criterion="gap_bound_db").run(batched(rec))
+    assert plain.mean < 0.05 and 0.25 <= margin.mean <= 0.25 * 1.02 + 1e-9
+    assert margin.best.record["gap_db"] == pytest.approx(1.0 - 2 * margin.mean)
+    assert evaluation_from(0.1, 1, {"gap_db": 0.2}, criterion="gap_bound_db").error == "missing result (the job returned no gap_bound_db)"
 
 
 @pytest.mark.parametrize("module", ["imls_lightning.orp.search", "imls_lightning.orp"])

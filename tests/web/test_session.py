@@ -24,7 +24,7 @@ def session(tiny_checkpoints, predictor_file):
 
 
 def test_smoke_every_method_renders_a_scored_frame(session):
-    m = session.task.pattern.fr_size
+    m = session.pattern.fr_size
     shares = {}
     for name in session.methods:
         session.set_method(name)
@@ -33,7 +33,8 @@ def test_smoke_every_method_renders_a_scored_frame(session):
         assert f.error.shape == (m, m, 3) and np.isfinite(f.psnr) and f.stages_ms["total"] > 0
         shares[name] = f.share
     assert set(shares) == {"imls", "adaptive", "recnn", "las", "truth"}
-    assert shares["truth"] == 1.0 and shares["recnn"] == pytest.approx(session.task.pattern.sampling_ratio)
+    assert shares["truth"] == 1.0 and shares["recnn"] == pytest.approx(session.pattern.sampling_ratio)
+    assert session.las_method.ipr == 1.0  # LAS runs at IML/S's IPR as an argument: the method is not changed
     session.set_method("truth")
     assert session.frame().psnr >= 99.9  # the ground truth scored against itself
     assert len(session.history) >= 5
@@ -111,8 +112,8 @@ def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp
     point = OperatingPoint(mean=0.4567, lift=True, c_share=0.45, ipr=0.11, epsilon_db=1.0)
     write_operating_point(ckpt, point)
     s = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
-    assert s.mean == 0.4567 and s.operating_point == point and s.task.lift_to_mean is True
+    assert s.mean == 0.4567 and s.operating_point == point and s.lift is True
     f = s.frame()
     assert f.mean == 0.4567 and s._imls_at(0.4567).mean == 0.4567
     over = ViewerSession.from_checkpoints(str(ckpt), opts=cpu, mean=0.3)
-    assert over.mean == 0.3 and over.operating_point is None and over.task.lift_to_mean is False
+    assert over.mean == 0.3 and over.operating_point is None and over.lift is False

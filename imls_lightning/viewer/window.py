@@ -1,99 +1,27 @@
-"""Interactive viewer: orbit the volume and compare the IML/S + RecNN frame with the ray cast, live.
-
-``python -m imls_lightning.viewer ims_checkpoint=PATH [recnn_checkpoint=PATH] [screenshot=out.png]
-[azimuth=30] [elevation=20] [distance=null] [mask=true] [mean=null]``
-
-A matplotlib window with two image panels side by side, **IML/S + RecNN** (the product:
-:class:`~imls_lightning.inference.pipeline.IMLSRenderer`) and **ray cast (ground truth)** (the same scene
-renderer's full render of every FR pixel), an optional small panel with the importance mask (the FR
-pixels the IML/S frame really ray-cast), and a latency panel: one bar per stage of
-``IMLSRenderer.run(view)`` (``importance``, ``selective_render``, ``decoder``, ``recnn``, ``total``)
-and the full ray cast's time, in milliseconds, with the frame's IPR (rendered / FR pixels), its PSNR
-against the ray cast and the speed-up. Latencies are those of the frame on screen (one run, not a
-median: :mod:`imls_lightning.evaluate` measures medians).
-
-The IMS checkpoint alone is enough: it records the scene and renderer it was trained on (see
-:meth:`IMLSRenderer.from_checkpoints`); ``recnn_checkpoint=`` swaps in another RecNN. The frame is
-rendered at the operating point the evaluation recorded beside the checkpoint (``<ims.ckpt>.orp.json``),
-else at the trained mean; ``mean=`` (a number, or ``trained``) overrides it; the panel's title shows u.
-
-Controls
-    ==================  ==============================================================
-    left-drag           orbit the camera around the volume centre (azimuth/elevation)
-    scroll wheel        zoom (camera distance, clamped to ``scene.camera_distance``)
-    arrow keys          orbit by 10 degrees (like a drag in that direction)
-    ``r``               reset the camera to the start view
-    ``m``               show/hide the importance mask panel
-    ``q``               quit
-    ==================  ==============================================================
-
-Responsiveness: rendering runs in the GUI thread, the IML/S frame first and the ray cast after it.
-While dragging only the IML/S frame is rendered (motion events that arrive during a render are
-coalesced into one render of the latest camera); the ray cast, the PSNR and the speed-up follow on
-mouse release (the ray-cast panel says "release to update" meanwhile). A scroll or a key press
-renders the IML/S frame, shows it, then ray-casts.
-
-Camera: the z axis is the polar axis (as in :func:`data_gen.views.exploration_trajectory`): the eye
-sits at ``distance * (cos(el) cos(az), cos(el) sin(az), sin(el))`` around the look-at point (the
-volume centre, the origin), ``up`` is +z made orthogonal to the view direction; elevation is kept
-within +-89 degrees so that ``up`` never becomes parallel to the view direction.
-
-``screenshot=out.png`` renders headless (Agg backend), writes the PNG atomically (temporary name +
-rename), prints its path as the last stdout line and exits; this is how the tests and the README
-picture are made. Without a display and without ``screenshot=`` the command stops with a one-line
-error.
-
-Example:
-    python -m imls_lightning.viewer ims_checkpoint=runs/ims-.../checkpoints/last.ckpt
-    python -m imls_lightning.viewer ims_checkpoint=ims.ckpt screenshot=docs/viewer.png azimuth=40 elevation=25
-
-    >>> r = IMLSRenderer.from_checkpoints("ims.ckpt")                  # doctest: +SKIP
-    >>> v = Viewer(r, azimuth=30, elevation=20)                          # headless (Agg) figure  # doctest: +SKIP
-    >>> v.orbit(15, 0); v.update()                                       # doctest: +SKIP
-    >>> print(v.latency_text())                                          # doctest: +SKIP
-    >>> v.save_screenshot("viewer.png")                                  # doctest: +SKIP
-"""
+"""The viewer's figure (:class:`Viewer`): IML/S + RecNN beside the ray cast, the importance mask, the
+latency bars and the stats, its rendering and its mouse and key events (see :mod:`imls_lightning.viewer`)."""
 from __future__ import annotations
 
 import math
 import os
-import sys
-import tempfile
-import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import hydra
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError, boolean, checked_command_line, cli_errors, finite_number
+from data_gen.errors import InputError, finite_number
 
-from .inference.camera import (  # noqa: F401  (orbit_view, frame_psnr: re-exported, their old home)
-    DEFAULT_DISTANCE_RANGE,
-    MAX_ELEVATION,
-    OrbitCamera,
-    frame_psnr,
-    orbit_view,
-)
-from .inference.pipeline import FullRayCast, IMLSRenderer, NetOptions, RenderResult
+from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
+from ..inference.pipeline import FullRayCast, IMLSRenderer, RenderResult
 
-__all__ = ["IMLS_STAGES", "MAX_ELEVATION", "orbit_view", "frame_psnr", "Viewer", "viewer", "main"]
+__all__ = ["IMLS_STAGES", "RAY_CAST", "Viewer"]
 
 #: the stages of ``IMLSRenderer.run`` shown as bars (in pipeline order), then the full ray cast
 IMLS_STAGES = ("importance", "selective_render", "decoder", "recnn", "total")
 RAY_CAST = "ray cast (full)"
 ORBIT_STEP = 10.0              # degrees per arrow key
 DRAG_DEGREES_PER_PIXEL = 0.4
-
-
-# ------------------------------------------------------------------------------------------------
-# camera
-
-
-# ------------------------------------------------------------------------------------------------
-# the viewer
 
 
 class _Drag:
@@ -350,7 +278,7 @@ class Viewer(OrbitCamera):
         self.axes["stats"].set_position((0.60, 0.04, 0.39, 0.22))
 
     def _show_imls(self) -> None:
-        from .core.patterns import c_pixels_to_fr
+        from ..core.patterns import c_pixels_to_fr
 
         self._artists["imls"].set_data(self.imls.image)
         im = self.imls.info.get("im")
@@ -423,115 +351,3 @@ class Viewer(OrbitCamera):
             import matplotlib.pyplot as plt
 
             plt.close(self.fig)
-
-
-# ------------------------------------------------------------------------------------------------
-# command line
-
-
-def _interactive_backend_error() -> str | None:
-    """Why no window can be opened here (one line), or ``None``."""
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return "no display (DISPLAY is not set)"
-    import matplotlib
-
-    backend = matplotlib.get_backend().lower()
-    try:
-        from matplotlib.backends import BackendFilter, backend_registry
-
-        non_interactive = set(backend_registry.list_builtin(BackendFilter.NON_INTERACTIVE))
-    except ImportError:  # matplotlib < 3.9
-        non_interactive = {"agg", "cairo", "pdf", "pgf", "ps", "svg", "template"}
-    if backend in non_interactive:
-        return f"matplotlib's backend is {backend!r}, which opens no window"
-    return None
-
-
-def check_writable(path, key: str) -> None:
-    """A file can be written at ``path`` (its folder exists and takes a new file, or can be made):
-    checked with a real probe file, removed at once. One-line :class:`InputError` naming ``key``."""
-    out = Path(str(path)).expanduser()
-    if out.is_dir():
-        raise InputError(f"{key}={path}: is a directory, expected a .png file path")
-    parent = out.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent  # the folders missing on the way are made when the file is written
-    if not parent.is_dir():
-        raise InputError(f"{key}={path}: {parent} is not a directory")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=parent)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as err:
-        raise InputError(f"{key}={path}: cannot write into {parent} ({err.strerror or type(err).__name__})") from None
-
-
-def viewer(cfg: DictConfig) -> Path | None:
-    """The CLI's body: build the renderer from the checkpoint(s), then a screenshot or the window.
-
-    Returns the screenshot's path (``None`` after an interactive session).
-    """
-    if OmegaConf.is_missing(cfg, "ims_checkpoint") or not cfg.get("ims_checkpoint"):
-        raise InputError("ims_checkpoint: required (usage: python -m imls_lightning.viewer ims_checkpoint=<IMS .ckpt> "
-                         "[recnn_checkpoint=<RecNN .ckpt>] [screenshot=out.png])")
-    screenshot = cfg.get("screenshot") or None
-    if screenshot is not None:
-        if Path(str(screenshot)).suffix.lower() != ".png":
-            raise InputError(f"screenshot={screenshot}: expected a .png path")
-        check_writable(screenshot, "screenshot")  # before any work, not after it
-    for key in ("azimuth", "elevation"):
-        finite_number(cfg.get(key), key, "a finite number")
-    orbit_view(cfg.azimuth, cfg.elevation, 1.0)  # elevation range, before anything slow
-    show_mask = boolean(cfg.get("mask", True), "mask")
-    if cfg.get("distance") is not None:
-        finite_number(cfg.distance, "distance", "a finite number")  # its range needs the scene: checked by the Viewer
-    threads = cfg.get("threads")
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise InputError(f"threads={threads}: expected an integer >= 1 (torch CPU threads) or null")
-    import matplotlib
-
-    if screenshot is None:
-        why = _interactive_backend_error()
-        if why is not None:
-            raise InputError(f"{why}: pass screenshot=out.png to render the viewer headless into a PNG")
-    else:
-        matplotlib.use("Agg")
-    if threads is not None:
-        torch.set_num_threads(threads)
-    opts = NetOptions(**OmegaConf.to_container(cfg.options, resolve=True)) if cfg.get("options") else NetOptions()
-    t0 = time.perf_counter()
-    renderer = IMLSRenderer.from_checkpoints(str(cfg.ims_checkpoint), recnn_checkpoint=cfg.get("recnn_checkpoint") or None,
-                                             opts=opts, mean=cfg.get("mean"))
-    print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (scene FR {renderer.fr_size}^2, "
-          f"networks on {renderer.device}, mean value u = {float(renderer.mean):.3f})", file=sys.stderr, flush=True)
-    try:
-        v = Viewer(renderer, azimuth=cfg.azimuth, elevation=cfg.elevation, distance=cfg.get("distance"),
-                   show_mask=show_mask, interactive=screenshot is None, figsize=tuple(cfg.figsize), dpi=cfg.dpi,
-                   warmup=cfg.warmup)
-    except InputError:
-        raise
-    except Exception as err:  # a GUI toolkit that cannot start (e.g. Tk without a usable display)
-        if screenshot is None and type(err).__name__ in ("TclError", "RuntimeError", "ImportError"):
-            raise InputError(f"cannot open a window ({type(err).__name__}: {err}): pass screenshot=out.png to render headless") from None
-        raise
-    if screenshot is not None:
-        out = v.save_screenshot(screenshot)
-        t = v.imls.timings
-        print(f"[viewer] IML/S total {1e3 * t['total']:.1f} ms, ray cast {1e3 * v.truth.timings['total']:.1f} ms, "
-              f"IPR {v.imls.info['ipr']:.3f}, PSNR {v.psnr:.2f} dB", file=sys.stderr, flush=True)
-        return out
-    v.show()
-    return None
-
-
-@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
-@hydra.main(version_base="1.3", config_path="../conf", config_name="viewer")
-@cli_errors
-def main(cfg: DictConfig) -> None:
-    out = viewer(cfg)
-    if out is not None:
-        print(out, flush=True)
-
-
-if __name__ == "__main__":
-    main()
