@@ -174,7 +174,8 @@ def _dominators(p: Mapping[str, Any], points: Sequence[Mapping[str, Any]]) -> li
 
 
 def _name(p: Mapping[str, Any]) -> str:
-    return f"{p['label']} ({p['note']}: {fmt(p['latency_ms'], 2)} ms, {fmt(p['psnr'], 2)} dB)"
+    quality = "exact" if number(p["psnr"]) >= EXACT_PSNR_DB else f"{fmt(p['psnr'], 2)} dB"
+    return f"{p['label']} ({p['note']}: {fmt(p['latency_ms'], 2)} ms, {quality})"
 
 
 def front_verdict(points: Sequence[Mapping[str, Any]], scene: str, product: str = "imls",
