@@ -116,9 +116,8 @@ def write_report(ctx: ReportContext) -> Path:
     curves, pts, full_ms = _latency_points(ctx, summ, points)
     plot_latency_vs_psnr(curves, pts, full_ms, out / "latency_vs_psnr.png")
     figures.append(("latency_vs_psnr.png", "Latency vs PSNR"))
-    if ctx.front:
+    if ctx.front:  # shown in its own section, not again under Figures
         plot_front(ctx.front, out / "speed_quality_front.png", title=f"Speed-quality front: {ctx.scene}, {ctx.recnn_name}")
-        figures.append(("speed_quality_front.png", "Speed-quality front"))
     if ctx.option_rows:
         ok = [r for r in ctx.option_rows if not r.get("error")]
         if ok:
