@@ -10,6 +10,9 @@ units and in voxels, so ``sample_distance: auto`` keys by the step it means::
     splits.json          {"train": [...], "val": [...], "test": [...]} row indices
     images.npy           (N, m, m, 3) uint8, created sparse with ``np.lib.format.open_memmap`` and
                          written in place, one view at a time
+                         (with ``train_pixels``, the training rows hold only those pixels, the rest
+                         black: a C-Image-only cache for a model that needs no FR-Image, the IMS;
+                         ``manifest["settings"]["train_pixels"]`` and :attr:`ViewImageCache.sparse_rows`)
     done.log             append-only completion log, one line per finished view:
                          ``<index> <crc32 of its pixels> <render seconds> <crc32 of the line>``
     render_seconds.npy   (N,) float32 copy of the log's render seconds (NaN: not rendered yet)
@@ -92,6 +95,7 @@ from .cache_keys import (
     VIEWS,
     cache_path_for,
     cache_settings,
+    check_train_pixels,
     data_settings,
     is_own_file,
     json_default,
@@ -106,7 +110,7 @@ from .cache_log import CompletionLog, bad_views, read_log, read_logs, remember_c
 from .cache_reader import ViewImageCache
 from .cache_workers import run_workers
 from .errors import InputError
-from .renderers import make_renderer, renderer_pixel_settings, renderer_version
+from .renderers import make_renderer, render_image, renderer_pixel_settings, renderer_version
 from .scene import Scene, voxel_size
 from .validate import check_mapping
 
@@ -348,7 +352,7 @@ def _read_only_report(path: Path, settings, n: int) -> CacheReport:
     return CacheReport(path, n, int(c.done.sum()), 0, 0, 0)
 
 
-def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = True) -> CacheReport:
+def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = True, train_pixels=None) -> CacheReport:
     """Render whatever is missing from the cache of ``(scene, data, renderer)``; see the module doc.
 
     Args:
@@ -356,6 +360,10 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
         data_cfg: the ``data`` node (see :data:`DATA_DEFAULTS`).
         renderer_cfg: the ``renderer`` node (``name``, ``mapper``, ``threads``).
         progress: show a tqdm progress bar on stderr.
+        train_pixels: ``None``, or the flat raster indices ``(K,)`` of the only pixels the training
+            views are rendered at (a pattern's C-pixels; every other pixel of those rows stays black).
+            Validation and test views are always whole frames. Part of the cache key
+            (:func:`~data_gen.cache_keys.check_train_pixels`).
 
     Returns:
         A :class:`CacheReport` (its ``path`` is the cache directory).
@@ -371,7 +379,8 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
     renderer_pixel_settings(rcfg)  # validates the renderer name before anything touches the disk
     m = d["resolution"]
     views, splits = plan_views(scene, d)
-    settings = cache_settings(scene, d, rcfg, views, splits)
+    pixels = check_train_pixels(train_pixels, m)
+    settings = cache_settings(scene, d, rcfg, views, splits, train_pixels=pixels)
     key = settings_hash(settings)
     user_dir = bool(d.get("cache_path"))
     path = Path(str(d["cache_path"])).expanduser() if user_dir else Path(str(d["cache_dir"])).expanduser() / f"{safe_name(scene.name)}-{key}"
@@ -421,8 +430,11 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
                 lock.release()
                 _remove_own_files(path, everything=True)
             raise
+        sparse = np.zeros(n, bool)
+        if pixels is not None:
+            sparse[splits["train"]] = True
         if d["shard"] is None:
-            return _render_missing(scene, d, rcfg, path, manifest, views, progress)
+            return _render_missing(scene, d, rcfg, path, manifest, views, progress, pixels=pixels, sparse=sparse)
     finally:
         if lock.is_locked:
             lock.release()
@@ -431,7 +443,7 @@ def render_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = Tru
     shard_lock = FileLock(str(path / f".lock-shard-{i}-of-{k}"))
     _acquire(shard_lock, path, f"waiting for another run that is rendering shard {i}/{k} of {path} ...")
     try:
-        return _render_missing(scene, d, rcfg, path, None, views, progress, cache_lock=lock)
+        return _render_missing(scene, d, rcfg, path, None, views, progress, cache_lock=lock, pixels=pixels, sparse=sparse)
     finally:
         shard_lock.release()
 
@@ -450,10 +462,13 @@ def _acquire(lock, path: Path, waiting: str) -> None:
         raise InputError(f"data.cache_dir={path.parent}: cannot lock {lock.lock_file} ({err.strerror or err})") from None
 
 
-def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress, cache_lock=None) -> CacheReport:
+def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress, cache_lock=None, pixels=None,
+                    sparse=None) -> CacheReport:
     """Render the views not logged yet (of ``d["shard"]`` only, when set: then ``manifest`` is None
-    and ``cache_lock`` is the cache's lock, taken again to update the manifest)."""
+    and ``cache_lock`` is the cache's lock, taken again to update the manifest); rows ``i`` with
+    ``sparse[i]`` only at ``pixels``."""
     n, m = len(views), d["resolution"]
+    sparse = np.zeros(n, bool) if sparse is None else sparse
     shard = d.get("shard")
     done, crc, _ = read_logs(path, n)
     # never trust logged pixels unchecked: a view changed after it was written is rendered again
@@ -504,7 +519,7 @@ def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress, cache
             fd = os.open(path / IMAGES, os.O_WRONLY)
             try:
                 for i in todo:
-                    img = renderer.render(views[i], m)
+                    img = render_image(renderer, views[i], m, pixels if sparse[i] else None)
                     crc = write_view(fd, img, int(i), offset, d["fsync"])
                     log.append(int(i), crc, renderer.last_render_seconds)
                     report.rendered += 1
@@ -515,7 +530,8 @@ def _render_missing(scene, d, rcfg, path: Path, manifest, views, progress, cache
                 if hasattr(renderer, "close"):
                     renderer.close()
         else:
-            run_workers(scene, rcfg, threads, path / IMAGES, offset, m, views, todo, workers, d["fsync"], log, bar, report)
+            run_workers(scene, rcfg, threads, path / IMAGES, offset, m, views, todo, workers, d["fsync"], log, bar, report,
+                        pixels=pixels, sparse=sparse)
     finally:
         report.wall_seconds = time.perf_counter() - t0
         log.close()
@@ -546,9 +562,9 @@ def _finish(path: Path, manifest: dict, n: int, run: dict | None) -> None:
     _atomic_json(path / MANIFEST, manifest)
 
 
-def ensure_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = True) -> Path:
+def ensure_cache(scene: Scene, data_cfg, renderer_cfg=None, progress: bool = True, train_pixels=None) -> Path:
     """Render what is missing and return the cache directory (see :func:`render_cache`)."""
-    return render_cache(scene, data_cfg, renderer_cfg, progress=progress).path
+    return render_cache(scene, data_cfg, renderer_cfg, progress=progress, train_pixels=train_pixels).path
 
 __all__ = [
     "ensure_cache", "render_cache", "ViewImageCache", "CacheReport", "cache_path_for", "cache_settings",

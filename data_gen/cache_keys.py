@@ -175,12 +175,43 @@ def views_digest(views: np.ndarray, splits: Mapping[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def cache_settings(scene: Scene, data_cfg, renderer_cfg, views=None, splits=None) -> dict[str, Any]:
-    """The hashed settings of a cache: everything that changes its pixels or its rows."""
+def check_train_pixels(pixels, resolution: int) -> np.ndarray | None:
+    """``train_pixels`` of a cache: ``None`` (every pixel of every view) or the flat raster indices
+    ``(K,)`` of the pixels its training views are rendered at (a RecNN pattern's C-pixels: a model
+    that learns from C-Images alone, the IMS, needs no other pixel of its training views).
+
+    Example:
+        >>> check_train_pixels([0, 2, 8], 3).tolist(), check_train_pixels(None, 3)
+        ([0, 2, 8], None)
+        >>> check_train_pixels([2, 1], 3)
+        Traceback (most recent call last):
+        ...
+        data_gen.errors.InputError: train_pixels: expected strictly ascending flat pixel indices in [0, 9) of the 3x3 image (got 2 values from 1 to 2)
+    """
+    if pixels is None:
+        return None
+    a = np.asarray(pixels)
+    m2 = int(resolution) ** 2
+    if (a.ndim != 1 or a.size == 0 or not np.issubdtype(a.dtype, np.integer) or a.min() < 0 or a.max() >= m2
+            or np.any(np.diff(a) <= 0)):
+        got = f"{a.size} values from {a.min()} to {a.max()}" if a.size and np.issubdtype(a.dtype, np.number) else f"shape {a.shape}, {a.dtype}"
+        raise InputError(f"train_pixels: expected strictly ascending flat pixel indices in [0, {m2}) of the "
+                         f"{resolution}x{resolution} image (got {got})")
+    return a.astype(np.int64)
+
+
+def cache_settings(scene: Scene, data_cfg, renderer_cfg, views=None, splits=None, train_pixels=None) -> dict[str, Any]:
+    """The hashed settings of a cache: everything that changes its pixels or its rows (with
+    ``train_pixels``, :func:`check_train_pixels`, their count and digest; without, the key is
+    what it always was)."""
     d = data_settings(data_cfg)
     if views is None or splits is None:
         views, splits = plan_views(scene, d)
+    pixels = check_train_pixels(train_pixels, d["resolution"])
+    sparse = {} if pixels is None else {"train_pixels": {
+        "count": int(pixels.size), "sha256": hashlib.sha256(np.ascontiguousarray(pixels).tobytes()).hexdigest()}}
     return jsonable({
+        **sparse,
         "format_version": FORMAT_VERSION,
         "scene": scene_key(scene),
         "renderer": renderer_pixel_settings(renderer_cfg),
@@ -203,12 +234,13 @@ def settings_hash(settings: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:12]
 
 
-def cache_path_for(scene: Scene, data_cfg, renderer_cfg) -> Path:
+def cache_path_for(scene: Scene, data_cfg, renderer_cfg, train_pixels=None) -> Path:
     """Where :func:`ensure_cache` puts (or finds) this cache; renders nothing."""
     d = data_settings(data_cfg)
     if d.get("cache_path"):
         return Path(str(d["cache_path"])).expanduser()
-    return Path(str(d["cache_dir"])).expanduser() / f"{safe_name(scene.name)}-{settings_hash(cache_settings(scene, d, renderer_cfg))}"
+    key = settings_hash(cache_settings(scene, d, renderer_cfg, train_pixels=train_pixels))
+    return Path(str(d["cache_dir"])).expanduser() / f"{safe_name(scene.name)}-{key}"
 
 
 def safe_name(name: str) -> str:
@@ -219,6 +251,6 @@ def safe_name(name: str) -> str:
 __all__ = [
     "FORMAT_VERSION", "MANIFEST", "VIEWS", "SPLITS", "IMAGES", "LOG", "SECONDS", "LOCK", "MARKER", "OWN_FILES", "SHARD_LOGS",
     "DATA_DEFAULTS", "shard_log_name", "is_own_file", "data_settings", "parse_shard", "plan_views",
-    "scene_key", "jsonable", "json_default", "views_digest", "cache_settings", "settings_hash", "cache_path_for",
+    "scene_key", "jsonable", "json_default", "views_digest", "check_train_pixels", "cache_settings", "settings_hash", "cache_path_for",
     "safe_name",
 ]

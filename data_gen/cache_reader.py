@@ -104,6 +104,14 @@ class ViewImageCache:
         return float(self.manifest["view_angle"])
 
     @property
+    def sparse_rows(self) -> np.ndarray:
+        """Rows whose images hold only the cache's ``train_pixels`` (the training split of a cache
+        rendered with them; every other pixel is black), else empty: no FR-Image in those rows."""
+        if not (self.manifest.get("settings") or {}).get("train_pixels"):
+            return np.zeros(0, np.int64)
+        return self.splits["train"]
+
+    @property
     def complete(self) -> bool:
         return bool(self.done.all())
 
@@ -129,7 +137,8 @@ class ViewImageCache:
         return scene
 
     def rerender(self, index: int, renderer=None) -> np.ndarray:
-        """Render row ``index`` again from the manifest alone: ``(m, m, 3)`` uint8."""
+        """Render row ``index`` again from the manifest alone: ``(m, m, 3)`` uint8 (a whole frame,
+        also for a :attr:`sparse_rows` row)."""
         if renderer is None:
             renderer = make_renderer(self.scene(), self.manifest["renderer"]["pixel_settings"])
         return renderer.render(self.views[int(index)], self.resolution)

@@ -18,7 +18,7 @@ import numpy as np
 
 from .cache_log import write_view
 from .errors import InputError
-from .renderers import make_renderer
+from .renderers import make_renderer, render_image
 from .scene import Scene
 
 def _memmap_ref(a: np.ndarray) -> dict[str, Any] | None:
@@ -98,7 +98,7 @@ def worker_main(setup, parent_pid, tasks, results):
     try:
         while True:  # never block for ever: a parent killed before its setup reached us leaves nothing to wait for
             try:
-                payload, renderer_cfg, threads, images_path, data_offset, resolution, views, fsync = setup.get(timeout=0.5)
+                payload, renderer_cfg, threads, images_path, data_offset, resolution, views, fsync, pixels, sparse = setup.get(timeout=0.5)
                 break
             except queue.Empty:
                 if os.getppid() != parent_pid:
@@ -119,7 +119,7 @@ def worker_main(setup, parent_pid, tasks, results):
                     continue
                 if i is None:
                     return
-                img = renderer.render(views[i], resolution)
+                img = render_image(renderer, views[i], resolution, pixels if sparse[i] else None)
                 crc = write_view(fd, img, i, data_offset, fsync)
                 results.put(("done", int(i), crc, float(renderer.last_render_seconds)))
         finally:
@@ -132,8 +132,10 @@ def worker_main(setup, parent_pid, tasks, results):
         results.put(("error", f"render worker {os.getpid()} failed: {type(err).__name__}: {err}\n{traceback.format_exc()}", False))
 
 
-def run_workers(scene, rcfg, threads, images_path, offset, m, views, todo, workers, fsync, log, bar, report):
-    """Render rows ``todo`` of ``views`` in ``workers`` spawned processes of ``threads`` threads each.
+def run_workers(scene, rcfg, threads, images_path, offset, m, views, todo, workers, fsync, log, bar, report,
+                pixels=None, sparse=None):
+    """Render rows ``todo`` of ``views`` in ``workers`` spawned processes of ``threads`` threads each
+    (rows ``i`` with ``sparse[i]`` only at ``pixels``: :func:`~data_gen.renderers.render_image`).
 
     Each worker writes its views' pixels in place into ``images_path`` (data at ``offset``); this
     process logs every finished view to ``log`` (a :class:`~data_gen.cache_log.CompletionLog`),
@@ -153,7 +155,9 @@ def run_workers(scene, rcfg, threads, images_path, offset, m, views, todo, worke
         tasks.put(int(i))
     for _ in range(workers):
         tasks.put(None)
-    payload = (_scene_payload(scene), rcfg, threads, str(images_path), offset, m, views, fsync)
+    if sparse is None:
+        sparse = np.zeros(len(views), bool)
+    payload = (_scene_payload(scene), rcfg, threads, str(images_path), offset, m, views, fsync, pixels, sparse)
     for _ in range(workers):
         setup.put(payload)
     procs = [ctx.Process(target=worker_main, args=(setup, os.getpid(), tasks, results), daemon=True) for _ in range(workers)]

@@ -19,6 +19,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, Callable
 
+import numpy as np
+
 from .errors import InputError
 from .scene import Scene
 from .validate import check_integer, check_mapping
@@ -74,7 +76,7 @@ def make_renderer(scene: Scene, renderer_cfg=None, *, threads: int | None = None
 
     Example:
         >>> r = make_renderer(scene, {"name": "vtk", "mapper": "fixed_point"})   # doctest: +SKIP
-        >>> r.render([0, 0, 3, 0, 0, 0, 0, 1, 0], 64).shape
+        >>> r.render([0, 0, 3, 0, 0, 0, 0, 1, 0], 64).shape                       # doctest: +SKIP
         (64, 64, 3)
     """
     cfg = _plain(renderer_cfg)
@@ -110,6 +112,23 @@ def renderer_pixel_settings(renderer_cfg=None) -> dict[str, Any]:
     return out
 
 
+def render_image(renderer, view, resolution: int, pixels=None):
+    """``(m, m, 3)`` uint8: the full frame of ``view``, or (``pixels``: flat raster indices ``(K,)``)
+    only those pixels ray-cast and every other pixel black (a cache's C-Image-only rows).
+
+    Example:
+        >>> img = render_image(renderer, view, 64, pixels=np.arange(0, 64 * 64, 2))   # doctest: +SKIP
+        >>> int(img.reshape(-1, 3)[1::2].max())                                        # doctest: +SKIP
+        0
+    """
+    if pixels is None:
+        return renderer.render(view, resolution)
+    m = int(resolution)
+    img = np.zeros((m * m, 3), np.uint8)
+    img[pixels] = renderer.render_pixels(view, m, pixels)
+    return img.reshape(m, m, 3)
+
+
 def renderer_version(renderer_cfg=None) -> str:
     """Version string of the rendering library (recorded in cache manifests, not hashed)."""
     name = _plain(renderer_cfg).get("name", "vtk")
@@ -127,4 +146,4 @@ def renderer_version(renderer_cfg=None) -> str:
     return "unknown"
 
 
-__all__ = ["make_renderer", "renderer_pixel_settings", "renderer_version", "RENDERERS", "NON_PIXEL_KEYS"]
+__all__ = ["make_renderer", "render_image", "renderer_pixel_settings", "renderer_version", "RENDERERS", "NON_PIXEL_KEYS"]

@@ -115,6 +115,23 @@ class ViewImageDataset(Dataset):
         return img[:, y : y + c, x : x + c].contiguous()
 
 
+#: ``data.train_pixels``: render the training views whole, or at the pattern's C-pixels only
+TRAIN_PIXELS = ("all", "pattern")
+
+
+def check_train_pixels_mode(value) -> str:
+    """``data.train_pixels`` checked (``None``: ``"all"``).
+
+    Example:
+        >>> check_train_pixels_mode(None), check_train_pixels_mode("pattern")
+        ('all', 'pattern')
+    """
+    mode = "all" if value is None else str(value)
+    if mode not in TRAIN_PIXELS:
+        raise InputError(f"data.train_pixels={value!r}: expected one of {list(TRAIN_PIXELS)}")
+    return mode
+
+
 #: smallest FR-Image side the training metrics accept: SSIM's Gaussian window (sigma 1.5, 11 pixels)
 #: reflection-pads images by 5 pixels, which needs at least 6
 MIN_RESOLUTION = 6
@@ -150,6 +167,10 @@ class ImlsDataModule(L.LightningDataModule):
             whole images: ``data.crop``, for the fully convolutional RecNN and IML at paper scale.
             Validation and test batches stay whole. Needs a shift-invariant pattern
             (:func:`~imls_lightning.core.patterns.crop_pattern`).
+        train_fr: whether the model trains on FR-Images. ``data.train_pixels=pattern`` renders the
+            training views at the pattern's C-pixels only (a quarter of the rays for EnhanceNet 2x;
+            validation and test views stay whole), and its training batches then carry no ``fr``:
+            only a model that learns from C-Images alone (``train_fr=False``: the IMS) accepts it.
     """
 
     def __init__(
@@ -165,6 +186,7 @@ class ImlsDataModule(L.LightningDataModule):
         crop: int | None = None,
         labels_from: str | Path | None = None,
         labels_options: Mapping[str, Any] | None = None,
+        train_fr: bool = True,
     ):
         super().__init__()
         self.scene_cfg = to_plain(scene)
@@ -196,6 +218,10 @@ class ImlsDataModule(L.LightningDataModule):
             crop_pattern(self.pattern, self.crop)  # refuses what cannot be cropped, in one line
             if self.crop < MIN_RESOLUTION:
                 raise InputError(f"data.crop={self.crop}: too small to train on; expected >= {MIN_RESOLUTION} or null")
+        self.train_pixels = check_train_pixels_mode(self.data_cfg.get("train_pixels"))
+        if self.train_pixels == "pattern" and (train_fr or self.crop or self.low_res):
+            raise InputError("data.train_pixels=pattern: this model trains on FR-Images (or crops of them); only the IMS "
+                             "trains on C-Images alone: set data.train_pixels=all")
         self.cache_path: Path | None = None
         self.low_res_path: Path | None = None
         self._datasets: dict[str, ViewImageDataset] = {}
@@ -211,7 +237,8 @@ class ImlsDataModule(L.LightningDataModule):
         from data_gen.scene import build_scene
 
         scene = build_scene(self.scene_cfg)
-        self.cache_path = Path(ensure_cache(scene, self.data_cfg, self.renderer_cfg, progress=self.progress))
+        pixels = self.pattern.indices.numpy() if self.train_pixels == "pattern" else None
+        self.cache_path = Path(ensure_cache(scene, self.data_cfg, self.renderer_cfg, progress=self.progress, train_pixels=pixels))
         if self.low_res:
             self.low_res_path = Path(ensure_cache(scene, self._low_res_data_cfg(), self.renderer_cfg, progress=self.progress))
         if self.labels_from:
@@ -231,9 +258,13 @@ class ImlsDataModule(L.LightningDataModule):
         cache = ViewImageCache.open(self.cache_path)
         if cache.images.shape[1] != self.fr_size:
             raise InputError(f"cache {self.cache_path}: images are {cache.images.shape[1]}^2, expected data.resolution={self.fr_size}")
+        sparse = set(cache.sparse_rows.tolist())
         for split in ("train", "val", "test"):
+            rows = cache.splits[split]
+            # rows rendered at the pattern's pixels only have a C-Image and a PR-Image, no FR-Image
+            fields = tuple(f for f in self.fields if f != "fr") if sparse.intersection(rows.tolist()) else self.fields
             self._datasets[split] = ViewImageDataset(
-                self.cache_path, cache.splits[split], self.pattern, self.fields, self.low_res_path, self.labels,
+                self.cache_path, rows, self.pattern, fields, self.low_res_path, self.labels,
                 crop=self.crop if split == "train" else None,
             )
 

@@ -223,12 +223,19 @@ TABLE_COLUMNS = ("scene", "recnn", "volume_dims", "full_frame_ms", "c_render_ms"
                  "limit_20", "target", "share_for_target", "seconds", "path")
 
 
+def _sig(v: Any) -> Any:
+    """A float to four significant digits (anything else as it is)."""
+    return float(f"{v:.4g}") if isinstance(v, float) else v
+
+
 def table_row(est: Mapping[str, Any], path: Path) -> dict[str, Any]:
     """The estimate as a row of :data:`TABLE_COLUMNS`."""
     bound = {round(r["share"], 1): r["speedup"] for r in est["bound"]}
     limit = {round(r["share"], 1): r["speedup"] for r in est["limit"]}
-    row = {k: est.get(k, "") for k in TABLE_COLUMNS}
-    row.update(half=est["options"]["half"], bound_10=bound[0.1], bound_20=bound[0.2], bound_40=bound[0.4], limit_20=limit[0.2],
+    # four significant digits: the timings are medians of a few runs, and the table is read by people
+    row = {k: _sig(est.get(k, "")) for k in TABLE_COLUMNS}
+    row.update(half=est["options"]["half"], bound_10=_sig(bound[0.1]), bound_20=_sig(bound[0.2]), bound_40=_sig(bound[0.4]),
+               limit_20=_sig(limit[0.2]),
                share_for_target=est["share_for_target"] if est["share_for_target"] is not None else "", path=str(path))
     return row
 

@@ -477,9 +477,12 @@ class IMSTask(ImlsTask):
 
     @classmethod
     def datamodule_kwargs(cls, cfg) -> dict:
-        # the DataModule labels the cache with the IML (once; imls_lightning.data.labels) and yields im / pim
+        # the DataModule labels the cache with the IML (once; imls_lightning.data.labels) and yields im / pim.
+        # train_fr=False: the mask is learned from the view and the C-Image's labels alone, so the IMS's own
+        # views may be rendered at the C-pixels only (data.train_pixels=pattern); the decoder is then
+        # fine-tuned on the C-Image term alone (decoder_loss), validated end to end on whole frames
         m = cfg.model
-        return {"fields": ("view", "fr", "c"), "labels_from": str(cfg.iml.checkpoint),
+        return {"fields": ("view", "fr", "c"), "labels_from": str(cfg.iml.checkpoint), "train_fr": False,
                 "labels_options": {"batch_size": int(m.labels_batch_size), "device": m.labels_device}}
 
     # -- the mask -------------------------------------------------------------------------------

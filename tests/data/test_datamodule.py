@@ -125,3 +125,40 @@ def test_exception_resolution_too_small_names_the_smallest_that_works():
     with pytest.raises(InputError, match=r"the smallest that works is 8 "):
         ImlsDataModule({}, {"resolution": 4, "batch_size": 2}, {}, {"kind": "downsample", "factor": 4})
     ImlsDataModule({}, {"resolution": 6, "batch_size": 2}, {}, {"kind": "downsample", "factor": 2})
+
+
+# ---- data.train_pixels=pattern: the IMS's C-Image-only training views ---------------------------
+def _with(cfg, **data):
+    from omegaconf import OmegaConf
+
+    c = cfg.copy()
+    OmegaConf.set_struct(c, False)
+    for k, v in data.items():
+        c.data[k] = v
+    return c
+
+
+def test_train_pixels_pattern_smoke_c_images_without_fr(tiny_cfg):
+    whole = _dm(tiny_cfg, fields=("view", "fr", "c"))
+    whole.setup()
+    dm = _dm(_with(tiny_cfg, train_pixels="pattern"), fields=("view", "fr", "pr", "c"), train_fr=False)
+    dm.setup()
+    assert dm.cache_path != whole.cache_path
+    item, ref = dm.dataset("train")[0], whole.dataset("train")[0]
+    assert "fr" not in item and item["index"] == ref["index"]
+    assert torch.equal(item["c"], ref["c"])  # the C-Image is exactly the whole frame's
+    assert torch.equal(item["pr"], ref["fr"] * dm.pattern.mask.to(ref["fr"].dtype))
+    batch = next(iter(dm.train_dataloader()))
+    assert "fr" not in batch and batch["c"].shape[-2:] == (16, 16)
+    for split in ("val", "test"):  # validated and tested on whole frames
+        assert torch.equal(dm.dataset(split)[0]["fr"], whole.dataset(split)[0]["fr"])
+
+
+@pytest.mark.parametrize("kw, data, needle", [
+    ({}, {"train_pixels": "pattern"}, "only the IMS trains on C-Images alone"),
+    ({"train_fr": False, "crop": 16}, {"train_pixels": "pattern"}, "only the IMS trains on C-Images alone"),
+    ({"train_fr": False}, {"train_pixels": "some"}, r"data.train_pixels='some': expected one of \['all', 'pattern'\]"),
+])
+def test_train_pixels_exception_bad_use(tiny_cfg, kw, data, needle):
+    with pytest.raises(InputError, match=needle):
+        _dm(_with(tiny_cfg, **data), **kw)

@@ -572,3 +572,33 @@ def test_training_config_with_a_wide_start_gets_the_hint(tiny_checkpoints, layer
     recwarn.clear()
     load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims")  # 5 layers at 16^2: no hint on load either
     assert not [w for w in recwarn if "starts the IMS generator" in str(w.message)]
+
+
+def test_smoke_ims_trains_on_c_image_only_views(tiny_checkpoints, tmp_path):
+    """``data.train_pixels=pattern``: the IMS's own views ray-cast at the C-pixels only (issue 31): a real
+    Trainer run labels them, trains the generator and fine-tunes the decoder on the C-Image term, and
+    validates on whole frames; nothing is NaN."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from data_gen.cache import ViewImageCache
+    from imls_lightning.train import train
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="c_only_ims"):
+        cfg = compose("train", overrides=[
+            "scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={tmp_path / 'cache'}", "data.train_pixels=pattern",
+            f"paths.runs_dir={tmp_path / 'runs'}", f"paths.output_dir={tmp_path / 'runs' / 'ims'}", "logger=none",
+            "test=false", "trainer.fast_dev_run=true", "trainer.enable_progress_bar=false", "recnn=enhancenet",
+            "recnn.net.channels=4", "recnn.net.blocks=1", "model=ims", f"iml.checkpoint={tiny_checkpoints['iml']}",
+            "model.layers=5", "model.base_channels=8", "model.target=pim", "model.loss.mse=1.0",
+            "model.loss.perceptual.weight=0", "model.loss.adversarial=0", "model.decoder_lr=1e-3"])
+    path = train(cfg)["best_checkpoint"]
+    task = load_task(path, expect="IMSTask")
+    (cache_dir,) = [p for p in (tmp_path / "cache").iterdir() if p.is_dir() and (p / "manifest.json").is_file()]
+    cache = ViewImageCache.open(cache_dir)
+    assert len(cache.sparse_rows) == len(cache.splits["train"]) > 0
+    iml = load_task(tiny_checkpoints["iml"], expect="IMLTask")
+    fine, before = task.iml.decoder.state_dict(), iml.iml.decoder.state_dict()
+    assert all(torch.isfinite(v).all() for v in fine.values())
+    assert any(not torch.equal(fine[k], before[k]) for k in fine if fine[k].is_floating_point())  # the decoder was fine-tuned
