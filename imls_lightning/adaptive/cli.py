@@ -70,7 +70,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     from data_gen.scene import build_scene
 
     from ..config import file_hash, settings_hash, to_plain
-    from ..evaluate import measure, spaced
+    from ..evaluation import measure, spaced
     from ..orp.job import evaluate_quality
     from ..orp.search import ORPSearch, batched
     from ..inference.pipeline import RecNNAlone

@@ -28,7 +28,7 @@ from .tables import (
 
 @dataclass
 class ReportContext:
-    """Everything :func:`write_report` formats (filled by :func:`imls_lightning.evaluate.evaluate`).
+    """Everything :func:`write_report` formats (filled by :func:`imls_lightning.evaluation.evaluate`).
 
     ``rows`` / ``sweep_rows`` / ``option_rows`` are the rows of metrics.csv / sweep.csv / options.csv;
     ``grid`` is :func:`plot_image_grid`'s input; ``order`` the evaluated methods in table order.
