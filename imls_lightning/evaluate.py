@@ -15,12 +15,7 @@ Output (``output_dir``): ``metrics.csv`` (view x method), ``sweep.csv``, ``optio
 report's path is the last line of stdout. After the report, the ORP IML/S ran at is recorded beside
 the IMS checkpoint, ``<ims.ckpt>.orp.json`` (:mod:`imls_lightning.inference.operating_point`).
 
-Python:
-    >>> from hydra import compose, initialize_config_dir          # doctest: +SKIP
-    >>> with initialize_config_dir("/path/to/conf", version_base="1.3"):
-    ...     cfg = compose("evaluate", overrides=["scene=tiny", "data=tiny", "checkpoints.ims=ims.ckpt"])
-    >>> report = evaluate(cfg)                                      # doctest: +SKIP
-    >>> summary(report.parent / "metrics.csv")["imls"]["latency_ms"]["total"]   # doctest: +SKIP
+Python: ``imls_lightning.evaluation.evaluate(cfg)`` returns ``report.md``'s path (example there).
 """
 from __future__ import annotations
 

@@ -46,7 +46,7 @@ Modules: :mod:`~imls_lightning.evaluation.settings` (the validated settings), :m
 
 Python:
     >>> from hydra import compose, initialize_config_dir          # doctest: +SKIP
-    >>> with initialize_config_dir("/path/to/conf", version_base="1.3"):
+    >>> with initialize_config_dir("/path/to/conf", version_base="1.3"):  # doctest: +SKIP
     ...     cfg = compose("evaluate", overrides=["scene=tiny", "data=tiny", "checkpoints.ims=ims.ckpt"])
     >>> report = evaluate(cfg)                                      # doctest: +SKIP
     >>> summary(report.parent / "metrics.csv")["imls"]["latency_ms"]["total"]   # doctest: +SKIP
