@@ -278,3 +278,18 @@ def test_a_stage_that_trained_one_chunk_stops_the_pipeline_with_status_3(tmp_pat
         d.run_pipeline(lambda: d.run_stage("ims", ["-c", "import sys; sys.exit(3)"]))
     assert e.value.code == 3
     assert capsys.readouterr().err.strip().splitlines()[-1].startswith("[pipeline] demo stage 'ims' trained one chunk")
+
+
+def test_stage_args_is_the_one_builder_of_the_benchmarks_stage_arguments():
+    """The demo's and the benchmark's stage commands share their arguments through one builder: the
+    benchmark passes its scene, quotes the paths and appends its ``common`` / ``train`` overrides."""
+    from omegaconf import OmegaConf
+
+    from imls_lightning.pipelines import stage_args
+
+    cfg = OmegaConf.create({"scene": None, "data": "bench", "renderer": "numba", "cache_dir": "/x y", "runs_dir": "runs",
+                            "seed": 3, "progress": False})
+    common, train = stage_args(cfg, ["scene.name=a"], scene="ct_head", recnn=False, quote=True, common=["test=false"],
+                               train=["trainer.max_epochs=2"])
+    assert common == ["scene=ct_head", "scene.name=a", "data=bench", "renderer=numba", "data.cache_dir='/x y'", "test=false"]
+    assert train == [*common, "paths.runs_dir=runs", "seed=3", "trainer.max_epochs=2", "trainer.enable_progress_bar=false"]
