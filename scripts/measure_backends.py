@@ -128,7 +128,7 @@ def main(argv=None) -> int:
         cache = ViewImageCache.open(Path(args.cache))
     except (InputError, OSError) as err:
         raise SystemExit(f"--cache {args.cache}: {err}") from None
-    from imls_lightning.evaluate import spaced
+    from imls_lightning.evaluation import spaced
 
     rows_idx = np.asarray(cache.splits["test"])
     rows_idx = rows_idx[spaced(len(rows_idx), args.views)]  # the evaluation's own choice of evenly spaced views

@@ -140,7 +140,7 @@ def train(name: str, overrides: Sequence[str], log=sys.stderr) -> tuple[Path, di
         ``(best checkpoint, result record)``: the record is the run's ``result.json``
         (``test`` metrics, ``train_minutes``, ``epochs``, ``config``).
     """
-    from imls_lightning.demo import StageFailed, run_stage
+    from imls_lightning.pipelines import StageFailed, run_stage
 
     try:
         ckpt = Path(run_stage(name, ["-m", "imls_lightning.train", *overrides], log=log))

@@ -214,3 +214,88 @@ def test_entry_points_keep_no_module_state():
         if any(isinstance(n, ast.FunctionDef) and n.name == "main" for n in tree.body):
             found += [f"{path.name}:{line}: {name}" for name, line in _module_state_filled_by_functions(tree)]
     assert found == [], "\n".join(found)
+
+
+# ------------------------------------------------------------------------------------------------
+# thin entry points (issue 33): a module directly under imls_lightning/ parses its config and calls a package
+
+#: modules directly under ``imls_lightning/`` that are no entry point
+NOT_ENTRY_POINTS = ("__init__.py", "config.py")
+#: the most lines an entry point may have
+ENTRY_POINT_LINES = 150
+#: the most lines a function may have (numba kernels excepted: a kernel is one loop nest numba compiles whole)
+FUNCTION_LINES = 120
+
+
+def _entry_points() -> list[Path]:
+    return [p for p in sorted((ROOT / "imls_lightning").glob("*.py")) if p.name not in NOT_ENTRY_POINTS]
+
+
+def _entry_point_modules() -> set[str]:
+    """Every module run with ``python -m``: the modules directly under ``imls_lightning/`` (but
+    :data:`NOT_ENTRY_POINTS`) and every package's ``__main__``."""
+    mods = {f"imls_lightning.{p.stem}" for p in _entry_points()}
+    for pkg in PACKAGES:
+        mods |= {".".join(m.relative_to(ROOT).with_suffix("").parts) for m in (ROOT / pkg).rglob("__main__.py")}
+    return mods
+
+
+def _script_imports() -> dict[str, set[str]]:
+    """``scripts/*.py`` -> the modules it imports (anywhere in it)."""
+    out = {}
+    for path in sorted((ROOT / "scripts").glob("*.py")):
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                deps |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names}
+        out[f"scripts/{path.name}"] = deps
+    return out
+
+
+def test_entry_points_are_thin():
+    """An entry point parses its config and calls a package: at most :data:`ENTRY_POINT_LINES` lines."""
+    long = {p.name: n for p in _entry_points() if (n := len(p.read_text().splitlines())) > ENTRY_POINT_LINES}
+    assert long == {}, f"entry points over {ENTRY_POINT_LINES} lines (move the logic into a package): {long}"
+
+
+def test_no_entry_point_imports_another():
+    """What two entry points share lives in a package (``imls_lightning.pipelines``,
+    ``imls_lightning.evaluation``, ...), never in one of them: no module of the packages and no script
+    imports an entry point."""
+    edges, _ = _scan()
+    entries = _entry_point_modules()
+    assert {"imls_lightning.evaluate", "imls_lightning.demo", "imls_lightning.adaptive.__main__"} <= entries
+    found = sorted(f"{m} imports {d}" for m in edges for d in edges[m] & entries if d != m)
+    found += sorted(f"{m} imports {d}" for m, deps in _script_imports().items() for d in deps & entries)
+    assert found == [], "\n".join(found)
+
+
+def _numba_kernel(fn: ast.AST) -> bool:
+    """A function decorated with ``numba.njit`` / ``jit`` / ``guvectorize`` / ... (also called: ``@njit(...)``)."""
+    for dec in getattr(fn, "decorator_list", []):
+        target = dec.func if isinstance(dec, ast.Call) else dec
+        name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+        if name in ("njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc") or "numba" in ast.unparse(target):
+            return True
+    return False
+
+
+def _long_functions(tree: ast.AST, limit: int = FUNCTION_LINES) -> list[tuple[str, int, int]]:
+    return [(fn.name, fn.lineno, fn.end_lineno - fn.lineno + 1) for fn in ast.walk(tree)
+            if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)) and fn.end_lineno - fn.lineno + 1 > limit
+            and not _numba_kernel(fn)]
+
+
+def test_no_long_functions():
+    """No function over :data:`FUNCTION_LINES` lines (numba kernels excepted): a long body is split into named steps."""
+    kernel = "import numba\n@numba.njit(cache=True)\ndef k(x):\n" + "    x += 1\n" * 130 + "    return x\n"
+    assert _long_functions(ast.parse(kernel)) == []
+    assert _long_functions(ast.parse(kernel.replace("@numba.njit(cache=True)\n", ""))) == [("k", 2, 132)]
+    found = []
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            found += [f"{path.relative_to(ROOT)}:{line}: {name} ({n} lines)"
+                      for name, line, n in _long_functions(ast.parse(path.read_text(), str(path)))]
+    assert found == [], "\n".join(found)

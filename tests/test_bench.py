@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from imls_lightning import bench, orp
+from imls_lightning import orp
+from imls_lightning.pipelines import bench
 from imls_lightning.report import SWEEP_COLUMNS, write_metrics_csv
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from data_gen.errors import InputError
-from imls_lightning import bench_paper as bp
+from imls_lightning.pipelines import bench_paper as bp
 
 ROOT = Path(__file__).resolve().parents[1]
 

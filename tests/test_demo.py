@@ -105,7 +105,7 @@ def test_exception_demo_stage_failure_names_the_stage(tmp_path):
 def test_echo_keeps_carriage_returns_and_returns_the_last_line():
     import io
 
-    from imls_lightning.demo import _echo
+    from imls_lightning.pipelines.stages import _echo
 
     class Chunked:  # a pipe that hands out 3 bytes at a time (splits the UTF-8 'é' too)
         def __init__(self, data: bytes):
@@ -123,7 +123,7 @@ def test_echo_keeps_carriage_returns_and_returns_the_last_line():
 
 # ---- any scene: the scene overrides of python -m data_gen pass through to every stage ------------
 def test_split_scene_overrides_takes_every_scene_key_and_nothing_else():
-    from imls_lightning.demo import split_scene_overrides
+    from imls_lightning.pipelines import split_scene_overrides
 
     argv = ["scene=file", "scene.volume.path=/d/my head.nii.gz", "+scene.volume.name=mine", "++scene.view_angle=40",
             "~scene.volume.dims", "scenes=[ct_head]", "data=tiny", "-cn", "scene.x=1", "stages.recnn=['scene.a=1']",
@@ -231,7 +231,7 @@ def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
     from omegaconf import OmegaConf
 
     from data_gen.errors import InputError
-    from imls_lightning.demo import sparser_overrides
+    from imls_lightning.pipelines import sparser_overrides
 
     cfg = OmegaConf.create({"recnn": "fovolnet", "scene": "ct_head",
                             "stages": {"recnn": ["trainer.max_epochs=10", "pattern.c_size_ratio=0.5"], "recnn_sparser": ["seed=3"]},
@@ -246,7 +246,7 @@ def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
 def test_stage_overrides_scene_entries_replace_the_same_keys():
     from omegaconf import OmegaConf
 
-    from imls_lightning.demo import stage_overrides
+    from imls_lightning.pipelines import stage_overrides
 
     cfg = OmegaConf.create({"scene": "ct_head",
                             "stages": {"iml": ["model.depth=4", "model.base_channels=8", "trainer.max_epochs=12"], "ims": ["a=1"]},
@@ -268,7 +268,7 @@ def test_demo_config_ct_head_gets_the_wider_decoder():
 def test_a_stage_that_trained_one_chunk_stops_the_pipeline_with_status_3(tmp_path, capsys):
     """run_stage turns a training stage's exit status 3 (chunk_minutes) into StageUnfinished, and the pipeline
     exits 3 with one line saying how to go on; other failures stay exit 1."""
-    from imls_lightning import demo as d
+    from imls_lightning.pipelines import stages as d
 
     with pytest.raises(d.StageUnfinished, match="run the same command again to continue"):
         d.run_stage("recnn", ["-c", "import sys; print('x'); sys.exit(3)"])
@@ -278,3 +278,18 @@ def test_a_stage_that_trained_one_chunk_stops_the_pipeline_with_status_3(tmp_pat
         d.run_pipeline(lambda: d.run_stage("ims", ["-c", "import sys; sys.exit(3)"]))
     assert e.value.code == 3
     assert capsys.readouterr().err.strip().splitlines()[-1].startswith("[pipeline] demo stage 'ims' trained one chunk")
+
+
+def test_stage_args_is_the_one_builder_of_the_benchmarks_stage_arguments():
+    """The demo's and the benchmark's stage commands share their arguments through one builder: the
+    benchmark passes its scene, quotes the paths and appends its ``common`` / ``train`` overrides."""
+    from omegaconf import OmegaConf
+
+    from imls_lightning.pipelines import stage_args
+
+    cfg = OmegaConf.create({"scene": None, "data": "bench", "renderer": "numba", "cache_dir": "/x y", "runs_dir": "runs",
+                            "seed": 3, "progress": False})
+    common, train = stage_args(cfg, ["scene.name=a"], scene="ct_head", recnn=False, quote=True, common=["test=false"],
+                               train=["trainer.max_epochs=2"])
+    assert common == ["scene=ct_head", "scene.name=a", "data=bench", "renderer=numba", "data.cache_dir='/x y'", "test=false"]
+    assert train == [*common, "paths.runs_dir=runs", "seed=3", "trainer.max_epochs=2", "trainer.enable_progress_bar=false"]

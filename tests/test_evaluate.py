@@ -117,7 +117,7 @@ def _compose(*overrides: str):
 
 
 def test_stage_times_are_medians_of_at_least_ten_runs(run):
-    from imls_lightning.evaluate import evaluate
+    from imls_lightning.evaluation import evaluate
 
     settings = yaml.safe_load((run["out"] / "config.yaml").read_text())["settings"]
     assert settings["repeats"] == 10
@@ -245,7 +245,7 @@ def test_orp_gap_on_validation_and_test_views_side_by_side(run):
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     from data_gen.cache import ViewImageCache
     from data_gen.scene import build_scene
-    from imls_lightning.evaluate import orp_search_views, parse_settings
+    from imls_lightning.evaluation import orp_search_views, parse_settings
 
     cfg = _compose(*_args(run["ck"]))
     s = parse_settings(cfg)
@@ -264,7 +264,7 @@ def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
 
 
 def test_exception_sparser_recnn_must_be_sparser_and_of_the_same_kind(run):
-    from imls_lightning.evaluate import evaluate
+    from imls_lightning.evaluation import evaluate
 
     with pytest.raises(InputError, match=r"checkpoints.recnn_sparser=.*its pattern has 256 pixels, not at most half of the evaluation's 256"):
         evaluate(_compose(*_args(run["ck"], f"checkpoints.recnn_sparser={run['ck']['recnn']}", "output_dir=" + str(run["out"] / "x"))))
@@ -287,7 +287,7 @@ def test_second_run_with_reuse_returns_the_report_at_once(run):
 
 
 def test_python_api_reuses_the_same_directory(run):
-    from imls_lightning.evaluate import evaluate
+    from imls_lightning.evaluation import evaluate
 
     assert evaluate(_compose(*_args(run["ck"], "reuse=true"))) == run["report"]
     with pytest.raises(InputError, match=r"checkpoints.ims=.*RecNNTask checkpoint, expected a IMSTask"):
@@ -303,7 +303,7 @@ def test_python_api_reuses_the_same_directory(run):
 ])
 def test_exception_scene_or_renderer_other_than_trained(tiny_checkpoints, tmp_path, override, needle):
     """Evaluating an IMS on another scene wrote a plausible but wrong report (issue 17, 5)."""
-    from imls_lightning.evaluate import check_trained_on, evaluate, parse_settings
+    from imls_lightning.evaluation import check_trained_on, evaluate, parse_settings
 
     args = [*_args(tiny_checkpoints), f"output_dir={tmp_path / 'out'}", override]
     with pytest.raises(InputError, match=needle) as e:
@@ -365,14 +365,14 @@ def test_summary_json_has_what_the_benchmarks_collect(run):
     # the same numbers as the report's metrics.csv
     assert s["methods"]["imls"]["psnr"] == pytest.approx(summary(run["out"] / "metrics.csv")["imls"]["psnr"])
     # and make bench-paper's CSV row from it (imls_lightning.bench_paper)
-    from imls_lightning.bench_paper import CSV_COLUMNS, csv_row, read_summary
+    from imls_lightning.pipelines.bench_paper import CSV_COLUMNS, csv_row, read_summary
 
     row = csv_row(read_summary(run["report"]))
     assert tuple(row) == CSV_COLUMNS and all(math.isfinite(float(row[k])) for k in ("psnr_imls_db", "imls_ms", "speedup", "las_ms"))
 
 
 def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):
-    from imls_lightning.evaluate import evaluate
+    from imls_lightning.evaluation import evaluate
 
     # the cheapest evaluation that still has an untimed view: no ORP, no equal-share table, one sweep point, no grid
     report = evaluate(_compose(*_args(run["ck"], "max_views=2", "timed_views=1", "orp=false", "shares=null", "mean_values=[0.1]",
@@ -394,7 +394,7 @@ def _orp_views(ck: dict) -> list:
 
     from data_gen.cache import ViewImageCache, ensure_cache
     from data_gen.scene import build_scene
-    from imls_lightning.evaluate import orp_search_views, parse_settings
+    from imls_lightning.evaluation import orp_search_views, parse_settings
 
     cfg = _compose(*_args(ck))
     scene = build_scene(cfg.scene)
@@ -500,14 +500,14 @@ def test_the_record_is_checked_by_the_checkpoints_bytes(run, tmp_path, capsys):
 # ---- the IMS's masks lifted to their mean value (ims_lift) ---------------------------------------
 @pytest.mark.parametrize("value,expected", [(None, "auto"), ("true", True), ("false", False), ("auto", "auto")])
 def test_ims_lift_setting(tiny_checkpoints, value, expected):
-    from imls_lightning.evaluate import parse_settings
+    from imls_lightning.evaluation import parse_settings
 
     extra = [f"ims_lift={value}"] if value is not None else []
     assert parse_settings(_compose(*_args(tiny_checkpoints), *extra)).ims_lift == expected
 
 
 def test_exception_ims_lift_is_one_line(tiny_checkpoints):
-    from imls_lightning.evaluate import parse_settings
+    from imls_lightning.evaluation import parse_settings
 
     with pytest.raises(InputError, match=r"^ims_lift=maybe: expected auto, true or false$"):
         parse_settings(_compose(*_args(tiny_checkpoints), "ims_lift=maybe"))
@@ -516,7 +516,7 @@ def test_exception_ims_lift_is_one_line(tiny_checkpoints):
 def test_orp_with_lift_auto_searches_again_lifted_only_when_the_rescale_finds_none(capsys):
     """The control flow of ims_lift=auto with the real ORP search (the gap is a function of the
     lifted state; the lift itself is tested on a real IMS in tests/adaptive/test_renderer.py)."""
-    from imls_lightning.evaluate import orp_with_lift
+    from imls_lightning.evaluation import orp_with_lift
     from imls_lightning.orp import ORPSearch, batched
 
     def search(lift: bool):  # the lift is the search's argument, not state

@@ -16,8 +16,8 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from data_gen.errors import InputError
-from imls_lightning import size_search as ss
-from imls_lightning.demo import stage_overrides
+from imls_lightning.pipelines import size_search as ss
+from imls_lightning.pipelines import stage_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable

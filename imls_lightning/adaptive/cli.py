@@ -24,6 +24,7 @@ from ..config import register_resolvers
 from ..core.importance import MEAN_RANGE
 from ..inference.checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
 from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, pick_device
+from ..pipelines.paths import CONF_DIR  # the Hydra configs: an absolute path
 from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
 from .predictor import ConstantMean, TableMean, train_predictor
@@ -33,9 +34,6 @@ from .settings import parse_settings
 from .tradeoff import mean_for_ipr, quality_at_means, tradeoff
 
 register_resolvers()
-
-# the Hydra configs: an absolute path, right whether this module runs as a file or is imported
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def run_dir_of(checkpoint: str | Path) -> Path:
@@ -63,17 +61,10 @@ def ensure_labels(path: Path, make: Callable[[], MeanLabels], what: str) -> tupl
 
 def run_adaptive(cfg, command: str | None = None) -> Path:
     """The CLI's body: labels -> predictor -> comparison on the test trajectory; returns ``adaptive.md``."""
-    from omegaconf import OmegaConf
-
     from data_gen.cache import ViewImageCache, ensure_cache
-    from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene
 
-    from ..config import file_hash, settings_hash, to_plain
-    from ..evaluate import measure, spaced
-    from ..orp.job import evaluate_quality
-    from ..orp.search import ORPSearch, batched
-    from ..inference.pipeline import RecNNAlone
+    from ..config import file_hash, settings_hash
     from ..report import atomic_write_text
 
     s = parse_settings(cfg)
@@ -85,14 +76,12 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     check_trained_on(ims.hparams, cfg.scene, cfg.renderer, key="ims_checkpoint", path=s.ims)
     recnn = require_recnn(recnn if recnn is not None else ims.recnn, key="ims_checkpoint", path=s.ims)
     device = pick_device(s.device)
-    opts = s.options
     # every IML/S mask of this run (labels, ORP, trade-off curve, renderers) is the IMS mask head's, lifted
     # past the paper's rescale when the evaluation's ORP needed it (evaluate's ims_lift)
     lift = bool(s.ims_lift)
-    iml = ims.iml
-    u_train = float(iml.mean)
-    pattern = ims.pattern
-    m = resolution
+    u_train = float(ims.iml.mean)
+    nets = SimpleNamespace(ims=ims, recnn=recnn, iml=ims.iml, pattern=ims.pattern, device=device, lift=lift, u_train=u_train,
+                           m=resolution)
 
     scene = build_scene(cfg.scene)
     cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
@@ -111,8 +100,54 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     timing: dict[str, Any] = {}
 
     # -- 1. labels ---------------------------------------------------------------------------------
-    labels: dict[str, MeanLabels] = {}
     bracket = MEAN_RANGE if s.reference == "recnn" else (MEAN_RANGE[0], u_train)
+    labels = make_labels(s, cache, nets, bracket, label_dir, label_hash, timing)
+    train_l = labels["train"]
+    val_l = labels.get("val")
+
+    # -- 2. predictor --------------------------------------------------------------------------------
+    p = s.predictor
+    predictor, hist = train_predictor(train_l.views, train_l.u, val=(val_l.views, val_l.u) if val_l is not None else None,
+                                      hidden=p["hidden"], layers=p["layers"], epochs=p["epochs"], lr=p["lr"],
+                                      weight_decay=p["weight_decay"], seed=p["seed"], margin=p["margin"])
+    predictor.save(out / "mean_predictor.pt")
+    timing["train_predictor_s"] = round(hist["seconds"], 2)
+
+    # -- fixed-mean ORP on the validation views, on the path the labels bisect ----------------------
+    t0 = time.perf_counter()
+    orp_res = fixed_mean_orp(s, cache, nets, bracket)
+    u_orp = float(orp_res.mean) if orp_res.found else MEAN_RANGE[1]
+    timing["orp_search_s"] = round(time.perf_counter() - t0, 2)
+
+    # -- 3. evaluation on the trajectory -------------------------------------------------------------
+    t_eval = time.perf_counter()
+    ev = labels[s.views]
+    run = compared_methods(s, cfg, scene, ev, nets, predictor, u_orp)
+    per_view, lat = measure_trajectory(s, cache, ev, run)
+    timing["evaluate_s"] = round(time.perf_counter() - t_eval, 2)
+
+    # -- 4. trade-off curve: fixed means vs the predictor at several margins, on the label source's path --
+    trade = tradeoff_curve(s, cache, ev, nets, predictor, run.views_t, out) if s.tradeoff_means else None
+    if trade is not None:
+        timing["tradeoff_s"] = trade["seconds"]
+    timing["total_s"] = round(time.perf_counter() - t_start, 2)
+
+    # -- report ----------------------------------------------------------------------------------------
+    summ = summarize_methods(s, list(run.methods), per_view, lat)
+    write_csv(out / "adaptive.csv", per_view)
+    plot_per_view(out / "adaptive.png", per_view, s.epsilon_db, s.reference)
+    md = markdown(s, cfg, ims, cache, summ, per_view, hist, timing, labels, u_train, u_orp, orp_res, run.u_match,
+                  run.adaptive_ipr_est, out, command or _command(), trade)
+    write_results(out, s, cfg, summ, trade, timing, hist, u_train, u_orp, run.u_match, run.u_pred)
+    return atomic_write_text(out / "adaptive.md", md)
+
+
+def make_labels(s, cache, nets, bracket, label_dir: Path, label_hash: str, timing: dict[str, Any]) -> dict[str, MeanLabels]:
+    """Step 1: the per-view mean labels of the training, validation and evaluated views (saved beside the
+    IMS run, reused when there); their seconds go to ``timing``."""
+    from ..evaluation import spaced
+
+    labels: dict[str, MeanLabels] = {}
     for split in ("train", "val", s.views):
         if split in labels:
             continue
@@ -127,29 +162,25 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
         tag = split if split != s.views or s.max_views is None else f"{split}{len(rows)}"
         labels[split], reused = ensure_labels(
             label_dir / f"{tag}-{label_hash}.npz",
-            lambda rows=rows, split=split: compute_labels(cache, rows, pattern, iml, recnn, recnn, s.epsilon_db, s.steps,
-                                                         s.batch_size, device, s.progress, desc=f"labels {split}",
+            lambda rows=rows, split=split: compute_labels(cache, rows, nets.pattern, nets.iml, nets.recnn, nets.recnn, s.epsilon_db,
+                                                         s.steps, s.batch_size, nets.device, s.progress, desc=f"labels {split}",
                                                          reference=s.reference, bracket=bracket,
-                                                         unreachable=s.unreachable, source=s.label_source, ims=ims,
-                                                         lift=lift),
+                                                         unreachable=s.unreachable, source=s.label_source, ims=nets.ims,
+                                                         lift=nets.lift),
             split)
         timing[f"labels_{split}_s"] = round(time.perf_counter() - t0, 2)
         timing[f"labels_{split}_reused"] = reused
-    train_l = labels["train"]
-    val_l = labels.get("val")
+    return labels
 
-    # -- 2. predictor --------------------------------------------------------------------------------
-    p = s.predictor
-    predictor, hist = train_predictor(train_l.views, train_l.u, val=(val_l.views, val_l.u) if val_l is not None else None,
-                                      hidden=p["hidden"], layers=p["layers"], epochs=p["epochs"], lr=p["lr"],
-                                      weight_decay=p["weight_decay"], seed=p["seed"], margin=p["margin"])
-    predictor.save(out / "mean_predictor.pt")
-    timing["train_predictor_s"] = round(hist["seconds"], 2)
 
-    # -- fixed-mean ORP on the validation views, on the path the labels bisect ----------------------
-    t0 = time.perf_counter()
+def fixed_mean_orp(s, cache, nets, bracket):
+    """The fixed-mean ORP on the validation views (the training views without any), on the path the labels
+    bisect: the product path as the evaluation searches it (``orp_path=product``), else the IML + RecNN's."""
     from ..data.datamodule import ViewImageDataset
+    from ..orp.job import evaluate_quality
+    from ..orp.search import ORPSearch, batched
 
+    ims, iml, recnn, device, pattern = nets.ims, nets.iml, nets.recnn, nets.device, nets.pattern
     orp_rows = cache.splits["val"] if len(cache.splits["val"]) else cache.splits["train"]
     orp_ds = ViewImageDataset(cache.path, orp_rows, pattern, fields=("view", "fr", "c"))
     if s.orp_path == "product":
@@ -161,28 +192,34 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
 
         with torch.inference_mode():
             batches = list(DataLoader(orp_ds, batch_size=s.batch_size, shuffle=False, num_workers=0))
-            orp_res = product_orp(ims.to(device).eval().mask_head, ims.decoder, recnn.to(device).eval(), batches, s.epsilon_db, lift=lift,
-                                  device=device)
-    else:
-        def orp_quality(u: float) -> dict[str, float]:
-            it = copy.deepcopy(iml)
-            it.mean = clamp_mean(u)
-            return evaluate_quality(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
-                                    recnn.to(device), None, device)
+            return product_orp(ims.to(device).eval().mask_head, ims.decoder, recnn.to(device).eval(), batches, s.epsilon_db,
+                               lift=nets.lift, device=device)
 
-        ref_q = orp_quality(u_train)["psnr_iml_recnn"] if s.reference == "iml" else None
+    def orp_quality(u: float) -> dict[str, float]:
+        it = copy.deepcopy(iml)
+        it.mean = clamp_mean(u)
+        return evaluate_quality(orp_ds, s.batch_size, SimpleNamespace(iml=it.to(device), pattern=pattern), recnn.to(device),
+                                recnn.to(device), None, device)
 
-        def orp_gap(u: float) -> float:
-            q = orp_quality(u)
-            return (q["psnr_recnn"] if ref_q is None else ref_q) - q["psnr_iml_recnn"]
+    ref_q = orp_quality(nets.u_train)["psnr_iml_recnn"] if s.reference == "iml" else None
 
-        orp_res = ORPSearch(epsilon_db=s.epsilon_db, bracket=bracket, tolerance=0.05, k=1, max_rounds=12, scale="log").run(batched(orp_gap))
-    u_orp = float(orp_res.mean) if orp_res.found else MEAN_RANGE[1]
-    timing["orp_search_s"] = round(time.perf_counter() - t0, 2)
+    def orp_gap(u: float) -> float:
+        q = orp_quality(u)
+        return (q["psnr_recnn"] if ref_q is None else ref_q) - q["psnr_iml_recnn"]
 
-    # -- 3. evaluation on the trajectory -------------------------------------------------------------
-    t_eval = time.perf_counter()
-    ev = labels[s.views]
+    return ORPSearch(epsilon_db=s.epsilon_db, bracket=bracket, tolerance=0.05, k=1, max_rounds=12, scale="log").run(batched(orp_gap))
+
+
+def compared_methods(s, cfg, scene, ev: MeanLabels, nets, predictor, u_orp: float) -> SimpleNamespace:
+    """Step 3's methods on the evaluated views: the RecNN alone, IML/S and IML + RecNN at the trained,
+    ORP, IPR-matched, predicted and oracle means; with the views as a tensor, the predicted means, the
+    matched mean and the adaptive IPR the IMS alone estimates."""
+    from data_gen.renderers import make_renderer
+
+    from ..config import to_plain
+    from ..inference.pipeline import RecNNAlone
+
+    ims, iml, recnn, device, pattern, lift, opts = nets.ims, nets.iml, nets.recnn, nets.device, nets.pattern, nets.lift, s.options
     rows = ev.rows
     renderer = make_renderer(scene, to_plain(cfg.renderer))
     ims.to(device).eval()
@@ -194,11 +231,11 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     def imls_ipr(u: float | np.ndarray) -> float:
         with torch.inference_mode():
             im = ims.mask_head.threshold(g_all, torch.as_tensor(u, dtype=torch.float32).expand(len(rows)), lift)
-        return float(im.flatten(1).sum(1).double().mean()) / m**2
+        return float(im.flatten(1).sum(1).double().mean()) / nets.m**2
 
     adaptive_ipr_est = imls_ipr(u_pred)
     u_match = mean_for_ipr(imls_ipr, adaptive_ipr_est)
-    const = {"fixed": u_train, "orp": u_orp, "matched": u_match}
+    const = {"fixed": nets.u_train, "orp": u_orp, "matched": u_match}
     methods: dict[str, Any] = {"recnn": RecNNAlone(renderer, pattern, recnn, opts),
                                "imls_fixed": IMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, recnn, opts)}
 
@@ -214,21 +251,29 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     methods["iml_orp"] = IMLPlusRecNN(renderer, pattern, iml, recnn, opts, mean=clamp_mean(u_orp))
     methods["iml_adaptive"] = AdaptiveIMLPlusRecNN(renderer, pattern, iml, recnn, predictor, opts)
     methods["iml_oracle"] = AdaptiveIMLPlusRecNN(renderer, pattern, iml, recnn, oracle, opts)
+    return SimpleNamespace(methods=methods, views_t=views_t, u_pred=u_pred, u_match=u_match, adaptive_ipr_est=adaptive_ipr_est,
+                           u_train=nets.u_train, u_orp=u_orp)
 
+
+def measure_trajectory(s, cache, ev: MeanLabels, run: SimpleNamespace) -> tuple[list[dict[str, Any]], dict[str, list[dict[str, float]]]]:
+    """Every method on every evaluated view: ``(per-view records, stage times of the timed methods)``."""
+    from tqdm import tqdm
+
+    from ..evaluation import measure, spaced
+
+    rows = ev.rows
     timed = {"recnn", "imls_fixed", "imls_adaptive"}
     timing_pos = set(spaced(len(rows), s.timing_views).tolist()) if s.timing_views else set()
     per_view: list[dict[str, Any]] = []
     lat: dict[str, list[dict[str, float]]] = {k: [] for k in timed}
-    from tqdm import tqdm
-
     for i in tqdm(range(len(rows)), desc=f"evaluate {s.views}", unit="view", file=sys.stderr, disable=not s.progress,
                   dynamic_ncols=True):
         r = int(rows[i])
         view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
         rec: dict[str, Any] = {"view": i, "row": r, "complexity": float(ev.complexity[i]), "u_label": float(ev.u[i]),
-                               "label_met": bool(ev.met[i]), "u_pred": float(u_pred[i]), "u_fixed": u_train,
-                               "u_orp": u_orp, "u_matched": u_match}
-        for name, method in methods.items():
+                               "label_met": bool(ev.met[i]), "u_pred": float(run.u_pred[i]), "u_fixed": run.u_train,
+                               "u_orp": run.u_orp, "u_matched": run.u_match}
+        for name, method in run.methods.items():
             reps = s.repeats if (name in timed and i in timing_pos) else 1
             fields_, _, _ = measure(method, view, truth, reps, 1 if reps > 1 else 0)
             rec[f"psnr_{name}"] = fields_["psnr"]
@@ -236,37 +281,40 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
             if reps > 1:
                 lat[name].append({k[:-3]: v for k, v in fields_.items() if k.endswith("_ms")})
         per_view.append(rec)
-    timing["evaluate_s"] = round(time.perf_counter() - t_eval, 2)
+    return per_view, lat
 
-    # -- 4. trade-off curve: fixed means vs the predictor at several margins, on the label source's path --
-    trade = None
-    if s.tradeoff_means:
-        t0 = time.perf_counter()
-        with torch.inference_mode():
-            u_raw = predictor.log_mean(views_t).exp().double().cpu().numpy()
-        fixed_us = np.exp(np.linspace(math.log(0.05), 0.0, s.tradeoff_means)) if s.tradeoff_means > 1 else np.array([u_train])
-        means: dict[str, Any] = {f"fixed:{u:.6g}": float(u) for u in fixed_us}
-        means.update({f"adaptive x{mg:g}": u_raw * mg for mg in s.tradeoff_margins})
-        means["oracle (labels)"] = ev.u
-        if s.reference == "iml":  # the reference is the path itself at the trained mean: measured in the same pass
-            means["reference"] = u_train
-        q = quality_at_means(cache, rows, pattern, iml, recnn, means, source=s.label_source, ims=ims, lift=lift,
-                             batch_size=s.batch_size, device=device, progress=s.progress)
-        ref_psnr = q.pop("reference" if s.reference == "iml" else "recnn")["psnr"]
-        q.pop("recnn", None)
-        curve, compared = tradeoff(ref_psnr, {float(k[6:]): v for k, v in q.items() if k.startswith("fixed:")},
-                                   {k: v for k, v in q.items() if not k.startswith("fixed:")}, s.epsilon_db)
-        trade = {"curve": curve, "points": compared, "seconds": round(time.perf_counter() - t0, 2)}
-        write_csv(out / "tradeoff.csv", [{"setting": f"fixed u={r['u']:.5g}", **r} for r in curve] +
-                   [{"setting": p.name, "u": None, "ipr": p.ipr, "psnr": p.psnr, "within": p.within, "fixed_psnr": p.fixed_psnr,
-                     "fixed_ipr": p.fixed_ipr, "fixed_within": p.fixed_within} for p in compared])
-        plot_tradeoff(out / "tradeoff.png", curve, compared, s.epsilon_db, s.label_source)
-        timing["tradeoff_s"] = trade["seconds"]
-    timing["total_s"] = round(time.perf_counter() - t_start, 2)
 
-    # -- report ----------------------------------------------------------------------------------------
+def tradeoff_curve(s, cache, ev: MeanLabels, nets, predictor, views_t: torch.Tensor, out: Path) -> dict[str, Any]:
+    """Step 4: fixed means vs the predictor at several margins, on the label source's path;
+    ``tradeoff.csv`` and ``tradeoff.png`` written, ``{"curve", "points", "seconds"}`` returned."""
+    t0 = time.perf_counter()
+    u_train = nets.u_train
+    with torch.inference_mode():
+        u_raw = predictor.log_mean(views_t).exp().double().cpu().numpy()
+    fixed_us = np.exp(np.linspace(math.log(0.05), 0.0, s.tradeoff_means)) if s.tradeoff_means > 1 else np.array([u_train])
+    means: dict[str, Any] = {f"fixed:{u:.6g}": float(u) for u in fixed_us}
+    means.update({f"adaptive x{mg:g}": u_raw * mg for mg in s.tradeoff_margins})
+    means["oracle (labels)"] = ev.u
+    if s.reference == "iml":  # the reference is the path itself at the trained mean: measured in the same pass
+        means["reference"] = u_train
+    q = quality_at_means(cache, ev.rows, nets.pattern, nets.iml, nets.recnn, means, source=s.label_source, ims=nets.ims,
+                         lift=nets.lift, batch_size=s.batch_size, device=nets.device, progress=s.progress)
+    ref_psnr = q.pop("reference" if s.reference == "iml" else "recnn")["psnr"]
+    q.pop("recnn", None)
+    curve, compared = tradeoff(ref_psnr, {float(k[6:]): v for k, v in q.items() if k.startswith("fixed:")},
+                               {k: v for k, v in q.items() if not k.startswith("fixed:")}, s.epsilon_db)
+    trade = {"curve": curve, "points": compared, "seconds": round(time.perf_counter() - t0, 2)}
+    write_csv(out / "tradeoff.csv", [{"setting": f"fixed u={r['u']:.5g}", **r} for r in curve] +
+              [{"setting": p.name, "u": None, "ipr": p.ipr, "psnr": p.psnr, "within": p.within, "fixed_psnr": p.fixed_psnr,
+                "fixed_ipr": p.fixed_ipr, "fixed_within": p.fixed_within} for p in compared])
+    plot_tradeoff(out / "tradeoff.png", curve, compared, s.epsilon_db, s.label_source)
+    return trade
+
+
+def summarize_methods(s, names, per_view: list[dict[str, Any]], lat: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, Any]]:
+    """Per method: mean IPR and PSNR, the gaps to the RecNN alone and to its reference, the share of views
+    within epsilon of the reference, and the mean stage times of the timed methods."""
     eps = s.epsilon_db
-    names = list(methods)
     summ: dict[str, dict[str, Any]] = {}
     base = np.array([r["psnr_recnn"] for r in per_view])
     for name in names:
@@ -281,22 +329,26 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
                       "ipr_min": float(ip.min()), "ipr_max": float(ip.max())}
         if lat.get(name):
             summ[name]["latency_ms"] = {k: float(np.mean([d.get(k, 0.0) for d in lat[name]])) for k in lat[name][0]}
-    csv_rows = per_view
-    write_csv(out / "adaptive.csv", csv_rows)
-    plot_per_view(out / "adaptive.png", per_view, eps, s.reference)
-    md = markdown(s, cfg, ims, cache, summ, per_view, hist, timing, labels, u_train, u_orp, orp_res, u_match,
-                   adaptive_ipr_est, out, command or _command(), trade)
+    return summ
+
+
+def write_results(out: Path, s, cfg, summ, trade, timing, hist, u_train: float, u_orp: float, u_match: float, u_pred) -> None:
+    """``adaptive.json`` (the summary, the trade-off, the timing, the means) and ``config.yaml``."""
+    from omegaconf import OmegaConf
+
+    from ..config import to_plain
+    from ..report import atomic_write_text
+
     trade_json = None if trade is None else {"curve": trade["curve"], "points": [
         {**p.__dict__, "d_psnr": p.d_psnr, "d_ipr": p.d_ipr} for p in trade["points"]]}
     atomic_write_text(out / "adaptive.json", json.dumps({"summary": summ, "tradeoff": trade_json, "timing": timing, "predictor": hist,
-                                                             "u_train": u_train, "u_orp": u_orp, "u_matched": u_match,
-                                                             "u_adaptive": {"median": float(np.median(u_pred)), "min": float(u_pred.min()),
-                                                                            "max": float(u_pred.max())},
-                                                             "epsilon_db": eps}, indent=2, default=str))
+                                                         "u_train": u_train, "u_orp": u_orp, "u_matched": u_match,
+                                                         "u_adaptive": {"median": float(np.median(u_pred)), "min": float(u_pred.min()),
+                                                                        "max": float(u_pred.max())},
+                                                         "epsilon_db": s.epsilon_db}, indent=2, default=str))
     atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(
         {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg} | {"settings": s.hashed(), "ims_checkpoint": s.ims,
                                                                                     "recnn_checkpoint": s.recnn})))
-    return atomic_write_text(out / "adaptive.md", md)
 
 
 def _command() -> str:

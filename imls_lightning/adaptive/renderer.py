@@ -4,19 +4,15 @@ each view.
 """
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import nn
 
+from ..evaluation.measurement import view_tensor
 from ..inference.checkpoints import load_ims_nets, renderer_for, require_pim_target, require_recnn
 from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, StageTimer
 from ..models.ims import IMSMaskHead
 from .labels import im_at_means, iml_pim
 from .predictor import MeanPredictor
-
-
-def _view_tensor(view, device: torch.device) -> torch.Tensor:
-    return torch.as_tensor(np.asarray(view, np.float32))[None].to(device)
 
 
 def _mean_of(predictor: nn.Module, v: torch.Tensor) -> torch.Tensor:
@@ -90,10 +86,10 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
     def mean_for(self, view) -> float:
         """The predictor's ``u_v`` for one view (no rendering)."""
         with torch.inference_mode():
-            return float(_mean_of(self.predictor, _view_tensor(view, self.device))[0])
+            return float(_mean_of(self.predictor, view_tensor(view, self.device))[0])
 
     def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
-        v = _view_tensor(view, self.device)
+        v = view_tensor(view, self.device)
         with timer.stage("mean"):
             u = _mean_of(self.predictor, v)
         info["mean"] = float(u[0])
@@ -119,7 +115,7 @@ class AdaptiveIMLPlusRecNN(IMLPlusRecNN):
 
     def _importance(self, c: torch.Tensor, view, timer: StageTimer, info: dict) -> torch.Tensor:
         with timer.stage("mean"):
-            u = _mean_of(self.predictor, _view_tensor(view, self.device))
+            u = _mean_of(self.predictor, view_tensor(view, self.device))
         info["mean"] = float(u[0])
         with timer.stage("importance"), self.opts.autocast(self.device):
             return im_at_means(self.iml, iml_pim(getattr(self.iml, "_orig_mod", self.iml), c), u)

@@ -28,7 +28,7 @@ from .tables import (
 
 @dataclass
 class ReportContext:
-    """Everything :func:`write_report` formats (filled by :func:`imls_lightning.evaluate.evaluate`).
+    """Everything :func:`write_report` formats (filled by :func:`imls_lightning.evaluation.evaluate`).
 
     ``rows`` / ``sweep_rows`` / ``option_rows`` are the rows of metrics.csv / sweep.csv / options.csv;
     ``grid`` is :func:`plot_image_grid`'s input; ``order`` the evaluated methods in table order.
@@ -132,10 +132,49 @@ def write_report(ctx: ReportContext) -> Path:
 
 
 def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figures: Sequence[tuple[str, str]]) -> str:
-    """The text of report.md (paper-style tables; see :func:`write_report`)."""
+    """The text of report.md (paper-style tables; see :func:`write_report`), section by section."""
     L: list[str] = []
     L.append(f"# IML/S evaluation: {ctx.scene}, {ctx.recnn_name}")
     L.append("")
+    L.extend(_header_lines(ctx))
+    L.append("## Average latency per method and stage (ms)")
+    L.append("")
+    L.append(latency_table(summ, order, reference="recnn"))
+    L.append("")
+    L.append("IPR: ray-cast important pixels / FR pixels (the RecNN alone and IML + RecNN ray-cast their whole "
+             "pattern; IML + RecNN's IPR is the IML mask it keeps). C-Image share: important / pattern pixels. "
+             "Total: median of the per-run sums of the stages.")
+    L.append("")
+
+    if ctx.orp is not None:
+        L.extend(_orp_lines(ctx.orp, ctx.views))
+
+    if ctx.front:
+        L.extend(_front_lines(ctx))
+
+    if "imls" in summ:
+        L.append("## Speed-up of IML/S + RecNN")
+        L.append("")
+        L.append(speedup_table(summ))
+        L.append("")
+
+    L.append("## Average image quality")
+    L.append("")
+    L.append(quality_table(ctx.rows, summ, order))
+    L.append("")
+    if "full" in summ:
+        L.append("Ground truth = the cache's full ray cast by the same renderer, so the full ray cast scores "
+                 "100 dB (identical images; the PSNR is capped there) unless the renderer is not deterministic.")
+        L.append("")
+
+    L.extend(_sweep_and_option_lines(ctx, points))
+    L.extend(_notes_lines(ctx, figures))
+    return "\n".join(L)
+
+
+def _header_lines(ctx: ReportContext) -> list[str]:
+    """The table of what was evaluated, how, where and with which checkpoints."""
+    L: list[str] = []
     n_views = len(ctx.positions)
     opts = ", ".join(f"{k}={v}" for k, v in ctx.options.items())
     mach = ctx.machine or {}
@@ -162,72 +201,53 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         header.append(("LAS IPR", fmt_pct(ctx.las_ipr, 2)))
     L.append(md_table(["", ""], [(k, str(v).replace("|", "\\|")) for k, v in header], "ll"))
     L.append("")
+    return L
 
-    L.append("## Average latency per method and stage (ms)")
-    L.append("")
-    L.append(latency_table(summ, order, reference="recnn"))
-    L.append("")
-    L.append("IPR: ray-cast important pixels / FR pixels (the RecNN alone and IML + RecNN ray-cast their whole "
-             "pattern; IML + RecNN's IPR is the IML mask it keeps). C-Image share: important / pattern pixels. "
-             "Total: median of the per-run sums of the stages.")
-    L.append("")
 
-    if ctx.orp is not None:
-        o = ctx.orp
-        L.append("## ORP on the product path")
+def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
+    """The section ``ORP on the product path``: the rule, the point found, its gaps and the search's points."""
+    L: list[str] = []
+    L.append("## ORP on the product path")
+    L.append("")
+    conf, m = o.get("confidence"), o.get("future_views")
+    where = o.get("where") or "the validation views"
+    if conf is not None and conf > 0.5 and m:
+        rule = (f"the one-sided {fmt_pct(conf, 0)} upper bound on the mean gap the {m} evaluated views will show "
+                "(mean + z·std·√(1/n + 1/m) over the n search views' per-view gaps: a margin for views it was not chosen on)")
+    elif conf is not None and conf > 0.5:
+        rule = (f"the one-sided {fmt_pct(conf, 0)} upper confidence bound on its mean per-view gap (mean + z·std/√n over "
+                "the n search views: a margin for views it was not chosen on)")
+    else:
+        rule = "its mean gap"
+    if o["found"]:
+        L.append(f"The smallest mean value u whose IML/S + RecNN (IMS mask from the view, exactly those pixels "
+                 f"ray-cast, IML decoder, RecNN) stays within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN alone on "
+                 f"{where}, judged by {rule}: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
+                 f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB (bound {fmt(o.get('gap_bound_db'), 2)} dB; "
+                 f"{o['evaluations']} means tried). IML/S + RecNN "
+                 "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u"
+                 + (", lifted so that its share of C reaches u)." if o.get("lift") else ", not lifted).") )
+    else:
+        L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
+                 f"alone on {where}, judged by {rule}; IML/S runs at its trained mean.")
+    L.append("")
+    L.extend(_gap_lines(o, views))
+    L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
+                      [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["points"]], "rrrr"))
+    L.append("")
+    if o.get("rescale_points"):
+        L.append("The paper's rescale (`ims_lift=false`) found no ORP first: its share of C saturates. Its search:")
         L.append("")
-        conf, m = o.get("confidence"), o.get("future_views")
-        where = o.get("where") or "the validation views"
-        if conf is not None and conf > 0.5 and m:
-            rule = (f"the one-sided {fmt_pct(conf, 0)} upper bound on the mean gap the {m} evaluated views will show "
-                    "(mean + z·std·√(1/n + 1/m) over the n search views' per-view gaps: a margin for views it was not chosen on)")
-        elif conf is not None and conf > 0.5:
-            rule = (f"the one-sided {fmt_pct(conf, 0)} upper confidence bound on its mean per-view gap (mean + z·std/√n over "
-                    "the n search views: a margin for views it was not chosen on)")
-        else:
-            rule = "its mean gap"
-        if o["found"]:
-            L.append(f"The smallest mean value u whose IML/S + RecNN (IMS mask from the view, exactly those pixels "
-                     f"ray-cast, IML decoder, RecNN) stays within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN alone on "
-                     f"{where}, judged by {rule}: **u = {fmt(o['mean'], 4)}**, C-share {fmt_pct(o['c_share'])}, IPR "
-                     f"{fmt_pct(o['ipr'], 2)}, gap {fmt(o['gap_db'], 2)} dB (bound {fmt(o.get('gap_bound_db'), 2)} dB; "
-                     f"{o['evaluations']} means tried). IML/S + RecNN "
-                     "and IML + RecNN below run at this u (one IMS regressing PIM', rescaled to u"
-                     + (", lifted so that its share of C reaches u)." if o.get("lift") else ", not lifted).") )
-        else:
-            L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
-                     f"alone on {where}, judged by {rule}; IML/S runs at its trained mean.")
-        L.append("")
-        L.extend(_gap_lines(o, ctx.views))
         L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
-                          [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["points"]], "rrrr"))
+                          [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["rescale_points"]],
+                          "rrrr"))
         L.append("")
-        if o.get("rescale_points"):
-            L.append("The paper's rescale (`ims_lift=false`) found no ORP first: its share of C saturates. Its search:")
-            L.append("")
-            L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
-                              [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["rescale_points"]],
-                              "rrrr"))
-            L.append("")
+    return L
 
-    if ctx.front:
-        L.extend(_front_lines(ctx))
 
-    if "imls" in summ:
-        L.append("## Speed-up of IML/S + RecNN")
-        L.append("")
-        L.append(speedup_table(summ))
-        L.append("")
-
-    L.append("## Average image quality")
-    L.append("")
-    L.append(quality_table(ctx.rows, summ, order))
-    L.append("")
-    if "full" in summ:
-        L.append("Ground truth = the cache's full ray cast by the same renderer, so the full ray cast scores "
-                 "100 dB (identical images; the PSNR is capped there) unless the renderer is not deterministic.")
-        L.append("")
-
+def _sweep_and_option_lines(ctx: ReportContext, points) -> list[str]:
+    """The sections ``Learned parts against untrained baselines``, ``Latency / PSNR sweep`` and ``Inference options``."""
+    L: list[str] = []
     if ctx.equal_share:
         L.append("## Learned parts against untrained baselines, at equal share")
         L.append("")
@@ -258,7 +278,12 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         L.append("")
         L.append(options_table(ctx.option_rows))
         L.append("")
+    return L
 
+
+def _notes_lines(ctx: ReportContext, figures: Sequence[tuple[str, str]]) -> list[str]:
+    """The sections ``Notes`` and ``Figures``."""
+    L: list[str] = []
     L.append("## Notes")
     L.append("")
     for note in ctx.notes:
@@ -278,7 +303,7 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
         L.append("")
         L.append(_md_image(name, alt))
         L.append("")
-    return "\n".join(L)
+    return L
 
 
 def _gap_lines(o: dict[str, Any], split: str = "test") -> list[str]:

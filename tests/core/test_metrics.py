@@ -57,7 +57,7 @@ def test_ssim_metric_is_torchmetrics():
 
 def test_evaluation_and_training_logs_agree_to_the_last_digit():
     """The report's per-view numbers (evaluate.image_quality) are the training logs' functions."""
-    from imls_lightning.evaluate import image_quality
+    from imls_lightning.evaluation import image_quality
 
     g = np.random.default_rng(0)
     truth = g.integers(0, 256, (32, 32, 3), dtype=np.uint8)

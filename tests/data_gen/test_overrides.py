@@ -51,7 +51,7 @@ def test_non_ascii_command_line_values_read_back_unchanged():
 
 
 def test_every_caller_uses_it():
-    from imls_lightning import bench
+    from imls_lightning.pipelines import bench
     from imls_lightning.orp import overrides as orp_overrides
 
     assert bench.quote_override_value is orp_overrides.quote_override_value is quote_override_value

@@ -344,7 +344,7 @@ def test_exception_cuda_without_cuda():
 def test_full_mask_gives_the_recnn_alone_exactly(env):
     """C-share 100 %: IML/S + RecNN and IML + RecNN equal the RecNN alone (the refine decoder passes
     rendered pixels through), within 0.1 dB (here: bit for bit)."""
-    from imls_lightning.evaluate import image_quality
+    from imls_lightning.evaluation import image_quality
 
     ims = env["ims"]
     valid = ims.pattern.valid.bool()[None, None]

@@ -1,0 +1,69 @@
+"""Measuring one method on one view: its stage times (medians, :func:`~imls_lightning.inference.pipeline.time_method`)
+and its image scored against the ground truth (PSNR, SSIM); the views measured (:func:`spaced`) and the
+view as the networks' input (:func:`view_tensor`)."""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..inference.pipeline import Method, time_method
+
+
+def view_tensor(view, device) -> torch.Tensor:
+    """A view's 9 numbers as the networks' input: a ``(1, 9)`` float32 tensor on ``device`` (a copy: the
+    cache's views are read-only memory maps, which torch warns on).
+
+    Example:
+        >>> view_tensor([0, 0, 3.5, 0, 0, 0, 0, 1, 0], "cpu").shape
+        torch.Size([1, 9])
+    """
+    return torch.from_numpy(np.array(view, np.float32))[None].to(device)
+
+
+def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """PSNR (dB, 100 for identical images) and SSIM of two ``(m, m, 3)`` uint8 images, by the same
+    functions as the training logs (:mod:`imls_lightning.core.metrics`)."""
+    from ..core.metrics import psnr, ssim_metric
+
+    # np.array copies: the cache's images are read-only memory maps (torch warns on those)
+    p = torch.from_numpy(np.array(image)).permute(2, 0, 1)[None].float().div(255.0)
+    t = torch.from_numpy(np.array(truth)).permute(2, 0, 1)[None].float().div(255.0)
+    return float(psnr(p, t)), float(ssim_metric(p, t))
+
+
+def measure(method: Method, view: np.ndarray, truth: np.ndarray, repeats: int, warmup: int,
+            **run_args: Any) -> tuple[dict[str, Any], np.ndarray, dict[str, Any]]:
+    """Time one method on one view and score it: ``(metric row fields, image, info)``."""
+    image, med, info = time_method(method, view, repeats=repeats, warmup=warmup, **run_args)
+    q_psnr, q_ssim = image_quality(image, truth)
+    row: dict[str, Any] = {f"{k}_ms": 1e3 * v for k, v in med.items() if k != "total"}
+    row["total_ms"] = 1e3 * med["total"]
+    row.update(ipr=info.get("ipr"), c_share=info.get("c_share"), rendered_pixels=info.get("rendered_pixels"),
+               psnr=q_psnr, ssim=q_ssim)
+    return row, image, info
+
+
+def spaced(n: int, k: int | None) -> np.ndarray:
+    """``k`` indices evenly spaced over ``range(n)`` (all when ``k`` is None or >= n)."""
+    if k is None or k >= n:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, k).round().astype(np.int64))
+
+
+def progress_bar(iterable, total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(iterable, total=total, desc=desc, unit="view", file=sys.stderr, disable=not enabled, dynamic_ncols=True)
+
+
+def view_loader(cache, rows, pattern, batch_size: int = 16):
+    """The cache's ``rows`` in batches of ``view``, ``fr`` and ``c`` (the ORP search and the equal-share baselines)."""
+    from torch.utils.data import DataLoader
+
+    from ..data.datamodule import ViewImageDataset
+
+    ds = ViewImageDataset(cache.path, np.asarray(rows), pattern, fields=("view", "fr", "c"))
+    return DataLoader(ds, batch_size=batch_size, shuffle=False, num_workers=0)

@@ -1,0 +1,150 @@
+"""The operating point (ORP) of an evaluation: searched on the product path on views no network was
+trained on (:func:`orp_search_views`, :func:`product_path_orp`, with the IMS's masks lifted when the
+paper's rescale finds none: :func:`orp_with_lift`), summarized for the report (:func:`orp_summary`,
+:func:`paired_gap`) and recorded beside the IMS checkpoint (:func:`record_operating_point`)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from data_gen.errors import InputError
+
+from ..inference.baselines import product_orp
+from .measurement import spaced, view_loader
+from .networks import Networks
+from .settings import Settings
+
+
+def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report: Path, views: int) -> None:
+    """Record the ORP IML/S ran at beside the IMS checkpoint (``<ims.ckpt>.orp.json``, see
+    :mod:`imls_lightning.inference.operating_point`), where renderers built from the checkpoint alone
+    find it; a folder that cannot be written is a one-line warning (the report holds the point)."""
+    from ..inference.operating_point import OperatingPoint, write_operating_point
+
+    opt = lambda k: None if orp.get(k) is None else float(orp[k])  # noqa: E731
+    point = OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
+                           ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
+                           scene=scene, report=str(Path(report).resolve()))
+    try:
+        path = write_operating_point(s.ims, point)
+    except OSError as err:
+        print(f"[evaluate] warning: cannot record the operating point beside {s.ims} ({err.strerror or type(err).__name__}): "
+              "renderers built from the checkpoint alone run at its trained mean", file=sys.stderr, flush=True)
+        return
+    print(f"[evaluate] operating point {point.describe()} recorded for the IMS checkpoint: {path}", file=sys.stderr, flush=True)
+
+
+def orp_search_views(s: Settings, cfg, cache, scene):
+    """The views the ORP is searched on: ``(cache, rows, description)``.
+
+    ``orp_views=val``: ``orp_max_views`` of the cache's validation views, evenly spaced. ``heldout``
+    (default): ``orp_max_views`` views (null: as many as the cache has validation views) drawn like the
+    training views but from a seed of their own (``orp_views_seed``; null: ``data.seed + 1``), rendered
+    into a cache of their own (``data.num_views`` of them, no trajectory): no network was trained on them
+    nor on their eye directions. The validation split is not held out from an IMS trained on a larger
+    cache of the same seed (the demo's 1,500 views): the first training draws of both caches share their
+    eye directions (:func:`data_gen.views.sample_training_views`).
+    """
+    from data_gen.cache import ViewImageCache, ensure_cache
+
+    val = cache.splits["val"]
+    if s.orp_views == "val":
+        if len(val) == 0:
+            raise InputError(f"orp=true: the cache {cache.path} has no validation views to search the ORP on; pass orp=false")
+        rows = val[spaced(len(val), s.orp_max_views)]
+        return cache, rows, f"{len(rows)} of the cache's validation views"
+    n = s.orp_max_views or max(len(val), 1)
+    seed = int(cfg.data.seed) + 1 if s.orp_views_seed is None else int(s.orp_views_seed)
+    # a cache of its own (never cache_path, the evaluated cache's exact folder), rendered whole (no shard)
+    data = OmegaConf.merge(cfg.data, {"num_views": int(n), "seed": seed, "test_views": 0, "val_fraction": 0.0,
+                                      "test_trajectory": None, "cache_path": None, "shard": None})
+    held = ViewImageCache.open(ensure_cache(scene, data, cfg.renderer, progress=s.progress))
+    return held, held.splits["train"], f"{n} held-out views (seed {seed}: no network trained on them)"
+
+
+def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
+    """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
+    its bound is for the mean gap of ``future_views`` new views (the evaluated ones)."""
+    cache, rows, where = orp_search_views(s, cfg, cache, scene)
+    print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
+          f"{future_views or 'all'} new views", file=sys.stderr, flush=True)
+    ims = nets.ims_task.to(device)
+    with torch.inference_mode():
+        batches = list(view_loader(cache, rows, pattern))
+        recnn = nets.recnn.to(device).eval()
+        result = orp_with_lift(lambda lift: product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device,
+                                                        confidence=s.orp_confidence, lift=lift, future_views=future_views),
+                               s.ims_lift)
+    result.where = where
+    return result
+
+
+def orp_with_lift(search: Callable[[bool], Any], lift: bool | str) -> Any:
+    """Run the ORP ``search(lift)`` with the IMS's masks lifted or not, as ``lift`` says (``ims_lift``).
+
+    ``auto``: the paper's rescale first; when it finds no ORP (its share saturates short of
+    the bound), search again with the masks lifted to their mean value, which then stay lifted for the
+    rest of the evaluation. The result keeps the first search's points as ``rescale_points``, and
+    ``lifted``: whether its masks were lifted.
+    """
+    lifted = lift is True
+    result = search(lifted)
+    if lift == "auto" and not result.found:
+        print(f"[evaluate] ORP: none with the paper's rescale (largest share {_largest_share(result):.1%} of C); "
+              "searching again with the IMS's masks lifted to their mean value (ims_lift=auto)", file=sys.stderr, flush=True)
+        lifted = True
+        plain = _points(result)
+        result = search(lifted)
+        result.rescale_points = plain  # kept for the report: what the paper's rescale reached
+    result.lifted = lifted
+    return result
+
+
+def _points(result) -> list[tuple]:
+    """``(u, mean gap, C-share, gap bound)`` of every mean value the search tried, by ``u``."""
+    return sorted(((e.u, (e.record or {}).get("gap_db"), (e.record or {}).get("c_share"), (e.record or {}).get("gap_bound_db"))
+                   for e in result.evaluations))
+
+
+def _largest_share(result) -> float:
+    shares = [(e.record or {}).get("c_share") for e in result.evaluations]
+    return max((float(x) for x in shares if x is not None), default=float("nan"))
+
+
+def paired_gap(rows: Sequence[dict[str, Any]], reference: str, method: str) -> dict[str, Any] | None:
+    """The per-view PSNR gap ``reference - method`` over the views both were scored on, summarized as the
+    ORP's validation gap is (:func:`~imls_lightning.orp.search.gap_upper_bound` at confidence 0.5: mean,
+    sample std, views) plus both mean PSNRs; ``None`` when they share no view.
+
+    Example:
+        >>> rows = [{"view": 0, "method": "recnn", "psnr": 40.0}, {"view": 0, "method": "imls", "psnr": 39.0},
+        ...         {"view": 1, "method": "recnn", "psnr": 38.0}, {"view": 1, "method": "imls", "psnr": 36.0}]
+        >>> paired_gap(rows, "recnn", "imls")["gap_db"]
+        1.5
+    """
+    from ..orp import gap_upper_bound
+
+    ref = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == reference and r.get("psnr") is not None}
+    got = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == method and r.get("psnr") is not None}
+    views = sorted(set(ref) & set(got))
+    if not views:
+        return None
+    b = gap_upper_bound([ref[v] - got[v] for v in views], 0.5)
+    return {"gap_db": b.mean, "gap_std_db": b.std, "views": b.views, "psnr_recnn": float(np.mean([ref[v] for v in views])),
+            "psnr_imls": float(np.mean([got[v] for v in views]))}
+
+
+def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
+    best = result.best
+    rec = best.record if best is not None else {}
+    return {"found": result.found, "mean": result.mean, "epsilon_db": s.epsilon_db, "gap_db": rec.get("gap_db"),
+            "gap_std_db": rec.get("gap_std_db"), "gap_bound_db": rec.get("gap_bound_db"), "views": rec.get("views"),
+            "confidence": s.orp_confidence, "future_views": rec.get("future_views"), "where": getattr(result, "where", None),
+            "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
+            "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations), "lift": lifted,
+            "points": _points(result), "rescale_points": getattr(result, "rescale_points", None)}

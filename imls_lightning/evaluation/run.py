@@ -1,0 +1,262 @@
+"""The evaluation itself, :func:`evaluate`, in named steps: where the results go (and whether a finished
+run of the same settings is reused), the views, the ORP, the methods, the measurement view by view
+(the sweeps right after each sweep view's methods), the untrained baselines, the options sweep, and
+the files and the report. ``python -m imls_lightning.evaluate`` parses its config and calls it."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from data_gen.errors import InputError
+
+from .. import report as rep
+from ..config import file_hash, settings_hash, to_plain
+from ..inference.pipeline import FullRayCast, IMLPlusRecNN, IMLSRenderer, LASMethod, Method, RecNNAlone, pick_device
+from ..models.iml import FillDecoder
+from .baselines import blue_noise_method, equal_share, sparser_method
+from .measurement import measure, progress_bar, spaced, view_tensor
+from .networks import Networks, check_trained_on, load_networks, recnn_name
+from .operating_point import orp_summary, paired_gap, product_path_orp, record_operating_point
+from .settings import Settings, parse_settings
+from .sweeps import Sweeps, front_notes, options_sweep
+
+#: the checkpoint keys of ``checkpoints.<key>`` and the settings that name them
+CHECKPOINT_KEYS = ("ims", "las", "recnn", "iml", "blue_noise", "recnn_sparser")
+
+
+def sample_distance_voxels(scene, renderer_cfg) -> float | None:
+    """The scene's ray-marching step in voxels (:func:`data_gen.scene.voxel_size`), for the reports."""
+    from data_gen.scene import voxel_size
+
+    try:
+        return float(scene.sample_distance) / float(voxel_size(scene.volume))
+    except (AttributeError, TypeError, ValueError, ZeroDivisionError):
+        return None
+
+
+def command_line() -> str:
+    """The command that ran this evaluation, for the report."""
+    from ..report import hydra_command
+
+    return hydra_command("imls_lightning.evaluate", "evaluate(cfg) through the Python API (settings: config.yaml)")
+
+
+def checkpoint_paths(s: Settings) -> dict[str, str]:
+    """``{key: path}`` of the checkpoints given; a missing file is a one-line :class:`InputError`."""
+    paths = {k: p for k, p in ((k, getattr(s, k)) for k in CHECKPOINT_KEYS) if p}
+    for k, p in paths.items():
+        if not Path(str(p)).expanduser().is_file():
+            raise InputError(f"checkpoints.{k}={p}: file not found")
+    return paths
+
+
+def output_dir(cfg: DictConfig, s: Settings, scene, rcfg: dict[str, Any], paths: dict[str, str]) -> Path:
+    """The evaluation's folder: ``output_dir``, else ``<runs_dir>/eval/<scene>-<recnn>-<hash>``, the hash of
+    the checkpoints' bytes and every setting that changes the results (no network is built)."""
+    from data_gen.renderers import renderer_pixel_settings
+
+    ck_hashes = {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}
+    run_hash = settings_hash(ck_hashes, cfg.scene, cfg.data, renderer_pixel_settings(rcfg), s.hashed())
+    if s.output_dir:
+        return Path(s.output_dir)
+    return Path(str(cfg.paths.runs_dir)) / "eval" / f"{scene.name}-{recnn_name(s)}-{run_hash}"
+
+
+def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
+    """The cache (rendered if missing), the rows of the evaluated split and the evaluated positions in it."""
+    from data_gen.cache import ViewImageCache, ensure_cache
+
+    cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
+    if cache.resolution != resolution:
+        raise InputError(f"data.resolution={resolution}: the cache {cache.path} holds {cache.resolution}^2 images")
+    rows_all = cache.splits[s.views]
+    if len(rows_all) == 0:
+        raise InputError(f"views={s.views}: the cache {cache.path} has no {s.views} views")
+    return cache, rows_all, spaced(len(rows_all), s.max_views)
+
+
+def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str]):
+    """The ORP on the product path (validation views): ``(result | None, mean IML/S runs at | None, lift)``."""
+    ims = nets.ims_task
+    orp_result, imls_mean, lift = None, None, s.ims_lift is True  # lift: IML/S's masks lifted to their share
+    if s.orp and ims.target == "pim":
+        orp_result = product_path_orp(s, cfg, cache, scene, nets, ims.pattern, device, future_views=len(positions))
+        lift = orp_result.lifted
+        if orp_result.found:
+            imls_mean = float(orp_result.mean)
+        else:
+            notes.append(f"ORP: no mean value in [0.01, 1] brings IML/S within {s.epsilon_db} dB of the RecNN alone on the "
+                         "validation views; IML/S runs at its trained mean.")
+    elif s.orp:
+        notes.append(f"ORP search skipped: the IMS was trained with model.target={ims.target}, whose binary mask cannot be "
+                     "rescaled to another mean (train the IMS with model.target=pim).")
+    return orp_result, imls_mean, lift
+
+
+def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list[float]:
+    """The pixels IML/S's mask selects on each evaluated view (the IMS network alone, no rendering)."""
+    with torch.inference_mode():
+        return [float(imls.predict_im(view_tensor(cache.views[rows_all[p]], device)).sum()) for p in positions]
+
+
+def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
+                  imls_mean: float | None, lift: bool, notes: list[str]) -> tuple[dict[str, Method], float | None]:
+    """Every method measured (the networks are shared between methods with the same options) and the
+    IPR LAS runs at (None without LAS)."""
+    opts, pattern, ims = s.options, nets.ims_task.pattern, nets.ims_task
+    imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift)
+    methods: dict[str, Method] = {
+        "full": FullRayCast(renderer, m, opts),
+        "recnn": RecNNAlone(renderer, pattern, nets.recnn, opts),
+        **({"recnn_sparser": sparser_method(renderer, nets.recnn_sparser, opts)} if nets.recnn_sparser is not None else {}),
+        "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts, mean=imls_mean),
+        "imls": imls,
+        "imls_fill": IMLSRenderer(renderer, pattern, imls.predict_im, FillDecoder(pattern), nets.recnn, opts),
+    }
+    las_ipr_used = None
+    if nets.las_task is not None:
+        if s.las_ipr is not None:
+            las_ipr_used, how = s.las_ipr, "fixed (las_ipr)"
+        else:
+            # IML/S's mean IPR on these views: the IMS network alone (no rendering) decides it
+            mean_ipr = float(np.mean([int(c) for c in _imls_counts(imls, cache, rows_all, positions, device)])) / m**2
+            las_ipr_used, how = max(mean_ipr, 1.0 / m**2), "matched to IML/S's mean IPR on these views"
+            if mean_ipr < 1.0 / m**2:
+                notes.append(f"IML/S selects no pixel on these views (IPR 0): LAS runs at the smallest IPR, 1 pixel ({las_ipr_used:.2e}).")
+        methods["las"] = LASMethod(renderer, nets.las_task.net, m, int(nets.las_task.hparams["low_res"]), ipr=las_ipr_used, opts=opts)
+        notes.append(f"LAS at IPR {las_ipr_used:.4f}, {how}; its mean u is bisected per view outside the timed stages (LAS's evaluation protocol).")
+    else:
+        notes.append("LAS skipped: no LAS checkpoint (checkpoints.las=<LAS .ckpt>, trained with python -m imls_lightning.train model=las).")
+    if nets.blue is not None:
+        shares = [c / pattern.count for c in _imls_counts(imls, cache, rows_all, positions, device)]
+        methods["blue_noise"] = blue_noise_method(renderer, pattern, nets.blue, nets.recnn, float(np.mean(shares)), opts)
+    return methods, las_ipr_used
+
+
+def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[str, Method], order: list[str],
+                  sweeps: Sweeps | None, grid_pos: set[int], timed_pos: set[int], sweep_pos: list[int]):
+    """Every method on every evaluated view, the sweeps right after a sweep view's methods:
+    ``(metric rows, sweep rows, image grid)``."""
+    rows: list[dict[str, Any]] = []
+    grid: dict[int, dict[str, Any]] = {}
+    sweep_rows: list[dict[str, Any]] = []
+    for p in progress_bar(positions, len(positions), f"evaluate {scene.name}", s.progress):
+        p = int(p)
+        r = int(rows_all[p])
+        view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
+        if p in grid_pos:
+            grid[p] = {"truth": truth}
+        timed = p in timed_pos
+        for name in order:
+            fields, image, info = measure(methods[name], view, truth, s.repeats if timed else 1, s.warmup if timed else 0)
+            if not timed:  # one untimed run: its image counts, its stage times do not
+                fields.update({k: None for k in fields if k.endswith("_ms")})
+            rows.append({"view": p, "row": r, "method": name, **fields})
+            if p in grid_pos:
+                grid[p][name] = image
+                if name == "imls":
+                    grid[p]["imls_im"] = info.get("im")
+        if sweeps is not None and p in sweep_pos:
+            sweep_rows += sweeps.run_view(p, r, view, truth)
+    return rows, sweep_rows, grid
+
+
+def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
+    """Run the evaluation described by ``cfg`` (``conf/evaluate.yaml``); returns ``report.md``'s path."""
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene
+
+    s = parse_settings(cfg)
+    resolution = int(cfg.data.resolution)
+    paths = checkpoint_paths(s)
+    check_trained_on(cfg, s)
+    scene = build_scene(cfg.scene)
+    rcfg = to_plain(cfg.renderer)
+
+    # the output directory and the reuse check need only the checkpoints' bytes and hyper-parameters:
+    # a reused run returns before any network is built (or Lightning imported)
+    out = output_dir(cfg, s, scene, rcfg, paths)
+    report_path = out / "report.md"
+    if s.reuse and report_path.is_file():
+        print(f"[evaluate] {out} already has a report of these settings; reusing it (reuse=false re-measures)", file=sys.stderr, flush=True)
+        return report_path
+    nets = load_networks(s, resolution)
+    out.mkdir(parents=True, exist_ok=True)
+    report_path.unlink(missing_ok=True)  # no report.md = no finished evaluation in this folder
+
+    cache, rows_all, positions = open_views(cfg, s, scene, resolution)
+    renderer = make_renderer(scene, rcfg)
+    device = pick_device(s.options.device)
+    notes: list[str] = []
+    orp_result, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes)
+    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes)
+    order = [k for k in rep.METHOD_ORDER if k in methods]
+
+    grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()
+    sweep_pos = [int(positions[i]) for i in spaced(len(positions), s.sweep_views)]
+    # latency on timed_views of the evaluated views (repeats runs each), quality on all of them; the sweep's
+    # views are always timed: the speed-quality front puts every method on them
+    timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
+    if len(timed_pos) < len(positions):
+        notes.append(f"Latency: stage times on {len(timed_pos)} of the {len(positions)} evaluated views (evenly spaced, "
+                     f"median of {s.repeats} runs each); PSNR and SSIM on all {len(positions)}.")
+    # the sweeps of the latency / PSNR plot and the speed-quality front: on the sweep's views, right after their methods
+    sweeps = Sweeps(s, methods, nets, renderer, s.options, resolution) if sweep_pos else None
+    rows, sweep_rows, grid = measure_views(s, scene, cache, rows_all, positions, methods, order, sweeps, grid_pos, timed_pos, sweep_pos)
+    rep.write_metrics_csv(rows, out / "metrics.csv")
+    rep.write_metrics_csv(sweep_rows, out / "sweep.csv", rep.SWEEP_COLUMNS)
+
+    # untrained baselines at equal share (cache pixels = what the selective ray cast returns)
+    shares = equal_share(s, cache, rows_all, positions, nets, nets.ims_task.pattern, device, lift) if s.shares else []
+    option_rows: list[dict[str, Any]] = []
+    if s.options_sweep:
+        opt_pos = [int(positions[i]) for i in spaced(len(positions), s.options_sweep_views)]
+        option_rows = options_sweep(s, renderer, cache, rows_all, opt_pos)
+        rep.write_metrics_csv(option_rows, out / "options.csv", rep.OPTION_COLUMNS)
+
+    results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
+                   methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp_result=orp_result,
+                   equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos)
+    return write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
+
+
+def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str, Any], cache, rows_all, nets: Networks,
+                  device, res: dict[str, Any], command: str | None) -> Path:
+    """``config.yaml``, ``summary.json`` and the report (last), then the operating point beside the IMS
+    checkpoint; returns ``report.md``'s path."""
+    m, pattern, rows, sweep_rows = int(cfg.data.resolution), nets.ims_task.pattern, res["rows"], res["sweep_rows"]
+    positions, sweep_pos, orp_result = res["positions"], res["sweep_pos"], res["orp_result"]
+    plain = {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
+    plain.update(checkpoints=to_plain(cfg.checkpoints), settings=s.hashed(), output_dir=str(out))
+    rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)))
+    orp = orp_summary(orp_result, s, lifted=res["lift"]) if orp_result is not None else None
+    if orp is not None:  # the same operating point on the evaluated (test) views, beside the validation gap
+        orp["test"] = paired_gap(rows, "recnn", "imls")
+    front = rep.front_points(rows, sweep_rows, sweep_pos,
+                             notes=front_notes(res["methods"], res["imls_mean"], orp_result, res["las_ipr"]))
+    # the machine-readable results the benchmarks collect (make bench-paper)
+    rep.atomic_write_text(out / "summary.json", json.dumps({
+        "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
+        "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "imls_mean": res["imls_mean"], "orp": orp,
+        "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "methods": rep.summarize_rows(rows),
+        "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos]}, indent=1, default=float))
+    ctx = rep.ReportContext(
+        out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,
+        pattern=pattern.summary(), renderer=str(rcfg.get("name")), views=s.views, positions=[int(p) for p in positions],
+        trajectory_len=len(rows_all), repeats=s.repeats, warmup=s.warmup, options=vars(s.options), device=str(device),
+        checkpoints={"IMS": s.ims, "RecNN": nets.recnn_source, "IML (IML + RecNN)": nets.iml_source, "LAS": s.las or "–"},
+        iml_mean=float(nets.iml.mean), rows=rows, sweep_rows=sweep_rows, option_rows=res["option_rows"], order=res["order"],
+        sweep_positions=sweep_pos, grid=res["grid"], pattern_obj=pattern, notes=res["notes"], las_ipr=res["las_ipr"],
+        machine=rep.machine_info(str(device)), command=command or command_line(), cache=str(cache.path),
+        orp=orp, equal_share=res["equal_share"], front=front,
+    )
+    report = rep.write_report(ctx)
+    if orp is not None:  # after the report: only a finished evaluation records its point
+        record_operating_point(s, orp, scene.name, report, int(orp.get("views") or 0))
+    return report

@@ -1,0 +1,166 @@
+"""The evaluation's settings: the keys of ``conf/evaluate.yaml`` validated into :class:`Settings`
+(:func:`parse_settings`); a bad value is a one-line :class:`~data_gen.errors.InputError`."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from data_gen.errors import InputError
+
+from ..config import to_plain
+from ..inference.pipeline import NetOptions
+
+MIN_REPEATS = 10
+#: the shares of C at which the speed-quality front measures IML/S + RecNN (and blue noise + decoder)
+FRONT_SHARES = (0.1, 0.2, 0.4, 0.6, 0.8, 1.0)
+#: where the ORP is searched: ``heldout`` views drawn like the training views from a seed of their own (no
+#: network trained on them), or the cache's ``val`` split (whose eye directions an IMS trained on a larger cache
+#: of the same seed has seen: sample_training_views draws every direction before any distance)
+ORP_VIEWS = ("heldout", "val")
+
+
+def _int(cfg, key: str, minimum: int, allow_none: bool = False) -> int | None:
+    v = OmegaConf.select(cfg, key)
+    if v is None and allow_none:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v or int(v) < minimum:
+        what = f"an integer >= {minimum}" + (" or null" if allow_none else "")
+        raise InputError(f"{key}={v}: expected {what}")
+    return int(v)
+
+
+def _lift(cfg) -> bool | str:
+    v = OmegaConf.select(cfg, "ims_lift", default="auto")
+    if v not in (True, False, "auto"):
+        raise InputError(f"ims_lift={v}: expected auto, true or false")
+    return v
+
+
+def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
+    v = to_plain(OmegaConf.select(cfg, key))
+    if v is None:
+        return []
+    if not isinstance(v, (list, tuple)):
+        v = [v]
+    out = []
+    for x in v:
+        try:
+            f = float(x)
+        except (TypeError, ValueError):
+            raise InputError(f"{key}={v}: expected a list of numbers in {'(' if lo_open else '['}{lo}, {hi}]") from None
+        if not (math.isfinite(f) and (f > lo if lo_open else f >= lo) and f <= hi):
+            raise InputError(f"{key}={v}: expected numbers in {'(' if lo_open else '['}{lo}, {hi}]")
+        out.append(f)
+    return out
+
+
+@dataclass
+class Settings:
+    """The evaluation's validated settings (see ``conf/evaluate.yaml``)."""
+
+    ims: str
+    las: str | None
+    recnn: str | None
+    iml: str | None
+    views: str
+    max_views: int | None
+    repeats: int
+    warmup: int
+    options: NetOptions
+    options_sweep: bool
+    options_sweep_options: list[str]
+    options_sweep_views: int
+    las_ipr: float | None
+    las_iprs: list[float]
+    mean_values: list[float]
+    sweep_views: int | None
+    grid_views: int
+    output_dir: str | None
+    reuse: bool
+    progress: bool
+    blue_noise: str | None = None
+    orp: bool = True
+    epsilon_db: float = 1.0
+    orp_max_views: int | None = 30
+    shares: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.4])
+    timed_views: int | None = None
+    ims_lift: bool | str = "auto"
+    recnn_sparser: str | None = None
+    front_shares: list[float] = field(default_factory=lambda: list(FRONT_SHARES))
+    orp_confidence: float = 0.95
+    orp_views: str = "heldout"
+    orp_views_seed: int | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def hashed(self) -> dict[str, Any]:
+        """Settings that change the results (enter the output directory's hash)."""
+        return {
+            "views": self.views, "max_views": self.max_views, "repeats": self.repeats, "warmup": self.warmup,
+            "options": vars(self.options), "options_sweep": self.options_sweep,
+            "options_sweep_options": self.options_sweep_options, "options_sweep_views": self.options_sweep_views,
+            "las_ipr": self.las_ipr, "las_iprs": self.las_iprs, "mean_values": self.mean_values,
+            "sweep_views": self.sweep_views, "grid_views": self.grid_views, "orp": self.orp,
+            "epsilon_db": self.epsilon_db, "orp_max_views": self.orp_max_views, "shares": self.shares,
+            "ims_lift": self.ims_lift, "front_shares": self.front_shares, "orp_confidence": self.orp_confidence,
+            "orp_views": self.orp_views, "orp_views_seed": self.orp_views_seed,
+            # only when set: evaluations made before the key existed keep their directories
+            **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
+        }
+
+
+def parse_settings(cfg: DictConfig) -> Settings:
+    """Validate the evaluation keys of ``cfg``; bad values raise a one-line :class:`InputError`."""
+    ck = cfg.get("checkpoints")
+    if ck is None or OmegaConf.is_missing(ck, "ims") or not ck.get("ims"):
+        raise InputError("checkpoints.ims: required, the IMS checkpoint to evaluate (python -m imls_lightning.train model=ims ...)")
+    repeats = OmegaConf.select(cfg, "repeats")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < MIN_REPEATS:
+        raise InputError(f"repeats={repeats}: expected an integer >= {MIN_REPEATS} (stage times are medians of at least {MIN_REPEATS} runs per view)")
+    views = str(cfg.get("views", "test"))
+    if views not in ("test", "val"):
+        raise InputError(f"views={views}: expected 'test' (the trajectory) or 'val'")
+    options = NetOptions.from_config(to_plain(cfg.get("options")))
+    sweep_opts = [str(o) for o in (to_plain(cfg.get("options_sweep_options")) or [])]
+    bad = [o for o in sweep_opts if o not in NetOptions.SWITCHES]
+    if bad:
+        raise InputError(f"options_sweep_options={sweep_opts}: unknown option {bad[0]!r}; expected some of {list(NetOptions.SWITCHES)}")
+    las_ipr = cfg.get("las_ipr")
+    if las_ipr is not None:
+        las_ipr = _floats(cfg, "las_ipr", 0.0, 1.0, lo_open=True)[0]
+    return Settings(
+        ims=str(ck.ims), las=ck.get("las") or None, recnn=ck.get("recnn") or None, iml=ck.get("iml") or None,
+        views=views, max_views=_int(cfg, "max_views", 1, allow_none=True), repeats=int(repeats),
+        warmup=_int(cfg, "warmup", 0), options=options, options_sweep=bool(cfg.get("options_sweep", False)),
+        options_sweep_options=sweep_opts, options_sweep_views=_int(cfg, "options_sweep_views", 1),
+        las_ipr=las_ipr, las_iprs=_floats(cfg, "las_iprs", 0.0, 1.0, lo_open=True),
+        mean_values=_floats(cfg, "mean_values", 0.01, 1.0), sweep_views=_int(cfg, "sweep_views", 1, allow_none=True),
+        grid_views=_int(cfg, "grid_views", 0), output_dir=cfg.get("output_dir") or None,
+        reuse=bool(cfg.get("reuse", False)), progress=bool(cfg.get("progress", True)),
+        blue_noise=ck.get("blue_noise") or None, orp=bool(cfg.get("orp", True)),
+        epsilon_db=_floats(cfg, "epsilon_db", 0.0, 100.0)[0] if cfg.get("epsilon_db") is not None else 1.0,
+        orp_max_views=_int(cfg, "orp_max_views", 1, allow_none=True),
+        shares=_floats(cfg, "shares", 0.0, 1.0, lo_open=True) if cfg.get("shares") is not None else [],
+        timed_views=_int(cfg, "timed_views", 1, allow_none=True),
+        ims_lift=_lift(cfg), recnn_sparser=ck.get("recnn_sparser") or None,
+        front_shares=_floats(cfg, "front_shares", 0.0, 1.0, lo_open=True),
+        orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
+        orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
+    )
+
+
+def _orp_views(cfg) -> str:
+    v = str(OmegaConf.select(cfg, "orp_views", default="heldout"))
+    if v not in ORP_VIEWS:
+        raise InputError(f"orp_views={v}: expected one of {list(ORP_VIEWS)} (heldout: views no network was trained on)")
+    return v
+
+
+def _confidence(cfg) -> float:
+    """``orp_confidence``: the one-sided confidence of the ORP's bound on the mean validation gap, in [0.5, 1)."""
+    from data_gen.validate import check_number
+
+    return check_number(OmegaConf.select(cfg, "orp_confidence", default=0.95), "orp_confidence", 0.5, 1.0, hi_open=True,
+                        what="a confidence in [0.5, 1) (0.5: the mean gap itself)")

@@ -1,0 +1,16 @@
+"""Where the pipelines find the repository (:data:`ROOT`, its Hydra configs :data:`CONF_DIR`) and how
+they print a progress line (:func:`log`)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+#: the repository's root (the folder holding ``conf/``, ``imls_lightning/`` and ``data_gen/``)
+ROOT = Path(__file__).resolve().parents[2]
+#: the Hydra config folder of every CLI
+CONF_DIR = str(ROOT / "conf")
+
+
+def log(msg: str) -> None:
+    """A pipeline's progress line, on stderr (stdout carries the stage results)."""
+    print(msg, file=sys.stderr, flush=True)
