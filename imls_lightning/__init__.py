@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 
 #: public name -> the module it lives in (its one home)
 HOMES: dict[str, str] = {
-    # inference methods (imls_lightning.evaluate measures these) and their options
+    # inference methods (imls_lightning.evaluation measures these) and their options
     "IMLSRenderer": "imls_lightning.inference.pipeline",
     "FullRayCast": "imls_lightning.inference.pipeline",
     "RecNNAlone": "imls_lightning.inference.pipeline",

@@ -7,9 +7,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..evaluation.measurement import view_tensor
 from ..inference.checkpoints import load_ims_nets, renderer_for, require_pim_target, require_recnn
-from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, StageTimer
+from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, StageTimer, view_tensor
 from ..models.ims import IMSMaskHead
 from .labels import im_at_means, iml_pim
 from .predictor import MeanPredictor

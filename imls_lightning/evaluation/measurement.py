@@ -9,18 +9,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..inference.pipeline import Method, time_method
-
-
-def view_tensor(view, device) -> torch.Tensor:
-    """A view's 9 numbers as the networks' input: a ``(1, 9)`` float32 tensor on ``device`` (a copy: the
-    cache's views are read-only memory maps, which torch warns on).
-
-    Example:
-        >>> view_tensor([0, 0, 3.5, 0, 0, 0, 0, 1, 0], "cpu").shape
-        torch.Size([1, 9])
-    """
-    return torch.from_numpy(np.array(view, np.float32))[None].to(device)
+from ..inference.pipeline import Method, time_method, view_tensor
 
 
 def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:

@@ -1,6 +1,6 @@
 """The operating point an evaluation chose for an IMS checkpoint, recorded beside it.
 
-:mod:`imls_lightning.evaluate` searches the ORP on the product path (the smallest mean value ``u``
+:mod:`imls_lightning.evaluation` searches the ORP on the product path (the smallest mean value ``u``
 whose IML/S + RecNN stays within ``epsilon_db`` of the RecNN alone on the validation views) and runs
 IML/S there. :func:`write_operating_point` records that point in a sidecar file next to the IMS
 checkpoint, ``<ims.ckpt>.orp.json`` (beside the file a symbolic link points to), so that a user who

@@ -107,6 +107,17 @@ def half_is_faster(device: torch.device) -> bool:
     return _HALF_IS_FASTER[key]
 
 
+def view_tensor(view, device) -> torch.Tensor:
+    """A view's 9 numbers as the networks' input: a ``(1, 9)`` float32 tensor on ``device`` (a copy: the
+    cache's views are read-only memory maps, which torch warns on).
+
+    Example:
+        >>> view_tensor([0, 0, 3.5, 0, 0, 0, 0, 1, 0], "cpu").shape
+        torch.Size([1, 9])
+    """
+    return torch.from_numpy(np.array(view, np.float32))[None].to(device)
+
+
 @dataclass
 class NetOptions:
     """Inference options, each measured rather than assumed (see ``evaluate.options``)."""
@@ -430,8 +441,7 @@ class IMLSRenderer(_PatternMethod):
     def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
         """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
         with timer.stage("importance"):
-            v = torch.as_tensor(np.asarray(view, np.float32))[None].to(self.device)
-            return self.predict_im(v)[0, 0].bool()
+            return self.predict_im(view_tensor(view, self.device))[0, 0].bool()
 
     def run(self, view, im: torch.Tensor | None = None) -> RenderResult:
         """Render a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the

@@ -1,6 +1,6 @@
 """Evaluation report: the metrics CSV, its per-method summary, paper-style Markdown tables and plots.
 
-:mod:`imls_lightning.evaluate` measures; this package only formats. Every file is written atomically
+:mod:`imls_lightning.evaluation` measures; this package only formats. Every file is written atomically
 (temporary name + rename), so an interrupted run never leaves a half-written CSV, PNG or report.
 
 Plots use matplotlib's object-oriented API on the Agg canvas (no pyplot global state, no display).

@@ -10,7 +10,7 @@ pixels the IML/S frame really ray-cast), and a latency panel: one bar per stage 
 ``IMLSRenderer.run(view)`` (``importance``, ``selective_render``, ``decoder``, ``recnn``, ``total``)
 and the full ray cast's time, in milliseconds, with the frame's IPR (rendered / FR pixels), its PSNR
 against the ray cast and the speed-up. Latencies are those of the frame on screen (one run, not a
-median: :mod:`imls_lightning.evaluate` measures medians).
+median: :mod:`imls_lightning.evaluation` measures medians).
 
 The IMS checkpoint alone is enough: it records the scene and renderer it was trained on (see
 :meth:`IMLSRenderer.from_checkpoints`); ``recnn_checkpoint=`` swaps in another RecNN. The frame is

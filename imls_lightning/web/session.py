@@ -26,7 +26,7 @@ from data_gen.errors import InputError, finite_number
 from ..core.patterns import c_pixels_to_fr
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
-from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone
+from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, view_tensor
 from ..report.viz import error_map, to_uint8
 
 #: the methods a user can pick, with their labels
@@ -239,7 +239,7 @@ class ViewerSession(OrbitCamera):
                     res = self.recnn_method.run(view)
                     mask = self._fr_mask(None)
                 else:  # LAS at the IPR IML/S has at this view and mean (the IMS alone decides it, no rendering)
-                    im = imls.predict_im(torch.as_tensor(np.asarray(view, np.float32))[None].to(imls.device))
+                    im = imls.predict_im(view_tensor(view, imls.device))
                     res = self.las_method.run(view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
                     mask = res.info["mask"].numpy().reshape(m, m)
                 image, stages = res.image, {k: 1e3 * v for k, v in res.timings.items()}
