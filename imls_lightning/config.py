@@ -16,6 +16,10 @@ from data_gen.errors import InputError
 # left out of run hashes so that e.g. more render workers still find the same run.
 NON_RESULT_KEYS = frozenset({"cache_dir", "cache_path", "fsync", "workers", "loader_workers", "progress", "runs_dir", "shard"})
 
+# Keys added after runs existed, left out of run hashes while they hold the value every earlier run had, so
+# those runs are still found (a run's directory is the hash of its settings): data.train_pixels (all: whole frames).
+KEYS_NEUTRAL_AT = {"train_pixels": "all"}
+
 
 def to_plain(obj: Any) -> Any:
     """DictConfig/ListConfig (resolved) -> plain dicts/lists; anything else unchanged."""
@@ -32,7 +36,7 @@ def is_checkpoint_key(key: Any) -> bool:
 def _strip(obj: Any) -> Any:
     if isinstance(obj, Mapping):
         return {k: _checkpoint_id(v) if is_checkpoint_key(k) else _strip(v)
-                for k, v in sorted(obj.items()) if k not in NON_RESULT_KEYS}
+                for k, v in sorted(obj.items()) if k not in NON_RESULT_KEYS and KEYS_NEUTRAL_AT.get(k, object()) != v}
     if isinstance(obj, (list, tuple)):
         return [_strip(v) for v in obj]
     return obj
@@ -50,8 +54,15 @@ def _checkpoint_id(value: Any) -> Any:
 
 
 def settings_hash(*parts: Any, length: int = 8) -> str:
-    """Stable short hash of config parts (order matters, non-result keys ignored, input checkpoints
-    by their content)."""
+    """Stable short hash of config parts (order matters, non-result keys ignored, a later key at its
+    neutral value ignored, input checkpoints by their content).
+
+    Example:
+        >>> settings_hash({"data": {"num_views": 4}}) == settings_hash({"data": {"num_views": 4, "train_pixels": "all"}})
+        True
+        >>> settings_hash({"data": {"num_views": 4}}) == settings_hash({"data": {"num_views": 4, "train_pixels": "pattern"}})
+        False
+    """
     plain = [_strip(to_plain(p)) for p in parts]
     blob = json.dumps(plain, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:length]

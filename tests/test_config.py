@@ -68,3 +68,15 @@ def test_callbacks_take_the_monitor_mode_and_the_run_hash_is_unchanged():
     assert psnr.callbacks.model_checkpoint.mode == "max" and psnr.callbacks.early_stopping.mode == "max"
     assert default.callbacks.model_checkpoint.mode == "min" and default.callbacks.early_stopping.mode == "min"
     assert "monitor_mode" not in default.model  # the mode is derived: the model's settings (its run hash) do not change
+
+
+def test_run_hash_of_the_demos_recnn_stage_is_pinned():
+    """A run's directory is the hash of its settings: a refactor or a new config key must not change it,
+    or every earlier run is trained again (issue 33, item 8). The demo's RecNN stage, as `make demo` runs it."""
+    demo_recnn = ["model=recnn", "scene=flame", "data=small", "renderer=numba", "data.cache_dir=cache", "recnn=enhancenet",
+                  "paths.runs_dir=runs/demo", "seed=0", "trainer.enable_progress_bar=false", "trainer.max_epochs=10",
+                  "recnn.net.channels=32", "recnn.net.blocks=4"]
+    assert _run_hash(demo_recnn) == "898ec7f5"
+    # a key added later enters the hash only away from the value every earlier run had
+    assert _run_hash([*demo_recnn, "data.train_pixels=all"]) == "898ec7f5"
+    assert _run_hash([*demo_recnn, "data.train_pixels=pattern"]) != "898ec7f5"
