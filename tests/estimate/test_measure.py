@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from data_gen.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
 from imls_lightning.estimate.measure import ViewMeasurement, object_pixels, render_cost, upsample_c_image
 
@@ -145,5 +146,17 @@ def test_cli_candidates_time_more_sizes_on_the_same_render_measurements(tmp_path
     assert small["sizes"] == {"channels": 2, "blocks": 0} and big["sizes"]["iml.depth"] == 2
     assert all(np.isfinite(c[k]) and c[k] > 0 for c in (small, big) for k in ("recnn_ms", "nets_ms", "bound_20"))
     assert "sizes {'channels': 2, 'blocks': 0}" in r.stdout
-    bad = _cli(tmp_path, "candidates=[3]")
-    assert bad.returncode == 2 and "candidates[0]=3" in bad.stderr.strip().splitlines()[-1]
+
+
+
+@pytest.mark.parametrize("value, needle", [("[3]", "candidates[0]=3: expected a mapping"), ("[{}]", "candidates[0]={}: expected"),
+                                           ("{channels: 8}", "expected a list of mappings")])
+def test_exception_bad_candidates(value, needle):
+    """The CLI prints this one line and exits 2 (``cli_errors``), before any render."""
+    from omegaconf import OmegaConf
+
+    from imls_lightning.estimate.run import check_candidates
+
+    with pytest.raises(InputError) as e:
+        check_candidates(OmegaConf.create(f"candidates: {value}"))
+    assert needle in str(e.value) and "\n" not in str(e.value)
