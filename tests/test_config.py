@@ -72,7 +72,8 @@ def test_callbacks_take_the_monitor_mode_and_the_run_hash_is_unchanged():
 
 def test_run_hash_of_the_demos_recnn_stage_is_pinned():
     """A run's directory is the hash of its settings: a refactor or a new config key must not change it,
-    or every earlier run is trained again (issue 33, item 8). The demo's RecNN stage, as `make demo` runs it."""
+    or every earlier run is trained again (issue 33, item 8). The demo's RecNN stage as `make demo` ran it
+    before its RecNN narrowed to 16 channels."""
     demo_recnn = ["model=recnn", "scene=flame", "data=small", "renderer=numba", "data.cache_dir=cache", "recnn=enhancenet",
                   "paths.runs_dir=runs/demo", "seed=0", "trainer.enable_progress_bar=false", "trainer.max_epochs=10",
                   "recnn.net.channels=32", "recnn.net.blocks=4"]
