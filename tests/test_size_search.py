@@ -41,7 +41,7 @@ def _record(imls_ms: float, psnr: float, feasible: bool = True, **sizes) -> dict
 def test_config_smoke_is_a_multirun_over_sizes_with_the_front_callback():
     cfg = _cfg()
     assert ss.check_sizes(OmegaConf.to_container(cfg.size)) == {
-        "recnn_channels": 32, "recnn_blocks": 4, "decoder_depth": 4, "decoder_width": 8, "ims_layers": 5, "ims_width": 16}
+        "recnn_channels": 16, "recnn_blocks": 4, "decoder_depth": 4, "decoder_width": 8, "ims_layers": 5, "ims_width": 16}
     assert list(cfg.search_skips) == ["blue_noise", "las", "recnn_sparser"]  # the search needs the product path only
     assert dict(cfg.reference) == {"channels": 64, "blocks": 10}
 
