@@ -245,3 +245,43 @@ def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_che
     assert row["psnr_db"] == 33.5 and row["net"] == {"channels": 16, "blocks": 4}
     with pytest.raises(InputError, match="not a finished RecNN run"):
         mod.recnn_row(tmp_path)
+
+
+def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpoints, tmp_path, capsys):
+    """scripts/retime_orp.py refuses a checkpoint without a recorded ORP in one line; with one, it times the
+    renderer from the checkpoint at that point against the RecNN alone, and its C-share and PSNR are the
+    product's own on the same views."""
+    import shutil
+
+    from data_gen.cache import ViewImageCache
+    from imls_lightning.evaluation.measurement import image_quality, spaced
+    from imls_lightning.inference.checkpoints import load_task
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.pipeline import IMLSRenderer
+
+    mod = _script_module("retime_orp")
+    ckpt = Path(shutil.copy(tiny_checkpoints["ims_pim"], tmp_path / "ims.ckpt"))  # the record must not touch the fixture's
+    fr_size = int(load_task(str(ckpt), expect="IMSTask", what="ims").hparams["fr_size"])
+    cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
+                     if ViewImageCache.open(p.parent).images.shape[1] == fr_size)
+    args = [str(ckpt), str(cache_dir), "--views", "2", "--repeats", "2", "--warmup", "0"]
+    assert mod.main(args) == 2
+    assert "no recorded operating point" in capsys.readouterr().err
+
+    write_operating_point(ckpt, OperatingPoint(mean=0.5, lift=True, c_share=0.5, ipr=0.125, epsilon_db=1.0))
+    assert mod.main(args) == 0
+    out = capsys.readouterr().out
+    rows = {line.split(" | ")[0].lstrip("| "): line.split(" | ") for line in out.splitlines()
+            if line.startswith("| ") and "---" not in line and not line.startswith("| method")}
+    assert set(rows) == {"RecNN alone", "IML/S + RecNN (recorded ORP)"}, out
+    assert "u = 0.5000 (lift True)" in out and "speed-up of IML/S + RecNN over the RecNN alone" in out
+
+    direct = IMLSRenderer.from_checkpoints(str(ckpt))
+    cache = ViewImageCache.open(cache_dir)
+    test = np.asarray(cache.splits["test"])
+    results = [(direct.run(np.asarray(cache.views[r], np.float64)), r) for r in test[spaced(len(test), 2)]]
+    share = 100 * np.mean([res.info["c_share"] for res, _ in results])
+    psnr = np.mean([image_quality(res.image, np.asarray(cache.images[r]))[0] for res, r in results])
+    got = rows["IML/S + RecNN (recorded ORP)"]
+    assert float(got[1].rstrip("%")) == pytest.approx(share, abs=0.05)
+    assert float(got[-2]) == pytest.approx(psnr, abs=0.01)

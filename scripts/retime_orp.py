@@ -1,0 +1,96 @@
+"""Re-time the product at its recorded operating point against the RecNN alone, interleaved, with nothing else.
+
+The evaluation times one method after the other on each view, so a second job that starts on the same cores
+for a minute slows some methods and not others. This script answers the headline question again from one run,
+in the product's own terms: the renderer built from the IMS checkpoint alone
+(``IMLSRenderer.from_checkpoints``: it runs at the ORP the evaluation recorded for that checkpoint) and the
+RecNN alone on its whole pattern, sharing the same ray caster and RecNN, alternated run by run on the same
+views. It prints the per-stage medians (mean over views), the speed-up, the limit (the RecNN alone against
+ray-casting the ORP's pixels alone, networks free) and each method's PSNR against the cached full ray cast.
+
+Usage:
+    .venv/bin/python scripts/retime_orp.py runs/paper/ims-.../checkpoints/epoch004.ckpt cache/rayleigh_taylor-... \
+        --views 6 --repeats 10
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("ims_checkpoint", help="a model=ims checkpoint with an evaluation's <ckpt>.orp.json beside it")
+    ap.add_argument("cache", help="the scene's cache (its test split gives the views and the ground truth)")
+    ap.add_argument("--views", type=int, default=6, help="test views, evenly spaced (default 6)")
+    ap.add_argument("--repeats", type=int, default=10, help="timed runs per view and method (default 10)")
+    ap.add_argument("--warmup", type=int, default=1, help="untimed runs per view and method first (default 1)")
+    ap.add_argument("--recnn", default=None, help="the RecNN checkpoint (default: the one inside the IMS checkpoint)")
+    a = ap.parse_args(argv)
+    if a.views < 1 or a.repeats < 1 or a.warmup < 0:
+        ap.error("--views and --repeats must be >= 1, --warmup >= 0")
+
+    import torch
+
+    from data_gen.cache import ViewImageCache
+    from imls_lightning.evaluation.measurement import image_quality, spaced
+    from data_gen.camera import validate_view
+    from imls_lightning.inference.pipeline import IMLSRenderer, RecNNAlone
+
+    product = IMLSRenderer.from_checkpoints(a.ims_checkpoint, recnn_checkpoint=a.recnn)
+    if product.operating_point is None or not product.operating_point.found:
+        print(f"error: {a.ims_checkpoint}: no recorded operating point (the evaluation writes it beside the checkpoint)",
+              file=sys.stderr)
+        return 2
+    alone = RecNNAlone(product.renderer, product.pattern, product.recnn, product.opts)
+    cache = ViewImageCache.open(a.cache)
+    test = np.asarray(cache.splits["test"])
+    rows = test[spaced(len(test), a.views)]
+
+    methods = {"RecNN alone": alone, "IML/S + RecNN (recorded ORP)": product}
+    per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
+    quality: dict[str, list[tuple[float, float]]] = {k: [] for k in methods}
+    with torch.inference_mode():
+        for i, row in enumerate(rows):
+            view = validate_view(np.asarray(cache.views[row], np.float64))
+            runs: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
+            last = {}
+            for r in range(a.warmup + a.repeats):
+                for name, m in methods.items():  # alternated run by run: a disturbance hits both alike
+                    last[name] = m.run(view)
+                    if r >= a.warmup:
+                        runs[name].append(dict(last[name].timings, c_share=last[name].info["c_share"]))
+            for name in methods:
+                keys = runs[name][0].keys()
+                per_view[name].append({k: float(np.median([x[k] for x in runs[name]])) for k in keys})
+                quality[name].append(image_quality(last[name].image, np.asarray(cache.images[row])))
+            print(f"[retime] view {i + 1}/{len(rows)} (row {row}): "
+                  + ", ".join(f"{n} {1e3 * per_view[n][-1]['total']:.1f} ms" for n in methods), file=sys.stderr)
+
+    stages = ["importance", "selective_render", "decoder", "recnn", "total"]
+    mean = {n: {k: 1e3 * float(np.mean([v.get(k, 0.0) for v in per_view[n]])) for k in stages} for n in methods}
+    share = {n: float(np.mean([v["c_share"] for v in per_view[n]])) for n in methods}
+    print(f"ORP: u = {product.mean:.4f} (lift {product.lift}), recorded by the evaluation; {len(rows)} test views "
+          f"(rows {', '.join(map(str, rows))}), median of {a.repeats} interleaved runs each, mean over views\n")
+    print("| method | C-share | importance (ms) | selective render (ms) | decoder (ms) | RecNN (ms) | total (ms) | PSNR (dB) | SSIM |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for n in methods:
+        p = np.mean([q[0] for q in quality[n]])
+        s = np.mean([q[1] for q in quality[n]])
+        cells = " | ".join(f"{mean[n][k]:.1f}" for k in stages)
+        print(f"| {n} | {100 * share[n]:.1f}% | {cells} | {p:.2f} | {s:.4f} |")
+    base, imls = mean["RecNN alone"]["total"], mean["IML/S + RecNN (recorded ORP)"]["total"]
+    limit = base / max(mean["IML/S + RecNN (recorded ORP)"]["selective_render"], 1e-9)
+    print(f"\nspeed-up of IML/S + RecNN over the RecNN alone: {base / imls:.2f}x; "
+          f"limit (the ORP's pixels ray-cast alone, networks free): {limit:.2f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
