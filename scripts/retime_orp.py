@@ -39,8 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     from data_gen.cache import ViewImageCache
-    from imls_lightning.evaluation.measurement import image_quality, spaced
     from data_gen.camera import validate_view
+    from imls_lightning.evaluation.measurement import image_quality, spaced
     from imls_lightning.inference.pipeline import IMLSRenderer, RecNNAlone
 
     product = IMLSRenderer.from_checkpoints(a.ims_checkpoint, recnn_checkpoint=a.recnn)

@@ -148,7 +148,6 @@ def test_cli_candidates_time_more_sizes_on_the_same_render_measurements(tmp_path
     assert "sizes {'channels': 2, 'blocks': 0}" in r.stdout
 
 
-
 @pytest.mark.parametrize("value, needle", [("[3]", "candidates[0]=3: expected a mapping"), ("[{}]", "candidates[0]={}: expected"),
                                            ("{channels: 8}", "expected a list of mappings")])
 def test_exception_bad_candidates(value, needle):
