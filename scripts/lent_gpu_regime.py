@@ -57,10 +57,10 @@ def box(seconds: float) -> str:
     return f"trainer.max_time=00:00:{s // 60:02d}:{s % 60:02d}"
 
 
-def start(cmd: list[str], log: Path) -> subprocess.Popen:
+def start(cmd: list[str], log: Path, env: dict | None = None) -> subprocess.Popen:
     f = open(log, "w")
     print(f"$ {' '.join(cmd)}  > {log}", flush=True)
-    return subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT)
+    return subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=env)
 
 
 def finished_run(pattern: str) -> Path | None:
@@ -68,6 +68,25 @@ def finished_run(pattern: str) -> Path | None:
     runs = sorted((Path(p) for p in glob.glob(pattern) if (Path(p) / "result.json").is_file()),
                   key=lambda p: (p / "result.json").stat().st_mtime)
     return runs[-1] if runs else None
+
+
+def pack_runs(tgz: Path, pattern: str, sheets: bool = True) -> None:
+    """Only what the evaluation here needs: each finished run's result.json, metrics, config and best
+    checkpoint (the last lent run's bundle outgrew what comes back), and the caches' contact sheets."""
+    with tarfile.open(tgz, "w:gz") as tar:
+        for run in glob.glob(pattern):
+            r = Path(run) / "result.json"
+            if not r.is_file():
+                continue
+            tar.add(str(r))
+            for name in ("metrics.csv", "config.yaml", "overrides.yaml"):
+                for f in glob.glob(f"{run}/**/{name}", recursive=True) + glob.glob(f"{run}/.hydra/{name}"):
+                    tar.add(f)
+            best = json.loads(r.read_text()).get("best_checkpoint")
+            if best and Path(best).is_file():
+                tar.add(best, arcname=os.path.relpath(best))
+        for sheet in glob.glob("cache/*/contact_sheet.png") if sheets else []:
+            tar.add(sheet)
 
 
 def main() -> None:
@@ -147,20 +166,7 @@ def main() -> None:
         summary["iml"] = {"scene": first, "rc": iml.returncode, "run": run.name if run else None}
     summary["seconds"] = round(clock.elapsed(), 1)
     (a.out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
-    with tarfile.open(a.out / "runs.tgz", "w:gz") as tar:
-        for run in glob.glob("runs/paper/*"):
-            r = Path(run) / "result.json"
-            if not r.is_file():
-                continue
-            tar.add(str(r))
-            for extra in ("metrics.csv", ".hydra/config.yaml"):
-                for f in glob.glob(f"{run}/**/{Path(extra).name}", recursive=True):
-                    tar.add(f)
-            best = json.loads(r.read_text()).get("best_checkpoint")
-            if best and Path(best).is_file():
-                tar.add(best, arcname=os.path.relpath(best))
-        for sheet in glob.glob("cache/*/contact_sheet.png"):
-            tar.add(sheet)
+    pack_runs(a.out / "runs.tgz", "runs/paper/*")
     print(json.dumps(summary, indent=1, default=str)[:6000], flush=True)
 
 

@@ -2,11 +2,13 @@
 
 For a finished cache (``python -m data_gen``) and, optionally, RecNN run directories trained on it, prints per
 method the mean PSNR over the cache's test trajectory: the classical C -> FR upsampling of the estimate
-(:func:`imls_lightning.estimate.measure.upsample_c_image`: bilinear for the downsampling pattern) and each
-RecNN's own test PSNR (its ``result.json``), with the RecNN's lead over the upsampling. Issue 31's bar: the
-upsampling at most 35 dB, the RecNN 30-40 dB and at least 2 dB above it. ``--json`` writes the numbers.
+(:func:`imls_lightning.estimate.measure.upsample_c_image`: bilinear for the downsampling pattern, the pull-push
+fill at the FR positions for the others) and each RecNN's own test PSNR (its ``result.json``), with the RecNN's
+lead over the upsampling. Issue 31's bar: the upsampling at most 35 dB, the RecNN 30-40 dB and at least 2 dB
+above it. ``--pattern foveal`` scores FoVolNet's pattern (``conf/pattern/<name>.yaml``). ``--json`` writes the numbers.
 
     python scripts/regime_evidence.py cache/rayleigh_taylor-741027e0c9e6 runs/paper/recnn-enhancenet-rayleigh_taylor-*
+    python scripts/regime_evidence.py cache/rayleigh_taylor-92e343a2e4f7 runs/paper/recnn-fovolnet-* --pattern foveal
 """
 from __future__ import annotations
 
@@ -23,22 +25,36 @@ sys.path.insert(0, str(ROOT))
 
 from data_gen.cache_reader import ViewImageCache  # noqa: E402
 from data_gen.errors import InputError, cli_errors  # noqa: E402
-from imls_lightning.core.patterns import downsample_pattern  # noqa: E402
+from imls_lightning.core.compaction import compact  # noqa: E402
+from imls_lightning.core.patterns import SamplingPattern, build_pattern  # noqa: E402
 from imls_lightning.estimate.measure import psnr_db, upsample_c_image  # noqa: E402
 
 
-def upsampling_psnr(cache: ViewImageCache, factor: int = 2, max_views: int | None = None) -> list[float]:
-    """Per test view: PSNR of the classical upsampling of the downsampling pattern's C-Image against the FR image."""
+def pattern_named(name: str, fr_size: int) -> SamplingPattern:
+    """The sampling pattern of ``conf/pattern/<name>.yaml`` at ``fr_size`` (refused in one line if there is none)."""
+    from omegaconf import OmegaConf
+
+    path = ROOT / "conf" / "pattern" / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in path.parent.glob("*.yaml"))
+        raise InputError(f"--pattern {name}: expected one of {known}")
+    return build_pattern(OmegaConf.load(path), fr_size)
+
+
+def upsampling_psnr(cache: ViewImageCache, pattern: SamplingPattern | None = None,
+                    max_views: int | None = None) -> tuple[list[float], str]:
+    """Per test view: PSNR of the classical upsampling of the pattern's C-Image (default: the downsampling
+    pattern, factor 2) against the FR image, and the upsampling's name."""
     _, images = cache.split("test")
     if max_views:
         images = images[np.linspace(0, len(images) - 1, max_views).round().astype(int)]
-    pattern = downsample_pattern(cache.resolution, factor)
-    out = []
+    pattern = pattern or pattern_named("downsample", cache.resolution)
+    out, name = [], ""
     for img in images:
         fr = torch.from_numpy(np.asarray(img, np.float32) / 255.0).permute(2, 0, 1)[None]
-        c = fr.flatten(2)[:, :, pattern.indices].view(1, 3, pattern.c_size, pattern.c_size)
-        out.append(psnr_db(upsample_c_image(c, pattern)[0], fr))
-    return out
+        up, name = upsample_c_image(compact(fr, pattern.indices, pattern.c_size), pattern)
+        out.append(psnr_db(up, fr))
+    return out, name
 
 
 def recnn_row(run: Path) -> dict:
@@ -59,18 +75,21 @@ def main() -> None:
     ap.add_argument("cache", type=Path)
     ap.add_argument("runs", type=Path, nargs="*")
     ap.add_argument("--max-views", type=int, default=None, help="test views scored (evenly spaced; default all)")
+    ap.add_argument("--pattern", default="downsample", help="the RecNNs' pattern, conf/pattern/<name>.yaml (default downsample)")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args()
     cache = ViewImageCache.open(a.cache)
-    up = upsampling_psnr(cache, max_views=a.max_views)
-    bil = float(np.mean(up))
+    up, name = upsampling_psnr(cache, pattern_named(a.pattern, cache.resolution), max_views=a.max_views)
+    mean = float(np.mean(up))
     rows = [recnn_row(r) for r in a.runs]
-    print(f"{cache.path.name}: bilinear C->FR {bil:.2f} dB (min {min(up):.2f}, max {max(up):.2f}) on {len(up)} test views")
+    print(f"{cache.path.name}: {name} C->FR ({a.pattern} pattern) {mean:.2f} dB (min {min(up):.2f}, max {max(up):.2f}) "
+          f"on {len(up)} test views")
     for r in rows:
-        print(f"  RecNN {r['net']}: {r['psnr_db']:.2f} dB ({r['psnr_db'] - bil:+.2f} dB over bilinear), "
+        print(f"  RecNN {r['net']}: {r['psnr_db']:.2f} dB ({r['psnr_db'] - mean:+.2f} dB over {name}), "
               f"{r['epochs']} epochs in {r['train_minutes']:.1f} min")
     if a.json:
-        a.json.write_text(json.dumps({"cache": str(cache.path), "bilinear_db": bil, "bilinear_db_per_view": up,
+        a.json.write_text(json.dumps({"cache": str(cache.path), "pattern": a.pattern, "upsampling": name,
+                                      f"{name.replace('-', '_')}_db": mean, f"{name.replace('-', '_')}_db_per_view": up,
                                       "recnns": rows}, indent=1))
 
 

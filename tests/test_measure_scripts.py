@@ -230,7 +230,8 @@ def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_che
     mod = _script_module("regime_evidence")
     cache_dir = next(p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if (p / "manifest.json").is_file())
     cache = ViewImageCache.open(cache_dir)
-    got = mod.upsampling_psnr(cache, max_views=2)
+    got, name = mod.upsampling_psnr(cache, max_views=2)
+    assert name == "bilinear"
     _, images = cache.split("test")
     picks = np.linspace(0, len(images) - 1, 2).round().astype(int)
     for value, img in zip(got, images[picks]):
@@ -245,6 +246,35 @@ def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_che
     assert row["psnr_db"] == 33.5 and row["net"] == {"channels": 16, "blocks": 4}
     with pytest.raises(InputError, match="not a finished RecNN run"):
         mod.recnn_row(tmp_path)
+    with pytest.raises(InputError, match="--pattern nope: expected one of"):
+        mod.pattern_named("nope", 32)
+
+
+def test_regime_evidence_foveal_fill_against_a_direct_scatter_and_fill(tiny_checkpoints):
+    """For FoVolNet's foveal pattern the upsampling is the pull-push fill of the samples scattered to their FR
+    positions: the script's PSNR equals that computed directly from the pattern's indices."""
+    import torch
+
+    from data_gen.cache_reader import ViewImageCache
+    from imls_lightning.core.metrics import psnr_from_mse
+    from imls_lightning.models.pull_push import pull_push_inpaint
+
+    mod = _script_module("regime_evidence")
+    cache_dir = next(p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if (p / "manifest.json").is_file())
+    cache = ViewImageCache.open(cache_dir)
+    pattern = mod.pattern_named("foveal", cache.resolution)
+    assert pattern.kind == "foveal" and len(pattern.indices) < cache.resolution ** 2
+    got, name = mod.upsampling_psnr(cache, pattern, max_views=2)
+    assert name == "pull-push"
+    _, images = cache.split("test")
+    for value, img in zip(got, images[np.linspace(0, len(images) - 1, 2).round().astype(int)]):
+        fr = torch.from_numpy(np.asarray(img, np.float32) / 255.0).permute(2, 0, 1)[None]
+        m = fr.shape[-1]
+        mask = torch.zeros(1, 1, m * m)
+        mask[..., pattern.indices] = 1.0
+        mask = mask.view(1, 1, m, m)
+        up = pull_push_inpaint(fr * mask, mask)
+        assert value == pytest.approx(float(psnr_from_mse(float(torch.mean((up - fr) ** 2)))), abs=1e-3)
 
 
 def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpoints, tmp_path, capsys):
@@ -285,3 +315,65 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     got = rows["IML/S + RecNN (recorded ORP)"]
     assert float(got[1].rstrip("%")) == pytest.approx(share, abs=0.05)
     assert float(got[-2]) == pytest.approx(psnr, abs=0.01)
+
+
+def test_fovolnet_sizes_chooses_the_cheapest_within_the_bound_at_a_common_epoch(tmp_path, capsys):
+    """scripts/fovolnet_sizes.py compares the candidates at the last epoch all of them reached, against the mean
+    of the default's seeds, and marks the cheapest within the bound; the test PSNR never enters the choice."""
+    mod = _script_module("fovolnet_sizes")
+    d = dict(mod.DEFAULT_SIZES)
+    w8 = {**d, "features": 8, "base_channels": 8, "filter_channels": 8}
+    w4 = {**d, "features": 4, "base_channels": 4, "filter_channels": 4}
+
+    def cand(sizes, curve, test, seed=0):
+        return {"sizes": sizes, "seed": seed, "val_psnr": {str(k): v for k, v in curve.items()},
+                "result": {"epochs": max(curve) + 1, "test": {"test/fr_psnr": test}}}
+
+    summary = {"scene": "s", "gpu": "g", "candidates": {
+        "default": cand(d, {1: 30.0, 3: 31.0}, 31.0),
+        "default-seed1": cand(d, {1: 30.2, 3: 31.2}, 31.2, seed=1),
+        # w8 is ahead at epoch 5, which the default never reached: compared at epoch 3 it is 0.6 dB behind
+        "w8": cand(w8, {1: 29.8, 3: 30.5, 5: 31.5}, 40.0),
+        "w4": cand(w4, {1: 29.9, 3: 30.8, 5: 30.9}, 20.0),
+    }}
+    estimate = {"recnn_ms": 600.0, "bound": [{"share": 0.2, "speedup": 1.5}], "share_for_target": 0.2,
+                "candidates": [{"sizes": {k: w8[k] for k in ("features", "base_channels", "filter_channels")},
+                                "recnn_ms": 300.0, "bound_20": 1.9, "share_for_target": 0.4},
+                               {"sizes": {k: w4[k] for k in ("features", "base_channels", "filter_channels")},
+                                "recnn_ms": 250.0, "bound_20": 2.0, "share_for_target": 0.4}]}
+    rows, ref, defaults = mod.table(summary, estimate, 0.5)
+    assert ref == pytest.approx(31.1) and sorted(defaults) == [31.0, 31.2]
+    by = {r["candidate"]: r for r in rows}
+    assert set(by) == {"default", "w8", "w4"} and {r["val_epoch"] for r in rows} == {3}
+    assert by["w8"]["val_minus_default"] == pytest.approx(-0.6) and by["w4"]["val_minus_default"] == pytest.approx(-0.3)
+    assert [r["candidate"] for r in rows if r["chosen"]] == ["w4"]
+    (tmp_path / "s.json").write_text(json.dumps(summary))
+    (tmp_path / "e.json").write_text(json.dumps(estimate))
+    assert mod.main([str(tmp_path / "s.json"), str(tmp_path / "e.json"), "--out", str(tmp_path / "t")]) == 0
+    assert "**4 / 4 / 4" in (tmp_path / "t.md").read_text() and (tmp_path / "t.png").stat().st_size > 0
+    assert len((tmp_path / "t.csv").read_text().splitlines()) == 4
+    estimate["candidates"] = []
+    with pytest.raises(SystemExit, match="no candidate with sizes"):
+        mod.table(summary, estimate, 0.5)
+
+
+@pytest.mark.slow
+def test_lent_gpu_fovolnet_driver_on_the_tiny_scene(tmp_path):
+    """scripts/lent_gpu_fovolnet.py end to end on the tiny scene (CPU): it renders the cache, trains two candidates
+    side by side with real Trainer runs, reads their validation curves and packs one bundle per run, within the
+    eight files a lent machine sends back."""
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    p = subprocess.run([PY, str(ROOT / "scripts" / "lent_gpu_fovolnet.py"), "--out", str(out), "--deadline", "280",
+                        "--scene", "tiny", "--data", "tiny", "--render-workers", "0", "--epochs", "2", "--val-every", "1",
+                        "--loader-workers", "0", "--candidates", "w4", "default-seed1"],
+                       cwd=tmp_path, env={**env, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["cache"]["rc"] == 0
+    for name, seed in (("w4", 0), ("default-seed1", 1)):
+        row = summary["candidates"][name]
+        assert row["rc"] == 0 and row["seed"] == seed and sorted(row["val_psnr"]) == ["0", "1"]
+        assert (out / f"run_{name}.tgz").is_file()
+    assert summary["candidates"]["w4"]["run"] != summary["candidates"]["default-seed1"]["run"]
+    assert len(list(out.iterdir())) <= 8
