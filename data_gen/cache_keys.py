@@ -234,13 +234,21 @@ def settings_hash(settings: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:12]
 
 
+def cache_key(scene: Scene, data_cfg, renderer_cfg=None, train_pixels=None) -> str:
+    """The hash of everything that changes a cache's pixels, the volume's content included (its fingerprint), as
+    :func:`~data_gen.cache.render_cache` names the cache and writes it into the manifest; renders nothing. A training
+    run records it, so that a run trained on other pixels (a volume replaced at the same path, a generator that
+    changed) is never reused as this one."""
+    rcfg = renderer_cfg if renderer_cfg is not None else {"name": "vtk"}
+    return settings_hash(cache_settings(scene, data_cfg, rcfg, train_pixels=train_pixels))
+
+
 def cache_path_for(scene: Scene, data_cfg, renderer_cfg, train_pixels=None) -> Path:
     """Where :func:`ensure_cache` puts (or finds) this cache; renders nothing."""
     d = data_settings(data_cfg)
     if d.get("cache_path"):
         return Path(str(d["cache_path"])).expanduser()
-    key = settings_hash(cache_settings(scene, d, renderer_cfg, train_pixels=train_pixels))
-    return Path(str(d["cache_dir"])).expanduser() / f"{safe_name(scene.name)}-{key}"
+    return Path(str(d["cache_dir"])).expanduser() / f"{safe_name(scene.name)}-{cache_key(scene, d, renderer_cfg, train_pixels)}"
 
 
 def safe_name(name: str) -> str:
@@ -251,6 +259,6 @@ def safe_name(name: str) -> str:
 __all__ = [
     "FORMAT_VERSION", "MANIFEST", "VIEWS", "SPLITS", "IMAGES", "LOG", "SECONDS", "LOCK", "MARKER", "OWN_FILES", "SHARD_LOGS",
     "DATA_DEFAULTS", "shard_log_name", "is_own_file", "data_settings", "parse_shard", "plan_views",
-    "scene_key", "jsonable", "json_default", "views_digest", "check_train_pixels", "cache_settings", "settings_hash", "cache_path_for",
+    "scene_key", "jsonable", "json_default", "views_digest", "check_train_pixels", "cache_settings", "settings_hash", "cache_key", "cache_path_for",
     "safe_name",
 ]

@@ -349,3 +349,36 @@ def test_chunk_timer_stops_only_when_the_next_epoch_would_overrun(monkeypatch):
 def test_exception_bad_chunk_minutes(tmp_path, value):
     p = _run(["model=recnn", f"chunk_minutes={value}", "trainer.max_epochs=1"], tmp_path, check=False)
     _one_line_error(p, f"chunk_minutes=")
+
+
+@pytest.mark.slow
+def test_smoke_a_volume_replaced_at_the_same_path_is_never_served_the_old_run(tmp_path):
+    """A run's directory is the hash of its settings, and a volume file is named by its path there: a volume
+    replaced at the same path was served the networks trained on the old one. The run now records its caches by
+    content and is trained again, in one line, when the volume changed; unchanged, it is reused."""
+    rng = np.random.default_rng(0)
+    vol = tmp_path / "blob_16x16x16_float32.raw"
+    z, y, x = np.mgrid[-1:1:16j, -1:1:16j, -1:1:16j]
+    vol.write_bytes(np.exp(-4 * (x * x + y * y + z * z)).astype(np.float32).tobytes())
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    cmd = [PY, "-m", "imls_lightning.train", "model=recnn", "recnn=enhancenet", "recnn.net.channels=4", "recnn.net.blocks=1",
+           "scene=file", f"scene.volume.path={vol}", "data=tiny", "data.num_views=8", "data.test_views=2", "renderer=numba",
+           "trainer.max_epochs=1", f"paths.runs_dir={tmp_path}/runs", f"data.cache_dir={tmp_path}/cache",
+           "trainer.enable_progress_bar=false"]
+
+    def run():
+        p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+        return p, json.loads((Path(_last_line(p)).parent.parent / "result.json").read_text())
+
+    first, r1 = run()
+    assert len(r1["caches"]) == 1 and len(list((tmp_path / "cache").glob("blob-*"))) == 1
+    same, r2 = run()
+    assert "already finished" in same.stdout and r2["caches"] == r1["caches"]
+    vol.write_bytes((rng.random((16, 16, 16)) ** 4).astype(np.float32).tobytes())  # another volume, same path
+    other, r3 = run()
+    assert "already finished" not in other.stdout
+    warn = [line for line in other.stderr.splitlines() if "trained on cache" in line]
+    assert len(warn) == 1 and r1["caches"][0] in warn[0] and "training it again from the start" in warn[0], other.stderr[-2000:]
+    # the same run folder, trained again (Lightning keeps the old checkpoint beside the new one's -v1 name)
+    assert r3["caches"] != r1["caches"] and Path(_last_line(other)).parent == Path(_last_line(first)).parent

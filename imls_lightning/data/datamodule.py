@@ -232,6 +232,20 @@ class ImlsDataModule(L.LightningDataModule):
         d["resolution"] = self.low_res
         return d
 
+    def cache_keys(self) -> list[str]:
+        """The keys of the caches this datamodule reads (the FR cache, then LAS's low-resolution one), computed
+        from the settings and the volume's content without rendering: what a finished run records, and what
+        its reuse is checked against."""
+        from data_gen.cache_keys import cache_key
+        from data_gen.scene import build_scene
+
+        scene = build_scene(self.scene_cfg)
+        pixels = self.pattern.indices.numpy() if self.train_pixels == "pattern" else None
+        keys = [cache_key(scene, self.data_cfg, self.renderer_cfg, train_pixels=pixels)]
+        if self.low_res:
+            keys.append(cache_key(scene, self._low_res_data_cfg(), self.renderer_cfg))
+        return keys
+
     def _ensure(self) -> None:
         from data_gen.cache import ensure_cache
         from data_gen.scene import build_scene

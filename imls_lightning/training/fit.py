@@ -182,6 +182,18 @@ def stop_reason(trainer: L.Trainer) -> str | None:
     return None
 
 
+def cache_problem(recorded, cfg: DictConfig) -> str | None:
+    """Why a finished run must not be reused for ``cfg``, or None: the caches it recorded against the keys these
+    settings give now. A run's directory is the hash of its settings, not of the volume's voxels, so a volume
+    replaced at the same path or a procedural generator that changed would otherwise be served the old networks.
+    Building the scene to compute the keys reads the volume (its fingerprint), never renders."""
+    datamodule = build_datamodule(cfg, get_class(cfg.model._target_))
+    now = datamodule.cache_keys() if hasattr(datamodule, "cache_keys") else None
+    if now is None or list(recorded) == list(now):
+        return None
+    return f"it trained on cache {', '.join(map(str, recorded))}, these settings now give {', '.join(now)} (the volume or its rendering changed)"
+
+
 def build_task(cfg: DictConfig) -> L.LightningModule:
     """The task of ``cfg.model``: ``hydra.utils.instantiate`` of that node (``_target_``: the task
     class; every model setting, with its one default, lives in ``conf/model/<name>.yaml``), called
@@ -221,6 +233,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         except (OSError, ValueError, AttributeError):
             result, best = None, ""
         problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
+        if problem is None and result.get("caches") is not None:
+            problem = cache_problem(result["caches"], cfg)
         more = epochs_to_extend(result, cfg) if result is not None and problem is None else None
         if result is not None and problem is None and result.get("unfinished"):
             more = _max_epochs(cfg) if _max_epochs(cfg) is not None else -1  # the chunks go on to the schedule's end
@@ -233,7 +247,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             done = f"trained a chunk ({result.get('epochs')} epochs)" if result.get("unfinished") else f"finished {trained_epochs(result)} epochs"
             print(f"[train] {run_dir} {done}; continuing to trainer.max_epochs={more}", flush=True)
         else:
-            # never trust a finished run whose best checkpoint is gone or damaged: train it again
+            # never trust a finished run whose best checkpoint is gone or damaged, or that trained on other pixels
             _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
             result_file.unlink(missing_ok=True)
             restart = True
@@ -291,6 +305,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "train_minutes": round(minutes, 3),
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
+        # the caches it trained on, by content: a later reuse is checked against them (cache_problem)
+        "caches": datamodule.cache_keys() if hasattr(datamodule, "cache_keys") else None,
     }
     if trainer.is_global_zero and not fast:
         from data_gen.atomic import atomic_json

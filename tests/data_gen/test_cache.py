@@ -94,6 +94,24 @@ def test_key_changes_with_pixel_settings(tmp_path, tiny_scene):
     assert cache_path_for(tiny_scene, _data(tmp_path, workers=3, batch_size=99), {**VTK, "threads": 7}) == base
 
 
+def test_cache_key_is_the_manifests_and_follows_the_volumes_content(tmp_path, tiny_scene):
+    """``cache_key`` (what a training run records) is the key render_cache names the cache by, computed without
+    rendering, and it changes when only the volume's voxels do (same name, same settings)."""
+    from data_gen.cache_keys import cache_key
+    from data_gen.volume import Volume
+
+    d = _data(tmp_path)
+    report = render_cache(tiny_scene, d, VTK, progress=False)
+    manifest = json.loads((report.path / "manifest.json").read_text())
+    assert cache_key(tiny_scene, d, VTK) == manifest["hash"] == report.path.name.rsplit("-", 1)[1]
+    v = tiny_scene.volume
+    cfg = OmegaConf.load(ROOT / "conf" / "scene" / "tiny.yaml")
+    touched = v.data.copy()
+    touched[0, 0, 0] += 0.5
+    other = build_scene(cfg, volume=Volume(touched, v.spacing, v.value_range, v.name, v.source, v.info))
+    assert other.name == tiny_scene.name and cache_key(other, d, VTK) != manifest["hash"]
+
+
 # ---- crash safety ---------------------------------------------------------------------------
 def test_half_written_entry_without_marker_is_rerendered(tmp_path, tiny_scene):
     d = _data(tmp_path)
