@@ -57,13 +57,31 @@ def upsampling_psnr(cache: ViewImageCache, pattern: SamplingPattern | None = Non
     return out, name
 
 
-def recnn_row(run: Path) -> dict:
-    """A RecNN run's test PSNR and size from its ``result.json`` (refused in one line if it is not one)."""
+def trained_on(result: dict) -> list[str]:
+    """The cache keys a run trained (and was tested) on: recorded by the train CLI, or, for a run made before it
+    recorded them, computed from the scene, data and renderer settings in its ``result.json``."""
+    if result.get("caches"):
+        return list(result["caches"])
+    from data_gen.cache_keys import cache_key
+    from data_gen.scene import build_scene
+
+    cfg = result.get("config") or {}
+    return [cache_key(build_scene(cfg["scene"]), cfg["data"], cfg["renderer"])]
+
+
+def recnn_row(run: Path, cache_hash: str | None = None) -> dict:
+    """A RecNN run's test PSNR and size from its ``result.json`` (refused in one line if it is not one, or if it
+    was trained and tested on another cache than ``cache_hash``: its PSNR would be on other views of other pixels)."""
     try:
         r = json.loads((run / "result.json").read_text())
         psnr = float(r["test"]["test/fr_psnr"])
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise InputError(f"{run}: not a finished RecNN run with a test PSNR ({err})") from None
+    if cache_hash is not None:
+        keys = trained_on(r)
+        if cache_hash not in keys:
+            raise InputError(f"{run}: trained and tested on cache {', '.join(keys)}, not {cache_hash}; its test PSNR "
+                             "is not on this cache's views (train it on this cache's settings)")
     net = r.get("config", {}).get("recnn", {}).get("net", {})
     return {"run": str(run), "net": {k: v for k, v in net.items() if k != "_target_"}, "psnr_db": psnr,
             "train_minutes": r.get("train_minutes"), "epochs": r.get("epochs")}
@@ -81,7 +99,7 @@ def main() -> None:
     cache = ViewImageCache.open(a.cache)
     up, name = upsampling_psnr(cache, pattern_named(a.pattern, cache.resolution), max_views=a.max_views)
     mean = float(np.mean(up))
-    rows = [recnn_row(r) for r in a.runs]
+    rows = [recnn_row(r, cache.manifest["hash"]) for r in a.runs]
     print(f"{cache.path.name}: {name} C->FR ({a.pattern} pattern) {mean:.2f} dB (min {min(up):.2f}, max {max(up):.2f}) "
           f"on {len(up)} test views")
     for r in rows:

@@ -244,6 +244,29 @@ def test_regime_evidence_bilinear_against_a_direct_loop_and_a_recnn_row(tiny_che
                                                   "config": {"recnn": {"net": {"_target_": "x", "channels": 16, "blocks": 4}}}}))
     row = mod.recnn_row(run)
     assert row["psnr_db"] == 33.5 and row["net"] == {"channels": 16, "blocks": 4}
+    # a run is read only against the cache it was trained and tested on (recorded by the train CLI)
+    result = json.loads((run / "result.json").read_text())
+    (run / "result.json").write_text(json.dumps({**result, "caches": ["aaaaaaaaaaaa"]}))
+    assert mod.recnn_row(run, "aaaaaaaaaaaa")["psnr_db"] == 33.5
+    with pytest.raises(InputError, match="trained and tested on cache aaaaaaaaaaaa, not bbbbbbbbbbbb"):
+        mod.recnn_row(run, "bbbbbbbbbbbb")
+    # a run from before the record: its key is computed from the settings in its result.json
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from omegaconf import OmegaConf
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="evidence"):
+        cfg = compose("train", overrides=["model=recnn", "scene=tiny", "data=tiny", "renderer=numba",
+                                          f"data.cache_dir={tiny_checkpoints['cache_dir']}"])
+    GlobalHydra.instance().clear()
+    config = OmegaConf.to_container(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer"]), resolve=True)
+    caches = {json.loads((p / "manifest.json").read_text())["hash"]: json.loads((p / "manifest.json").read_text())
+              for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if (p / "manifest.json").is_file()}
+    key = mod.trained_on({"config": config})
+    assert len(key) == 1 and key[0] in caches, (key, {k: (m["resolution"], m["counts"]) for k, m in caches.items()})
+    config["scene"]["shading"]["ambient"] = 0.5
+    assert mod.trained_on({"config": config})[0] not in caches
     with pytest.raises(InputError, match="not a finished RecNN run"):
         mod.recnn_row(tmp_path)
     with pytest.raises(InputError, match="--pattern nope: expected one of"):
