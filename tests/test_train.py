@@ -72,6 +72,27 @@ def test_smoke_rerun_reuses_finished_run(work, recnn_ckpt):
     assert "already finished" in p.stdout
 
 
+def test_finished_run_records_its_cache_and_reuse_is_checked_against_it(work, recnn_ckpt):
+    """A run records the caches it trained on by content (the key of the cache's manifest); cache_problem finds
+    nothing for the same settings and names both keys when the recorded one is not what the settings give now."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from imls_lightning.training.fit import cache_problem
+
+    result = json.loads((recnn_ckpt.parent.parent / "result.json").read_text())
+    manifests = [json.loads(p.read_text())["hash"] for p in (work / "cache").glob("*/manifest.json")]
+    assert len(result["caches"]) == 1 and result["caches"][0] in manifests
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="cache_problem"):
+        cfg = compose("train", overrides=["model=recnn", "recnn=enhancenet", "scene=tiny", "data=tiny", "renderer=numba",
+                                          f"data.cache_dir={work}/cache"])
+    GlobalHydra.instance().clear()
+    assert cache_problem(result["caches"], cfg) is None
+    problem = cache_problem(["000000000000"], cfg)
+    assert problem.startswith("it trained on cache 000000000000, these settings now give ") and result["caches"][0] in problem
+
+
 def test_smoke_resume_continues_from_last_ckpt(work, recnn_ckpt, tmp_path):
     # more epochs = same settings hash (trainer limits do not change the run's identity): resumes.
     # On a copy of the shared runs, so that the other tests keep their checkpoint.
