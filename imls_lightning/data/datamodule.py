@@ -23,6 +23,7 @@ is the 120-view exploration trajectory.
 from __future__ import annotations
 
 import copy
+import json
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -233,12 +234,15 @@ class ImlsDataModule(L.LightningDataModule):
         return d
 
     def cache_keys(self) -> list[str]:
-        """The keys of the caches this datamodule reads (the FR cache, then LAS's low-resolution one), computed
-        from the settings and the volume's content without rendering: what a finished run records, and what
-        its reuse is checked against."""
-        from data_gen.cache_keys import cache_key
+        """The keys of the caches this datamodule reads (the FR cache, then LAS's low-resolution one): what a
+        finished run records, and what its reuse is checked against. Once the caches are ensured, their manifests'
+        keys; before, computed from the settings and the volume's content without rendering."""
+        from data_gen.cache_keys import MANIFEST, cache_key
         from data_gen.scene import build_scene
 
+        ensured = [p for p in (self.cache_path, self.low_res_path) if p is not None]
+        if self.cache_path is not None and all((p / MANIFEST).is_file() for p in ensured):
+            return [json.loads((p / MANIFEST).read_text())["hash"] for p in ensured]
         scene = build_scene(self.scene_cfg)
         pixels = self.pattern.indices.numpy() if self.train_pixels == "pattern" else None
         keys = [cache_key(scene, self.data_cfg, self.renderer_cfg, train_pixels=pixels)]

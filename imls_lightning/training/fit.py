@@ -187,9 +187,8 @@ def cache_problem(recorded, cfg: DictConfig) -> str | None:
     settings give now. A run's directory is the hash of its settings, not of the volume's voxels, so a volume
     replaced at the same path or a procedural generator that changed would otherwise be served the old networks.
     Building the scene to compute the keys reads the volume (its fingerprint), never renders."""
-    datamodule = build_datamodule(cfg, get_class(cfg.model._target_))
-    now = datamodule.cache_keys() if hasattr(datamodule, "cache_keys") else None
-    if now is None or list(recorded) == list(now):
+    now = build_datamodule(cfg, get_class(cfg.model._target_)).cache_keys()
+    if list(recorded) == now:
         return None
     return f"it trained on cache {', '.join(map(str, recorded))}, these settings now give {', '.join(now)} (the volume or its rendering changed)"
 
@@ -306,7 +305,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "test": test_metrics,
         "config": to_plain(OmegaConf.masked_copy(cfg, ["scene", "data", "renderer", "pattern", "recnn", "model", "iml", "seed"])),
         # the caches it trained on, by content: a later reuse is checked against them (cache_problem)
-        "caches": datamodule.cache_keys() if hasattr(datamodule, "cache_keys") else None,
+        "caches": datamodule.cache_keys(),
     }
     if trainer.is_global_zero and not fast:
         from data_gen.atomic import atomic_json
