@@ -274,21 +274,24 @@ def rayleigh_taylor(dims, seed: int, z0: int, z1: int, *, interface_voxels: floa
     return _by_slabs(body, dims, z0, z1)
 
 
-def flame_sheets(dims, seed: int, z0: int, z1: int, *, sheet_voxels: float = 2.5) -> np.ndarray:
+def flame_sheets(dims, seed: int, z0: int, z1: int, *, sheet_voxels: float = 3.0) -> np.ndarray:
     """Paper-regime flame: two thin reaction sheets (Gaussian profile ``sheet_voxels`` wide) on a
     candle-shaped front folded at several scales, empty space around it; values 0 .. ~1.
 
     The front ``d = r - radius(z) - a(z) n - b(z) f`` (``n``: 24 3D modes k = 3 pi .. 24 pi,
-    stretched along z; ``f``: 16 folds k = 10 pi .. 36 pi, amplitude ~ 1/k, down to ~14 voxels
-    at 512^3; both grow towards the tip: coherent folds, no random-phase band finer than them); the outer
-    sheet lies on ``d = 0``, an inner one (inner cone, 0.7 as bright) at a depth 0.05 .. 0.1 shifted
-    by 12 independent modes, so the two sheets fold, approach and pinch off on their own.
+    stretched along z; ``f``: 24 folds k = 6 pi .. 48 pi, amplitude ~ 1/k, down to ~11 voxels at
+    512^3, up to 0.13 deep near the tip; both grow towards the tip: coherent folds, crumpled into
+    overhangs, no random-phase band finer than them); the outer sheet lies on ``d = 0``, an inner one
+    (inner cone, 0.7 as bright) at a depth 0.05 .. 0.1 shifted by 12 independent modes, so the two
+    sheets fold, approach and pinch off on their own. Sheets are ``sheet_voxels`` wide so that the
+    preset's opaque surface ramps over about 2 voxels: sharper, the shading normals turn at every voxel
+    face (a speckle no network can infer); translucent, the trilinear field draws a moire.
     """
     rng = _rng("flame_sheets", seed)
     vox = _voxel(dims)
     big = fourier_modes(rng, 24, 3 * np.pi, 24 * np.pi, 1.0)
     big[0][:, 2] *= 0.5  # tongues stretched along the flow
-    folds = fourier_modes(rng, 24, 10 * np.pi, 64 * np.pi, 1.0)
+    folds = fourier_modes(rng, 24, 6 * np.pi, 48 * np.pi, 1.0)
     mid = fourier_modes(rng, 12, 8 * np.pi, 30 * np.pi, 0.8)
     wobble = rng.uniform(0, 2 * np.pi, 4).astype(F32)
     x, y, _, e = grid_axes(dims)
@@ -308,7 +311,7 @@ def flame_sheets(dims, seed: int, z0: int, z1: int, *, sheet_voxels: float = 2.5
         radius = F32(r0 / ((1 / 3) ** 0.6 * (2 / 3) ** 1.2)) * sc ** F32(0.6) * (F32(1.0) - sc) ** F32(1.2)
         nb = eval_modes(big, x, y, z)
         d = r - radius - (F32(0.01) + F32(0.10) * sc) * nb
-        d -= (F32(0.008) + F32(0.04) * sc) * eval_modes(folds, x, y, z)
+        d -= (F32(0.01) + F32(0.12) * sc) * eval_modes(folds, x, y, z)
         d2 = d + F32(0.05) + F32(0.05) * sc + F32(0.03) * eval_modes(mid, x, y, z)
         sheets = np.maximum(np.exp(-((d / w) ** 2)), F32(0.7) * np.exp(-((d2 / w) ** 2)))
         gate = np.clip(F32(10.0) * s, 0.0, 1.0) * _sigmoid((F32(1.0) - s + F32(0.06) * nb) / F32(0.04))
@@ -318,57 +321,75 @@ def flame_sheets(dims, seed: int, z0: int, z1: int, *, sheet_voxels: float = 2.5
     return _by_slabs(body, dims, z0, z1)
 
 
-def seed_shell(dims, seed: int, z0: int, z1: int, *, edge_voxels: float = 1.0) -> np.ndarray:
-    """Paper-regime CT-like specimen (a beechnut-like seed): a pitted, wrinkled shell 4 voxels
-    thick (density 1) around a three-ridged, slightly twisted nut; inside, three septa (0.7) and a
-    ring of 9 fibres (0.78) running along the nut, and a porous tissue layer under the shell (thin
-    cell walls, 0.4); air (0) around it.
+def _cell_hash(i: np.ndarray, j: np.ndarray, salt: int) -> np.ndarray:
+    """A uniform number in [0, 1) per integer cell ``(i, j)`` (float arrays of whole numbers): integer
+    arithmetic only, so every machine draws the same jitter (a ``sin`` hash rounds differently per CPU)."""
+    h = (i.astype(np.int64) * 73856093) ^ (j.astype(np.int64) * 19349663) ^ (salt * 83492791)
+    h = (h ^ (h >> 13)) * 1274126177
+    return ((h ^ (h >> 16)) & 0xFFFF).astype(F32) / F32(65536.0)
 
-    The surface ``rho0(z) (1 + 0.13 cos 3 theta) + 0.02 l + 0.015 w`` (``l``: 12 3D modes
-    k = 2.5 pi .. 10 pi; ``w``: 16 folds k = 12 pi .. 36 pi, amplitude ~ 1/k: coherent wrinkles,
-    none finer than ~14 voxels at 512^3); the cell walls lie on the zero set of 16 modes
-    (k = 15 pi .. 40 pi) whose high values also pit the shell; edges ``edge_voxels`` wide.
+
+def seed_shell(dims, seed: int, z0: int, z1: int, *, edge_voxels: float = 2.5, spine_edge_voxels: float = 1.5,
+               cell_voxels: float = 16.0, spine_radius_voxels: float = 3.0, spine_length_voxels: float = 36.0) -> np.ndarray:
+    """Paper-regime CT-like specimen (a beechnut's spiny husk): a wrinkled shell 6 voxels thick
+    (density ~0.6 at its core after its soft edges) around a three-ridged, slightly twisted nut,
+    covered in about 1000 tapering spines (density ~0.85 on their axes) that lean and curl towards the
+    apex; air (0) around it.
+
+    The surface ``rho0(z) (1 + 0.13 cos 3 theta) + 0.02 l + 0.01 w`` (``l``: 12 3D modes
+    k = 2.5 pi .. 10 pi; ``w``: 24 folds k = 12 pi .. 40 pi). One spine per cell of a lattice on
+    (height, angle) ``cell_voxels`` apart, jittered, ``spine_radius_voxels`` thick at the base and
+    0.6-1.4 x ``spine_length_voxels`` long. Each spine is a line across many pixels, the structure a
+    C-Image gives a RecNN to complete. Shell edges are ``edge_voxels`` wide: with 1-voxel edges (the
+    first design's pits and grooves) the shading normals turned at every voxel face, a speckle at
+    about a pixel per voxel that no network can infer (BENCHMARKS.md, "The paper's regime").
     """
     rng = _rng("seed_shell", seed)
     vox = _voxel(dims)
     lumps = fourier_modes(rng, 12, 2.5 * np.pi, 10 * np.pi, 1.0)
-    wrinkles = fourier_modes(rng, 24, 12 * np.pi, 64 * np.pi, 1.0)
-    cells = fourier_modes(rng, 16, 15 * np.pi, 40 * np.pi, 0.0)
+    wrinkles = fourier_modes(rng, 24, 12 * np.pi, 40 * np.pi, 1.0)
     twist0 = rng.uniform(0, 2 * np.pi)
-    # RMS gradient of the cell noise: widths in its units become widths in space
-    kc = float(np.sqrt(np.sum(cells[1] ** 2 * np.sum(cells[0] ** 2, axis=1)) / np.sum(cells[1] ** 2)))
     x, y, _, e = grid_axes(dims)
-    zb, zt = -0.82 * e[2], 0.86 * e[2]  # blunt base, pointed apex
-    rm = 0.52 * min(e[0], e[1])
-    thick, edge = F32(4.0 * vox), F32(edge_voxels * vox)
+    zb, zt = -0.82 * e[2], 0.80 * e[2]  # blunt base, pointed apex
+    rm = 0.40 * min(e[0], e[1])
+    thick, edge, sedge = F32(6.0 * vox), F32(edge_voxels * vox), F32(spine_edge_voxels * vox)
+    cell, r0, length = F32(cell_voxels * vox), F32(spine_radius_voxels * vox), F32(spine_length_voxels * vox)
     X, Y = x[None, None, :], y[None, :, None]
+    two_pi = F32(2 * np.pi)
+
+    def rho0_of(zz: np.ndarray) -> np.ndarray:  # the nut's mean radius at height zz
+        t = np.clip((zz - F32(zb)) / F32(zt - zb), 0.0, 1.0)
+        return F32(rm) * np.maximum(np.sin(F32(np.pi) * t ** F32(0.75)), F32(0.0)) ** F32(0.6)
 
     def body(a: int, b: int) -> np.ndarray:
         z = grid_axes(dims, a, b)[2]
         zz = z[:, None, None]
-        t = np.clip((zz - F32(zb)) / F32(zt - zb), 0.0, 1.0)
-        rho0 = F32(rm) * np.maximum(np.sin(F32(np.pi) * t ** F32(0.75)), F32(0.0)) ** F32(0.6)
         rho = np.sqrt(X * X + Y * Y)
-        th = np.arctan2(Y, X) - (F32(twist0) + F32(0.8) * zz)  # the three ridges twist a little
-        nl = eval_modes(lumps, x, y, z)
-        nw = eval_modes(wrinkles, x, y, z)
-        nc = eval_modes(cells, x, y, z)
-        surf = rho0 * (F32(1.0) + F32(0.13) * np.cos(F32(3.0) * th)) + F32(0.02) * nl + F32(0.015) * nw
-        # scales: grooves 3 voxels deep along the cell field's zero set, a crisp network of lines on the surface
-        surf -= F32(3.0 * vox) * np.exp(-((nc / F32(1.2 * vox * kc)) ** 2))
+        angle = np.arctan2(Y, X)
+        th = angle - (F32(twist0) + F32(0.8) * zz)  # the three ridges twist a little
+        surf = (rho0_of(zz) * (F32(1.0) + F32(0.13) * np.cos(F32(3.0) * th))
+                + F32(0.02) * eval_modes(lumps, x, y, z) + F32(0.01) * eval_modes(wrinkles, x, y, z))
         d = rho - surf  # < 0 inside
         ends = _sigmoid((zz - F32(zb)) / edge) * _sigmoid((F32(zt) - zz) / edge)
-        gap = F32(3.0 * vox) + F32(0.012) * np.maximum(nl + F32(0.3), F32(0.0))
-        inner = _sigmoid(-(d + thick + gap) / edge) * ends
         shell = _sigmoid((d + thick) / edge) * _sigmoid(-d / edge) * ends
-        shell *= F32(1.0) - F32(0.85) * _sigmoid((nc - F32(1.0)) / F32(vox * kc))  # pits through the shell
-        walls = np.exp(-((nc / F32(vox * kc)) ** 2))
-        layer = _sigmoid((d + thick + gap + F32(0.06)) / F32(4 * vox))  # tissue under the shell, a cavity inside
-        tissue = inner * layer * walls * (F32(0.4) + F32(0.04) * nw)
-        septa = np.exp(-((rho * np.sin(F32(1.5) * th + F32(0.05) * nl) / F32(1.5 * vox)) ** 2)) * inner
-        fr = rho - F32(0.55) * surf
-        fibres = np.exp(-((fr / F32(1.6 * vox)) ** 2 + (rho * np.sin(F32(4.5) * th + F32(0.5)) / F32(4.5 * 1.6 * vox)) ** 2)) * inner
-        return np.maximum(np.maximum(shell, F32(0.7) * septa), np.maximum(F32(0.78) * fibres, tissue)).astype(F32, copy=False)
+        # spines: at height h above the shell a spine's axis has moved up (lean + curl) and round, so the
+        # point's base coordinates (zp, tp) pick its cell, and the distance to that cell's axis its profile
+        h = np.maximum(d, F32(0.0))
+        zp = zz - (F32(0.3) * h + F32(3.0) * h * h)
+        row = np.floor((zp - F32(zb)) / cell)
+        z_row = F32(zb) + (row + F32(0.5)) * cell
+        per_row = np.maximum(np.round(two_pi * np.maximum(rho0_of(z_row), F32(1e-3)) / cell), F32(3.0))
+        tp = np.mod(angle - F32(0.6 / rm) * h, two_pi)
+        col = np.floor(tp * per_row / two_pi)
+        zc = z_row + (_cell_hash(row, col, 1) - F32(0.5)) * F32(0.3) * cell
+        tc = (col + F32(0.5) + (_cell_hash(row, col, 2) - F32(0.5)) * F32(0.3)) * two_pi / per_row
+        dt = np.mod(tp - tc + F32(np.pi), two_pi) - F32(np.pi)
+        lateral = np.sqrt((zp - zc) ** 2 + (surf * dt) ** 2)
+        spine_len = length * (F32(0.6) + F32(0.8) * _cell_hash(row, col, 3))
+        radius = r0 * np.clip(F32(1.0) - h / spine_len, 0.0, 1.0) ** F32(0.7)
+        rooted = _sigmoid((rho0_of(z_row) - F32(0.25 * rm)) / F32(4 * vox))  # none on the thin ends
+        spine = _sigmoid((radius - lateral) / sedge) * _sigmoid((d + thick) / edge) * rooted * (radius > 0)
+        return np.maximum(shell, spine).astype(F32, copy=False)
 
     return _by_slabs(body, dims, z0, z1)
 
@@ -396,7 +417,7 @@ PROCEDURAL_GENERATORS: dict[str, ProceduralGenerator] = {
         ProceduralGenerator("flame_sheets", flame_sheets, (512, 512, 512),
                             "paper-size flame: thin reaction sheets wrinkled at several scales, empty around"),
         ProceduralGenerator("seed_shell", seed_shell, (512, 512, 512),
-                            "paper-size CT-like seed: pitted wrinkled shell, septa, fibres, porous tissue"),
+                            "paper-size CT-like specimen: a beechnut's wrinkled husk covered in ~1000 curled spines"),
     ]
 }
 
