@@ -15,7 +15,7 @@ Example:
     >>> from imls_lightning.estimate import RenderCost, bound_table, share_for_speedup
     >>> cost = RenderCost(0.5, 0.01, 0.001, 30000, 35536)
     >>> share_for_speedup(bound_table(cost, c_render_ms=336.0, nets_ms=32.0, recnn_ms=16.0), 2.0)
-    0.3
+    0.2
 """
 from .bound import SHARES, RenderCost, bound_table, share_for_speedup, speedup_at, speedup_from_estimate
 from .run import DEFAULT_TARGETS, RESULT, format_report, read_estimate, run_estimate

@@ -159,6 +159,86 @@ def build_networks(pattern: SamplingPattern, recnn_net: Mapping[str, Any], iml: 
     return {"recnn": recnn, "iml": iml_net, "ims": gen}
 
 
+@dataclass
+class RecNNLead:
+    """A quickly trained RecNN against the classical upsampling on the estimate's own views."""
+    steps: int
+    train_views: int
+    recnn_db: float          # mean PSNR of the trained RecNN over the evaluation views
+    upsampled_db: float      # the classical upsampling's, on the same views
+    seconds: float
+
+    @property
+    def lead_db(self) -> float:
+        return self.recnn_db - self.upsampled_db
+
+    def to_dict(self) -> dict[str, float]:
+        return {"steps": self.steps, "train_views": self.train_views, "recnn_db": self.recnn_db,
+                "upsampled_db": self.upsampled_db, "lead_db": self.lead_db, "seconds": self.seconds}
+
+
+def _fr_tensor(fr: np.ndarray) -> torch.Tensor:
+    """``(m, m, 3)`` uint8 -> ``(1, 3, m, m)`` float in [0, 1]."""
+    return torch.from_numpy(fr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+
+
+def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: list[np.ndarray],
+               eval_frames: list[np.ndarray], steps: int, crop: int = 128, batch: int = 8, lr: float = 1e-3,
+               seed: int = 0, device: str = "auto") -> RecNNLead:
+    """Does the scene hold structure a RecNN can learn? Trains ``recnn`` (untrained, the size make bench-paper
+    trains) for ``steps`` Adam steps on random grid-aligned ``crop`` x ``crop`` patches of ``train_frames``
+    (the loss of the RecNN stage: MSE) and scores it and the classical upsampling on ``eval_frames``.
+
+    A few hundred steps on a few views already show the lead a full training reaches, less a few tenths of a
+    dB (BENCHMARKS.md: the three paper-regime scenes): a scene of pixel-scale noise shows none, whatever the
+    training. Regular-grid patterns only (the RecNN must take a crop of a C-Image).
+
+    Example:
+        >>> from imls_lightning.core.patterns import downsample_pattern
+        >>> from imls_lightning.models.enhancenet import EnhanceNet
+        >>> p = downsample_pattern(16, 2)
+        >>> frames = [(np.random.default_rng(i).random((16, 16, 3)) * 255).astype(np.uint8) for i in range(2)]
+        >>> lead = recnn_lead(EnhanceNet(p, channels=4, blocks=1), p, frames, frames[:1], steps=2, crop=8, batch=2)
+        >>> lead.steps, bool(np.isfinite(lead.lead_db))
+        (2, True)
+    """
+    from ..tasks.recnn import reconstruction_loss
+
+    if pattern.kind != "downsample":
+        raise InputError(f"recnn_lead.steps={steps}: the quick RecNN trains on crops of a regular grid; "
+                         f"the {pattern.kind} pattern has none (set recnn_lead.steps=0)")
+    f = int(dict(pattern.params)["factor"])
+    m, o = pattern.fr_size, int(dict(pattern.params)["offset"])
+    crop = min(int(crop) // f * f, m // f * f)
+    if crop < f or not train_frames or not eval_frames:
+        raise InputError(f"recnn_lead: expected a crop of at least {f} pixels and views to train and score on")
+    t0 = time.perf_counter()
+    dev = pick_device(device)
+    net = recnn.to(dev).train()
+    opt = torch.optim.Adam(net.parameters(), lr=float(lr))
+    frames = torch.cat([_fr_tensor(fr) for fr in train_frames]).to(dev)
+    g = torch.Generator().manual_seed(int(seed))
+    cells = (m - crop) // f + 1
+    for _ in range(int(steps)):
+        ids = torch.randint(0, len(frames), (batch,), generator=g).tolist()
+        ys = (torch.randint(0, cells, (batch,), generator=g) * f).tolist()
+        xs = (torch.randint(0, cells, (batch,), generator=g) * f).tolist()
+        target = torch.stack([frames[i, :, y:y + crop, x:x + crop] for i, y, x in zip(ids, ys, xs)])
+        loss = reconstruction_loss(net(target[:, :, o::f, o::f]), target, "mse", 0.0)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    net.eval()
+    rec, up = [], []
+    with torch.inference_mode():
+        for fr in eval_frames:
+            target = _fr_tensor(fr).to(dev)
+            c = target[:, :, o::f, o::f]
+            rec.append(psnr_db(net(c).clamp(0, 1), target))
+            up.append(psnr_db(upsample_c_image(c, pattern)[0], target))
+    return RecNNLead(int(steps), len(train_frames), float(np.mean(rec)), float(np.mean(up)), time.perf_counter() - t0)
+
+
 @torch.inference_mode()
 def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
                warmup: int, share: float = 0.3) -> dict[str, float]:
@@ -196,4 +276,4 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
 
 
 __all__ = ["median_ms", "object_pixels", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
-           "render_cost", "build_networks", "network_ms", "BACKGROUND_TOLERANCE"]
+           "render_cost", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "BACKGROUND_TOLERANCE"]

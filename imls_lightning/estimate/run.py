@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.atomic import atomic_json, atomic_write
@@ -23,7 +24,7 @@ from data_gen.validate import check_integer
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
 from .bound import bound_table, share_for_speedup
-from .measure import build_networks, measure_view, network_ms, render_cost
+from .measure import build_networks, measure_view, network_ms, recnn_lead, render_cost
 
 RESULT = "estimate.json"
 #: the goal of issue 31 per pattern kind: 2x for super-resolution, 1.5x for foveated rendering
@@ -53,11 +54,13 @@ def recnn_net(cfg: DictConfig) -> dict[str, Any]:
     return {**net, **{k: v for k, v in sizes.items() if k not in explicit}}
 
 
-def estimate_settings(cfg: DictConfig) -> dict[str, Any]:
-    """What decides the numbers (hashed into the output directory's name)."""
+def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) -> dict[str, Any]:
+    """What decides the numbers (hashed into the output directory's name). ``volume_fingerprint``: the
+    volume's content (:meth:`~data_gen.volume.Volume.fingerprint`), so that a volume replaced at the same
+    path, or a procedural generator that changed, is measured again instead of reusing its old estimate."""
     scene = OmegaConf.to_container(cfg.scene, resolve=True)
     return jsonable({
-        "scene": scene, "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
+        "scene": scene, "volume": volume_fingerprint, "recnn_lead": _lead_settings(cfg), "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
         "pattern": OmegaConf.to_container(cfg.pattern, resolve=True), "resolution": int(cfg.resolution),
         "recnn": recnn_net(cfg), "iml": OmegaConf.to_container(cfg.iml, resolve=True),
         "ims": OmegaConf.to_container(cfg.ims, resolve=True),
@@ -95,6 +98,22 @@ def write_contact_sheet(views, path: Path, thumb: int = 256) -> Path:
     return atomic_write(path, lambda f: sheet.save(f, format="PNG"))
 
 
+def _lead_settings(cfg: DictConfig) -> dict[str, Any]:
+    """``recnn_lead`` checked: ``steps`` 0 (off) or more, ``train_views`` and ``crop`` at least 1, ``lr`` > 0."""
+    lead = OmegaConf.to_container(cfg.get("recnn_lead") or OmegaConf.create({}), resolve=True)
+    out = {"steps": check_integer(lead.get("steps", 0), "recnn_lead.steps", 0),
+           "train_views": check_integer(lead.get("train_views", 8), "recnn_lead.train_views", 1),
+           "crop": check_integer(lead.get("crop", 128), "recnn_lead.crop", 1),
+           "batch": check_integer(lead.get("batch", 8), "recnn_lead.batch", 1)}
+    try:
+        out["lr"] = float(lead.get("lr", 1e-3))
+        if not out["lr"] > 0:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise InputError(f"recnn_lead.lr={lead.get('lr')!r}: expected a positive learning rate") from None
+    return out if out["steps"] else {"steps": 0}  # off: the other keys change no number
+
+
 def _target(cfg: DictConfig, pattern) -> float:
     t = cfg.get("target")
     if t is None:
@@ -108,19 +127,21 @@ def _target(cfg: DictConfig, pattern) -> float:
     return t
 
 
-def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
-    """Run every measurement and return the estimate's content (also writes the contact sheet)."""
+def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
+    """Run every measurement and return the estimate's content (also writes the contact sheet).
+    ``scene``: the built scene (built here from ``cfg.scene`` when None)."""
     from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene, register_resolvers
     from data_gen.views import sample_training_views
 
     register_resolvers()
     n_views = check_integer(cfg.views, "views", 1)
+    lead_cfg = _lead_settings(cfg)
     repeats = check_integer(cfg.repeats, "repeats", 1)
     warmup = check_integer(cfg.warmup, "warmup", 0)
     opts = NetOptions.from_config(OmegaConf.to_container(cfg.options, resolve=True))  # half: auto measured here
     t_start = time.perf_counter()
-    scene = build_scene(cfg.scene)
+    scene = scene if scene is not None else build_scene(cfg.scene)
     pattern = build_pattern(cfg.pattern, int(cfg.resolution))
     target = _target(cfg, pattern)
     cands = check_candidates(cfg)  # before any render
@@ -143,8 +164,9 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
                         background_density=density)
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
+    lead = measure_lead(cfg, lead_cfg, renderer, pattern, scene, [v.fr for v in measured], opts)
     return {
-        "candidates": candidates,
+        "candidates": candidates, "recnn_lead": lead,
         "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
         "recnn": str(cfg.recnn.name), "pattern": pattern.kind, "fr_size": pattern.fr_size, "c_size": pattern.c_size,
         "c_render_ms": c_render_ms, "full_frame_ms": float(np.median([v.full_ms for v in measured])),
@@ -161,6 +183,29 @@ def measure(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         "contact_sheet": str(sheet), "seconds": time.perf_counter() - t_start,
         "options": {"half": opts.half, "channels_last": opts.channels_last, "device": opts.device},
     }
+
+
+def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern, scene, eval_frames: list,
+                 opts: NetOptions) -> dict[str, Any] | None:
+    """Issue 31's third bar, before any cache: the RecNN of the chosen size trained ``recnn_lead.steps`` steps on
+    ``recnn_lead.train_views`` more random views (another seed), scored on the estimate's views; None when off."""
+    from data_gen.views import sample_training_views
+
+    if not lead_cfg["steps"]:
+        return None
+    seed = int(cfg.seed)
+    views = sample_training_views(lead_cfg["train_views"], scene.camera_distance, seed=seed + 1, lookat_jitter=0.1)
+    frames = []
+    for i, view in enumerate(views):
+        frames.append(renderer.render(view, pattern.fr_size))
+        _say(f"RecNN lead: training view {i + 1}/{len(views)} rendered")
+    torch.manual_seed(seed)  # the RecNN's initial weights
+    recnn = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)["recnn"]
+    lead = recnn_lead(recnn, pattern, frames, eval_frames, lead_cfg["steps"], crop=lead_cfg["crop"],
+                      batch=lead_cfg["batch"], lr=lead_cfg["lr"], seed=seed, device=opts.device)
+    _say(f"RecNN lead: {lead.steps} steps on {lead.train_views} views in {lead.seconds:.0f} s: {lead.recnn_db:.2f} dB, "
+         f"{lead.lead_db:+.2f} dB over {lead.upsampled_db:.2f} dB")
+    return lead.to_dict()
 
 
 def check_candidates(cfg: DictConfig) -> list[dict[str, Any]]:
@@ -207,6 +252,10 @@ def format_report(est: Mapping[str, Any]) -> str:
         "  speed-up     " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound"]),
         "  no networks  " + " ".join(f"{r['speedup']:>5.2f}" for r in est["limit"]),
     ]
+    lead = est.get("recnn_lead")
+    if lead:
+        lines.append(f"  a RecNN trained {lead['steps']} steps on {lead['train_views']} views: {lead['recnn_db']:.2f} dB, "
+                     f"{lead['lead_db']:+.2f} dB over {est['upsampler']} (the paper regime asks +2 dB of the trained RecNN)")
     for c in est.get("candidates") or []:
         reach = f"up to {c['share_for_target']:.0%} of C" if c["share_for_target"] is not None else "nowhere"
         lines.append(f"  sizes {c['sizes']}: RecNN {c['recnn_ms']:.1f} ms, IML/S adds {c['nets_ms']:.1f} ms, "
@@ -220,7 +269,7 @@ def format_report(est: Mapping[str, Any]) -> str:
 #: the columns of the estimates table (``table=...``): one row per (scene, RecNN), the newest estimate
 TABLE_COLUMNS = ("scene", "recnn", "volume_dims", "full_frame_ms", "c_render_ms", "object_fraction", "ims_ms", "decoder_ms",
                  "nets_ms", "recnn_ms", "render_to_nets", "bilinear_db", "half", "bound_10", "bound_20", "bound_40",
-                 "limit_20", "target", "share_for_target", "seconds", "path")
+                 "limit_20", "target", "share_for_target", "recnn_lead_db", "seconds", "path")
 
 
 def _sig(v: Any) -> Any:
@@ -235,7 +284,7 @@ def table_row(est: Mapping[str, Any], path: Path) -> dict[str, Any]:
     # four significant digits: the timings are medians of a few runs, and the table is read by people
     row = {k: _sig(est.get(k, "")) for k in TABLE_COLUMNS}
     row.update(half=est["options"]["half"], bound_10=_sig(bound[0.1]), bound_20=_sig(bound[0.2]), bound_40=_sig(bound[0.4]),
-               limit_20=_sig(limit[0.2]),
+               limit_20=_sig(limit[0.2]), recnn_lead_db=_sig((est.get("recnn_lead") or {}).get("lead_db", "")),
                share_for_target=est["share_for_target"] if est["share_for_target"] is not None else "", path=str(path))
     return row
 
@@ -251,17 +300,25 @@ def update_table(path: Path, row: Mapping[str, Any]) -> Path:
     if path.is_file():
         with open(path, newline="", encoding="utf-8") as f:
             reader = csv.DictReader(f)
-            if tuple(reader.fieldnames or ()) != TABLE_COLUMNS:
+            cols = tuple(reader.fieldnames or ())
+            # an older table (fewer columns, in this order) is extended: its rows get the new columns empty
+            if not cols or cols != tuple(c for c in TABLE_COLUMNS if c in cols) or not {"scene", "recnn"} <= set(cols):
                 raise InputError(f"table={path}: its columns are not an estimates table's; choose another file")
-            rows = [r for r in reader if (r["scene"], r["recnn"]) != (str(row["scene"]), str(row["recnn"]))]
+            rows = [{**dict.fromkeys(TABLE_COLUMNS, ""), **r} for r in reader
+                    if (r["scene"], r["recnn"]) != (str(row["scene"]), str(row["recnn"]))]
     rows.append({k: row[k] for k in TABLE_COLUMNS})
     rows.sort(key=lambda r: (str(r["recnn"]), str(r["scene"])))
     return write_metrics_csv(rows, path, TABLE_COLUMNS)
 
 
 def run_estimate(cfg: DictConfig) -> Path:
-    """Measure (or reuse) and write ``<output_dir>/estimate.json``; returns its path."""
-    settings = estimate_settings(cfg)
+    """Measure (or reuse) and write ``<output_dir>/estimate.json``; returns its path. The scene is built first:
+    an estimate is reused only for the same volume content."""
+    from data_gen.scene import build_scene, register_resolvers
+
+    register_resolvers()
+    scene = build_scene(cfg.scene)
+    settings = estimate_settings(cfg, scene.volume.fingerprint())
     out_dir = Path(str(cfg.output_dir)) if cfg.get("output_dir") else \
         Path(str(cfg.runs_dir)) / "estimate" / f"{cfg.scene.name}-{cfg.recnn.name}-{settings_hash(settings)[:8]}"
     path = out_dir / RESULT
@@ -270,7 +327,7 @@ def run_estimate(cfg: DictConfig) -> Path:
         _say(f"reusing {path} (same settings)")
     else:
         out_dir.mkdir(parents=True, exist_ok=True)
-        est = dict(measure(cfg, out_dir), settings=settings)
+        est = dict(measure(cfg, out_dir, scene=scene), settings=settings)
         atomic_json(path, est)
     if cfg.get("table"):
         update_table(Path(str(cfg.table)), table_row(est, path))

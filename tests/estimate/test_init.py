@@ -1,0 +1,15 @@
+"""The estimate package (``imls_lightning.estimate``): the examples of every module that has them.
+
+``.run`` has none: its work renders and times a scene (``tests/estimate/test_measure.py``, the CLI)."""
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+
+@pytest.mark.parametrize("module", ["", ".bound", ".measure"])
+def test_module_doctests(module):
+    result = doctest.testmod(importlib.import_module(f"imls_lightning.estimate{module}"))
+    assert result.attempted > 0 and result.failed == 0, result
