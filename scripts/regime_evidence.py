@@ -5,10 +5,14 @@ method the mean PSNR over the cache's test trajectory: the classical C -> FR ups
 (:func:`imls_lightning.estimate.measure.upsample_c_image`: bilinear for the downsampling pattern, the pull-push
 fill at the FR positions for the others) and each RecNN's own test PSNR (its ``result.json``), with the RecNN's
 lead over the upsampling. Issue 31's bar: the upsampling at most 35 dB, the RecNN 30-40 dB and at least 2 dB
-above it. ``--pattern foveal`` scores FoVolNet's pattern (``conf/pattern/<name>.yaml``). ``--json`` writes the numbers.
+above it. ``--pattern foveal`` scores FoVolNet's pattern (``conf/pattern/<name>.yaml``). ``--json`` writes the numbers;
+``--error-map PNG`` draws where the error lies on one test view (a crop: the truth, then the upsampling's and the
+first RecNN's absolute error x8): along edges a RecNN can remove it, as speckle it cannot.
 
     python scripts/regime_evidence.py cache/rayleigh_taylor-741027e0c9e6 runs/paper/recnn-enhancenet-rayleigh_taylor-*
     python scripts/regime_evidence.py cache/rayleigh_taylor-92e343a2e4f7 runs/paper/recnn-fovolnet-* --pattern foveal
+    python scripts/regime_evidence.py cache/seed_shell-2ccf21d2b406 runs/paper/recnn-enhancenet-seed_shell-38d323e5 \
+        --error-map benchmarks/paper_regime_error_seed_shell.png
 """
 from __future__ import annotations
 
@@ -87,6 +91,37 @@ def recnn_row(run: Path, cache_hash: str | None = None) -> dict:
             "train_minutes": r.get("train_minutes"), "epochs": r.get("epochs")}
 
 
+def error_map(cache: ViewImageCache, run: Path, pattern: SamplingPattern, path: Path, view: int = 30, crop: int = 192) -> Path:
+    """Test view ``view``, a ``crop`` x ``crop`` crop at the centre: the truth | |upsampling - truth| x8 |
+    |RecNN - truth| x8 (the RecNN: the run's best checkpoint), as a PNG."""
+    from PIL import Image
+
+    from data_gen.atomic import atomic_write
+    from imls_lightning.inference.checkpoints import load_recnn
+
+    _, images = cache.split("test")
+    if not 0 <= view < len(images):
+        raise InputError(f"--error-view {view}: expected 0 .. {len(images) - 1} (the cache's test views)")
+    ckpt = json.loads((run / "result.json").read_text())["best_checkpoint"]
+    recnn, _ = load_recnn(ckpt)
+    fr = torch.from_numpy(np.asarray(images[view], np.float32) / 255.0).permute(2, 0, 1)[None]
+    c = compact(fr, pattern.indices, pattern.c_size)
+    with torch.inference_mode():
+        rec = recnn.eval()(c).clamp(0, 1)
+    up, _ = upsample_c_image(c, pattern)
+    crop = min(int(crop), cache.resolution)
+    a = (cache.resolution - crop) // 2
+    window = (slice(None), slice(None), slice(a, a + crop), slice(a, a + crop))
+
+    def tile(x: torch.Tensor, gain: float = 1.0) -> np.ndarray:
+        t = (x[window][0].permute(1, 2, 0).clamp(0, 1 / gain).numpy() * gain * 255 + 0.5).astype(np.uint8)
+        return t if t.shape[-1] == 3 else np.repeat(t, 3, axis=-1)
+
+    err = lambda x: (x - fr).abs().mean(1, keepdim=True)  # noqa: E731
+    sheet = Image.fromarray(np.concatenate([tile(fr), tile(err(up), 8.0), tile(err(rec), 8.0)], axis=1))
+    return atomic_write(path, lambda f: sheet.save(f, format="PNG"))
+
+
 @cli_errors
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -95,7 +130,11 @@ def main() -> None:
     ap.add_argument("--max-views", type=int, default=None, help="test views scored (evenly spaced; default all)")
     ap.add_argument("--pattern", default="downsample", help="the RecNNs' pattern, conf/pattern/<name>.yaml (default downsample)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--error-map", type=Path, default=None, help="a PNG: truth | upsampling error x8 | first RecNN's x8")
+    ap.add_argument("--error-view", type=int, default=30, help="the test view of --error-map (default 30)")
     a = ap.parse_args()
+    if a.error_map is not None and not a.runs:
+        raise InputError("--error-map: expected a RecNN run to draw (give its directory after the cache)")
     cache = ViewImageCache.open(a.cache)
     up, name = upsampling_psnr(cache, pattern_named(a.pattern, cache.resolution), max_views=a.max_views)
     mean = float(np.mean(up))
@@ -109,6 +148,8 @@ def main() -> None:
         a.json.write_text(json.dumps({"cache": str(cache.path), "pattern": a.pattern, "upsampling": name,
                                       f"{name.replace('-', '_')}_db": mean, f"{name.replace('-', '_')}_db_per_view": up,
                                       "recnns": rows}, indent=1))
+    if a.error_map is not None:
+        print(f"  error map: {error_map(cache, a.runs[0], pattern_named(a.pattern, cache.resolution), a.error_map, a.error_view)}")
 
 
 if __name__ == "__main__":

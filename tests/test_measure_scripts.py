@@ -400,3 +400,59 @@ def test_lent_gpu_fovolnet_driver_on_the_tiny_scene(tmp_path):
         assert (out / f"run_{name}.tgz").is_file()
     assert summary["candidates"]["w4"]["run"] != summary["candidates"]["default-seed1"]["run"]
     assert len(list(out.iterdir())) <= 8
+
+
+def test_regime_evidence_error_map_draws_truth_and_both_errors(tiny_checkpoints, tmp_path):
+    """--error-map: the truth, then |bilinear - truth| x8 and |RecNN - truth| x8 of one test view, side by side
+    (the RecNN: the run's best checkpoint); a view outside the test trajectory is refused in one line."""
+    import torch
+    from PIL import Image
+
+    from data_gen.cache_reader import ViewImageCache
+
+    mod = _script_module("regime_evidence")
+    cache_dir = next(p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if (p / "manifest.json").is_file())
+    cache = ViewImageCache.open(cache_dir)
+    run = tmp_path / "recnn-run"
+    run.mkdir()
+    (run / "result.json").write_text(json.dumps({"best_checkpoint": str(tiny_checkpoints["recnn"])}))
+    pattern = mod.pattern_named("downsample", cache.resolution)
+    png = mod.error_map(cache, run, pattern, tmp_path / "err.png", view=1)
+    sheet = np.asarray(Image.open(png))
+    m = cache.resolution
+    assert sheet.shape == (m, 3 * m, 3)
+    _, images = cache.split("test")
+    truth = np.asarray(images[1])
+    assert np.array_equal(sheet[:, :m], truth)
+    fr = torch.from_numpy(truth.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+    up = fr[..., ::2, ::2]
+    up, _ = mod.upsample_c_image(up, pattern)
+    expected = ((up - fr).abs().mean(1)[0].clamp(0, 1 / 8).numpy() * 8 * 255 + 0.5).astype(np.uint8)
+    assert np.abs(sheet[:, m:2 * m, 0].astype(int) - expected).max() <= 1
+    assert sheet[:, 2 * m:].any()
+    with pytest.raises(InputError, match="--error-view 999: expected 0 .. ") as e:
+        mod.error_map(cache, run, pattern, tmp_path / "bad.png", view=999)
+    assert "\n" not in str(e.value) and not (tmp_path / "bad.png").exists()
+
+
+def test_regime_contact_sheet_stacks_each_scenes_first_estimate_view(tmp_path):
+    """scripts/regime_contact_sheet.py: one labelled row per scene, the first view of the estimate the table names;
+    a scene the table lacks is refused in one line."""
+    from PIL import Image
+
+    from tests.estimate.test_measure import _cli
+
+    table = tmp_path / "estimates.csv"
+    r = _cli(tmp_path, f"table={table}")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
+    sheet = np.asarray(Image.open(est["contact_sheet"]).convert("RGB"))
+    mod = _script_module("regime_contact_sheet")
+    rows = mod.scene_rows(table, ["tiny", "tiny"])
+    view = sheet[: sheet.shape[0] // len(est["bilinear_db_per_view"])]
+    assert len(rows) == 2 and rows[0][0].startswith("tiny (32x32x32, bilinear") and np.array_equal(rows[0][1], view)
+    out = np.asarray(Image.open(mod.draw(rows, tmp_path / "sheet.png")))
+    assert out.shape == (2 * view.shape[0], view.shape[1], 3)
+    assert np.array_equal(out[view.shape[0] + 20:, :], view[20:])  # below the label, the estimate's pixels
+    with pytest.raises(InputError, match=f"nope: no enhancenet estimate in {table}"):
+        mod.scene_rows(table, ["nope"])
