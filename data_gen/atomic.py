@@ -43,9 +43,17 @@ def fsync_dir(path: str | Path) -> None:
 
 
 def atomic_write(path: str | Path, write: Callable[[BinaryIO], Any], unique: bool = False) -> Path:
-    """Write ``path`` through ``write(binary file)`` on a temporary sibling, fsync, rename; returns ``path``."""
+    """Write ``path`` through ``write(binary file)`` on a temporary sibling, fsync, rename; returns ``path``.
+
+    ``unique``: the temporary name holds this process's id, so that several writers never share one; those a
+    killed writer left (its process gone) are removed first.
+    """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
+    if unique:
+        from .orphans import remove_stale_temporaries
+
+        remove_stale_temporaries(p)
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp" if unique else p.name + ".tmp")
     try:
         with open(tmp, "wb") as f:

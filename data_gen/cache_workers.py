@@ -10,7 +10,6 @@ import copy
 import os
 import pickle
 import queue
-import threading
 import time
 from typing import Any
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from .cache_log import write_view
 from .errors import InputError
+from .orphans import exit_when_orphaned
 from .renderers import make_renderer, render_image
 from .scene import Scene
 
@@ -70,23 +70,6 @@ def _orphan_exit(*queues) -> None:
         q.cancel_join_thread()
 
 
-def _exit_when_orphaned(parent_pid: int, period: float = 0.5) -> None:
-    """Start a daemon thread that ends this worker at once when its parent dies.
-
-    The loops below check the parent too, but a ``Queue.get`` can block for ever inside
-    ``recv_bytes``: a parent killed while it was writing a large message (the setup) leaves half of
-    it in the pipe, and every worker holds the pipe's write end, so no end of file ever comes.
-    ``os._exit`` skips cleanup on purpose: a view being written is re-rendered on resume (its CRC
-    is not in the parent's log).
-    """
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(period)
-        os._exit(0)
-
-    threading.Thread(target=watch, name="orphan-watch", daemon=True).start()
-
-
 def worker_main(setup, parent_pid, tasks, results):
     """Render views taken from ``tasks`` until a ``None``; report ``("done", i, crc, seconds)``.
 
@@ -94,7 +77,7 @@ def worker_main(setup, parent_pid, tasks, results):
     process arguments: multiprocessing writes arguments into a pipe that blocks for ever if the
     child dies before reading them all (a large volume would hang the parent).
     """
-    _exit_when_orphaned(parent_pid)
+    exit_when_orphaned(parent_pid)
     try:
         while True:  # never block for ever: a parent killed before its setup reached us leaves nothing to wait for
             try:

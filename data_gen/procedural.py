@@ -52,6 +52,7 @@ import numpy as np
 
 from .atomic import atomic_write
 from .errors import InputError
+from .orphans import exit_when_orphaned
 from .volume import Volume
 
 F32 = np.float32
@@ -296,7 +297,7 @@ def flame_sheets(dims, seed: int, z0: int, z1: int, *, sheet_voxels: float = 3.0
     wobble = rng.uniform(0, 2 * np.pi, 4).astype(F32)
     x, y, _, e = grid_axes(dims)
     zb, zt = -0.88 * e[2], 0.72 * e[2]  # base and tip
-    r0 = 0.48 * min(e[0], e[1])
+    r0 = 0.56 * min(e[0], e[1])
     w = F32(sheet_voxels * vox)
     X, Y = x[None, None, :], y[None, :, None]
 
@@ -651,7 +652,9 @@ def write_procedural_raw(generator: str, dims, path: str | os.PathLike, seed: in
         fh.flush()
         # spawn, not fork: the parent may hold numba/torch thread pools that a fork would copy mid-state
         ctx = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(min(workers, len(slabs)), mp_context=ctx) as pool:
+        # a worker exits when this process dies (killed mid-volume, it would otherwise idle on its pipe for ever)
+        with concurrent.futures.ProcessPoolExecutor(min(workers, len(slabs)), mp_context=ctx, initializer=exit_when_orphaned,
+                                                    initargs=(os.getpid(),)) as pool:
             jobs = [pool.submit(_write_slab, g.name, dims, seed, z0, z1, fh.name) for z0, z1 in slabs]
             for job in concurrent.futures.as_completed(jobs):
                 job.result()
