@@ -7,6 +7,8 @@ Before any cache or training, on a few random views of a scene at paper scale, i
 * the latency of untrained networks of the chosen sizes (IMS, IML decoder, RecNN),
 * the classical C -> FR upsampling's PSNR (bilinear; pull-push for the foveal pattern): how much
   detail lives at the pixel scale, i.e. whether a RecNN leaves error an importance mask can hide,
+* with ``recnn_lead.steps > 0``, the lead over it of a RecNN trained for a few minutes on a few more
+  views: whether that detail is structure a RecNN can learn or noise it cannot (:func:`.measure.recnn_lead`),
 
 and tabulates the speed-up bound of IML/S + RecNN over the RecNN alone against the share of C
 (:mod:`.bound`), with the largest share at which the goal (2x; 1.5x for FoVolNet) is reachable.

@@ -60,7 +60,8 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
     path, or a procedural generator that changed, is measured again instead of reusing its old estimate."""
     scene = OmegaConf.to_container(cfg.scene, resolve=True)
     return jsonable({
-        "scene": scene, "volume": volume_fingerprint, "recnn_lead": _lead_settings(cfg), "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
+        "scene": scene, "volume": volume_fingerprint, "recnn_lead": _lead_settings(cfg),
+        "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
         "pattern": OmegaConf.to_container(cfg.pattern, resolve=True), "resolution": int(cfg.resolution),
         "recnn": recnn_net(cfg), "iml": OmegaConf.to_container(cfg.iml, resolve=True),
         "ims": OmegaConf.to_container(cfg.ims, resolve=True),
