@@ -31,7 +31,7 @@ from data_gen.cache_reader import ViewImageCache  # noqa: E402
 from data_gen.errors import InputError, cli_errors  # noqa: E402
 from imls_lightning.core.compaction import compact  # noqa: E402
 from imls_lightning.core.patterns import SamplingPattern, build_pattern  # noqa: E402
-from imls_lightning.estimate.measure import psnr_db, upsample_c_image  # noqa: E402
+from imls_lightning.estimate.measure import frame_tensor, psnr_db, upsample_c_image  # noqa: E402
 
 
 def pattern_named(name: str, fr_size: int) -> SamplingPattern:
@@ -55,7 +55,7 @@ def upsampling_psnr(cache: ViewImageCache, pattern: SamplingPattern | None = Non
     pattern = pattern or pattern_named("downsample", cache.resolution)
     out, name = [], ""
     for img in images:
-        fr = torch.from_numpy(np.asarray(img, np.float32) / 255.0).permute(2, 0, 1)[None]
+        fr = frame_tensor(img)
         up, name = upsample_c_image(compact(fr, pattern.indices, pattern.c_size), pattern)
         out.append(psnr_db(up, fr))
     return out, name
@@ -104,7 +104,7 @@ def error_map(cache: ViewImageCache, run: Path, pattern: SamplingPattern, path: 
         raise InputError(f"--error-view {view}: expected 0 .. {len(images) - 1} (the cache's test views)")
     ckpt = json.loads((run / "result.json").read_text())["best_checkpoint"]
     recnn, _ = load_recnn(ckpt)
-    fr = torch.from_numpy(np.asarray(images[view], np.float32) / 255.0).permute(2, 0, 1)[None]
+    fr = frame_tensor(images[view])
     c = compact(fr, pattern.indices, pattern.c_size)
     with torch.inference_mode():
         rec = recnn.eval()(c).clamp(0, 1)

@@ -118,7 +118,7 @@ def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: 
     flat[: len(idx)] = colours.astype(np.float32) / 255.0
     c = torch.from_numpy(flat).view(1, n, n, 3).permute(0, 3, 1, 2)
     up, _ = upsample_c_image(c, pattern)
-    target = torch.from_numpy(fr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+    target = frame_tensor(fr)
     up_u8 = (up[0].permute(1, 2, 0).clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
     return ViewMeasurement(full_ms, c_ms, empty_ms, obj_ms, bg_ms, int(obj.sum()), int((~obj).sum()),
                            psnr_db(up, target), fr, up_u8)
@@ -177,9 +177,9 @@ class RecNNLead:
                 "upsampled_db": self.upsampled_db, "lead_db": self.lead_db, "seconds": self.seconds}
 
 
-def _fr_tensor(fr: np.ndarray) -> torch.Tensor:
-    """``(m, m, 3)`` uint8 -> ``(1, 3, m, m)`` float in [0, 1]."""
-    return torch.from_numpy(fr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+def frame_tensor(fr: np.ndarray) -> torch.Tensor:
+    """A rendered frame ``(m, m, 3)`` uint8 (or a cache's memory-mapped row) -> ``(1, 3, m, m)`` float in [0, 1]."""
+    return torch.from_numpy(np.asarray(fr, np.float32) / 255.0).permute(2, 0, 1)[None]
 
 
 def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: list[np.ndarray],
@@ -216,7 +216,7 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
     dev = pick_device(device)
     net = recnn.to(dev).train()
     opt = torch.optim.Adam(net.parameters(), lr=float(lr))
-    frames = torch.cat([_fr_tensor(fr) for fr in train_frames]).to(dev)
+    frames = torch.cat([frame_tensor(fr) for fr in train_frames]).to(dev)
     g = torch.Generator().manual_seed(int(seed))
     cells = (m - crop) // f + 1
     for _ in range(int(steps)):
@@ -232,7 +232,7 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
     rec, up = [], []
     with torch.inference_mode():
         for fr in eval_frames:
-            target = _fr_tensor(fr).to(dev)
+            target = frame_tensor(fr).to(dev)
             c = target[:, :, o::f, o::f]
             rec.append(psnr_db(net(c).clamp(0, 1), target))
             up.append(psnr_db(upsample_c_image(c, pattern)[0], target))
@@ -276,4 +276,4 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
 
 
 __all__ = ["median_ms", "object_pixels", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
-           "render_cost", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "BACKGROUND_TOLERANCE"]
+           "render_cost", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]
