@@ -16,9 +16,9 @@ import torch.nn.functional as F
 
 from data_gen.errors import InputError
 
-from ..core.compaction import decompact
+from ..core.compaction import compact, decompact
 from ..core.metrics import psnr_per_image
-from ..core.patterns import SamplingPattern, plastic_rank_pattern
+from ..core.patterns import SamplingPattern, crop_pattern, plastic_rank_pattern
 from ..inference.pipeline import NetOptions, pick_device, prepare_net
 from ..models.ims import IMSGenerator
 from ..models.iml import IMLNet
@@ -207,11 +207,11 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
     if pattern.kind != "downsample":
         raise InputError(f"recnn_lead.steps={steps}: the quick RecNN trains on crops of a regular grid; "
                          f"the {pattern.kind} pattern has none (set recnn_lead.steps=0)")
-    f = int(dict(pattern.params)["factor"])
-    m, o = pattern.fr_size, int(dict(pattern.params)["offset"])
+    f, m = int(pattern.param_dict["factor"]), pattern.fr_size
     crop = min(int(crop) // f * f, m // f * f)
     if crop < f or not train_frames or not eval_frames:
         raise InputError(f"recnn_lead: expected a crop of at least {f} pixels and views to train and score on")
+    window = crop_pattern(pattern, crop)  # a grid-aligned window's C-pixels, as data.crop trains the RecNN stage
     t0 = time.perf_counter()
     dev = pick_device(device)
     net = recnn.to(dev).train()
@@ -224,7 +224,7 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
         ys = (torch.randint(0, cells, (batch,), generator=g) * f).tolist()
         xs = (torch.randint(0, cells, (batch,), generator=g) * f).tolist()
         target = torch.stack([frames[i, :, y:y + crop, x:x + crop] for i, y, x in zip(ids, ys, xs)])
-        loss = reconstruction_loss(net(target[:, :, o::f, o::f]), target, "mse", 0.0)
+        loss = reconstruction_loss(net(compact(target, window.indices, window.c_size)), target, "mse", 0.0)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -233,7 +233,7 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
     with torch.inference_mode():
         for fr in eval_frames:
             target = frame_tensor(fr).to(dev)
-            c = target[:, :, o::f, o::f]
+            c = compact(target, pattern.indices, pattern.c_size)
             rec.append(psnr_db(net(c).clamp(0, 1), target))
             up.append(psnr_db(upsample_c_image(c, pattern)[0], target))
     return RecNNLead(int(steps), len(train_frames), float(np.mean(rec)), float(np.mean(up)), time.perf_counter() - t0)
