@@ -215,7 +215,11 @@ def build_datamodule(cfg: DictConfig, task_cls) -> L.LightningDataModule:
     from ..data.datamodule import ImlsDataModule
 
     extra = task_cls.datamodule_kwargs(cfg) if hasattr(task_cls, "datamodule_kwargs") else {}
-    return ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=cfg.pattern, **extra)
+    # one switch for the run's bars: without it a pipeline's log (trainer.enable_progress_bar=false) still got the
+    # cache's and the labels' tqdm redraws, thousands of them for an IMS's 1,620 views
+    progress = bool(OmegaConf.select(cfg, "trainer.enable_progress_bar", default=True))
+    return ImlsDataModule(scene=cfg.scene, data=cfg.data, renderer=cfg.renderer, pattern=cfg.pattern,
+                          progress=progress, **extra)
 
 
 def train(cfg: DictConfig) -> dict[str, Any]:

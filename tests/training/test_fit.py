@@ -22,7 +22,7 @@ from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask
 from imls_lightning.tasks.recnn import RecNNTask
-from imls_lightning.training.fit import build_task
+from imls_lightning.training.fit import build_datamodule, build_task
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ["recnn", "iml", "ims", "las"]
@@ -141,6 +141,13 @@ def test_a_missing_model_key_fails_by_name():
         IMSTask.datamodule_kwargs(cfg)
 
 
+@pytest.mark.parametrize("bar", [True, False])
+def test_the_trainers_progress_switch_also_silences_the_datamodule(bar):
+    """trainer.enable_progress_bar=false (every pipeline stage) also turns off the cache's and labels' bars."""
+    cfg = _compose(["model=recnn", f"trainer.enable_progress_bar={str(bar).lower()}"])
+    assert build_datamodule(cfg, RecNNTask).progress is bar
+
+
 def test_resume_path_fallbacks(tmp_path, capsys):
     from omegaconf import OmegaConf
 
@@ -198,8 +205,6 @@ def checkpoints(tmp_path_factory):
 
 
 def test_build_task_end_to_end_iml_brings_its_recnn(tmp_path, checkpoints, capsys):
-    from imls_lightning.train import build_datamodule
-
     cfg = ims_cfg(tmp_path, checkpoints["e2e"], recnn_ckpt=checkpoints["recnn"])
     task = build_task(cfg)
     assert "recnn.checkpoint is ignored" in capsys.readouterr().out
