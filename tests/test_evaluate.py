@@ -242,6 +242,26 @@ def test_orp_gap_on_validation_and_test_views_side_by_side(run):
     assert "gap bound (dB)" in section
 
 
+def test_orp_search_views_path_is_an_exploratory_path_of_its_own_seed(run):
+    """orp_views=path: the views of an exploratory path drawn like the test trajectory, from seed 1, never the
+    evaluated cache's test trajectory (seed 0)."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from data_gen.views import exploration_trajectory
+    from imls_lightning.evaluation import orp_search_views, parse_settings
+
+    cfg = _compose(*_args(run["ck"], "orp_views=path"))
+    main = next(ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))
+                if ViewImageCache.open(p).manifest["data"]["seed"] == 0)
+    scene = build_scene(cfg.scene)
+    held, rows, where = orp_search_views(parse_settings(cfg), cfg, main, scene)
+    assert held.path != main.path and len(rows) == 4 and list(rows) == list(held.splits["test"])
+    assert where == "4 views of an exploratory path of their own (seed 1: no network trained on them)"
+    want = exploration_trajectory(4, scene.camera_distance, seed=1, lookat_jitter=float(cfg.data.lookat_jitter))
+    np.testing.assert_allclose(np.asarray(held.views[rows]), want, atol=1e-6)
+    assert not np.allclose(np.asarray(held.views[rows]), np.asarray(main.views[main.splits["test"]])[:4], atol=1e-3)
+
+
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     from data_gen.cache import ViewImageCache
     from data_gen.scene import build_scene
@@ -259,7 +279,7 @@ def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     assert cos.max() < 0.9999
     val_cache, val_rows, val_where = orp_search_views(parse_settings(_compose(*_args(run["ck"], "orp_views=val"))), cfg, main, None)
     assert val_cache is main and list(val_rows) == list(main.splits["val"]) and val_where.endswith("validation views")
-    with pytest.raises(InputError, match=re.escape("orp_views=test: expected one of ['heldout', 'val']")):
+    with pytest.raises(InputError, match=re.escape("orp_views=test: expected one of ['heldout', 'path', 'val']")):
         parse_settings(_compose(*_args(run["ck"], "orp_views=test")))
 
 

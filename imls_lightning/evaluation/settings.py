@@ -17,9 +17,10 @@ MIN_REPEATS = 10
 #: the shares of C at which the speed-quality front measures IML/S + RecNN (and blue noise + decoder)
 FRONT_SHARES = (0.1, 0.2, 0.4, 0.6, 0.8, 1.0)
 #: where the ORP is searched: ``heldout`` views drawn like the training views from a seed of their own (no
-#: network trained on them), or the cache's ``val`` split (whose eye directions an IMS trained on a larger cache
-#: of the same seed has seen: sample_training_views draws every direction before any distance)
-ORP_VIEWS = ("heldout", "val")
+#: network trained on them), ``path``: an exploratory path of their own, drawn like the test trajectory from a
+#: seed of its own (never the test trajectory itself), or the cache's ``val`` split (whose eye directions an IMS
+#: trained on a larger cache of the same seed has seen: sample_training_views draws every direction before any distance)
+ORP_VIEWS = ("heldout", "path", "val")
 
 
 def _int(cfg, key: str, minimum: int, allow_none: bool = False) -> int | None:
