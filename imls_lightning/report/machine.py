@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import platform
+import time
 
 
 def hydra_command(module: str, fallback: str) -> str:
@@ -57,3 +58,30 @@ def machine_info(device: str = "cpu") -> dict[str, str]:
         except Exception:
             info[mod] = "not installed"
     return info
+
+
+def busy_cores(seconds: float = 0.5) -> float | None:
+    """How many CPU cores were busy over the next ``seconds`` (from ``/proc/stat``: all but idle and
+    I/O wait), a number in ``[0, cores]``; ``None`` where there is no ``/proc/stat``. Read before a
+    timing, it says whether other jobs share the cores the timing will use.
+
+    Example:
+        >>> b = busy_cores(0.05)
+        >>> b is None or 0.0 <= b <= os.cpu_count()
+        True
+    """
+    def ticks() -> tuple[int, int]:
+        with open("/proc/stat") as f:
+            fields = [int(x) for x in f.readline().split()[1:]]
+        return sum(fields), fields[3] + (fields[4] if len(fields) > 4 else 0)
+
+    try:
+        total0, idle0 = ticks()
+        time.sleep(seconds)
+        total1, idle1 = ticks()
+    except (OSError, ValueError, IndexError):
+        return None
+    total = total1 - total0
+    if total <= 0:
+        return 0.0
+    return min(max((total - (idle1 - idle0)) / total, 0.0), 1.0) * (os.cpu_count() or 1)

@@ -226,6 +226,20 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     assert rows["old"]["recnn_lead_db"] == "" and float(rows["tiny"]["recnn_lead_db"]) == pytest.approx(lead["lead_db"], abs=1e-3)
 
 
+def test_cli_an_estimate_timed_beside_other_jobs_says_so_when_reused(tmp_path):
+    """The estimate records how many cores other jobs kept busy before it timed; reused, such a file warns in one line."""
+    first = _cli(tmp_path)
+    assert first.returncode == 0, first.stderr
+    path = Path(first.stdout.strip().splitlines()[-1])
+    est = json.loads(path.read_text())
+    assert est["busy_cores"] is None or 0.0 <= est["busy_cores"] <= os.cpu_count()
+    path.write_text(json.dumps({**est, "busy_cores": 1.5}))
+    again = _cli(tmp_path)
+    assert again.returncode == 0 and "reusing" in again.stderr
+    warning = [line for line in again.stderr.splitlines() if "cores busy" in line]
+    assert len(warning) == 1 and "1.50 cores busy" in warning[0] and f"delete {path.parent}" in warning[0]
+
+
 def test_cli_an_estimate_is_measured_again_when_the_volume_changed(tmp_path):
     """Reuse is by content: a volume replaced at the same path is not served its old estimate."""
     z, y, x = np.mgrid[-1:1:16j, -1:1:16j, -1:1:16j]
