@@ -239,7 +239,12 @@ def test_orp_gap_on_validation_and_test_views_side_by_side(run):
     if orp["found"]:
         assert "| 4 held-out views (seed 1: no network trained on them) (the ORP is chosen here) | 4 |" in section
         assert "the test trajectory, evaluated (never tuned on)" in section
+        assert "Its gap on the evaluated views by camera distance" in section
     assert "gap bound (dB)" in section
+    # where on the test views the gap is lost: by camera distance, in equal-count bins of the evaluated views
+    bins = orp["test_by_distance"]
+    assert sum(b["views"] for b in bins) == 2 and len(bins) == 2 and bins[0]["hi"] <= bins[1]["lo"]
+    assert np.mean([b["gap_db"] for b in bins]) == pytest.approx(orp["test"]["gap_db"], abs=1e-6)
 
 
 def test_orp_search_views_path_is_an_exploratory_path_of_its_own_seed(run):

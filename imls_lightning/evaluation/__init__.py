@@ -57,7 +57,7 @@ from ..report import summary
 from .baselines import blue_noise_method, equal_share, ims_mask_at_share, sparser_method
 from .measurement import image_quality, measure, spaced, view_loader, view_tensor
 from .networks import Networks, check_trained_on, load_networks, load_sparser_recnn
-from .operating_point import orp_search_views, orp_with_lift, paired_gap, record_operating_point
+from .operating_point import gap_by_distance, orp_search_views, orp_with_lift, paired_gap, record_operating_point
 from .run import evaluate
 from .settings import FRONT_SHARES, MIN_REPEATS, ORP_VIEWS, Settings, parse_settings
 from .sweeps import Sweeps, options_sweep
@@ -66,6 +66,6 @@ __all__ = [
     "evaluate", "summary", "Settings", "parse_settings", "MIN_REPEATS", "FRONT_SHARES", "ORP_VIEWS",
     "Networks", "load_networks", "load_sparser_recnn", "check_trained_on",
     "image_quality", "measure", "spaced", "view_tensor", "view_loader",
-    "orp_search_views", "orp_with_lift", "paired_gap", "record_operating_point",
+    "orp_search_views", "orp_with_lift", "paired_gap", "gap_by_distance", "record_operating_point",
     "sparser_method", "blue_noise_method", "ims_mask_at_share", "equal_share", "Sweeps", "options_sweep",
 ]

@@ -1,7 +1,7 @@
 """The operating point (ORP) of an evaluation: searched on the product path on views no network was
 trained on (:func:`orp_search_views`, :func:`product_path_orp`, with the IMS's masks lifted when the
 paper's rescale finds none: :func:`orp_with_lift`), summarized for the report (:func:`orp_summary`,
-:func:`paired_gap`) and recorded beside the IMS checkpoint (:func:`record_operating_point`)."""
+:func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`)."""
 from __future__ import annotations
 
 import sys
@@ -146,6 +146,35 @@ def paired_gap(rows: Sequence[dict[str, Any]], reference: str, method: str) -> d
     b = gap_upper_bound([ref[v] - got[v] for v in views], 0.5)
     return {"gap_db": b.mean, "gap_std_db": b.std, "views": b.views, "psnr_recnn": float(np.mean([ref[v] for v in views])),
             "psnr_imls": float(np.mean([got[v] for v in views]))}
+
+
+def gap_by_distance(rows: Sequence[dict[str, Any]], distance: Callable[[int], float], reference: str = "recnn",
+                    method: str = "imls", bins: int = 4) -> list[dict[str, Any]]:
+    """The per-view gap ``reference - method`` in ``bins`` equal-count bins of the camera distance (``distance`` of a
+    row's cache ``row``): where on the trajectory an operating point loses its promise. Each bin: its distance range,
+    views, mean and largest gap, the method's mean C-share. Empty when the two share no view.
+
+    Example:
+        >>> rows = [{"view": v, "row": v, "method": m, "psnr": p, "c_share": 0.8}
+        ...         for v, (a, b) in enumerate([(40, 37), (40, 38), (38, 37.9), (38, 38)]) for m, p in (("recnn", a), ("imls", b))]
+        >>> [(b["lo"], b["views"], round(b["gap_db"], 2)) for b in gap_by_distance(rows, lambda r: 2.0 + r, bins=2)]
+        [(2.0, 2, 2.5), (4.0, 2, 0.05)]
+    """
+    ref = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == reference and r.get("psnr") is not None}
+    got = {int(r["view"]): r for r in rows if r["method"] == method and r.get("psnr") is not None}
+    views = sorted(set(ref) & set(got))
+    if not views:
+        return []
+    d = np.array([float(distance(int(got[v]["row"]))) for v in views])
+    gap = np.array([ref[v] - float(got[v]["psnr"]) for v in views])
+    share = np.array([float(got[v].get("c_share") or np.nan) for v in views])
+    order = np.argsort(d, kind="stable")
+    out = []
+    for part in np.array_split(order, min(bins, len(views))):
+        out.append({"lo": float(d[part].min()), "hi": float(d[part].max()), "views": int(len(part)),
+                    "gap_db": float(gap[part].mean()), "max_gap_db": float(gap[part].max()),
+                    "c_share": float(np.nanmean(share[part])) if np.isfinite(share[part]).any() else None})
+    return out
 
 
 def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
