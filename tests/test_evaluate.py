@@ -256,8 +256,8 @@ def test_orp_search_views_path_is_an_exploratory_path_of_its_own_seed(run):
     from imls_lightning.evaluation import orp_search_views, parse_settings
 
     cfg = _compose(*_args(run["ck"], "orp_views=path"))
-    main = next(ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))
-                if ViewImageCache.open(p).manifest["data"]["seed"] == 0)
+    caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
+    main = next(c for c in caches if c.manifest["data"]["seed"] == 0)
     scene = build_scene(cfg.scene)
     held, rows, where = orp_search_views(parse_settings(cfg), cfg, main, scene)
     assert held.path != main.path and len(rows) == 4 and list(rows) == list(held.splits["test"])

@@ -139,14 +139,19 @@ def paired_gap(rows: Sequence[dict[str, Any]], reference: str, method: str) -> d
     """
     from ..orp import gap_upper_bound
 
-    ref = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == reference and r.get("psnr") is not None}
-    got = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == method and r.get("psnr") is not None}
-    views = sorted(set(ref) & set(got))
+    ref, got, views = _paired(rows, reference, method)
     if not views:
         return None
-    b = gap_upper_bound([ref[v] - got[v] for v in views], 0.5)
+    b = gap_upper_bound([ref[v] - float(got[v]["psnr"]) for v in views], 0.5)
     return {"gap_db": b.mean, "gap_std_db": b.std, "views": b.views, "psnr_recnn": float(np.mean([ref[v] for v in views])),
-            "psnr_imls": float(np.mean([got[v] for v in views]))}
+            "psnr_imls": float(np.mean([float(got[v]["psnr"]) for v in views]))}
+
+
+def _paired(rows: Sequence[dict[str, Any]], reference: str, method: str) -> tuple[dict[int, float], dict[int, dict], list[int]]:
+    """``reference``'s PSNR and ``method``'s rows by view, over the views both were scored on (sorted)."""
+    ref = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == reference and r.get("psnr") is not None}
+    got = {int(r["view"]): r for r in rows if r["method"] == method and r.get("psnr") is not None}
+    return ref, got, sorted(set(ref) & set(got))
 
 
 def gap_by_distance(rows: Sequence[dict[str, Any]], distance: Callable[[int], float], reference: str = "recnn",
@@ -161,9 +166,7 @@ def gap_by_distance(rows: Sequence[dict[str, Any]], distance: Callable[[int], fl
         >>> [(b["lo"], b["views"], round(b["gap_db"], 2)) for b in gap_by_distance(rows, lambda r: 2.0 + r, bins=2)]
         [(2.0, 2, 2.5), (4.0, 2, 0.05)]
     """
-    ref = {int(r["view"]): float(r["psnr"]) for r in rows if r["method"] == reference and r.get("psnr") is not None}
-    got = {int(r["view"]): r for r in rows if r["method"] == method and r.get("psnr") is not None}
-    views = sorted(set(ref) & set(got))
+    ref, got, views = _paired(rows, reference, method)
     if not views:
         return []
     d = np.array([float(distance(int(got[v]["row"]))) for v in views])
