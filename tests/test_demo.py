@@ -240,10 +240,27 @@ def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
                             "stages": {"recnn": ["trainer.max_epochs=10", "pattern.c_size_ratio=0.5"], "recnn_sparser": ["seed=3"]},
                             "scene_stages": {"ct_head": {"recnn": ["trainer.max_epochs=20"]}}})
     # the RecNN stage's overrides (its scene entries included), its sparser pattern replacing the same key, then the stage's own
-    assert sparser_overrides(cfg) == ["trainer.max_epochs=20", "pattern.c_size_ratio=0.25", "seed=3"]
+    assert sparser_overrides(cfg) == ["trainer.max_epochs=20", "pattern.c_size_ratio=0.3536", "seed=3"]
     cfg.recnn = "unet"
     with pytest.raises(InputError, match="recnn=unet: no sparser pattern known for it.*stages.recnn_sparser=null"):
         sparser_overrides(cfg)
+
+
+@pytest.mark.parametrize("kind", ["enhancenet", "fovolnet"])
+@pytest.mark.parametrize("resolution", [128, 512])
+def test_every_kinds_sparser_pattern_builds_with_a_quarter_or_half_of_c(kind, resolution):
+    # FoVolNet's first sparser pattern (a C-Image half the side) could not hold its base level at any size
+    from omegaconf import OmegaConf
+
+    from imls_lightning.core.patterns import build_pattern
+    from imls_lightning.pipelines.stages import SPARSER_PATTERN
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_sparser"):
+        default, sparser = (OmegaConf.to_container(compose("train", overrides=[f"recnn={kind}", *extra]).pattern, resolve=True)
+                            for extra in ([], SPARSER_PATTERN[kind]))
+    share = build_pattern(sparser, resolution).indices.numel() / build_pattern(default, resolution).indices.numel()
+    assert 0.2 <= share <= 0.55, share
 
 
 def test_stage_overrides_scene_entries_replace_the_same_keys():

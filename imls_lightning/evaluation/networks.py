@@ -75,7 +75,7 @@ def load_sparser_recnn(path: str, pattern, recnn_name: str):
     size, and a pattern with at most half of ``pattern``'s pixels (EnhanceNet 4x instead of 2x: a
     quarter); otherwise a one-line :class:`InputError`."""
     task = load_task(path, expect="RecNNTask", what="checkpoints.recnn_sparser")
-    hint = "train the same RecNN on a sparser pattern (e.g. model=recnn pattern.factor=4, or pattern.c_size_ratio=0.25)"
+    hint = "train the same RecNN on a sparser pattern (e.g. model=recnn pattern.factor=4, or pattern.c_size_ratio=0.3536)"
     kind = str(task.hparams.get("recnn_name", "recnn"))
     if kind != recnn_name:
         raise InputError(f"checkpoints.recnn_sparser={path}: a {kind} RecNN; the evaluation's RecNN is {recnn_name} ({hint})")

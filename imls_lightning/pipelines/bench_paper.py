@@ -395,13 +395,25 @@ def orp_cell(row: Mapping[str, Any]) -> str:
     return fmt_pct(_num(row.get("c_share"))) if found else f"none (ran at {fmt_pct(_num(row.get('c_share')))})"
 
 
+def las_cell(row: Mapping[str, Any]) -> str:
+    """``"<ms>, <PSNR> dB"`` of LAS at the row's IPR, or ``"–"`` for a pair without LAS (FoVolNet: ``las_with``).
+
+    Example:
+        >>> las_cell({"las_ms": 648.85, "las_psnr_db": 29.57}), las_cell({"las_ms": None})
+        ('648.8, 29.57 dB', '–')
+    """
+    if not math.isfinite(_num(row.get("las_ms"))):
+        return "–"
+    return f"{fmt(row.get('las_ms'), 1)}, {fmt(row.get('las_psnr_db'))} dB"
+
+
 def section_text(rows: Sequence[Mapping[str, Any]], partial: bool, adaptive: Sequence[Mapping[str, Any]] = ()) -> str:
     lines = ["## Paper scale (512² FR, 256² C, half-voxel sampling)" + (" — partial" if partial else ""), "",
              "`make bench-paper`; details, per-stage breakdown and the paper's figures in "
              "[benchmarks/paper_scale.md](benchmarks/paper_scale.md), rows in `benchmarks/paper_scale.csv`.", ""]
     main = [[r["scene"], r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
              fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
-             f"{fmt(r.get('las_ms'), 1)}, {fmt(r.get('las_psnr_db'))} dB"] for r in rows]
+             las_cell(r)] for r in rows]
     per_view = {(a["scene"], a["recnn"]): [a["scene"], f"{a['recnn']}, per-view u", f"per view: {fmt_pct(_num(a.get('c_share')))}",
                                            f"{fmt(a.get('psnr_adaptive_db'))} ({fmt(a.get('gap_db'))} dB)", fmt(a.get("recnn_ms"), 1),
                                            fmt(a.get("adaptive_ms"), 1), speedup(_num(a.get("recnn_ms")), _num(a.get("adaptive_ms"))), "–"]
