@@ -17,8 +17,9 @@ from data_gen.errors import InputError
 NON_RESULT_KEYS = frozenset({"cache_dir", "cache_path", "fsync", "workers", "loader_workers", "progress", "runs_dir", "shard"})
 
 # Keys added after runs existed, left out of run hashes while they hold the value every earlier run had, so
-# those runs are still found (a run's directory is the hash of its settings): data.train_pixels (all: whole frames).
-KEYS_NEUTRAL_AT = {"train_pixels": "all"}
+# those runs are still found (a run's directory is the hash of its settings): data.train_pixels (all: whole frames),
+# model.fill (c: the IML decoder's fill in the C-Image's layout; a foveal run filling at the FR positions is a new run).
+KEYS_NEUTRAL_AT = {"train_pixels": "all", "fill": "c"}
 
 
 def to_plain(obj: Any) -> Any:
@@ -103,12 +104,26 @@ def monitor_mode(metric: str) -> str:
     return "max" if any(name.endswith(k) or f"{k}_" in name for k in HIGHER_IS_BETTER) else "min"
 
 
+def decoder_fill_for(pattern_kind: str) -> str:
+    """``model.fill``'s default (``${imls_decoder_fill:${pattern.kind}}``, ``imls_lightning.tasks.iml.FILLS``): ``fr``,
+    the IML decoder's fill at a foveal C-Image's FR positions; ``c`` on a grid pattern, where both fill alike and
+    ``c`` (:data:`KEYS_NEUTRAL_AT`) leaves every grid-pattern run's settings hash as it was.
+
+    Example:
+        >>> decoder_fill_for("foveal"), decoder_fill_for("downsample")
+        ('fr', 'c')
+    """
+    return "fr" if str(pattern_kind) == "foveal" else "c"
+
+
 def register_resolvers() -> None:
-    """Register the project's resolvers once (``${imls_hash:...}``, ``${imls_monitor_mode:...}``)."""
+    """Register the project's resolvers once (``${imls_hash:...}``, ``${imls_monitor_mode:...}``, ``${imls_decoder_fill:...}``)."""
     if not OmegaConf.has_resolver("imls_hash"):
         OmegaConf.register_new_resolver("imls_hash", lambda *parts: settings_hash(*parts))
     if not OmegaConf.has_resolver("imls_monitor_mode"):
         OmegaConf.register_new_resolver("imls_monitor_mode", monitor_mode)
+    if not OmegaConf.has_resolver("imls_decoder_fill"):
+        OmegaConf.register_new_resolver("imls_decoder_fill", decoder_fill_for)
 
 
 def checkpoint_problem(path: str | Path) -> str | None:

@@ -81,3 +81,14 @@ def test_run_hash_of_the_demos_recnn_stage_is_pinned():
     # a key added later enters the hash only away from the value every earlier run had
     assert _run_hash([*demo_recnn, "data.train_pixels=all"]) == "898ec7f5"
     assert _run_hash([*demo_recnn, "data.train_pixels=pattern"]) != "898ec7f5"
+
+
+def test_model_fill_defaults_by_pattern_kind_and_only_a_foveal_run_changes_its_hash():
+    """The IML decoder fills at a foveal C-Image's FR positions (model.fill=fr); on a grid both fills are the same,
+    and model.fill=c leaves out of the hash, so every grid-pattern IML run keeps its directory."""
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+        fov = compose(config_name="train", overrides=["model=iml", "recnn=fovolnet"])
+        grid = compose(config_name="train", overrides=["model=iml"])
+    assert fov.model.fill == "fr" and grid.model.fill == "c"
+    assert settings_hash({"model": {"mean": 0.2}}) == settings_hash({"model": {"mean": 0.2, "fill": "c"}})
+    assert settings_hash({"model": {"mean": 0.2}}) != settings_hash({"model": {"mean": 0.2, "fill": "fr"}})

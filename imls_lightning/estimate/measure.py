@@ -16,6 +16,7 @@ import torch.nn.functional as F
 
 from data_gen.errors import InputError
 
+from ..config import decoder_fill_for
 from ..core.compaction import compact, decompact
 from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern, crop_pattern, plastic_rank_pattern
@@ -153,7 +154,8 @@ def build_networks(pattern: SamplingPattern, recnn_net: Mapping[str, Any], iml: 
         cause = err.__cause__ or err
         raise InputError(f"recnn.net: cannot build the RecNN ({type(cause).__name__}: {str(cause).splitlines()[0]})") from None
     iml_net = IMLNet(n, plastic_rank_pattern(n), depth=int(iml["depth"]), base_channels=int(iml["base_channels"]),
-                     valid=pattern.valid, decoder=str(iml.get("decoder", "refine")))
+                     valid=pattern.valid, decoder=str(iml.get("decoder", "refine")),
+                     fill_pattern=pattern if decoder_fill_for(pattern.kind) == "fr" else None)  # as model.fill's default
     gen = IMSGenerator(n, layers=int(ims["layers"]), base_channels=int(ims["base_channels"]),
                        max_channels=int(ims["max_channels"]))
     return {"recnn": recnn, "iml": iml_net, "ims": gen}

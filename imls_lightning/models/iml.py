@@ -87,6 +87,11 @@ class RefineDecoder(nn.Module):
 
     Args:
         depth, base_channels, max_channels, norm: the U-Net's size (see :class:`UNet`).
+        fill_pattern: a foveal :class:`~imls_lightning.core.patterns.SamplingPattern`: the fill runs at the
+            samples' FR positions (:func:`~imls_lightning.models.pull_push.fill_c_image`), so the correction starts
+            from the fair fill (on ct_head's FoVolNet pair 28-33 dB, the C-Image layout's 15-22 dB). ``None`` (and
+            on a grid pattern, where both are the same): the fill runs in the C-Image's layout, as the runs trained
+            before it did (``model.fill=c``).
 
     Shapes: ``forward(values (B, 3, n, n), mask (B, 1, n, n) in [0, 1]) -> (B, 3, n, n)``.
 
@@ -97,8 +102,10 @@ class RefineDecoder(nn.Module):
         True
     """
 
-    def __init__(self, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group"):
+    def __init__(self, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group",
+                 fill_pattern=None):
         super().__init__()
+        self.fill_pattern = fill_pattern
         self.net = UNet(4, 3, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
         # zero correction at initialization: training starts exactly at the classical fill
         nn.init.zeros_(self.net.head.weight)
@@ -106,7 +113,7 @@ class RefineDecoder(nn.Module):
 
     def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         m = _mask_like(mask, values)
-        fill = pull_push_inpaint(values, m)
+        fill = fill_c_image(values, m, self.fill_pattern)
         refined = fill + self.net(torch.cat([fill, m.to(fill.dtype)], 1)).to(fill.dtype)
         return m * values.to(fill.dtype) + (1 - m) * refined
 
@@ -126,14 +133,16 @@ class PlainDecoder(UNet):
         return super().forward(_mask_like(mask, values) * values)
 
 
-def build_decoder(kind: str, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group") -> nn.Module:
-    """``"refine"`` -> :class:`RefineDecoder`, ``"plain"`` -> :class:`PlainDecoder`, ``"fill"`` -> :class:`FillDecoder`."""
+def build_decoder(kind: str, depth: int = 5, base_channels: int = 32, max_channels: int = 512, norm: str = "group",
+                  fill_pattern=None) -> nn.Module:
+    """``"refine"`` -> :class:`RefineDecoder`, ``"plain"`` -> :class:`PlainDecoder`, ``"fill"`` -> :class:`FillDecoder`;
+    ``fill_pattern``: where the fill runs (:class:`RefineDecoder`; the plain U-Net has no fill)."""
     if kind == "refine":
-        return RefineDecoder(depth, base_channels, max_channels, norm)
+        return RefineDecoder(depth, base_channels, max_channels, norm, fill_pattern=fill_pattern)
     if kind == "plain":
         return PlainDecoder(depth, base_channels, max_channels, norm)
     if kind == "fill":
-        return FillDecoder()
+        return FillDecoder(fill_pattern)
     raise InputError(f"decoder={kind!r}: expected one of {list(DECODERS) + ['fill']}")
 
 
@@ -215,6 +224,8 @@ class IMLNet(nn.Module):
         straight_through: in training, sample the hard mask and pass the soft mask's gradient
             (``hard + soft - soft.detach()``), so the decoder trains on exactly the masks it gets at
             inference. Default False (the paper's soft mask).
+        fill_pattern: a foveal pattern: the refine decoder fills at the samples' FR positions
+            (:class:`RefineDecoder`). Default ``None``: in the C-Image's layout.
 
     ``hard=None`` means soft rejection sampling in training mode and hard in eval mode.
 
@@ -246,6 +257,7 @@ class IMLNet(nn.Module):
         decoder: str = "refine",
         importance: str = "learned",
         straight_through: bool = False,
+        fill_pattern=None,
     ):
         super().__init__()
         n = int(c_size)
@@ -263,7 +275,7 @@ class IMLNet(nn.Module):
         self.straight_through = bool(straight_through)
         self.encoder = (UNet(3, 1, depth=depth, base_channels=base_channels, max_channels=max_channels, norm=norm)
                         if importance == "learned" else None)
-        self.decoder = build_decoder(decoder, depth, base_channels, max_channels, norm)
+        self.decoder = build_decoder(decoder, depth, base_channels, max_channels, norm, fill_pattern=fill_pattern)
         self.normalization = ImportanceNormalization(mean, lower, delta)
         self.sampling = RejectionSampling(P, alpha)
         if valid is None:

@@ -12,7 +12,8 @@ every training batch uniformly from that range, so one decoder serves every mean
 or a user picks at inference (validation stays at ``model.mean``).
 
 Logged next to the loss: ``val/fr_psnr`` (dB, after the RecNN), ``val/c_psnr``, ``val/fill_c_psnr``
-(the untrained pull-push fill of the same pixels: the decoder must beat it), and what the encoder
+(the untrained pull-push fill of the same pixels, a foveal C-Image's at their FR positions: the decoder
+must beat it), and what the encoder
 learns: ``val/pim_contrast`` (mean PIM' on object pixels / on empty background, 1 = no preference),
 ``val/density_background`` and ``val/density_object`` (share of each sampled), and
 ``train/encoder_grad_norm``.
@@ -28,7 +29,7 @@ from data_gen.errors import InputError, config_keys
 
 from ..config import to_plain
 from ..models.iml import IMLNet, build_decoder
-from ..models.pull_push import pull_push_inpaint
+from ..models.pull_push import fill_c_image
 from ..core.patterns import build_pattern, plastic_rank_pattern
 from ..core.metrics import psnr_per_image
 from ..inference.checkpoint_checks import check_same_pattern
@@ -81,16 +82,28 @@ def iml_net_kwargs(h: Mapping) -> dict[str, Any]:
     return {k: h.get(k, default) for k, default in IML_NET_DEFAULTS.items()}
 
 
+#: where the refine decoder's fill runs (``model.fill``): ``c``, in the C-Image's layout (every run trained before
+#: the key existed); ``fr``, a foveal C-Image's samples at their FR positions (the same on a grid pattern)
+FILLS = ("c", "fr")
+
+
+def fill_pattern_of(h: Mapping, pattern):
+    """The ``fill_pattern`` of an ``IMLTask``'s decoder with hyperparameters ``h``: ``pattern`` when it fills at
+    the FR positions (``fill: fr``), else ``None`` (checkpoints written before ``fill`` existed)."""
+    return pattern if h.get("fill", "c") == "fr" else None
+
+
 def iml_net_from_hparams(h: Mapping, pattern) -> IMLNet:
     """The :class:`IMLNet` of an ``IMLTask`` with hyperparameters ``h`` (:func:`iml_net_kwargs`)."""
     n = pattern.c_size
-    return IMLNet(n, plastic_rank_pattern(n), valid=pattern.valid, **iml_net_kwargs(h))
+    return IMLNet(n, plastic_rank_pattern(n), valid=pattern.valid, fill_pattern=fill_pattern_of(h, pattern),
+                  **iml_net_kwargs(h))
 
 
-def iml_decoder_from_hparams(h: Mapping) -> torch.nn.Module:
+def iml_decoder_from_hparams(h: Mapping, pattern) -> torch.nn.Module:
     """The decoder alone of :func:`iml_net_from_hparams` (the same module as its ``.decoder``; no encoder)."""
     kw = iml_net_kwargs(h)
-    return build_decoder(kw["decoder"], kw["depth"], kw["base_channels"])
+    return build_decoder(kw["decoder"], kw["depth"], kw["base_channels"], fill_pattern=fill_pattern_of(h, pattern))
 
 
 def check_mean_range(value, key: str = "model.mean_range") -> list[float] | None:
@@ -123,6 +136,7 @@ class IMLTask(ImlsTask):
         importance: ``"learned"`` or ``"uniform"`` (the blue-noise mask baseline, decoder only).
         straight_through: train on hard masks with the soft mask's gradient.
         mean_range: ``None`` or ``[lo, hi]``: a random mean value per training batch.
+        fill: where the refine decoder's fill runs, ``"c"`` or ``"fr"`` (:data:`FILLS`; the config default: :func:`imls_lightning.config.decoder_fill_for`).
         recnn_hparams: hyperparameters of the RecNN task (end-to-end only; taken from its checkpoint).
         finetune_recnn: train the RecNN's weights too.
         pretrained: ``{"recnn": state dict}``: the trained RecNN's weights (not a hyperparameter).
@@ -149,6 +163,7 @@ class IMLTask(ImlsTask):
         importance: str = "learned",
         straight_through: bool = False,
         mean_range: Any = None,
+        fill: str = "c",
         pretrained: Mapping[str, Mapping[str, torch.Tensor]] | None = None,
         **_: Any,  # run keys of the model node and stale hyperparameters: see ImlsTask
     ):
@@ -157,6 +172,8 @@ class IMLTask(ImlsTask):
             raise InputError(f"model.mode={mode!r}: expected one of {list(MODES)}")
         if not lr > 0:
             raise InputError(f"model.lr={lr}: expected a positive number")
+        if fill not in FILLS:
+            raise InputError(f"model.fill={fill!r}: expected one of {list(FILLS)} (where the decoder's fill runs)")
         if mode == "end_to_end" and not recnn_hparams:
             raise InputError("model.mode=end_to_end needs a trained RecNN: set recnn.checkpoint=<path to a RecNN .ckpt>")
         self.save_hyperparameters({
@@ -166,7 +183,7 @@ class IMLTask(ImlsTask):
             "image_weight": float(image_weight), "finetune_recnn": bool(finetune_recnn), "lr": float(lr),
             "recnn_hparams": to_plain(recnn_hparams) if recnn_hparams else None, "recnn_name": recnn_name,
             "decoder": str(decoder), "importance": str(importance), "straight_through": bool(straight_through),
-            "mean_range": check_mean_range(to_plain(mean_range)),
+            "mean_range": check_mean_range(to_plain(mean_range)), "fill": str(fill),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         # errors name the user's keys (model.depth=, model.alpha=, ...)
@@ -240,7 +257,7 @@ class IMLTask(ImlsTask):
         if prefix != "train":
             with torch.no_grad():
                 self.log(f"{prefix}/c_psnr", psnr_per_image(out.c_recon, c).mean(), batch_size=bs)
-                fill = pull_push_inpaint(c, hard_im)
+                fill = fill_c_image(c, hard_im, self.pattern)  # a foveal C-Image is filled at its FR positions
                 self.log(f"{prefix}/fill_c_psnr", psnr_per_image(fill, c).mean(), batch_size=bs)
                 if self.recnn is not None:
                     self.log(f"{prefix}/fill_fr_psnr", psnr_per_image(self.recnn(fill), batch["fr"]).mean(), batch_size=bs)

@@ -470,7 +470,7 @@ class IMSTask(ImlsTask):
         nets = {"generator": IMSGenerator(pattern.c_size, layers=int(hparams.get("layers", 8)),
                                           base_channels=int(hparams.get("base_channels", 32)),
                                           max_channels=int(hparams.get("max_channels", 512))),
-                "iml.decoder": iml_decoder_from_hparams(hparams["iml_hparams"])}
+                "iml.decoder": iml_decoder_from_hparams(hparams["iml_hparams"], pattern)}
         if hparams.get("recnn_hparams"):
             nets["recnn"] = RecNNTask.inference_nets(hparams["recnn_hparams"])["net"]
         return nets

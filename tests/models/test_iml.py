@@ -259,6 +259,35 @@ def test_refine_decoder_gradcheck():
     assert torch.autograd.gradcheck(dec, (c, m))
 
 
+def test_refine_decoder_filling_at_the_fr_positions_starts_at_the_fair_fill():
+    """model.fill=fr: with its zero-initialized correction the refine decoder is the foveal fill at the FR positions
+    (the untrained baseline it must beat), the sampled pixels pass through, and without a fill pattern it is the
+    C-layout fill the earlier runs were trained on."""
+    from imls_lightning.core.patterns import foveal_pattern
+    from imls_lightning.models.pull_push import fill_c_image
+
+    fov = foveal_pattern(3 * N, N, None)
+    c, m = torch.rand(2, 3, N, N), (torch.rand(2, 1, N, N) > 0.6).float()
+    out = RefineDecoder(depth=2, base_channels=4, fill_pattern=fov)(m * c, m)
+    torch.testing.assert_close(out, fill_c_image(m * c, m, fov))
+    torch.testing.assert_close(out * m, c * m)
+    torch.testing.assert_close(RefineDecoder(depth=2, base_channels=4)(m * c, m), pull_push_inpaint(m * c, m))
+    # a soft mask and an empty or full one stay finite
+    for mask in (torch.zeros_like(m), torch.ones_like(m), torch.rand_like(m)):
+        assert torch.isfinite(RefineDecoder(depth=2, base_channels=4, fill_pattern=fov)(c, mask)).all()
+
+
+def test_refine_decoder_filling_at_the_fr_positions_gradcheck():
+    from imls_lightning.core.patterns import foveal_pattern
+
+    torch.manual_seed(0)
+    dec = RefineDecoder(depth=2, base_channels=2, fill_pattern=foveal_pattern(16, 6, None)).double()
+    torch.nn.init.normal_(dec.net.head.weight, std=0.1)  # a non-zero correction: the U-Net's gradient counts too
+    c = torch.rand(1, 3, 6, 6, dtype=torch.float64, requires_grad=True)
+    m = torch.rand(1, 1, 6, 6, dtype=torch.float64).mul(0.8).add(0.1).requires_grad_(True)
+    assert torch.autograd.gradcheck(dec, (c, m))
+
+
 def test_uniform_importance_is_the_plastic_blue_noise_mask_without_an_encoder():
     P = rank_pattern(N)
     net = IMLNet(N, P, mean=0.25, depth=2, base_channels=2, importance="uniform").train()

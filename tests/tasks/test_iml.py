@@ -89,12 +89,24 @@ def test_checkpoints_without_a_decoder_key_build_the_plain_decoder():
     torch.testing.assert_close(old.decoder(c, m), unet(m * c))
 
 
+def test_the_decoder_fills_where_model_fill_says_and_older_checkpoints_in_the_c_layout():
+    from imls_lightning.core.patterns import foveal_pattern
+
+    p = foveal_pattern(48, 16, None)
+    hp = {"depth": 2, "base_channels": 4, "decoder": "refine"}
+    assert iml_net_from_hparams({**hp, "fill": "fr"}, p).decoder.fill_pattern is p
+    assert iml_net_from_hparams({**hp, "fill": "c"}, p).decoder.fill_pattern is None
+    assert iml_net_from_hparams(hp, p).decoder.fill_pattern is None  # written before model.fill existed
+    assert _task().hparams["fill"] == "c"
+
+
 @pytest.mark.parametrize("kw,needle", [
     ({"mean_range": [0.5, 0.1]}, "model.mean_range"),
     ({"mean_range": [0.0, 0.5]}, "model.mean_range"),
     ({"mean_range": "wide"}, "model.mean_range"),
     ({"decoder": "unet"}, "decoder"),
     ({"importance": "random"}, "importance"),
+    ({"fill": "fovea"}, "model.fill='fovea'"),
 ])
 def test_exception_bad_options(kw, needle):
     with pytest.raises(InputError, match=needle):
