@@ -267,6 +267,34 @@ def test_orp_search_views_path_is_an_exploratory_path_of_its_own_seed(run):
     assert not np.allclose(np.asarray(held.views[rows]), np.asarray(main.views[main.splits["test"]])[:4], atol=1e-3)
 
 
+def test_orp_strata_judges_the_bound_in_each_band_of_camera_distance(run):
+    """orp_strata=2: the ORP's bound must hold in both distance bands of the search views, so it is never a lower
+    mean value than the bound over all of them; the record keeps each band's mean gap."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import product_path_orp
+
+    caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
+    main = next(c for c in caches if c.manifest["data"]["seed"] == 0)
+    results = {}
+    for k in (1, 2):
+        cfg = _compose(*_args(run["ck"], f"orp_strata={k}"))
+        s = parse_settings(cfg)
+        assert s.orp_strata == k and ("orp_strata" in s.hashed()) == (k != 1)  # earlier evaluations keep their folders
+        nets = load_networks(s, int(cfg.data.resolution))
+        results[k] = product_path_orp(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
+    one, two = results[1], results[2]
+    assert "in each of 2 equal-count bands of camera distance" in two.where and "bands" not in one.where
+    rec = two.evaluations[0].record
+    assert len(rec["strata_gap_db"]) == 2 and rec["gap_bound_db"] >= max(rec["strata_gap_db"]) - 1e-9
+    assert "strata_gap_db" not in one.evaluations[0].record
+    if two.found:
+        assert one.found and two.mean >= one.mean - 0.05  # the search's tolerance
+    with pytest.raises(InputError, match=re.escape("orp_strata=0: expected an integer >= 1")):
+        parse_settings(_compose(*_args(run["ck"], "orp_strata=0")))
+
+
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     from data_gen.cache import ViewImageCache
     from data_gen.scene import build_scene

@@ -80,7 +80,13 @@ def orp_search_views(s: Settings, cfg, cache, scene):
 def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
     """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
     its bound is for the mean gap of ``future_views`` new views (the evaluated ones)."""
+    from ..orp import strata_by_rank
+
     cache, rows, where = orp_search_views(s, cfg, cache, scene)
+    # orp_strata > 1: the bound must hold in each band of camera distance, not only on the views' mix of them
+    strata = strata_by_rank([camera_distance(cache, r) for r in rows], s.orp_strata) if s.orp_strata > 1 else None
+    if strata is not None:
+        where += f", in each of {s.orp_strata} equal-count bands of camera distance"
     print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
           f"{future_views or 'all'} new views", file=sys.stderr, flush=True)
     ims = nets.ims_task.to(device)
@@ -88,10 +94,16 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
         batches = list(view_loader(cache, rows, pattern))
         recnn = nets.recnn.to(device).eval()
         result = orp_with_lift(lambda lift: product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device,
-                                                        confidence=s.orp_confidence, lift=lift, future_views=future_views),
+                                                        confidence=s.orp_confidence, lift=lift, future_views=future_views,
+                                                        strata=strata),
                                s.ims_lift)
     result.where = where
     return result
+
+
+def camera_distance(cache, row: int) -> float:
+    """The camera's distance from the volume's centre in view ``row`` of ``cache`` (its eye position's norm)."""
+    return float(np.linalg.norm(np.asarray(cache.views[int(row)])[:3]))
 
 
 def orp_with_lift(search: Callable[[bool], Any], lift: bool | str) -> Any:
@@ -189,4 +201,5 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
             "confidence": s.orp_confidence, "future_views": rec.get("future_views"), "where": getattr(result, "where", None),
             "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
             "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations), "lift": lifted,
-            "points": _points(result), "rescale_points": getattr(result, "rescale_points", None)}
+            "points": _points(result), "rescale_points": getattr(result, "rescale_points", None),
+            "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db")}

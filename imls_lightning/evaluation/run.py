@@ -22,7 +22,7 @@ from ..models.iml import FillDecoder
 from .baselines import blue_noise_method, equal_share, sparser_method
 from .measurement import measure, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
-from .operating_point import gap_by_distance, orp_summary, paired_gap, product_path_orp, record_operating_point
+from .operating_point import camera_distance, gap_by_distance, orp_summary, paired_gap, product_path_orp, record_operating_point
 from .settings import Settings, parse_settings
 from .sweeps import Sweeps, front_notes, options_sweep
 
@@ -239,7 +239,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     if orp is not None:  # the same operating point on the evaluated (test) views, beside the validation gap
         orp["test"] = paired_gap(rows, "recnn", "imls")
         # and where on them it is lost: the gap by camera distance (seed_shell's grew on close-ups)
-        orp["test_by_distance"] = gap_by_distance(rows, lambda row: float(np.linalg.norm(np.asarray(cache.views[row])[:3])))
+        orp["test_by_distance"] = gap_by_distance(rows, lambda row: camera_distance(cache, row))
     front = rep.front_points(rows, sweep_rows, sweep_pos,
                              notes=front_notes(res["methods"], res["imls_mean"], orp_result, res["las_ipr"]))
     # the machine-readable results the benchmarks collect (make bench-paper)

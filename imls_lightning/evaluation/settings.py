@@ -94,6 +94,7 @@ class Settings:
     orp_confidence: float = 0.95
     orp_views: str = "heldout"
     orp_views_seed: int | None = None
+    orp_strata: int = 1
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -109,6 +110,7 @@ class Settings:
             "orp_views": self.orp_views, "orp_views_seed": self.orp_views_seed,
             # only when set: evaluations made before the key existed keep their directories
             **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
+            **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
         }
 
 
@@ -149,6 +151,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         front_shares=_floats(cfg, "front_shares", 0.0, 1.0, lo_open=True),
         orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
+        orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
     )
 
 

@@ -31,6 +31,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
+from data_gen.errors import InputError
+
 from ..models.pull_push import fill_c_image
 from ..core.metrics import psnr_per_image
 from ..tasks.iml import background_mask
@@ -193,7 +195,8 @@ def summarize_equal_share(batches: Sequence[Sequence[Mapping[str, Any]]]) -> lis
 @torch.no_grad()
 def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
                 epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu",
-                confidence: float = 0.5, lift: bool = False, future_views: int | None = None):
+                confidence: float = 0.5, lift: bool = False, future_views: int | None = None,
+                strata: Sequence[int] | None = None):
     """The ORP on the product path: the smallest mean value ``u`` whose IML/S + RecNN (IMS mask from
     the view at ``u``, exactly those C-pixels, the IML decoder, the RecNN) stays within
     ``epsilon_db`` of the RecNN alone on the given (validation) views, with a margin for unseen views:
@@ -210,20 +213,27 @@ def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module
         confidence: in ``[0.5, 1)``.
         future_views: the number of new views the bound is for (``None``: a confidence bound on the mean).
         lift: lift the IMS's masks to the share ``u`` (the evaluation's ``ims_lift``).
+        strata: a stratum label per view, in the batches' order (e.g. camera-distance bins,
+            :func:`~imls_lightning.orp.search.strata_by_rank`): the bound must then hold in every stratum
+            (:func:`~imls_lightning.orp.search.stratified_gap_bound`). ``None``: over all views at once.
 
     Returns:
         :class:`~imls_lightning.orp.ORPResult`; each evaluation's ``record`` has ``gap_db`` (the mean
-        per-view gap), ``gap_std_db``, ``gap_bound_db`` (what the search compares with epsilon),
-        ``views``, ``confidence``, ``future_views``, ``psnr_imls``, ``psnr_recnn``, ``c_share``, ``ipr``.
+        per-view gap), ``gap_std_db``, ``gap_bound_db`` (what the search compares with epsilon; with strata the
+        largest stratum's), ``views``, ``confidence``, ``future_views``, ``psnr_imls``, ``psnr_recnn``, ``c_share``,
+        ``ipr``, and with strata ``strata_gap_db`` (each stratum's mean gap).
 
     Example:
         >>> res = product_orp(ims.mask_head, ims.decoder, recnn, batches, 1.0, confidence=0.95)   # doctest: +SKIP
         >>> res.best.record["gap_db"] <= res.best.record["gap_bound_db"] <= 1.0         # doctest: +SKIP
         True
     """
-    from ..orp import ORPSearch, gap_upper_bound
+    from ..orp import ORPSearch, gap_upper_bound, stratified_gap_bound
 
     gap_upper_bound([0.0], confidence, future_views)  # a bad confidence fails before any network runs
+    views = sum(int(b["c"].shape[0]) for b in batches)
+    if strata is not None and len(strata) != views:
+        raise InputError(f"product_orp: {len(strata)} stratum labels for {views} views")
 
     prepared = []
     for b in batches:
@@ -243,11 +253,16 @@ def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module
                 pr.append(p_rec)
                 shares.append(im.flatten(1).sum(1))
             p_imls, p_rec, cnt = torch.cat(ps), torch.cat(pr), torch.cat(shares).float().mean()
-            b = gap_upper_bound((p_rec - p_imls).double().cpu().tolist(), confidence, future_views)
-            out.append({"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
-                        "confidence": b.confidence, "future_views": b.future_views,
-                        "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
-                        "c_share": float(cnt) / k, "ipr": float(cnt) / m2})
+            gaps = (p_rec - p_imls).double().cpu().tolist()
+            b = gap_upper_bound(gaps, confidence, future_views)
+            rec = {"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
+                   "confidence": b.confidence, "future_views": b.future_views,
+                   "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
+                   "c_share": float(cnt) / k, "ipr": float(cnt) / m2}
+            if strata is not None:
+                worst, each = stratified_gap_bound(gaps, strata, confidence, future_views)
+                rec.update(gap_bound_db=worst.bound, strata_gap_db=[e.mean for e in each])
+            out.append(rec)
         return out
 
     return ORPSearch(epsilon_db=epsilon_db, tolerance=tolerance, max_rounds=12, criterion="gap_bound_db").run(objective)

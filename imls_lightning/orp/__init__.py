@@ -66,6 +66,8 @@ from .search import (
     evaluation_from,
     gap_upper_bound,
     round_mean,
+    strata_by_rank,
+    stratified_gap_bound,
 )
 
 __all__ = [
@@ -80,6 +82,8 @@ __all__ = [
     "batched",
     "evaluation_from",
     "gap_upper_bound",
+    "stratified_gap_bound",
+    "strata_by_rank",
     "GapBound",
     "round_mean",
     "quote_override_value",

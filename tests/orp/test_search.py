@@ -176,6 +176,28 @@ def test_gap_upper_bound_one_view_and_bad_input():
             orp.gap_upper_bound(gaps, conf)
 
 
+def test_stratified_gap_bound_is_the_plain_bound_in_each_stratum_and_keeps_the_worst():
+    gaps, strata = [2.0, 1.6, 0.2, 0.4, 0.3, 1.9], [0, 0, 1, 1, 1, 0]
+    worst, each = orp.stratified_gap_bound(gaps, strata, 0.95, future_views=12)
+    assert [e.views for e in each] == [3, 3] and [e.future_views for e in each] == [6, 6]
+    assert each[0].bound == pytest.approx(orp.gap_upper_bound([2.0, 1.6, 1.9], 0.95, 6).bound)
+    assert each[1].bound == pytest.approx(orp.gap_upper_bound([0.2, 0.4, 0.3], 0.95, 6).bound)
+    assert worst is each[0] and worst.mean > orp.gap_upper_bound(gaps, 0.95, 12).mean
+    # one stratum: the plain bound
+    one, _ = orp.stratified_gap_bound(gaps, [0] * 6, 0.95, 12)
+    assert one.bound == pytest.approx(orp.gap_upper_bound(gaps, 0.95, 12).bound)
+    with pytest.raises(InputError, match="6 gaps but 5 stratum labels"):
+        orp.stratified_gap_bound(gaps, strata[:5])
+
+
+def test_strata_by_rank_makes_equal_count_bands_by_value():
+    assert orp.strata_by_rank([5, 1, 4, 2, 3, 6], 3) == [2, 0, 1, 0, 1, 2]
+    assert orp.strata_by_rank([1.0, 2.0], 4) == [0, 1]  # more strata than values: one value each
+    assert orp.strata_by_rank([2.0, 2.0, 1.0], 1) == [0, 0, 0]
+    with pytest.raises(InputError, match="orp_strata=0"):
+        orp.strata_by_rank([1.0], 0)
+
+
 def test_the_search_judges_the_criterion_key():
     """criterion="gap_bound_db": the bound decides; the mean gap stays in the record."""
     # mean gap 1 - 2u (within 1 dB everywhere), bound = mean + 0.5: within 1 dB from u = 0.25
