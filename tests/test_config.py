@@ -92,3 +92,15 @@ def test_model_fill_defaults_by_pattern_kind_and_only_a_foveal_run_changes_its_h
     assert fov.model.fill == "fr" and grid.model.fill == "c"
     assert settings_hash({"model": {"mean": 0.2}}) == settings_hash({"model": {"mean": 0.2, "fill": "c"}})
     assert settings_hash({"model": {"mean": 0.2}}) != settings_hash({"model": {"mean": 0.2, "fill": "fr"}})
+
+
+def test_run_hash_of_the_demos_iml_stage_is_pinned_and_only_a_foveal_run_moves_with_model_fill():
+    """model.fill entered the IML's settings after runs existed: the demo's IML stage (a grid pattern) keeps its
+    directory, a FoVolNet IML filling at the FR positions (the new default) is a new run, and one asked for with
+    model.fill=c is found where the runs trained before the key were (hashes computed on the commit before it)."""
+    iml = ["model=iml", "scene=flame", "data=small", "renderer=numba", "data.cache_dir=cache", "paths.runs_dir=runs/demo",
+           "seed=0", "trainer.enable_progress_bar=false", "model.mode=end_to_end", "model.mean=0.2", "model.mean_range=[0.1,0.6]",
+           "model.depth=4", "model.base_channels=8", "data.batch_size=2", "trainer.max_epochs=12"]
+    assert _run_hash([*iml, "recnn=enhancenet"]) == "cad82173"
+    assert _run_hash([*iml, "recnn=fovolnet", "model.fill=c"]) == "1c27d9eb"
+    assert _run_hash([*iml, "recnn=fovolnet"]) not in ("1c27d9eb", "cad82173")
