@@ -267,6 +267,7 @@ def test_orp_search_views_path_is_an_exploratory_path_of_its_own_seed(run):
     assert not np.allclose(np.asarray(held.views[rows]), np.asarray(main.views[main.splits["test"]])[:4], atol=1e-3)
 
 
+@pytest.mark.slow  # two ORP searches on real networks; the banded bound itself: tests/orp/test_search.py
 def test_orp_strata_judges_the_bound_in_each_band_of_camera_distance(run):
     """orp_strata=2: the ORP's bound must hold in both distance bands of the search views, so it is never a lower
     mean value than the bound over all of them; the record keeps each band's mean gap."""

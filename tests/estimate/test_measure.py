@@ -226,6 +226,7 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     assert rows["old"]["recnn_lead_db"] == "" and float(rows["tiny"]["recnn_lead_db"]) == pytest.approx(lead["lead_db"], abs=1e-3)
 
 
+@pytest.mark.slow  # two estimate CLI runs; keeps the default suite under 15 minutes on 2 cores
 def test_cli_an_estimate_timed_beside_other_jobs_says_so_when_reused(tmp_path):
     """The estimate records how many cores other jobs kept busy before it timed; reused, such a file warns in one line."""
     first = _cli(tmp_path)
