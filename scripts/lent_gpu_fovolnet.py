@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lent_gpu_regime import PY, Clock, box, finished_run, pack_runs, start  # noqa: E402
+from lent_gpu_regime import PY, Clock, box, finished_run, gpu_name, pack_runs, start  # noqa: E402
 
 # the estimate's candidates (benchmarks/paper_regime_estimates.csv): features / base / filter channels, depth,
 # levels, kernel; the first is FoVolNet's default
@@ -74,12 +74,12 @@ def main() -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     common = [f"data={a.data}", "renderer=numba", "data.cache_dir=cache", f"scene={a.scene}"]
     summary: dict = {"scene": a.scene, "cpu_count": os.cpu_count(), "candidates": {}}
+    summary["gpu"] = gpu_name()
     try:
         import torch
-        summary["gpu"] = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
         summary["torch"] = torch.__version__
-    except Exception as err:  # the summary says what it could not read
-        summary["gpu"] = f"unknown ({err})"
+    except ImportError:
+        pass
     t = time.monotonic()
     rc = subprocess.run([PY, "-m", "data_gen", *common, "contact_sheet=true", "progress=False",
                          f"data.workers={a.render_workers}"], stdout=open(logs / "cache.log", "w"),

@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lent_gpu_regime import PY, Clock, box, pack_runs, start  # noqa: E402
+from lent_gpu_regime import PY, Clock, box, gpu_name, pack_runs, start  # noqa: E402
 
 PART = 15 * 2**20  # bytes per part that comes back
 STARTUP = 30  # seconds from a training's start to its fit's first step (imports, data setup, the sanity check)
@@ -109,11 +109,7 @@ def main() -> None:
     logs.mkdir(parents=True, exist_ok=True)
     a.out.mkdir(parents=True, exist_ok=True)
     summary: dict = {"scene": a.scene, "cpu_count": os.cpu_count(), "stages": {}}
-    try:
-        import torch
-        summary["gpu"] = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
-    except Exception as err:  # the summary says what it could not read
-        summary["gpu"] = f"unknown ({err})"
+    summary["gpu"] = gpu_name()
     stages = stage_commands(a.scene, a.data)
     limits = [f"trainer.check_val_every_n_epoch={a.val_every}", "data.loader_workers=1"]
     env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONUNBUFFERED": "1"}

@@ -52,6 +52,15 @@ class Clock:
         return self.seconds - self.elapsed()
 
 
+def gpu_name() -> str | None:
+    """The lent machine's GPU for a summary (None without one; what could not be read, said in the string)."""
+    try:
+        import torch
+        return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    except Exception as err:  # the summary says what it could not read
+        return f"unknown ({err})"
+
+
 def box(seconds: float) -> str:
     """``trainer.max_time`` for a fit of at most ``seconds`` (DD:HH:MM:SS)."""
     s = max(30, int(seconds))
@@ -108,11 +117,7 @@ def main() -> None:
     logs.mkdir(parents=True, exist_ok=True)
     a.out.mkdir(parents=True, exist_ok=True)
     summary: dict = {"scenes": {}, "cpu_count": os.cpu_count()}
-    try:
-        import torch
-        summary["gpu"] = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
-    except Exception as err:  # the summary says what it could not read
-        summary["gpu"] = f"unknown ({err})"
+    summary["gpu"] = gpu_name()
     recnns: dict[str, subprocess.Popen] = {}
     iml: subprocess.Popen | None = None
     for scene in a.scenes:
