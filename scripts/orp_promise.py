@@ -3,13 +3,14 @@
 For one finished evaluation (its ``config.yaml``: scene, cache, checkpoints, settings), each variant searches the ORP
 on the product path exactly as the evaluation does (:func:`imls_lightning.evaluation.operating_point.product_path_orp`:
 the search views of ``orp_views``, the bound at ``orp_confidence``, in each of ``orp_strata`` bands of camera
-distance), then runs IML/S at that point on the evaluation's test-trajectory views and reports the gap to the
+distance; with ``orp_by_distance`` a mean value per band), then runs IML/S at that point on the evaluation's test-trajectory views and reports the gap to the
 RecNN alone there, overall and by camera distance. The test views only score the chosen points; nothing is chosen on
 them. IML/S runs here on the cached pixels (what the selective ray cast returns) in float32, so the first variant
 (the evaluation's own settings) also checks this against the evaluation's measured test gap.
 
     .venv/bin/python scripts/orp_promise.py runs/paper/eval/seed_shell-enhancenet-fe47d42a \\
-        --variant orp_views=path --variant orp_views=path,orp_strata=4 --json benchmarks/orp_promise_seed_shell.json
+        --variant orp_views=path --variant orp_views=path,orp_strata=4 \\
+        --variant orp_views=path,orp_strata=4,orp_by_distance=true --json benchmarks/orp_promise_seed_shell.json
 
 Prints a markdown table; ``--json`` writes the rows.
 """
@@ -29,7 +30,8 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-KEYS = {"orp_views": str, "orp_strata": int, "orp_confidence": float, "orp_max_views": int, "orp_views_seed": int}
+KEYS = {"orp_views": str, "orp_strata": int, "orp_confidence": float, "orp_max_views": int, "orp_views_seed": int,
+        "orp_by_distance": lambda v: v.lower() in ("1", "true", "yes")}
 
 
 def parse_variant(text: str) -> dict:
@@ -43,8 +45,9 @@ def parse_variant(text: str) -> dict:
     return out
 
 
-def test_gap(nets, cache, rows, pattern, u: float, lift: bool) -> dict:
-    """IML/S at ``(u, lift)`` against the RecNN alone on ``rows``: per-view gaps, the paired mean, by distance."""
+def test_gap(nets, cache, rows, pattern, u, lift: bool) -> dict:
+    """IML/S at ``(u, lift)`` against the RecNN alone on ``rows``: per-view gaps, the paired mean, by distance.
+    ``u``: a mean value, or a :class:`~imls_lightning.models.ims.DistanceMeans` (each view at its band's)."""
     from imls_lightning.core.metrics import psnr_per_image
     from imls_lightning.evaluation.measurement import view_loader
     from imls_lightning.evaluation.operating_point import camera_distance
@@ -54,7 +57,9 @@ def test_gap(nets, cache, rows, pattern, u: float, lift: bool) -> dict:
     with torch.inference_mode():
         for b in view_loader(cache, rows, pattern):
             c, fr = b["c"], b["fr"]
-            im = head.threshold(head.generator(b["view"].float()).float(), torch.full((c.shape[0],), float(u)), lift).float()
+            v = b["view"].float()
+            per_view = u(v) if isinstance(u, torch.nn.Module) else torch.full((c.shape[0],), float(u))
+            im = head.threshold(head.generator(v).float(), per_view, lift).float()
             gaps += (psnr_per_image(recnn(c), fr) - psnr_per_image(recnn(decoder(im * c, im)), fr)).tolist()
             shares += (im.flatten(1).sum(1) / head.valid.sum()).tolist()
     d = np.array([camera_distance(cache, r) for r in rows])
@@ -75,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     from data_gen.scene import register_resolvers as register_scene_resolvers
     from imls_lightning.config import register_resolvers
     from imls_lightning.evaluation.networks import load_networks
-    from imls_lightning.evaluation.operating_point import product_path_orp
+    from imls_lightning.evaluation.operating_point import distance_means, product_path_orp
     from imls_lightning.evaluation.run import open_views
     from imls_lightning.evaluation.settings import parse_settings
 
@@ -101,9 +106,10 @@ def main(argv: list[str] | None = None) -> int:
                "orp_views": sv.orp_views, "orp_strata": sv.orp_strata, "orp_confidence": sv.orp_confidence,
                "found": res.found, "mean": res.mean, "lift": bool(res.lifted), "search_gap_db": rec.get("gap_db"),
                "search_bound_db": rec.get("gap_bound_db"), "search_c_share": rec.get("c_share"),
-               "search_strata_gap_db": rec.get("strata_gap_db")}
+               "search_strata_gap_db": rec.get("strata_gap_db"), "by_distance": getattr(res, "by_distance", None)}
         if res.found:
-            row.update(test_gap(nets, cache, rows, pattern, res.mean, bool(res.lifted)))
+            sched = distance_means(res)
+            row.update(test_gap(nets, cache, rows, pattern, res.mean if sched is None else sched, bool(res.lifted)))
         row["seconds"] = round(time.perf_counter() - t, 1)
         if not variant:
             row["evaluation_test_gap_db"] = measured.get("gap_db")
@@ -117,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {r['orp_views']} | {r['orp_strata']} | none | – | – | – | – | – |")
             continue
         q = " / ".join(f"{x:.2f}" for x in r["test_gap_by_distance_quarter_db"])
-        print(f"| {r['orp_views']} | {r['orp_strata']} | {r['mean']:.3f}{' (lifted)' if r['lift'] else ''} | "
+        u = f"{r['mean']:.3f}" if not r.get("by_distance") else " / ".join(f"{x:.3f}" for x in r["by_distance"]["means"])
+        print(f"| {r['orp_views']} | {r['orp_strata']} | {u}{' (lifted)' if r['lift'] else ''} | "
               f"{r['search_gap_db']:.2f} / {r['search_bound_db']:.2f} dB | {r['search_c_share']:.1%} | **{r['test_gap_db']:.2f} dB** | "
               f"{r['test_c_share']:.1%} | {q} |")
     if out and out[0].get("evaluation_test_gap_db") is not None and out[0]["found"]:

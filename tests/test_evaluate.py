@@ -296,6 +296,70 @@ def test_orp_strata_judges_the_bound_in_each_band_of_camera_distance(run):
         parse_settings(_compose(*_args(run["ck"], "orp_strata=0")))
 
 
+def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
+    """orp_by_distance=true: after the banded search each band of camera distance searches its own mean value on its
+    own search views (never above the value that held in every band); IML/S then runs each view at its band's, the
+    summary and the record carry the bands. It needs orp_strata >= 2 (a one-line error)."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import distance_means, orp_summary, product_path_orp
+
+    caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
+    main = next(c for c in caches if c.manifest["data"]["seed"] == 0)
+    cfg = _compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=true", "orp_confidence=0.5"))
+    s = parse_settings(cfg)
+    assert s.orp_by_distance and s.hashed()["orp_by_distance"] is True
+    assert "orp_by_distance" not in parse_settings(_compose(*_args(run["ck"], "orp_strata=2"))).hashed()  # earlier folders kept
+    nets = load_networks(s, int(cfg.data.resolution))
+    res = product_path_orp(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
+    assert res.found and "then each band's own mean value" in res.where
+    b = res.by_distance
+    assert len(b["means"]) == 2 and all(u <= res.mean + 1e-12 for u in b["means"]) and b["views"] == [2, 2]
+    assert b["hi"][0] < b["edges"][0] < b["lo"][1] and all(g <= 1.0 + 1e-9 for g in b["gaps_db"])  # confidence 0.5: the mean
+    sched = distance_means(res)
+    assert sched.means.tolist() == pytest.approx(b["means"]) and distance_means(None) is None
+    orp = orp_summary(res, s, lifted=res.lifted)
+    assert orp["by_distance"] is b
+    from imls_lightning.report.document import _orp_lines
+
+    section = "\n".join(_orp_lines(orp, "test"))
+    assert "**By camera distance** (`orp_by_distance`): each of the 2 bands" in section
+    assert f"| {b['lo'][0]:.2f}-{b['hi'][0]:.2f} | {b['edges'][0]:.3f} | 2 | {b['means'][0]:.4f} |" in section
+    # IML/S runs each search view at its band's mean value
+    from imls_lightning.evaluation.measurement import view_tensor
+
+    near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert float(sched(view_tensor(near, "cpu"))[0]) == pytest.approx(b["means"][0])
+    with pytest.raises(InputError, match=re.escape("orp_by_distance=true: needs orp_strata >= 2 (got 1)")):
+        parse_settings(_compose(*_args(run["ck"], "orp_by_distance=true")))
+    with pytest.raises(InputError, match=re.escape("orp_by_distance=maybe: expected true or false")):
+        parse_settings(_compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=maybe")))
+
+
+def test_orp_promise_script_tests_each_searched_point_on_the_evaluated_views(run, tmp_path, capsys):
+    """scripts/orp_promise.py re-searches a finished evaluation's ORP (its own settings first, then each variant,
+    a by-distance one included) and scores each point on the evaluated views: its first row reproduces the
+    evaluation's measured gap."""
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("orp_promise", ROOT / "scripts" / "orp_promise.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.parse_variant("orp_strata=2,orp_by_distance=true") == {"orp_strata": 2, "orp_by_distance": True}
+    with pytest.raises(SystemExit, match="'orp_step' is not one of"):
+        mod.parse_variant("orp_step=2")
+    out = tmp_path / "rows.json"
+    assert mod.main([str(run["out"]), "--variant", "orp_strata=2,orp_by_distance=true", "--json", str(out)]) == 0
+    own, banded = json.loads(out.read_text())
+    assert own["variant"] == "the evaluation's own" and own["found"] and own["test_views"] == 2
+    assert own["test_gap_db"] == pytest.approx(own["evaluation_test_gap_db"], abs=0.1)  # cached pixels, float32
+    assert banded["orp_strata"] == 2 and len(banded["by_distance"]["means"]) == 2 and math.isfinite(banded["test_gap_db"])
+    table = capsys.readouterr().out
+    assert " / ".join(f"{u:.3f}" for u in banded["by_distance"]["means"]) in table
+
+
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     from data_gen.cache import ViewImageCache
     from data_gen.scene import build_scene

@@ -227,6 +227,28 @@ def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys)
         export_renderer(ckpt, tmp_path / "bad", mean=2)
 
 
+def test_export_runs_a_point_recorded_by_camera_distance(renderer, tmp_path):
+    """A point recorded with orp_by_distance is exported as it runs: the im network picks each view's band's mean
+    value (the same IMs as IMLSRenderer.from_checkpoints), and export.json carries the bands."""
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+
+    ims = _low_pim_ims("enhancenet", 3.0)
+    ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
+    views = _views(6, 11)
+    d = np.linalg.norm(views[:, :3], axis=1)
+    edge = float(np.median(d))
+    bands = {"edges": [edge], "means": [0.9, 0.3], "c_shares": [0.9, 0.3], "gaps_db": [0.7, 0.4], "views": [5, 5]}
+    write_operating_point(ckpt, OperatingPoint(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
+    out = export_renderer(ckpt, tmp_path / "ts")
+    meta = json.loads((out / "export.json").read_text())
+    assert meta["by_distance"] == bands and meta["operating_point"]["by_distance"] == bands and meta["mean"] == 0.9
+    ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
+    sizes = np.array(_compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), views, tol=1))
+    share = sizes / ref.pattern.count
+    near, far = share[d < edge], share[d >= edge]
+    assert near.min() > 0.8 and far.max() < 0.4, share  # lifted: each view's share reaches its band's u
+
+
 def test_standalone_ims_needs_recnn_checkpoint(ckpts, renderer, tmp_path):
     with pytest.raises(InputError, match="recnn_checkpoint=<RecNN .ckpt>"):
         export_renderer(ckpts["standalone"], tmp_path / "a")

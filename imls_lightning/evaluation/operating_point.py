@@ -4,6 +4,7 @@ paper's rescale finds none: :func:`orp_with_lift`), summarized for the report (:
 :func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`)."""
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -27,9 +28,11 @@ def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report:
     from ..inference.operating_point import OperatingPoint, write_operating_point
 
     opt = lambda k: None if orp.get(k) is None else float(orp[k])  # noqa: E731
+    bands = orp.get("by_distance") if orp["found"] else None
     point = OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
                            ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
-                           scene=scene, report=str(Path(report).resolve()))
+                           scene=scene, report=str(Path(report).resolve()),
+                           by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")})
     try:
         path = write_operating_point(s.ims, point)
     except OSError as err:
@@ -84,7 +87,8 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
 
     cache, rows, where = orp_search_views(s, cfg, cache, scene)
     # orp_strata > 1: the bound must hold in each band of camera distance, not only on the views' mix of them
-    strata = strata_by_rank([camera_distance(cache, r) for r in rows], s.orp_strata) if s.orp_strata > 1 else None
+    distances = [camera_distance(cache, r) for r in rows]
+    strata = strata_by_rank(distances, s.orp_strata) if s.orp_strata > 1 else None
     if strata is not None:
         where += f", in each of {s.orp_strata} equal-count bands of camera distance"
     print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
@@ -97,8 +101,64 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
                                                         confidence=s.orp_confidence, lift=lift, future_views=future_views,
                                                         strata=strata),
                                s.ims_lift)
+        result.by_distance = None
+        if s.orp_by_distance and result.found:
+            result.by_distance = band_means(s, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views)
+            where += "; then each band's own mean value"
     result.where = where
     return result
+
+
+def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views: int | None
+               ) -> dict[str, Any] | None:
+    """The by-distance operating point (``orp_by_distance``): each band of camera distance searched on its own
+    search views, with its share of the bound's new views; a band keeps the value that held in every band
+    (``result.mean``) where its own search finds none below it. The bands split at the midpoints between
+    neighbouring bands' distances.
+
+    Returns the ``by_distance`` record: ``edges``, ``means`` (near to far), and per band ``c_shares``,
+    ``gaps_db``, ``bounds_db``, ``views`` and the distance range ``lo`` / ``hi`` of its search views; ``None``
+    (one line says so) where the views' distances do not separate the bands."""
+    from ..inference.baselines import product_orp, product_point
+
+    labels = sorted(set(strata))
+    out: dict[str, list] = {k: [] for k in ("means", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
+    for k in labels:
+        idx = [i for i, lab in enumerate(strata) if lab == k]
+        share = None if future_views is None else max(1, round(future_views * len(idx) / len(rows)))
+        batches = list(view_loader(cache, [rows[i] for i in idx], pattern))
+        own = product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
+                          lift=result.lifted, future_views=share)
+        if own.found and own.mean <= result.mean:
+            u, rec = float(own.mean), own.best.record
+        else:  # the value that held in every band, this band's numbers at it
+            u = float(result.mean)
+            rec = product_point(ims.mask_head, ims.decoder, recnn, batches, u, device=device, confidence=s.orp_confidence,
+                                lift=result.lifted, future_views=share)
+        d = [distances[i] for i in idx]
+        for key, value in (("means", u), ("c_shares", rec["c_share"]), ("gaps_db", rec["gap_db"]),
+                           ("bounds_db", rec["gap_bound_db"]), ("views", len(idx)), ("lo", min(d)), ("hi", max(d))):
+            out[key].append(float(value) if key != "views" else int(value))
+        print(f"[evaluate] ORP by distance: band {k + 1} of {len(labels)} ({min(d):.2f}-{max(d):.2f}): u = {u:.3f}, "
+              f"{rec['c_share']:.1%} of C, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
+    out["edges"] = [0.5 * (hi + lo) for hi, lo in zip(out["hi"][:-1], out["lo"][1:])]
+    if any(b <= a for a, b in zip([-math.inf, *out["edges"]], out["edges"])) or any(
+            hi >= lo for hi, lo in zip(out["hi"][:-1], out["lo"][1:])):
+        print("[evaluate] warning: orp_by_distance: the search views' camera distances do not separate the bands; "
+              f"every view runs at u = {result.mean:.3f}", file=sys.stderr, flush=True)
+        return None
+    return out
+
+
+def distance_means(result):
+    """The :class:`~imls_lightning.models.ims.DistanceMeans` IML/S runs at after a by-distance search (``None``: one
+    mean value for every view)."""
+    bands = getattr(result, "by_distance", None) if result is not None else None
+    if not bands:
+        return None
+    from ..models.ims import DistanceMeans
+
+    return DistanceMeans(bands["edges"], bands["means"])
 
 
 def camera_distance(cache, row: int) -> float:
@@ -202,4 +262,4 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
             "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
             "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations), "lift": lifted,
             "points": _points(result), "rescale_points": getattr(result, "rescale_points", None),
-            "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db")}
+            "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db"), "by_distance": getattr(result, "by_distance", None)}

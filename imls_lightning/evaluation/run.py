@@ -22,7 +22,8 @@ from ..models.iml import FillDecoder
 from .baselines import blue_noise_method, equal_share, sparser_method
 from .measurement import measure, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
-from .operating_point import camera_distance, gap_by_distance, orp_summary, paired_gap, product_path_orp, record_operating_point
+from .operating_point import (camera_distance, distance_means, gap_by_distance, orp_summary, paired_gap, product_path_orp,
+                              record_operating_point)
 from .settings import Settings, parse_settings
 from .sweeps import Sweeps, front_notes, options_sweep
 
@@ -106,11 +107,12 @@ def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list
 
 
 def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
-                  imls_mean: float | None, lift: bool, notes: list[str]) -> tuple[dict[str, Method], float | None]:
+                  imls_mean: float | None, lift: bool, notes: list[str], by_distance=None) -> tuple[dict[str, Method], float | None]:
     """Every method measured (the networks are shared between methods with the same options) and the
-    IPR LAS runs at (None without LAS)."""
+    IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance."""
     opts, pattern, ims = s.options, nets.ims_task.pattern, nets.ims_task
-    imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift)
+    imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift,
+                        by_distance=by_distance)
     methods: dict[str, Method] = {
         "full": FullRayCast(renderer, m, opts),
         "recnn": RecNNAlone(renderer, pattern, nets.recnn, opts),
@@ -195,7 +197,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     device = pick_device(s.options.device)
     notes: list[str] = []
     orp_result, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes)
-    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes)
+    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
+                                          by_distance=distance_means(orp_result))
     order = [k for k in rep.METHOD_ORDER if k in methods]
 
     grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()

@@ -95,6 +95,7 @@ class Settings:
     orp_views: str = "heldout"
     orp_views_seed: int | None = None
     orp_strata: int = 1
+    orp_by_distance: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -111,6 +112,7 @@ class Settings:
             # only when set: evaluations made before the key existed keep their directories
             **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
+            **({"orp_by_distance": True} if self.orp_by_distance else {}),
         }
 
 
@@ -152,7 +154,20 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
+        orp_by_distance=_by_distance(cfg),
     )
+
+
+def _by_distance(cfg) -> bool:
+    """``orp_by_distance``: a mean value per band of camera distance; the bands are ``orp_strata``'s (at least 2)."""
+    v = OmegaConf.select(cfg, "orp_by_distance", default=False)
+    if v not in (True, False, None):
+        raise InputError(f"orp_by_distance={v}: expected true or false")
+    strata = OmegaConf.select(cfg, "orp_strata", default=1) or 1
+    if v and (isinstance(strata, bool) or not isinstance(strata, int) or strata < 2):
+        raise InputError(f"orp_by_distance=true: needs orp_strata >= 2 (got {strata}): each band of camera distance "
+                         "gets its own mean value")
+    return bool(v)
 
 
 def _orp_views(cfg) -> str:

@@ -193,6 +193,55 @@ def summarize_equal_share(batches: Sequence[Sequence[Mapping[str, Any]]]) -> lis
 
 
 @torch.no_grad()
+def _prepare_product_views(mask_head: Any, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]], device):
+    """Per batch: the C-Image, the FR truth, the IMS generator's output and the RecNN alone's per-view PSNR."""
+    prepared = []
+    for b in batches:
+        c, fr, v = b["c"].to(device), b["fr"].to(device), b["view"].to(device).float()
+        prepared.append((c, fr, mask_head.generator(v).float(), psnr_per_image(recnn(c), fr)))
+    return prepared
+
+
+def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, prepared, u: float, lift: bool,
+                    confidence: float, future_views: int | None, strata: Sequence[int] | None) -> dict[str, Any]:
+    """IML/S + RecNN at mean value ``u`` against the RecNN alone on the prepared views: the record of
+    :func:`product_orp` (one home for both the search and :func:`product_point`)."""
+    from ..orp import gap_upper_bound, stratified_gap_bound
+
+    ps, pr, shares = [], [], []
+    for c, fr, g, p_rec in prepared:
+        im = mask_head.threshold(g, torch.full((c.shape[0],), float(u)), lift).float()
+        ps.append(psnr_per_image(recnn(decoder(im * c, im)), fr))
+        pr.append(p_rec)
+        shares.append(im.flatten(1).sum(1))
+    p_imls, p_rec, cnt = torch.cat(ps), torch.cat(pr), torch.cat(shares).float().mean()
+    gaps = (p_rec - p_imls).double().cpu().tolist()
+    b = gap_upper_bound(gaps, confidence, future_views)
+    k = float(mask_head.valid.sum())
+    m2 = float(prepared[0][1].shape[-1]) ** 2
+    rec = {"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
+           "confidence": b.confidence, "future_views": b.future_views,
+           "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
+           "c_share": float(cnt) / k, "ipr": float(cnt) / m2}
+    if strata is not None:
+        worst, each = stratified_gap_bound(gaps, strata, confidence, future_views)
+        rec.update(gap_bound_db=worst.bound, strata_gap_db=[e.mean for e in each])
+    return rec
+
+
+def product_point(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
+                  mean: float, device: torch.device | str = "cpu", confidence: float = 0.5, lift: bool = False,
+                  future_views: int | None = None) -> dict[str, Any]:
+    """IML/S + RecNN at one mean value on the given views: the record one :func:`product_orp` evaluation makes."""
+    from ..orp import gap_upper_bound
+
+    gap_upper_bound([0.0], confidence, future_views)
+    prepared = _prepare_product_views(mask_head, recnn, batches, device)
+    if not prepared:
+        raise InputError("product_point: no views")
+    return _product_record(mask_head, decoder, recnn, prepared, mean, lift, confidence, future_views, None)
+
+
 def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
                 epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu",
                 confidence: float = 0.5, lift: bool = False, future_views: int | None = None,
@@ -228,41 +277,15 @@ def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module
         >>> res.best.record["gap_db"] <= res.best.record["gap_bound_db"] <= 1.0         # doctest: +SKIP
         True
     """
-    from ..orp import ORPSearch, gap_upper_bound, stratified_gap_bound
+    from ..orp import ORPSearch, gap_upper_bound
 
     gap_upper_bound([0.0], confidence, future_views)  # a bad confidence fails before any network runs
     views = sum(int(b["c"].shape[0]) for b in batches)
     if strata is not None and len(strata) != views:
         raise InputError(f"product_orp: {len(strata)} stratum labels for {views} views")
-
-    prepared = []
-    for b in batches:
-        c, fr, v = b["c"].to(device), b["fr"].to(device), b["view"].to(device).float()
-        prepared.append((c, fr, mask_head.generator(v).float(), psnr_per_image(recnn(c), fr)))
-    valid = mask_head.valid.to(device)
-    k = float(valid.sum())
-    m2 = float(prepared[0][1].shape[-1]) ** 2 if prepared else 1.0
+    prepared = _prepare_product_views(mask_head, recnn, batches, device)
 
     def objective(us: Sequence[float]) -> list[dict[str, float]]:
-        out = []
-        for u in us:
-            ps, pr, shares = [], [], []
-            for c, fr, g, p_rec in prepared:
-                im = mask_head.threshold(g, torch.full((c.shape[0],), float(u)), lift).float()
-                ps.append(psnr_per_image(recnn(decoder(im * c, im)), fr))
-                pr.append(p_rec)
-                shares.append(im.flatten(1).sum(1))
-            p_imls, p_rec, cnt = torch.cat(ps), torch.cat(pr), torch.cat(shares).float().mean()
-            gaps = (p_rec - p_imls).double().cpu().tolist()
-            b = gap_upper_bound(gaps, confidence, future_views)
-            rec = {"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
-                   "confidence": b.confidence, "future_views": b.future_views,
-                   "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
-                   "c_share": float(cnt) / k, "ipr": float(cnt) / m2}
-            if strata is not None:
-                worst, each = stratified_gap_bound(gaps, strata, confidence, future_views)
-                rec.update(gap_bound_db=worst.bound, strata_gap_db=[e.mean for e in each])
-            out.append(rec)
-        return out
+        return [_product_record(mask_head, decoder, recnn, prepared, u, lift, confidence, future_views, strata) for u in us]
 
     return ORPSearch(epsilon_db=epsilon_db, tolerance=tolerance, max_rounds=12, criterion="gap_bound_db").run(objective)

@@ -225,6 +225,12 @@ class Product:
     lift: bool
     operating_point: Any = None
 
+    @property
+    def by_distance(self):
+        """The recorded point's mean value per band of camera distance
+        (:class:`~imls_lightning.models.ims.DistanceMeans`), or ``None``: ``mean`` for every view."""
+        return None if self.operating_point is None else self.operating_point.distance_means()
+
 
 def load_product(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | None = None, *,
                  mean: float | str | None = None,

@@ -27,8 +27,10 @@ renamed when complete.
 
 The IM is made at the operating point the evaluation recorded beside the IMS checkpoint
 (``<ims.ckpt>.orp.json``: its mean value, the masks lifted if it lifted them), else at the trained
-mean; ``mean=`` (a number, or ``trained``) overrides it. ``export.json`` carries the mean value
-(``mean``, ``lift``) and the record (``operating_point``).
+mean; ``mean=`` (a number, or ``trained``) overrides it. A point recorded by camera distance
+(``orp_by_distance``) is exported as it runs: the ``im`` network picks each view's band's mean value.
+``export.json`` carries the mean value (``mean``, ``lift``), the bands (``by_distance``) and the record
+(``operating_point``).
 
 The selective ray cast between the networks is not a network: :class:`ExportedIMLSRenderer` takes
 the scene's renderer for it, exactly as :class:`~imls_lightning.inference.pipeline.IMLSRenderer` (whose
@@ -97,7 +99,8 @@ class IMPredictor(MaskAt):
 
     Args:
         head: the :class:`~imls_lightning.models.ims.IMSMaskHead` (eval mode).
-        mean: the mean value ``u`` to threshold at (``None``: the trained one; ``target="pim"`` only).
+        mean: the mean value ``u`` to threshold at (``None``: the trained one; ``target="pim"`` only), or a
+            :class:`~imls_lightning.models.ims.DistanceMeans` (each view at its band's).
         lift: lift the rescaled PIM' to the share ``u`` above the trained mean (with ``mean``).
 
     Example:
@@ -155,11 +158,13 @@ class _OnnxModule(nn.Module):
 # ---------------------------------------------------------------------------------------------
 # export
 # ---------------------------------------------------------------------------------------------
-def export_parts(nets: IMSNets, mean: float | None = None, lift: bool = False) -> dict[str, nn.Module]:
+def export_parts(nets: IMSNets, mean: float | None = None, lift: bool = False, by_distance: nn.Module | None = None
+                 ) -> dict[str, nn.Module]:
     """The three exported modules of the product's networks; ``im`` thresholds at ``mean`` (``None``:
-    the trained mean), lifted with ``lift``."""
+    the trained mean), or at each view's band of camera distance (``by_distance``, a
+    :class:`~imls_lightning.models.ims.DistanceMeans`), lifted with ``lift``."""
     recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
-    im = IMPredictor(nets.head.eval(), mean, lift).eval()
+    im = IMPredictor(nets.head.eval(), mean if by_distance is None else by_distance, lift).eval()
     return {"im": im, "decoder": PackedDecoder(nets.decoder).eval(), "recnn": recnn.eval()}
 
 
@@ -248,7 +253,7 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
     if u is not None and nets.target != "pim":
         raise InputError(f"mean={mean}: the IMS was trained with model.target={nets.target}; only its trained mean can be exported")
     lift = u is not None and product.lift
-    parts = export_parts(nets, u, lift)
+    parts = export_parts(nets, u, lift, product.by_distance)
     pattern = nets.pattern
     examples = _example_inputs(pattern)
 
@@ -280,6 +285,7 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
             "mean": nets.trained_mean if u is None else u,
             "trained_mean": nets.trained_mean,
             "lift": lift,
+            "by_distance": None if product.by_distance is None else point.by_distance,
             "operating_point": None if point is None else asdict(point),
             "inputs": {"im": [1, 9], "decoder": [1, 4, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
             "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),

@@ -32,6 +32,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from data_gen.errors import InputError
+
 __all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run"]
 
 #: appended to the checkpoint's file name
@@ -58,6 +60,11 @@ class OperatingPoint:
         epsilon_db: the search's bound; ``gap_db``: the RecNN alone's PSNR minus IML/S's there.
         views: the number of validation views searched; ``scene``: the scene evaluated;
             ``report``: the evaluation's ``report.md``.
+        by_distance: the evaluation's ``orp_by_distance`` point, ``None`` without: ``edges`` (``K - 1``
+            camera distances between the bands), ``means`` (``K`` mean values, near to far), and per band
+            the search's ``c_shares``, ``gaps_db`` and ``views``. Renderers then run each view at its
+            band's mean value (:class:`~imls_lightning.models.ims.DistanceMeans`); ``mean`` stays the one
+            value that met the bound in every band, for consumers that take a single one.
     """
 
     mean: float | None
@@ -69,10 +76,20 @@ class OperatingPoint:
     views: int | None = None
     scene: str | None = None
     report: str | None = None
+    by_distance: dict | None = None
 
     @property
     def found(self) -> bool:
         return self.mean is not None
+
+    def distance_means(self):
+        """The :class:`~imls_lightning.models.ims.DistanceMeans` of a by-distance point (``None``: one mean
+        value for every view)."""
+        if not self.found or not self.by_distance:
+            return None
+        from ..models.ims import DistanceMeans
+
+        return DistanceMeans(self.by_distance["edges"], self.by_distance["means"])
 
     def describe(self) -> str:
         """One line: the mean value, the share and IPR it gave, and the bound."""
@@ -80,8 +97,15 @@ class OperatingPoint:
             return f"no ORP within {self.epsilon_db:g} dB of the RecNN alone on the validation views"
         share = "" if self.c_share is None else f", {100 * self.c_share:.1f} % of C"
         ipr = "" if self.ipr is None else f", IPR {self.ipr:.3f}"
+        bands = ""
+        if self.by_distance:
+            b = self.by_distance
+            bands = "; by camera distance, near to far: u = " + " / ".join(f"{u:.3f}" for u in b["means"])
+            if b.get("c_shares"):
+                bands += " (" + " / ".join(f"{100 * c:.0f}" for c in b["c_shares"]) + " % of C)"
+            bands += " split at " + ", ".join(f"{e:.2f}" for e in b["edges"])
         return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{share}{ipr} on the validation views "
-                f"(within {self.epsilon_db:g} dB of the RecNN alone)")
+                f"(within {self.epsilon_db:g} dB of the RecNN alone){bands}")
 
     @property
     def lifted(self) -> bool:
@@ -128,10 +152,27 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
         opt = lambda k, f=float: None if record.get(k) is None else f(record[k])  # noqa: E731
         point = OperatingPoint(mean=mean, lift=bool(record["lift"]), c_share=opt("c_share"), ipr=opt("ipr"),
                                epsilon_db=float(record["epsilon_db"]), gap_db=opt("gap_db"), views=opt("views", int),
-                               scene=opt("scene", str), report=opt("report", str))
-    except (KeyError, TypeError, ValueError) as err:
+                               scene=opt("scene", str), report=opt("report", str),
+                               by_distance=_by_distance(record.get("by_distance")))
+        point.distance_means()  # the bands are checked as a renderer will read them
+    except (KeyError, TypeError, ValueError, InputError) as err:
         return None, f"malformed ({type(err).__name__}: {err})"
     return point, None
+
+
+def _by_distance(value: Any) -> dict | None:
+    """A record's ``by_distance`` as floats (``None`` stays ``None``); ``edges`` and ``means`` are required."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise TypeError(f"by_distance is a {type(value).__name__}, expected a mapping")
+    out = {"edges": [float(x) for x in value["edges"]], "means": [float(x) for x in value["means"]]}
+    for key in ("c_shares", "gaps_db"):
+        if value.get(key) is not None:
+            out[key] = [float(x) for x in value[key]]
+    if value.get("views") is not None:
+        out["views"] = [int(x) for x in value["views"]]
+    return out
 
 
 def read_operating_point(ims_checkpoint: str | Path, trained_mean: float | None = None, *,
@@ -183,7 +224,7 @@ def mean_to_run(ims_checkpoint: str | Path, mean: float | str | None = None, *, 
         >>> mean_to_run("ims.ckpt", 0.4), mean_to_run("ims.ckpt", "trained")
         ((0.4, False, None), (None, False, None))
     """
-    from data_gen.errors import InputError, finite_number
+    from data_gen.errors import finite_number
 
     if isinstance(mean, str) and mean == "trained":
         return None, False, None

@@ -367,11 +367,15 @@ class IMLSRenderer(_PatternMethod):
         opts: :class:`NetOptions`.
         mean: the mean value an :class:`IMSMaskHead` runs at (``None``: the trained one; another needs
             ``target="pim"``); ``lift``: lift its masks to the share ``mean``.
+        by_distance: a :class:`~imls_lightning.models.ims.DistanceMeans`: each view runs at its band of
+            camera distance's mean value instead of ``mean`` (the evaluation's ``orp_by_distance`` point;
+            an :class:`IMSMaskHead` with ``target="pim"`` only). ``info["mean"]`` is then the view's.
 
     Attributes:
         mean: the mean value the masks are made at (the trained one for ``mean=None``; ``None`` when a
-            bound mask does not say); lift; operating_point (the evaluation's record it came from, or
-            None); mask (``view -> IM``), mask_head (the prepared head, or None).
+            bound mask does not say; with ``by_distance`` the single recorded value, for display); lift;
+            by_distance; operating_point (the evaluation's record it came from, or None); mask
+            (``view -> IM``), mask_head (the prepared head, or None).
 
     Example:
         >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
@@ -382,26 +386,29 @@ class IMLSRenderer(_PatternMethod):
     name = "imls"
 
     def __init__(self, renderer, pattern, mask, decoder: torch.nn.Module, recnn: torch.nn.Module,
-                 opts: NetOptions | None = None, *, mean: float | None = None, lift: bool = False):
+                 opts: NetOptions | None = None, *, mean: float | None = None, lift: bool = False,
+                 by_distance: torch.nn.Module | None = None):
         super().__init__(renderer, pattern, opts)
         self.mask_head = None
+        if by_distance is not None and not isinstance(mask, IMSMaskHead):
+            raise InputError("by_distance: needs the IMS's mask head (an IMSMaskHead), not a bound mask")
         if isinstance(mask, IMSMaskHead):
             self.mask_head = prepare_mask_head(mask, self.device, self.opts)
-            mask = self.mask_head.at(mean, lift)  # InputError for a mean of a target=im head
+            mask = self.mask_head.at(mean if by_distance is None else by_distance, lift)  # InputError for a target=im head
             mean = mask.head.trained_mean if mean is None else float(mean)
         self.mask = mask
-        self.mean, self.lift = mean, bool(lift)
+        self.mean, self.lift, self.by_distance = mean, bool(lift), by_distance
         self.operating_point = None
         self.decoder = prepare_net(decoder, self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @classmethod
     def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, mean: float | None = None,
-                  lift: bool = False) -> "IMLSRenderer":
+                  lift: bool = False, by_distance: torch.nn.Module | None = None) -> "IMLSRenderer":
         """The renderer of the product's networks (:class:`~imls_lightning.inference.checkpoints.IMSNets`:
-        mask head, decoder, RecNN) and a ray caster, at ``mean`` (``None``: the trained mean)."""
+        mask head, decoder, RecNN) and a ray caster, at ``mean`` (``None``: the trained mean) or ``by_distance``."""
         recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
-        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, mean=mean, lift=lift)
+        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, mean=mean, lift=lift, by_distance=by_distance)
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
@@ -428,7 +435,7 @@ class IMLSRenderer(_PatternMethod):
         """
         product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
         ray_caster = renderer_for(product.nets.hparams, scene, renderer, renderer_cfg)
-        method = cls.from_nets(product.nets, ray_caster, opts, mean=product.mean, lift=product.lift)
+        method = cls.from_nets(product.nets, ray_caster, opts, mean=product.mean, lift=product.lift, by_distance=product.by_distance)
         method.operating_point = product.operating_point
         return method
 
@@ -440,8 +447,12 @@ class IMLSRenderer(_PatternMethod):
 
     def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
         """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
+        v = view_tensor(view, self.device)
         with timer.stage("importance"):
-            return self.predict_im(view_tensor(view, self.device))[0, 0].bool()
+            im = self.predict_im(v)[0, 0].bool()
+        if self.by_distance is not None:  # the view's band's mean value, for the caller (outside the timed stage)
+            info["mean"] = float(self.mask.by_distance(v)[0])
+        return im
 
     def run(self, view, im: torch.Tensor | None = None) -> RenderResult:
         """Render a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the

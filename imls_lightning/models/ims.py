@@ -43,7 +43,7 @@ from data_gen.errors import InputError
 
 from ..core.importance import lift_to_share, lifted_mask
 
-__all__ = ["IMSGenerator", "IMSDiscriminator", "IMSMaskHead", "MaskAt", "TARGETS", "im_to_target", "output_to_im",
+__all__ = ["IMSGenerator", "IMSDiscriminator", "IMSMaskHead", "MaskAt", "DistanceMeans", "TARGETS", "im_to_target", "output_to_im",
            "generator_plan"]
 
 #: what an IMS generator regresses: the binary IM (paper) or the continuous PIM'
@@ -332,18 +332,66 @@ class IMSMaskHead(nn.Module):
             im = im | lifted_mask(x, m, f, P)
         return im & valid
 
-    def at(self, mean: float | None = None, lift: bool = False) -> "MaskAt":
-        """This head with its mean value and lift bound: ``view -> IM`` (see :class:`MaskAt`)."""
+    def at(self, mean: "float | DistanceMeans | None" = None, lift: bool = False) -> "MaskAt":
+        """This head with its mean value (or a :class:`DistanceMeans`) and lift bound: ``view -> IM`` (see :class:`MaskAt`)."""
         return MaskAt(self, mean, lift)
 
     def extra_repr(self) -> str:
         return f"target={self.target}, c_size={self.c_size}, trained_mean={self.trained_mean}, lower={self.lower}"
 
 
+class DistanceMeans(nn.Module):
+    """A mean value per band of camera distance: view ``(B, 9)`` -> ``u`` ``(B,)`` float32.
+
+    Band ``k`` holds the views whose eye lies at a distance ``d`` from the volume's centre with
+    ``edges[k-1] <= d < edges[k]`` (the first band is open below, the last above); its views run at
+    ``means[k]``. The evaluation's by-distance operating point (``orp_by_distance``) is one: close-ups,
+    where the object fills the C-Image, need more pixels than views from afar. The band is found by
+    comparisons and a gather, so tracing and ONNX export see no branch.
+
+    Args:
+        edges: ``K - 1`` increasing finite distances (``K >= 1``).
+        means: ``K`` mean values in ``[0.01, 1]``.
+
+    Raises:
+        InputError: edges not increasing or not finite, a mean outside ``[0.01, 1]``, ``len(means) != len(edges) + 1``.
+
+    Example:
+        >>> sched = DistanceMeans([2.7, 3.0], [0.9, 0.7, 0.5])
+        >>> views = torch.tensor([[2.5, 0, 0, 0, 0, 0, 0, 1, 0], [0, 2.8, 0, 0, 0, 0, 0, 1, 0], [0, 0, 3.3, 0, 0, 0, 0, 1, 0]])
+        >>> [round(u, 2) for u in sched(views).tolist()]
+        [0.9, 0.7, 0.5]
+    """
+
+    def __init__(self, edges, means):
+        super().__init__()
+        import math
+
+        e = [float(x) for x in edges]
+        u = [float(x) for x in means]
+        if len(u) != len(e) + 1:
+            raise InputError(f"by_distance: {len(u)} mean values for {len(e)} band edges; expected one more mean than edges")
+        if not all(math.isfinite(x) for x in e) or any(b <= a for a, b in zip(e, e[1:])):
+            raise InputError(f"by_distance: band edges {e}: expected increasing finite distances")
+        if not all(math.isfinite(x) and 0.01 <= x <= 1.0 for x in u):
+            raise InputError(f"by_distance: mean values {u}: expected numbers in [0.01, 1]")
+        self.register_buffer("edges", torch.tensor(e, dtype=torch.float32))
+        self.register_buffer("means", torch.tensor(u, dtype=torch.float32))
+
+    def forward(self, view: torch.Tensor) -> torch.Tensor:
+        d = view[:, :3].float().norm(dim=1)
+        band = (d.unsqueeze(1) >= self.edges.to(d.device)).sum(1)
+        return self.means.to(d.device)[band]
+
+    def extra_repr(self) -> str:
+        return f"edges={[round(x, 4) for x in self.edges.tolist()]}, means={[round(x, 4) for x in self.means.tolist()]}"
+
+
 class MaskAt(nn.Module):
     """An :class:`IMSMaskHead` at a fixed mean value and lift: ``forward(view (B, 9)) -> IM (B, 1, n, n)``
     bool. What a caller that passes views only needs (the exported ``im`` network; tracing then sees one
-    branch). The binding is made once, at construction.
+    branch). The binding is made once, at construction. ``mean`` may also be a :class:`DistanceMeans`:
+    each view then runs at its band's mean value.
 
     Example:
         >>> n = 8
@@ -352,21 +400,25 @@ class MaskAt(nn.Module):
         >>> view = torch.rand(2, 9)
         >>> torch.equal(head.at(0.5, lift=True)(view), head(view, 0.5, lift=True))
         True
+        >>> torch.equal(head.at(DistanceMeans([], [0.5]), lift=True)(view), head(view, 0.5, lift=True))
+        True
     """
 
-    def __init__(self, head: IMSMaskHead, mean: float | None = None, lift: bool = False):
+    def __init__(self, head: IMSMaskHead, mean: "float | DistanceMeans | None" = None, lift: bool = False):
         super().__init__()
         if mean is not None and head.target != "pim":
             raise InputError(f"mean={mean}: rescaling the IMS's mask needs model.target=pim and the trained mean")
         self.head = head
-        self.mean = None if mean is None else float(mean)
-        self.lift = bool(lift) and self.mean is not None
+        self.by_distance = mean if isinstance(mean, DistanceMeans) else None
+        self.mean = None if mean is None or self.by_distance is not None else float(mean)
+        self.lift = bool(lift) and mean is not None
 
     def forward(self, view: torch.Tensor) -> torch.Tensor:
-        return self.head(view, self.mean, self.lift)
+        mean = self.mean if self.by_distance is None else self.by_distance(view)
+        return self.head(view, mean, self.lift)
 
     def extra_repr(self) -> str:
-        return f"mean={self.mean}, lift={self.lift}"
+        return f"mean={'by distance' if self.by_distance is not None else self.mean}, lift={self.lift}"
 
 
 def _init_dcgan(module: nn.Module) -> None:

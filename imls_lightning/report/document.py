@@ -231,6 +231,19 @@ def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
         L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
                  f"alone on {where}, judged by {rule}; IML/S runs at its trained mean.")
     L.append("")
+    if o["found"] and o.get("by_distance"):
+        b = o["by_distance"]
+        L.append(f"**By camera distance** (`orp_by_distance`): each of the {len(b['means'])} bands then searched on its own "
+                 f"search views, judged by the same rule on its share of the new views; a band keeps u = {fmt(o['mean'], 4)} "
+                 "where its own search finds nothing smaller. IML/S + RecNN below runs each view at its band's u (split "
+                 "at the midpoints between the bands); IML + RecNN at the one u above.")
+        L.append("")
+        L.append(md_table(["band (search views' distance)", "up to", "views", "u", "C-share", "gap (dB)", "gap bound (dB)"],
+                          [[f"{fmt(lo, 2)}-{fmt(hi, 2)}", fmt(e, 3) if e is not None else "–", str(n), fmt(u, 4), fmt_pct(c),
+                            fmt(g, 2), fmt(bd, 2)]
+                           for lo, hi, e, n, u, c, g, bd in zip(b["lo"], b["hi"], [*b["edges"], None], b["views"], b["means"],
+                                                                 b["c_shares"], b["gaps_db"], b["bounds_db"])], "lrrrrrr"))
+        L.append("")
     L.extend(_gap_lines(o, views))
     L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
                       [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["points"]], "rrrr"))

@@ -94,7 +94,8 @@ def viewer(cfg: DictConfig) -> Path | None:
     renderer = IMLSRenderer.from_checkpoints(str(cfg.ims_checkpoint), recnn_checkpoint=cfg.get("recnn_checkpoint") or None,
                                              opts=opts, mean=cfg.get("mean"))
     print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (scene FR {renderer.fr_size}^2, "
-          f"networks on {renderer.device}, mean value u = {float(renderer.mean):.3f})", file=sys.stderr, flush=True)
+          f"networks on {renderer.device}, mean value u = {float(renderer.mean):.3f}"
+          + (", per band of camera distance" if renderer.by_distance is not None else "") + ")", file=sys.stderr, flush=True)
     try:
         v = Viewer(renderer, azimuth=cfg.azimuth, elevation=cfg.elevation, distance=cfg.get("distance"),
                    show_mask=show_mask, interactive=screenshot is None, figsize=tuple(cfg.figsize), dpi=cfg.dpi,

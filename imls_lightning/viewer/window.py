@@ -232,7 +232,10 @@ class Viewer(OrbitCamera):
         self.axes: dict[str, Any] = {}
         self._artists: dict[str, Any] = {}
         mean = getattr(self.renderer, "mean", None)
-        titles = {"imls": "IML/S + RecNN" + ("" if mean is None else f" (u = {float(mean):.2f})"), "truth": "ray cast (ground truth)", "mask": "importance mask\n(FR pixels ray-cast)"}
+        u = "" if mean is None else f" (u = {float(mean):.2f})"
+        if getattr(self.renderer, "by_distance", None) is not None:
+            u = " (u by camera distance)"
+        titles = {"imls": "IML/S + RecNN" + u, "truth": "ray cast (ground truth)", "mask": "importance mask\n(FR pixels ray-cast)"}
         for name in ("imls", "truth", "mask"):
             ax = fig.add_axes((0, 0, 1, 1))
             ax.set_xticks([]), ax.set_yticks([])

@@ -64,7 +64,7 @@ def stats_text(frame: Frame) -> str:
     lines += [f"{'pixels ray-cast':<17s}{100 * frame.share:8.1f} %",
               f"{'PSNR':<17s}{frame.psnr:8.2f} dB" + ("  (exact)" if frame.psnr >= 99.9 else "")]
     if frame.method in ("imls", "adaptive"):
-        lines.append(f"{'mean value u':<17s}{frame.mean:8.3f}" + ("  (this view's)" if frame.method == "adaptive" else ""))
+        lines.append(f"{'mean value u':<17s}{frame.mean:8.3f}" + ("  (this view's)" if frame.view_mean else ""))
     return "\n".join(lines)
 
 
@@ -112,7 +112,8 @@ class WebViewer:
             return
         self.session = session
         log(f"loaded: scene {session.scene_name}, {session.pattern.fr_size}^2, trained mean {session.trained_mean:g}, "
-            f"opens at u = {session.mean:.3f}" + (" (the evaluation's operating point)" if session.operating_point else ""))
+            f"opens at u = {session.mean:.3f}" + (" (the evaluation's operating point)" if session.operating_point else "")
+            + (", by camera distance" if session.by_distance is not None else ""))
         with state:
             state.methods = [{"title": v, "value": k} for k, v in session.methods.items()]
             state.method, state.mean, state.mean_enabled = session.method, session.mean, session.rescalable

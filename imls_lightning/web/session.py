@@ -50,6 +50,7 @@ class Frame:
         share: ray-cast FR pixels / FR pixels.
         psnr: dB against the ground truth (100 when identical).
         mean: the IML/S mean value in force.
+        view_mean: whether ``mean`` is this view's own (the adaptive mean, a by-distance point).
     """
 
     method: str
@@ -60,6 +61,7 @@ class Frame:
     share: float
     psnr: float
     mean: float
+    view_mean: bool = False
 
 
 def png_data_url(image: np.ndarray) -> str:
@@ -91,6 +93,9 @@ class ViewerSession(OrbitCamera):
         start_mean: the start mean value of IML/S (``None``: the trained mean);
             :meth:`from_checkpoints` passes the operating point the evaluation recorded for the IMS.
         lift: IML/S's masks lifted to the share of the mean value (as the evaluation's operating point says).
+        by_distance: the recorded point's mean value per band of camera distance
+            (:class:`~imls_lightning.models.ims.DistanceMeans`, ``orp_by_distance``): IML/S at ``start_mean``
+            runs each view at its band's value; a mean value set with the slider holds for every view.
     """
 
     nets: IMSNets
@@ -105,6 +110,7 @@ class ViewerSession(OrbitCamera):
     method: str = "imls"
     start_mean: float | None = None
     lift: bool = False
+    by_distance: torch.nn.Module | None = None
 
     def __post_init__(self):
         scene = getattr(self.renderer, "scene", None)
@@ -167,7 +173,7 @@ class ViewerSession(OrbitCamera):
 
             mean_predictor = MeanPredictor.load(predictor)
         session = cls(nets, recnn, renderer_for(nets.hparams), las=las, predictor=mean_predictor, opts=opts or NetOptions(),
-                      start_mean=product.mean, lift=product.lift, **camera)
+                      start_mean=product.mean, lift=product.lift, by_distance=product.by_distance, **camera)
         session.operating_point = product.operating_point
         return session
 
@@ -203,8 +209,9 @@ class ViewerSession(OrbitCamera):
     def _imls_at(self, u: float) -> IMLSRenderer:
         if u not in self._imls:
             mean = None if abs(u - self.trained_mean) < 1e-9 else u
+            at_start = self.start_mean is not None and abs(u - float(self.start_mean)) < 1e-9
             self._imls[u] = IMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder, self.recnn, self.opts,
-                                         mean=mean, lift=self.lift)
+                                         mean=mean, lift=self.lift, by_distance=self.by_distance if at_start else None)
         return self._imls[u]
 
     def _truth(self, view: np.ndarray):
@@ -248,5 +255,7 @@ class ViewerSession(OrbitCamera):
                                  torch.from_numpy(np.array(truth)).permute(2, 0, 1).float() / 255))
         share = float(mask.mean())
         self.history.append((self.method, stages.get("total", math.nan), psnr))
-        mean = float(res.info["mean"]) if self.method == "adaptive" else self.mean
-        return Frame(self.method, image, mask, err, stages, share, psnr, mean)
+        # the adaptive mean's and a by-distance point's u are the view's own
+        view_mean = self.method in ("imls", "adaptive") and "mean" in res.info
+        mean = float(res.info["mean"]) if view_mean else self.mean
+        return Frame(self.method, image, mask, err, stages, share, psnr, mean, view_mean)

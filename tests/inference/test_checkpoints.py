@@ -249,3 +249,38 @@ def test_load_product_reads_the_operating_point_and_refuses_wrong_files(tiny_che
     torch.save(raw, tmp_path / "cut.ckpt")
     with pytest.raises(InputError, match=r"weights do not fit the network it describes \(net: missing"):
         load_nets(tmp_path / "cut.ckpt", expect="RecNNTask", what="recnn_checkpoint")
+
+
+def test_a_point_by_camera_distance_travels_with_the_checkpoint(tiny_checkpoints, tmp_path, capsys):
+    """An evaluation with orp_by_distance records its bands; the product loaded from the checkpoint alone runs
+    them (each view at its band's mean value), an explicit mean value overrides them, a malformed band record is
+    ignored with a one-line warning."""
+    import json
+    import shutil
+
+    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
+
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(tiny_checkpoints["ims_pim"], ck)
+    bands = {"edges": [3.5, 4.0], "means": [0.95, 0.6, 0.3], "c_shares": [0.9, 0.6, 0.3], "gaps_db": [0.8, 0.5, 0.2],
+             "views": [2, 2, 2]}
+    point = OperatingPoint(mean=0.95, lift=True, c_share=0.9, ipr=0.2, epsilon_db=1.0, by_distance=bands)
+    write_operating_point(ck, point)
+    read = read_operating_point(ck, log=None)
+    assert read.by_distance == bands and "by camera distance, near to far: u = 0.950 / 0.600 / 0.300 (90 / 60 / 30 % of C) " \
+                                         "split at 3.50, 4.00" in read.describe()
+    product = load_product(str(ck))
+    assert product.mean == 0.95 and product.by_distance.means.tolist() == pytest.approx([0.95, 0.6, 0.3])
+    r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
+    near, far = [0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 4.4, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    got = {u: r.run(v).info for u, v in ((0.95, near), (0.3, far))}
+    assert {u: info["mean"] for u, info in got.items()} == pytest.approx({0.95: 0.95, 0.3: 0.3})
+    fixed = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"), mean=0.3)
+    assert fixed.by_distance is None and "mean" not in fixed.run(far).info
+    capsys.readouterr()
+    rec = json.loads(sidecar_path(ck).read_text())
+    sidecar_path(ck).write_text(json.dumps({**rec, "by_distance": {**bands, "edges": [4.0, 3.5]}}))
+    assert load_product(str(ck)).by_distance is None
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
+    assert len(err) == 1 and "ignored: malformed (InputError: by_distance: band edges [4.0, 3.5]" in err[0]

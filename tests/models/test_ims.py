@@ -184,3 +184,39 @@ def test_mask_head_is_traceable_and_keeps_no_state():
         MaskAt(IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "im"), 0.5)
     with pytest.raises(InputError, match="model.target"):
         IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "pix")
+
+
+def test_distance_means_picks_each_views_band_and_traces():
+    """A mean value per band of camera distance (the by-distance operating point): the band is found by the eye's
+    distance from the volume's centre; bands are half-open, closed below; tracing keeps the bands."""
+    from imls_lightning.models.ims import DistanceMeans
+
+    sched = DistanceMeans([2.7, 3.0], [0.9, 0.7, 0.5])
+    eye = torch.tensor([[2.5, 0, 0], [0, 2.7, 0], [0, 0, 2.99], [0, 3.0, 0], [3.3, 0, 0.1]])
+    views = torch.cat([eye, torch.zeros(5, 3), torch.tensor([[0.0, 1.0, 0.0]]).expand(5, 3)], 1)
+    assert sched(views).tolist() == pytest.approx([0.9, 0.7, 0.7, 0.5, 0.5])
+    assert sched(views).dtype == torch.float32 and DistanceMeans([], [0.4])(views).tolist() == pytest.approx([0.4] * 5)
+    traced = torch.jit.trace(sched, (views[:1],), check_trace=False)
+    assert torch.equal(traced(views), sched(views))
+    for edges, means, needle in (([3.0, 2.7], [0.9, 0.7, 0.5], "expected increasing finite distances"),
+                                 ([2.7, float("nan")], [0.9, 0.7, 0.5], "expected increasing finite distances"),
+                                 ([2.7], [0.9, 1.5], r"expected numbers in \[0.01, 1\]"),
+                                 ([2.7], [0.9], "1 mean values for 1 band edges; expected one more mean than edges")):
+        with pytest.raises(InputError, match=r"^by_distance: .*" + needle):
+            DistanceMeans(edges, means)
+
+
+def test_mask_at_distance_means_runs_each_view_at_its_bands_mean():
+    from imls_lightning.models.ims import DistanceMeans
+
+    g = _outputs(4)
+    head = IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "pim", trained_mean=0.2).eval()
+    views = torch.arange(4, dtype=torch.float32)[:, None].expand(4, 9).contiguous()  # eye distances 0, 1.7, 3.5, 5.2
+    sched = DistanceMeans([1.0, 4.0], [0.9, 0.5, 0.15])
+    u = torch.tensor([0.9, 0.5, 0.5, 0.15])
+    for lift in (False, True):
+        mask = head.at(sched, lift)
+        assert mask.lift == lift and mask.mean is None and mask.by_distance is sched
+        assert torch.equal(mask(views), head(views, u, lift))
+    traced = torch.jit.trace(head.at(sched, True), (views[:1],), check_trace=False)
+    assert torch.equal(traced(views), head(views, u, True))

@@ -117,3 +117,26 @@ def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp
     assert f.mean == 0.4567 and s._imls_at(0.4567).mean == 0.4567
     over = ViewerSession.from_checkpoints(str(ckpt), opts=cpu, mean=0.3)
     assert over.mean == 0.3 and over.operating_point is None and over.lift is False
+
+
+def test_the_session_runs_a_point_recorded_by_camera_distance(tiny_checkpoints, tmp_path, capsys):
+    """A record with bands of camera distance: the session opens at it and IML/S runs each view at its band's mean
+    value (the frame says it is the view's); a mean value set with the slider holds for every view."""
+    import shutil
+
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.web.app import stats_text
+
+    ckpt = tmp_path / "ims.ckpt"
+    shutil.copy(tiny_checkpoints["ims_pim"], ckpt)
+    bands = {"edges": [3.6], "means": [0.9, 0.35]}
+    write_operating_point(ckpt, OperatingPoint(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
+    s = ViewerSession.from_checkpoints(str(ckpt), opts=NetOptions(device="cpu"), distance=4.2)
+    assert s.mean == 0.9 and s.by_distance is not None
+    far = s.frame()
+    assert far.view_mean and far.mean == pytest.approx(0.35) and "(this view's)" in stats_text(far)
+    s.distance = 3.1
+    assert s.frame().mean == pytest.approx(0.9)
+    s.set_mean(0.5)
+    fixed = s.frame()
+    assert not fixed.view_mean and fixed.mean == 0.5 and "(this view's)" not in stats_text(fixed)
