@@ -59,6 +59,10 @@ def ensure_labels(path: Path, make: Callable[[], MeanLabels], what: str) -> tupl
     return labels, False
 
 
+#: the trade-off's row of the evaluation's by-distance operating point
+BANDS_SETTING = "by camera distance (the evaluation's bands)"
+
+
 def run_adaptive(cfg, command: str | None = None) -> Path:
     """The CLI's body: labels -> predictor -> comparison on the test trajectory; returns ``adaptive.md``."""
     from data_gen.cache import ViewImageCache, ensure_cache
@@ -91,7 +95,10 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     run_dir = run_dir_of(s.ims)
     label_dir = run_dir / "adaptive" / "labels"
     label_hash = settings_hash(ck_hashes, cache.path.name, s.label_key())
-    out = Path(s.output_dir) if s.output_dir else run_dir / "adaptive" / settings_hash(ck_hashes, cache.path.name, s.hashed())
+    bands = recorded_bands(s.ims, lift)
+    # a by-distance record adds a row to the trade-off, so it names the run too (runs without one keep their folders)
+    extra = [] if bands is None else [{"by_distance": bands[1]}]
+    out = Path(s.output_dir) if s.output_dir else run_dir / "adaptive" / settings_hash(ck_hashes, cache.path.name, s.hashed(), *extra)
     if s.reuse and (out / "adaptive.md").is_file() and read_results(out)[1] is None:
         print(f"adaptive: reusing the finished run {out} (reuse=false runs it again)", file=sys.stderr, flush=True)
         return out / "adaptive.md"
@@ -127,7 +134,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     timing["evaluate_s"] = round(time.perf_counter() - t_eval, 2)
 
     # -- 4. trade-off curve: fixed means vs the predictor at several margins, on the label source's path --
-    trade = tradeoff_curve(s, cache, ev, nets, predictor, run.views_t, out) if s.tradeoff_means else None
+    trade = tradeoff_curve(s, cache, ev, nets, predictor, run.views_t, out, bands and bands[0]) if s.tradeoff_means else None
     if trade is not None:
         timing["tradeoff_s"] = trade["seconds"]
     timing["total_s"] = round(time.perf_counter() - t_start, 2)
@@ -284,16 +291,32 @@ def measure_trajectory(s, cache, ev: MeanLabels, run: SimpleNamespace) -> tuple[
     return per_view, lat
 
 
-def tradeoff_curve(s, cache, ev: MeanLabels, nets, predictor, views_t: torch.Tensor, out: Path) -> dict[str, Any]:
+def recorded_bands(ims_checkpoint: str, lift: bool):
+    """The evaluation's by-distance operating point for this IMS (``orp_by_distance``): ``(DistanceMeans, its record)``,
+    or ``None`` without one, or when it was searched with other masks (``lift``) than this run makes."""
+    from ..inference.operating_point import read_operating_point
+
+    point = read_operating_point(ims_checkpoint, log=None)
+    if point is None or not point.by_distance or point.lifted != bool(lift):
+        return None
+    return point.distance_means(), point.by_distance
+
+
+def tradeoff_curve(s, cache, ev: MeanLabels, nets, predictor, views_t: torch.Tensor, out: Path, bands=None) -> dict[str, Any]:
     """Step 4: fixed means vs the predictor at several margins, on the label source's path;
-    ``tradeoff.csv`` and ``tradeoff.png`` written, ``{"curve", "points", "seconds"}`` returned."""
+    ``tradeoff.csv`` and ``tradeoff.png`` written, ``{"curve", "points", "seconds"}`` returned. ``bands``: the
+    evaluation's mean value per band of camera distance (:func:`recorded_bands`), the untrained per-view
+    alternative the predictor has to beat, compared as one more setting."""
     t0 = time.perf_counter()
     u_train = nets.u_train
     with torch.inference_mode():
         u_raw = predictor.log_mean(views_t).exp().double().cpu().numpy()
+        u_bands = None if bands is None else bands(views_t.float().cpu()).double().numpy()
     fixed_us = np.exp(np.linspace(math.log(0.05), 0.0, s.tradeoff_means)) if s.tradeoff_means > 1 else np.array([u_train])
     means: dict[str, Any] = {f"fixed:{u:.6g}": float(u) for u in fixed_us}
     means.update({f"adaptive x{mg:g}": u_raw * mg for mg in s.tradeoff_margins})
+    if u_bands is not None:
+        means[BANDS_SETTING] = u_bands
     means["oracle (labels)"] = ev.u
     if s.reference == "iml":  # the reference is the path itself at the trained mean: measured in the same pass
         means["reference"] = u_train

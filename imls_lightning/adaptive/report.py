@@ -112,6 +112,8 @@ def plot_tradeoff(path: Path, curve: list[dict[str, float]], points: list[Tradeo
         for p in points:
             if p.name.startswith("oracle"):
                 ax.plot([p.ipr], [getattr(p, key)], "*", ms=10, color="C2", label="oracle u (labels)")
+            elif p.name.startswith("by camera distance"):
+                ax.plot([p.ipr], [getattr(p, key)], "s", ms=6, color="C0", label="u by camera distance (the ORP's bands)")
         ax.set_xlabel("average IPR (rendered / FR pixels)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
@@ -245,6 +247,13 @@ def tradeoff_markdown(trade: dict[str, Any], s: Settings, path_name: str, n: int
         L.append(f"- Adaptive beats the fixed-mean curve at {sum(p.d_psnr > 0 for p in ad)} of {len(ad)} margins inside its range; "
                  f"largest gain {best.d_psnr:+.2f} dB at IPR {best.ipr:.4f} ({best.name}); "
                  + ", ".join(f"{p.name}: {'–' if p.d_ipr is None else f'{100 * p.d_ipr:+.1f} %'} pixels for the same PSNR" for p in ad) + ".")
+    bands = next((p for p in points if p.name.startswith("by camera distance")), None)
+    if bands is not None and ad:
+        # the untrained per-view alternative: the evaluation's mean value per band of camera distance
+        near = min(ad, key=lambda p: abs(p.ipr - bands.ipr))
+        L.append(f"- Against the evaluation's bands by camera distance (IPR {bands.ipr:.4f}, {bands.psnr:.2f} dB, "
+                 f"{100 * bands.within:.0f} % of views within epsilon): the predictor at the nearest IPR ({near.name}, "
+                 f"{near.ipr:.4f}) scores {near.psnr - bands.psnr:+.2f} dB.")
     top = max(curve, key=lambda r: r["psnr"])
     L.append(f"- The fixed-mean curve tops out at {top['psnr']:.2f} dB (u = {top['u']:.3g}, IPR {top['ipr']:.4f}); a setting "
              f"above it has '–' as fixed IPR. See `tradeoff.png`, `tradeoff.csv`.\n")

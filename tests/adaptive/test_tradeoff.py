@@ -1,6 +1,8 @@
 """imls_lightning.adaptive.tradeoff: quality at per-view means and the fixed-mean curve comparison."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -110,3 +112,47 @@ def test_exception_tradeoff_bad_input():
         tradeoff(ref, {0.1: {"ipr": np.zeros(2), "psnr": np.zeros(2)}}, {})
     with pytest.raises(InputError, match="epsilon"):
         tradeoff(ref, {0.1: {"ipr": np.zeros(3), "psnr": np.zeros(3)}}, {}, epsilon_db=-1)
+
+
+def test_the_evaluations_bands_by_camera_distance_join_the_tradeoff(tiny_cache, pim_task, pim_ckpt, tmp_path):
+    """The per-view predictor's untrained alternative: the evaluation's by-distance operating point (recorded beside the
+    IMS checkpoint) is one more setting of the trade-off, at each view's band's mean value; a record of other masks
+    (lift) or without bands adds nothing."""
+    import shutil
+    from types import SimpleNamespace
+
+    from imls_lightning.adaptive.cli import BANDS_SETTING, recorded_bands, tradeoff_curve
+    from imls_lightning.adaptive.labels import MeanLabels
+    from imls_lightning.adaptive.report import tradeoff_markdown
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(pim_ckpt, ck)
+    assert recorded_bands(str(ck), False) is None  # no record
+    write_operating_point(ck, OperatingPoint(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0))
+    assert recorded_bands(str(ck), False) is None  # one mean value for every view
+    bands = {"edges": [3.75], "means": [0.6, 0.15], "c_shares": [0.5, 0.1], "gaps_db": [0.5, 0.3], "views": [2, 2]}
+    write_operating_point(ck, OperatingPoint(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands))
+    assert recorded_bands(str(ck), True) is None  # searched on other masks
+    sched, record = recorded_bands(str(ck), False)
+    assert record == bands
+    rows = np.asarray(tiny_cache.splits["test"][:6])
+    views_t = torch.as_tensor(np.asarray(tiny_cache.views[rows], np.float32))
+    s = SimpleNamespace(tradeoff_means=3, tradeoff_margins=[1.0], label_source="ims", reference="recnn", epsilon_db=1.0,
+                        batch_size=4, progress=False, views="test")
+    nets = SimpleNamespace(pattern=pim_task.pattern, iml=pim_task.iml, recnn=pim_task.recnn, ims=pim_task, lift=False,
+                           device="cpu", u_train=float(pim_task.iml.mean))
+    n = len(rows)
+    ev = MeanLabels(rows=rows, views=views_t.numpy(), u=np.full(n, 0.3), met=np.ones(n, bool), gap_db=np.zeros(n),
+                    psnr_ref=np.zeros(n), complexity=np.zeros(n))
+    predictor = SimpleNamespace(log_mean=lambda v: torch.full((v.shape[0],), math.log(0.3)))
+    trade = tradeoff_curve(s, tiny_cache, ev, nets, predictor, views_t, tmp_path, sched)
+    point = next(p for p in trade["points"] if p.name == BANDS_SETTING)
+    u = sched(views_t).double().numpy()
+    q = quality_at_means(tiny_cache, rows, pim_task.pattern, pim_task.iml, pim_task.recnn, {"bands": u}, source="ims",
+                         ims=pim_task, batch_size=4)
+    assert point.ipr == pytest.approx(float(q["bands"]["ipr"].mean())) and point.psnr == pytest.approx(float(q["bands"]["psnr"].mean()))
+    assert len(set(np.round(u, 4))) == 2  # the trajectory crosses the split: both bands are used
+    text = "\n".join(tradeoff_markdown(trade, SimpleNamespace(epsilon_db=1.0, reference="recnn", tradeoff_margins=[1.0],
+                                                             views="test"), "IML/S + RecNN", len(rows)))
+    assert f"| {BANDS_SETTING} |" in text and "Against the evaluation's bands by camera distance" in text
