@@ -337,6 +337,7 @@ def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
         parse_settings(_compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=maybe")))
 
 
+@pytest.mark.slow  # a benchmark script (three ORP searches); the by-distance search itself is tested above
 def test_orp_promise_script_tests_each_searched_point_on_the_evaluated_views(run, tmp_path, capsys):
     """scripts/orp_promise.py re-searches a finished evaluation's ORP (its own settings first, then each variant,
     a by-distance one included) and scores each point on the evaluated views: its first row reproduces the
