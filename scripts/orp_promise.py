@@ -30,7 +30,7 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-KEYS = {"orp_views": str, "orp_strata": int, "orp_confidence": float, "orp_max_views": int, "orp_views_seed": int,
+KEYS = {"orp_views": str, "orp_strata": int, "orp_confidence": float, "orp_max_views": int, "orp_views_seed": int, "orp_paths": int,
         "orp_by_distance": lambda v: v.lower() in ("1", "true", "yes")}
 
 

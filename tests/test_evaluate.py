@@ -247,24 +247,51 @@ def test_orp_gap_on_validation_and_test_views_side_by_side(run):
     assert np.mean([b["gap_db"] for b in bins]) == pytest.approx(orp["test"]["gap_db"], abs=1e-6)
 
 
-def test_orp_search_views_path_is_an_exploratory_path_of_its_own_seed(run):
-    """orp_views=path: the views of an exploratory path drawn like the test trajectory, from seed 1, never the
-    evaluated cache's test trajectory (seed 0)."""
+def test_orp_search_views_path_are_exploratory_paths_of_their_own_seeds(run):
+    """orp_views=path: the views of orp_paths exploratory paths drawn like the test trajectory, from seeds 1, 2, ...,
+    never the evaluated cache's test trajectory (seed 0); each row's path label says which."""
     from data_gen.cache import ViewImageCache
     from data_gen.scene import build_scene
     from data_gen.views import exploration_trajectory
     from imls_lightning.evaluation import orp_search_views, parse_settings
 
-    cfg = _compose(*_args(run["ck"], "orp_views=path"))
+    cfg = _compose(*_args(run["ck"], "orp_views=path", "orp_paths=2"))
     caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
     main = next(c for c in caches if c.manifest["data"]["seed"] == 0)
     scene = build_scene(cfg.scene)
-    held, rows, where = orp_search_views(parse_settings(cfg), cfg, main, scene)
-    assert held.path != main.path and len(rows) == 4 and list(rows) == list(held.splits["test"])
-    assert where == "4 views of an exploratory path of their own (seed 1: no network trained on them)"
-    want = exploration_trajectory(4, scene.camera_distance, seed=1, lookat_jitter=float(cfg.data.lookat_jitter))
+    held, rows, where, paths = orp_search_views(parse_settings(cfg), cfg, main, scene)
+    assert held.path != main.path and len(rows) == 4 and list(rows) == list(held.splits["test"]) and paths == [0, 0, 1, 1]
+    assert where == "4 views on 2 exploratory paths of their own (seeds 1-2: no network trained on them)"
+    jitter = float(cfg.data.lookat_jitter)
+    want = np.concatenate([exploration_trajectory(2, scene.camera_distance, seed=k, lookat_jitter=jitter) for k in (1, 2)])
     np.testing.assert_allclose(np.asarray(held.views[rows]), want, atol=1e-6)
     assert not np.allclose(np.asarray(held.views[rows]), np.asarray(main.views[main.splits["test"]])[:4], atol=1e-3)
+    # the same settings find the same cache and views file again
+    again = orp_search_views(parse_settings(cfg), cfg, main, scene)
+    assert again[0].path == held.path and list(again[1]) == list(rows)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["orp_paths=1"], "orp_paths=1: expected an integer >= 2"),
+    (["orp_views=path", "orp_paths=3"], "orp_max_views=4: orp_views=path needs at least 2 views per path (orp_paths=3)"),
+])
+def test_exception_orp_paths(run, args, message):
+    from imls_lightning.evaluation import parse_settings
+
+    with pytest.raises(InputError, match=re.escape(message)):
+        parse_settings(_compose(*_args(run["ck"], *args)))
+
+
+def test_exception_orp_paths_seeds_must_not_include_the_test_trajectorys(run):
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import orp_search_views, parse_settings
+
+    cfg = _compose(*_args(run["ck"], "orp_views=path", "orp_paths=2", "orp_views_seed=0"))
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    with pytest.raises(InputError, match=re.escape("orp_views_seed=0: the search paths' seeds 0-1 include data.seed=0")):
+        orp_search_views(parse_settings(cfg), cfg, main, build_scene(cfg.scene))
 
 
 @pytest.mark.slow  # two ORP searches on real networks; the banded bound itself: tests/orp/test_search.py
@@ -370,13 +397,13 @@ def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     s = parse_settings(cfg)
     caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
     main = next(c for c in caches if c.manifest["data"]["seed"] == 0)  # the training cache (the held-out one is seed 1)
-    held, rows, where = orp_search_views(s, cfg, main, build_scene(cfg.scene))
-    assert held.path != main.path and len(rows) == 4 and held.manifest["data"]["seed"] == 1
+    held, rows, where, paths = orp_search_views(s, cfg, main, build_scene(cfg.scene))
+    assert held.path != main.path and len(rows) == 4 and held.manifest["data"]["seed"] == 1 and paths is None
     # no held-out eye direction is one of the evaluated cache's (the IMS's cache shares those of the same seed)
     d = lambda v: v[:, :3] / np.linalg.norm(v[:, :3], axis=1, keepdims=True)  # noqa: E731
     cos = d(np.asarray(held.views[rows])) @ d(np.asarray(main.views)).T
     assert cos.max() < 0.9999
-    val_cache, val_rows, val_where = orp_search_views(parse_settings(_compose(*_args(run["ck"], "orp_views=val"))), cfg, main, None)
+    val_cache, val_rows, val_where, _ = orp_search_views(parse_settings(_compose(*_args(run["ck"], "orp_views=val"))), cfg, main, None)
     assert val_cache is main and list(val_rows) == list(main.splits["val"]) and val_where.endswith("validation views")
     with pytest.raises(InputError, match=re.escape("orp_views=test: expected one of ['heldout', 'path', 'val']")):
         parse_settings(_compose(*_args(run["ck"], "orp_views=test")))
@@ -518,7 +545,7 @@ def _orp_views(ck: dict) -> list:
     cfg = _compose(*_args(ck))
     scene = build_scene(cfg.scene)
     cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=False))
-    held, rows, _ = orp_search_views(parse_settings(cfg), cfg, cache, scene)
+    held, rows, _, _ = orp_search_views(parse_settings(cfg), cfg, cache, scene)
     return [np.asarray(held.views[r], np.float64) for r in rows]
 
 

@@ -43,7 +43,8 @@ def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report:
 
 
 def orp_search_views(s: Settings, cfg, cache, scene):
-    """The views the ORP is searched on: ``(cache, rows, description)``.
+    """The views the ORP is searched on: ``(cache, rows, description, paths)``; ``paths`` is a path label per
+    row for views along camera paths (``orp_views=path``), else ``None``.
 
     ``orp_views=val``: ``orp_max_views`` of the cache's validation views, evenly spaced. ``heldout``
     (default): ``orp_max_views`` views (null: as many as the cache has validation views) drawn like the
@@ -57,7 +58,9 @@ def orp_search_views(s: Settings, cfg, cache, scene):
     take every distance in the shell equally often and every direction, the path dwells at its zoom
     extremes and stays within 45 degrees of the equator. On seed_shell, whose gap grows on close-ups, it
     did not keep the promise either (search gap 0.77 dB, test gap 1.29 dB; ``heldout``: 0.72 / 1.21 dB):
-    one path's close-ups fall at other elevations than another's.
+    one path's close-ups fall at other elevations than another's. So the path views lie on ``orp_paths``
+    paths of seeds of their own (``orp_views_seed``, +1, ...), ``orp_max_views`` split between them, and the
+    search counts passes, not views (:func:`~imls_lightning.orp.search.path_passes`).
     """
     from data_gen.cache import ViewImageCache, ensure_cache
 
@@ -66,29 +69,64 @@ def orp_search_views(s: Settings, cfg, cache, scene):
         if len(val) == 0:
             raise InputError(f"orp=true: the cache {cache.path} has no validation views to search the ORP on; pass orp=false")
         rows = val[spaced(len(val), s.orp_max_views)]
-        return cache, rows, f"{len(rows)} of the cache's validation views"
+        return cache, rows, f"{len(rows)} of the cache's validation views", None
     n = s.orp_max_views or max(len(val), 1)
     seed = int(cfg.data.seed) + 1 if s.orp_views_seed is None else int(s.orp_views_seed)
     # a cache of its own (never cache_path, the evaluated cache's exact folder), rendered whole (no shard)
     path = s.orp_views == "path"
     views = {"num_views": 1, "test_views": int(n)} if path else {"num_views": int(n), "test_views": 0}
-    data = OmegaConf.merge(cfg.data, {**views, "seed": seed, "val_fraction": 0.0, "test_trajectory": None,
+    trajectory, labels = None, None
+    if path:
+        trajectory, labels = _search_paths(s, cfg, scene, n, seed)
+        views["test_views"] = len(labels)
+    data = OmegaConf.merge(cfg.data, {**views, "seed": seed, "val_fraction": 0.0, "test_trajectory": trajectory,
                                       "cache_path": None, "shard": None})
     held = ViewImageCache.open(ensure_cache(scene, data, cfg.renderer, progress=s.progress))
     if path:
-        return held, held.splits["test"], f"{n} views of an exploratory path of their own (seed {seed}: no network trained on them)"
-    return held, held.splits["train"], f"{n} held-out views (seed {seed}: no network trained on them)"
+        return (held, held.splits["test"], f"{len(labels)} views on {s.orp_paths} exploratory paths of their own (seeds "
+                f"{seed}-{seed + s.orp_paths - 1}: no network trained on them)", labels)
+    return held, held.splits["train"], f"{n} held-out views (seed {seed}: no network trained on them)", None
+
+
+def _search_paths(s: Settings, cfg, scene, n: int, seed: int) -> tuple[str, list[int]]:
+    """``orp_paths`` exploratory paths of ``ceil(n / orp_paths)`` views each, seeds ``seed``, ``seed + 1``, ...,
+    written (content-named, atomically) as a views file under the cache folder: ``(file, path label per view)``."""
+    import hashlib
+    import os
+
+    from data_gen.views import exploration_trajectory
+
+    if int(cfg.data.seed) in range(seed, seed + s.orp_paths):
+        raise InputError(f"orp_views_seed={seed}: the search paths' seeds {seed}-{seed + s.orp_paths - 1} include "
+                         f"data.seed={cfg.data.seed}, the test trajectory's own: pick a seed outside them")
+    per = -(-int(n) // s.orp_paths)
+    views = np.concatenate([exploration_trajectory(per, scene.camera_distance, seed=seed + k,
+                                                   lookat_jitter=float(cfg.data.lookat_jitter)) for k in range(s.orp_paths)])
+    views = np.ascontiguousarray(views, dtype=np.float64)
+    folder = Path(str(cfg.data.cache_dir)) / "orp_paths"
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / f"{hashlib.sha256(views.tobytes()).hexdigest()[:16]}.npy"
+    if not out.is_file():
+        tmp = out.with_suffix(f".{os.getpid()}.tmp.npy")
+        np.save(tmp, views)
+        os.replace(tmp, out)
+    return str(out), [i // per for i in range(len(views))]
 
 
 def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
     """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
     its bound is for the mean gap of ``future_views`` new views (the evaluated ones)."""
-    from ..orp import strata_by_rank
+    from ..orp import path_passes, strata_by_rank
 
-    cache, rows, where = orp_search_views(s, cfg, cache, scene)
+    cache, rows, where, paths = orp_search_views(s, cfg, cache, scene)
     # orp_strata > 1: the bound must hold in each band of camera distance, not only on the views' mix of them
     distances = [camera_distance(cache, r) for r in rows]
     strata = strata_by_rank(distances, s.orp_strata) if s.orp_strata > 1 else None
+    # views along paths: consecutive views of a path within a band are one pass, one observation
+    passes = None if paths is None else path_passes(paths, strata)
+    npaths = 1 if paths is None else len(set(paths))
+    if passes is not None:
+        where += f" ({len(set(passes))} passes: the bound counts passes)"
     if strata is not None:
         where += f", in each of {s.orp_strata} equal-count bands of camera distance"
     print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
@@ -99,25 +137,27 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
         recnn = nets.recnn.to(device).eval()
         result = orp_with_lift(lambda lift: product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device,
                                                         confidence=s.orp_confidence, lift=lift, future_views=future_views,
-                                                        strata=strata),
+                                                        strata=strata, passes=passes, paths=npaths),
                                s.ims_lift)
         result.by_distance = None
         if s.orp_by_distance and result.found:
-            result.by_distance = band_means(s, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views)
+            result.by_distance = band_means(s, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views,
+                                            passes, npaths)
             where += "; then each band's own mean value"
     result.where = where
     return result
 
 
-def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views: int | None
-               ) -> dict[str, Any] | None:
+def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views: int | None,
+               passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any] | None:
     """The by-distance operating point (``orp_by_distance``): each band of camera distance searched on its own
     search views, with its share of the bound's new views; a band keeps the value that held in every band
     (``result.mean``) where its own search finds none below it. The bands split at the midpoints between
     neighbouring bands' distances.
 
     Returns the ``by_distance`` record: ``edges``, ``means`` (near to far), and per band ``c_shares``,
-    ``gaps_db``, ``bounds_db``, ``views`` and the distance range ``lo`` / ``hi`` of its search views; ``None``
+    ``gaps_db``, ``bounds_db``, ``views`` and the distance range ``lo`` / ``hi`` of its search views (with
+    ``passes``, path views' pass labels, each band's bound counts its passes); ``None``
     (one line says so) where the views' distances do not separate the bands."""
     from ..inference.baselines import product_orp, product_point
 
@@ -127,14 +167,15 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
         idx = [i for i, lab in enumerate(strata) if lab == k]
         share = None if future_views is None else max(1, round(future_views * len(idx) / len(rows)))
         batches = list(view_loader(cache, [rows[i] for i in idx], pattern))
+        own_passes = None if passes is None else [passes[i] for i in idx]
         own = product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
-                          lift=result.lifted, future_views=share)
+                          lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         if own.found and own.mean <= result.mean:
             u, rec = float(own.mean), own.best.record
         else:  # the value that held in every band, this band's numbers at it
             u = float(result.mean)
             rec = product_point(ims.mask_head, ims.decoder, recnn, batches, u, device=device, confidence=s.orp_confidence,
-                                lift=result.lifted, future_views=share)
+                                lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         d = [distances[i] for i in idx]
         for key, value in (("means", u), ("c_shares", rec["c_share"]), ("gaps_db", rec["gap_db"]),
                            ("bounds_db", rec["gap_bound_db"]), ("views", len(idx)), ("lo", min(d)), ("hi", max(d))):

@@ -96,6 +96,7 @@ class Settings:
     orp_views_seed: int | None = None
     orp_strata: int = 1
     orp_by_distance: bool = False
+    orp_paths: int = 4
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -113,6 +114,7 @@ class Settings:
             **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
+            **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
         }
 
 
@@ -154,8 +156,23 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
-        orp_by_distance=_by_distance(cfg),
+        orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg),
     )
+
+
+def _paths(cfg) -> int:
+    """``orp_paths``: with ``orp_views=path``, the camera paths (of seeds of their own) the search views lie on.
+    A path's views within a band of camera distance are one or two passes, each one observation, so a bound
+    needs passes of several paths."""
+    v = OmegaConf.select(cfg, "orp_paths", default=4)
+    if isinstance(v, bool) or not isinstance(v, int) or v < 2:
+        raise InputError(f"orp_paths={v}: expected an integer >= 2 (the camera paths the ORP's search views lie on: "
+                         "one path's views are one observation of where a trajectory looks)")
+    if OmegaConf.select(cfg, "orp_views", default="heldout") == "path":
+        n = OmegaConf.select(cfg, "orp_max_views")
+        if n is not None and isinstance(n, int) and not isinstance(n, bool) and n < 2 * v:
+            raise InputError(f"orp_max_views={n}: orp_views=path needs at least 2 views per path (orp_paths={v})")
+    return v
 
 
 def _by_distance(cfg) -> bool:

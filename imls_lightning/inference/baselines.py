@@ -203,10 +203,11 @@ def _prepare_product_views(mask_head: Any, recnn: torch.nn.Module, batches: Sequ
 
 
 def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, prepared, u: float, lift: bool,
-                    confidence: float, future_views: int | None, strata: Sequence[int] | None) -> dict[str, Any]:
+                    confidence: float, future_views: int | None, strata: Sequence[int] | None,
+                    passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any]:
     """IML/S + RecNN at mean value ``u`` against the RecNN alone on the prepared views: the record of
     :func:`product_orp` (one home for both the search and :func:`product_point`)."""
-    from ..orp import gap_upper_bound, stratified_gap_bound
+    from ..orp import future_path_passes, gap_upper_bound, pass_gap_bound, stratified_gap_bound
 
     ps, pr, shares = [], [], []
     for c, fr, g, p_rec in prepared:
@@ -223,15 +224,18 @@ def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Mo
            "confidence": b.confidence, "future_views": b.future_views,
            "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
            "c_share": float(cnt) / k, "ipr": float(cnt) / m2}
+    if passes is not None:  # views along camera paths: a pass, not a view, is one observation
+        pb = pass_gap_bound(gaps, passes, confidence, future_path_passes(len(set(passes)), paths))
+        rec.update(gap_bound_db=pb.bound, passes=pb.passes)
     if strata is not None:
-        worst, each = stratified_gap_bound(gaps, strata, confidence, future_views)
+        worst, each = stratified_gap_bound(gaps, strata, confidence, future_views, passes, paths)
         rec.update(gap_bound_db=worst.bound, strata_gap_db=[e.mean for e in each])
     return rec
 
 
 def product_point(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
                   mean: float, device: torch.device | str = "cpu", confidence: float = 0.5, lift: bool = False,
-                  future_views: int | None = None) -> dict[str, Any]:
+                  future_views: int | None = None, passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any]:
     """IML/S + RecNN at one mean value on the given views: the record one :func:`product_orp` evaluation makes."""
     from ..orp import gap_upper_bound
 
@@ -239,13 +243,13 @@ def product_point(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Modu
     prepared = _prepare_product_views(mask_head, recnn, batches, device)
     if not prepared:
         raise InputError("product_point: no views")
-    return _product_record(mask_head, decoder, recnn, prepared, mean, lift, confidence, future_views, None)
+    return _product_record(mask_head, decoder, recnn, prepared, mean, lift, confidence, future_views, None, passes, paths)
 
 
 def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
                 epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu",
                 confidence: float = 0.5, lift: bool = False, future_views: int | None = None,
-                strata: Sequence[int] | None = None):
+                strata: Sequence[int] | None = None, passes: Sequence[int] | None = None, paths: int = 1):
     """The ORP on the product path: the smallest mean value ``u`` whose IML/S + RecNN (IMS mask from
     the view at ``u``, exactly those C-pixels, the IML decoder, the RecNN) stays within
     ``epsilon_db`` of the RecNN alone on the given (validation) views, with a margin for unseen views:
@@ -265,6 +269,9 @@ def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module
         strata: a stratum label per view, in the batches' order (e.g. camera-distance bins,
             :func:`~imls_lightning.orp.search.strata_by_rank`): the bound must then hold in every stratum
             (:func:`~imls_lightning.orp.search.stratified_gap_bound`). ``None``: over all views at once.
+        passes: with views along ``paths`` camera paths, a pass label per view
+            (:func:`~imls_lightning.orp.search.path_passes`): the bounds then count passes, not views, and are
+            for the passes one new path makes (:func:`~imls_lightning.orp.search.pass_gap_bound`).
 
     Returns:
         :class:`~imls_lightning.orp.ORPResult`; each evaluation's ``record`` has ``gap_db`` (the mean
@@ -283,9 +290,12 @@ def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module
     views = sum(int(b["c"].shape[0]) for b in batches)
     if strata is not None and len(strata) != views:
         raise InputError(f"product_orp: {len(strata)} stratum labels for {views} views")
+    if passes is not None and len(passes) != views:
+        raise InputError(f"product_orp: {len(passes)} pass labels for {views} views")
     prepared = _prepare_product_views(mask_head, recnn, batches, device)
 
     def objective(us: Sequence[float]) -> list[dict[str, float]]:
-        return [_product_record(mask_head, decoder, recnn, prepared, u, lift, confidence, future_views, strata) for u in us]
+        return [_product_record(mask_head, decoder, recnn, prepared, u, lift, confidence, future_views, strata, passes, paths)
+                for u in us]
 
     return ORPSearch(epsilon_db=epsilon_db, tolerance=tolerance, max_rounds=12, criterion="gap_bound_db").run(objective)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from data_gen.errors import InputError
 from imls_lightning.inference.baselines import (
     equal_share_rows,
     mask_at_share,
@@ -162,3 +163,26 @@ def test_product_orp_with_a_confidence_margin_keeps_the_bound_within_epsilon():
     b = gap_upper_bound(gaps, 0.95)
     assert rec["gap_db"] == pytest.approx(b.mean, abs=1e-5) and rec["gap_bound_db"] == pytest.approx(b.bound, abs=1e-5)
     assert plain.best.record["gap_bound_db"] == pytest.approx(plain.best.record["gap_db"])  # confidence 0.5: the mean
+
+
+def test_product_orp_with_path_passes_bounds_the_pass_means_for_one_new_path():
+    """Views along camera paths (passes): the bound is the pass bound for one new path, never below the views' own,
+    so the ORP can only move up; the record says how many passes it counted."""
+    from imls_lightning.orp import pass_gap_bound
+
+    _, _, recnn = _nets()
+    c, fr = _scene(b=4)
+    ims = _FakeIMS(c)
+    batches = [{"c": c, "fr": fr, "view": torch.zeros(4, 9)}]
+    exact = type("Exact", (torch.nn.Module,), {"forward": lambda self, v, m: v * m})()
+    views = product_orp(ims, exact, recnn, batches, epsilon_db=0.5, confidence=0.95, future_views=4)
+    passes = [0, 0, 1, 1]  # two paths of two views, each one pass
+    by_pass = product_orp(ims, exact, recnn, batches, epsilon_db=0.5, confidence=0.95, future_views=4, passes=passes, paths=2)
+    assert by_pass.found and by_pass.mean >= views.mean
+    rec = by_pass.best.record
+    assert rec["passes"] == 2 and rec["gap_bound_db"] <= 0.5
+    im = ims.output_to_im_at(ims.generator(None), torch.full((4,), by_pass.mean)).float()
+    gaps = (psnr_per_image(recnn(c), fr) - psnr_per_image(recnn(exact(im * c, im)), fr)).tolist()
+    assert rec["gap_bound_db"] == pytest.approx(pass_gap_bound(gaps, passes, 0.95, 1).bound, abs=1e-5)
+    with pytest.raises(InputError, match="product_orp: 3 pass labels for 4 views"):
+        product_orp(ims, exact, recnn, batches, passes=[0, 0, 1])

@@ -190,6 +190,61 @@ def test_stratified_gap_bound_is_the_plain_bound_in_each_stratum_and_keeps_the_w
         orp.stratified_gap_bound(gaps, strata[:5])
 
 
+# ---- views along camera paths: a pass, not a view, is one observation ---------------------------
+def test_path_passes_split_each_path_where_its_band_changes():
+    #            path 0 ............  path 1 .........
+    paths = [0, 0, 0, 0, 0, 1, 1, 1, 1]
+    bands = [1, 1, 0, 0, 1, 1, 1, 0, 1]
+    assert orp.path_passes(paths, bands) == [0, 0, 1, 1, 2, 3, 3, 4, 5]
+    assert orp.path_passes(paths) == [0] * 5 + [1] * 4  # no bands: a path is one pass
+    with pytest.raises(InputError, match="9 path labels but 2 stratum labels"):
+        orp.path_passes(paths, [0, 1])
+
+
+@pytest.mark.parametrize("future_passes", [None, 1, 3])
+def test_pass_gap_bound_is_the_plain_bound_over_pass_means(future_passes):
+    """Each pass weighs alike whatever its length: a direct computation on the pass means."""
+    import numpy as np
+
+    gaps, passes = [1.0, 1.2, 1.1, 0.2, 0.6, 0.6, 0.9], [0, 0, 0, 1, 2, 2, 3]
+    means = np.array([1.1, 0.2, 0.6, 0.9])
+    b = orp.pass_gap_bound(gaps, passes, 0.95, future_passes)
+    spread = np.sqrt(1 / 4 + (1 / future_passes if future_passes else 0.0))
+    assert b.mean == pytest.approx(means.mean()) and b.std == pytest.approx(means.std(ddof=1))
+    assert b.bound == pytest.approx(means.mean() + 1.6448536269514722 * means.std(ddof=1) * spread, abs=1e-9)
+    assert (b.views, b.passes, b.future_views) == (7, 4, future_passes)
+
+
+def test_pass_gap_bound_promises_nothing_from_one_pass_and_more_than_the_views_alone():
+    import math as _math
+
+    one = orp.pass_gap_bound([0.6, 0.7, 0.65], [3, 3, 3], 0.95, 1)
+    assert one.bound == _math.inf and one.passes == 1 and one.mean == pytest.approx(0.65)
+    # ten correlated views of two passes: the views alone would claim a tight bound
+    gaps = [0.30, 0.32, 0.31, 0.33, 0.30, 0.90, 0.92, 0.91, 0.89, 0.90]
+    by_pass = orp.pass_gap_bound(gaps, [0] * 5 + [1] * 5, 0.95, 1)
+    assert by_pass.bound > 1.0 > orp.gap_upper_bound(gaps, 0.95, 10).bound
+    with pytest.raises(InputError, match="3 gaps but 2 pass labels"):
+        orp.pass_gap_bound([1.0, 1.0, 1.0], [0, 1])
+
+
+def test_stratified_gap_bound_with_passes_bounds_each_bands_passes_for_one_new_path():
+    gaps = [2.0, 1.6, 0.2, 0.4, 0.3, 1.9, 1.7, 0.5]
+    strata = [0, 0, 1, 1, 1, 0, 0, 1]
+    paths = [0, 0, 0, 0, 0, 1, 1, 1]
+    passes = orp.path_passes(paths, strata)  # [0, 0, 1, 1, 1, 2, 2, 3]
+    worst, each = orp.stratified_gap_bound(gaps, strata, 0.95, 8, passes, paths=2)
+    assert [e.passes for e in each] == [2, 2] and [e.future_views for e in each] == [1, 1]
+    assert each[0].bound == pytest.approx(orp.pass_gap_bound([2.0, 1.6, 1.9, 1.7], [0, 0, 2, 2], 0.95, 1).bound)
+    assert each[1].bound == pytest.approx(orp.pass_gap_bound([0.2, 0.4, 0.3, 0.5], [1, 1, 1, 3], 0.95, 1).bound)
+    assert worst is max(each, key=lambda e: e.bound)
+    with pytest.raises(InputError, match="8 gaps but 7 pass labels"):
+        orp.stratified_gap_bound(gaps, strata, 0.95, 8, passes[:7], paths=2)
+    assert [orp.future_path_passes(p, 4) for p in (1, 4, 6, 9)] == [1, 1, 2, 2]
+    with pytest.raises(InputError, match="orp_paths=0"):
+        orp.future_path_passes(3, 0)
+
+
 def test_strata_by_rank_makes_equal_count_bands_by_value():
     assert orp.strata_by_rank([5, 1, 4, 2, 3, 6], 3) == [2, 0, 1, 0, 1, 2]
     assert orp.strata_by_rank([1.0, 2.0], 4) == [0, 1]  # more strata than values: one value each
