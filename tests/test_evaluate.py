@@ -323,6 +323,30 @@ def test_orp_strata_judges_the_bound_in_each_band_of_camera_distance(run):
         parse_settings(_compose(*_args(run["ck"], "orp_strata=0")))
 
 
+def test_orp_on_path_views_counts_passes_and_the_report_says_so(run):
+    """orp_views=path: the search's bound counts passes (here each of the 2 paths is one pass), the summary records
+    how many, and the report's rule names them instead of the per-view bound."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp
+    from imls_lightning.report.document import _orp_lines
+
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    cfg = _compose(*_args(run["ck"], "orp_views=path", "orp_paths=2"))
+    s = parse_settings(cfg)
+    assert s.hashed()["orp_paths"] == 2 and "orp_paths" not in parse_settings(_compose(*_args(run["ck"]))).hashed()
+    nets = load_networks(s, int(cfg.data.resolution))
+    res = product_path_orp(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
+    assert "(2 passes: the bound counts passes)" in res.where
+    assert all(e.record.get("passes") == 2 for e in res.evaluations if e.status == "ok")
+    orp = orp_summary(res, s, lifted=res.lifted)
+    assert orp["passes"] == (2 if res.found else None)
+    if res.found:
+        assert "over the 2 search passes' mean gaps" in "\n".join(_orp_lines(orp, "test"))
+
+
 def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
     """orp_by_distance=true: after the banded search each band of camera distance searches its own mean value on its
     own search views (never above the value that held in every band); IML/S then runs each view at its band's, the

@@ -129,8 +129,9 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
         where += f" ({len(set(passes))} passes: the bound counts passes)"
     if strata is not None:
         where += f", in each of {s.orp_strata} equal-count bands of camera distance"
-    print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
-          f"{future_views or 'all'} new views", file=sys.stderr, flush=True)
+    judged = "one new trajectory's passes" if passes is not None else f"{future_views or 'all'} new views"
+    print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of {judged}",
+          file=sys.stderr, flush=True)
     ims = nets.ims_task.to(device)
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))
@@ -299,7 +300,8 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
     rec = best.record if best is not None else {}
     return {"found": result.found, "mean": result.mean, "epsilon_db": s.epsilon_db, "gap_db": rec.get("gap_db"),
             "gap_std_db": rec.get("gap_std_db"), "gap_bound_db": rec.get("gap_bound_db"), "views": rec.get("views"),
-            "confidence": s.orp_confidence, "future_views": rec.get("future_views"), "where": getattr(result, "where", None),
+            "confidence": s.orp_confidence, "future_views": rec.get("future_views"), "passes": rec.get("passes"),
+            "where": getattr(result, "where", None),
             "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
             "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations), "lift": lifted,
             "points": _points(result), "rescale_points": getattr(result, "rescale_points", None),

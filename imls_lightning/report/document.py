@@ -211,7 +211,11 @@ def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
     L.append("")
     conf, m = o.get("confidence"), o.get("future_views")
     where = o.get("where") or "the validation views"
-    if conf is not None and conf > 0.5 and m:
+    if conf is not None and conf > 0.5 and o.get("passes"):
+        rule = (f"the one-sided {fmt_pct(conf, 0)} upper bound on the mean gap of the passes one new trajectory makes, "
+                f"over the {o['passes']} search passes' mean gaps (a pass: one path's run of views within a band of camera "
+                "distance, one observation; mean + z·std·√(1/P + 1/P′))")
+    elif conf is not None and conf > 0.5 and m:
         rule = (f"the one-sided {fmt_pct(conf, 0)} upper bound on the mean gap the {m} evaluated views will show "
                 "(mean + z·std·√(1/n + 1/m) over the n search views' per-view gaps: a margin for views it was not chosen on)")
     elif conf is not None and conf > 0.5:
