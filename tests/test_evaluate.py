@@ -323,6 +323,7 @@ def test_orp_strata_judges_the_bound_in_each_band_of_camera_distance(run):
         parse_settings(_compose(*_args(run["ck"], "orp_strata=0")))
 
 
+@pytest.mark.slow  # an ORP search on real networks; the pass bound itself: tests/orp, tests/inference/test_baselines.py
 def test_orp_on_path_views_counts_passes_and_the_report_says_so(run):
     """orp_views=path: the search's bound counts passes (here each of the 2 paths is one pass), the summary records
     how many, and the report's rule names them instead of the per-view bound."""
