@@ -164,14 +164,10 @@ def _paths(cfg) -> int:
     """``orp_paths``: with ``orp_views=path``, the camera paths (of seeds of their own) the search views lie on.
     A path's views within a band of camera distance are one or two passes, each one observation, so a bound
     needs passes of several paths."""
-    v = OmegaConf.select(cfg, "orp_paths", default=4)
-    if isinstance(v, bool) or not isinstance(v, int) or v < 2:
-        raise InputError(f"orp_paths={v}: expected an integer >= 2 (the camera paths the ORP's search views lie on: "
-                         "one path's views are one observation of where a trajectory looks)")
-    if OmegaConf.select(cfg, "orp_views", default="heldout") == "path":
-        n = OmegaConf.select(cfg, "orp_max_views")
-        if n is not None and isinstance(n, int) and not isinstance(n, bool) and n < 2 * v:
-            raise InputError(f"orp_max_views={n}: orp_views=path needs at least 2 views per path (orp_paths={v})")
+    v = _int(cfg, "orp_paths", 2) if OmegaConf.select(cfg, "orp_paths") is not None else 4
+    n = _int(cfg, "orp_max_views", 1, allow_none=True)
+    if OmegaConf.select(cfg, "orp_views", default="heldout") == "path" and n is not None and n < 2 * v:
+        raise InputError(f"orp_max_views={n}: orp_views=path needs at least 2 views per path (orp_paths={v})")
     return v
 
 
