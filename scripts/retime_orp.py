@@ -11,6 +11,8 @@ ray-casting the ORP's pixels alone, networks free) and each method's PSNR agains
 Usage:
     .venv/bin/python scripts/retime_orp.py runs/paper/ims-.../checkpoints/epoch004.ckpt cache/rayleigh_taylor-... \
         --views 6 --repeats 10
+    # and the classical two-pass sampler at the share it needs on the validation views (needed_share_check.py)
+    .venv/bin/python scripts/retime_orp.py <ims ckpt> <cache> --two-pass 0.6 --base 0.2
 """
 from __future__ import annotations
 
@@ -32,6 +34,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=10, help="timed runs per view and method (default 10)")
     ap.add_argument("--warmup", type=int, default=1, help="untimed runs per view and method first (default 1)")
     ap.add_argument("--recnn", default=None, help="the RecNN checkpoint (default: the one inside the IMS checkpoint)")
+    ap.add_argument("--two-pass", type=float, default=None, metavar="SHARE",
+                    help="also the classical two-pass sampler at this share of C (choose it on validation views: "
+                         "scripts/needed_share_check.py --split val --base B), alternated with the others")
+    ap.add_argument("--base", type=float, default=0.2, help="the two-pass sampler's first pass, a share of C (default 0.2)")
     a = ap.parse_args(argv)
     if a.views < 1 or a.repeats < 1 or a.warmup < 0:
         ap.error("--views and --repeats must be >= 1, --warmup >= 0")
@@ -54,6 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     rows = test[spaced(len(test), a.views)]
 
     methods = {"RecNN alone": alone, "IML/S + RecNN (recorded ORP)": product}
+    if a.two_pass is not None:
+        from imls_lightning.inference.two_pass import TwoPassFill
+
+        name = f"two passes ({a.base:.0%} first) + fill + RecNN"
+        methods[name] = TwoPassFill(product.renderer, product.pattern, product.recnn, share=a.two_pass, base=a.base,
+                                    opts=product.opts)
     per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
     quality: dict[str, list[tuple[float, float]]] = {k: [] for k in methods}
     with torch.inference_mode():
@@ -73,13 +85,14 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[retime] view {i + 1}/{len(rows)} (row {row}): "
                   + ", ".join(f"{n} {1e3 * per_view[n][-1]['total']:.1f} ms" for n in methods), file=sys.stderr)
 
-    stages = ["importance", "selective_render", "decoder", "recnn", "total"]
+    stages = ["low_res_render", "importance", "selective_render", "decoder", "recnn", "total"]
     mean = {n: {k: 1e3 * float(np.mean([v.get(k, 0.0) for v in per_view[n]])) for k in stages} for n in methods}
     share = {n: float(np.mean([v["c_share"] for v in per_view[n]])) for n in methods}
     print(f"ORP: u = {product.mean:.4f} (lift {product.lift}), recorded by the evaluation; {len(rows)} test views "
           f"(rows {', '.join(map(str, rows))}), median of {a.repeats} interleaved runs each, mean over views\n")
-    print("| method | C-share | importance (ms) | selective render (ms) | decoder (ms) | RecNN (ms) | total (ms) | PSNR (dB) | SSIM |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    print("| method | C-share | first pass (ms) | importance (ms) | selective render (ms) | decoder or fill (ms) | RecNN (ms) "
+          "| total (ms) | PSNR (dB) | SSIM |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for n in methods:
         p = np.mean([q[0] for q in quality[n]])
         s = np.mean([q[1] for q in quality[n]])
@@ -89,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     limit = base / max(mean["IML/S + RecNN (recorded ORP)"]["selective_render"], 1e-9)
     print(f"\nspeed-up of IML/S + RecNN over the RecNN alone: {base / imls:.2f}x; "
           f"limit (the ORP's pixels ray-cast alone, networks free): {limit:.2f}x")
+    for n in list(methods)[2:]:
+        print(f"speed-up of {n} over the RecNN alone: {base / mean[n]['total']:.2f}x")
     return 0
 
 

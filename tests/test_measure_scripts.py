@@ -339,6 +339,49 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     assert float(got[1].rstrip("%")) == pytest.approx(share, abs=0.05)
     assert float(got[-2]) == pytest.approx(psnr, abs=0.01)
 
+    # the classical two-pass sampler alternated with both, at its own share
+    assert mod.main(args + ["--two-pass", "0.8", "--base", "0.3"]) == 0
+    out = capsys.readouterr().out
+    two = [line.split(" | ") for line in out.splitlines() if line.startswith("| two passes (30% first)")]
+    assert len(two) == 1 and abs(float(two[0][1].rstrip("%")) - 80.0) < 8.0, out
+    assert "speed-up of two passes (30% first) + fill + RecNN over the RecNN alone" in out
+
+
+def test_needed_share_check_scores_the_estimates_masks_with_the_trained_recnn(tiny_checkpoints, tmp_path, capsys):
+    """scripts/needed_share_check.py on the tiny cache and RecNN: the same gaps as share_gaps with that RecNN, the
+    whole pattern at gap 0, a two-pass variant that keeps its first pass; a folder that is not a run is refused."""
+    import torch
+
+    from data_gen.cache_reader import ViewImageCache
+    from imls_lightning.estimate.needed_share import share_gaps
+    from imls_lightning.inference.checkpoints import load_recnn
+
+    mod = _script_module("needed_share_check")
+    run = Path(tiny_checkpoints["recnn"])   # a checkpoint file; a run directory reads its result.json
+    recnn, hp = load_recnn(tiny_checkpoints["recnn"])
+    cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
+                     if ViewImageCache.open(p.parent).images.shape[1] == int(hp["fr_size"]))
+    out = tmp_path / "check.json"
+    mod.main([str(cache_dir), str(run), "--views", "2", "--json", str(out)])
+    data = json.loads(out.read_text())
+    assert len(data["rows"]) == 20 and data["rows"][-1]["gap_db"] == pytest.approx(0.0, abs=1e-6)
+    assert all(np.isfinite(r["gap_db"]) and np.isfinite(r["bound_db"]) for r in data["rows"])
+    cache = ViewImageCache.open(cache_dir)
+    _, images = cache.split("test")
+    frames = [np.asarray(images[i]) for i in data["views"]]
+    from imls_lightning.core.patterns import build_pattern
+
+    with torch.inference_mode():
+        _, gaps = share_gaps(lambda c: recnn.eval()(c).float(), build_pattern(hp["pattern"], cache.resolution), frames)
+    assert [r["gap_db"] for r in data["rows"]] == pytest.approx(gaps.mean(0).tolist(), abs=1e-4)
+    mod.main([str(cache_dir), str(run), "--views", "2", "--base", "0.3", "--split", "val", "--json", str(out)])
+    data = json.loads(out.read_text())
+    assert data["base"] == 0.3 and data["split"] == "val" and min(r["kept"] for r in data["rows"]) >= 0.29
+    assert "two passes, the first 30% of C" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        mod.main([str(cache_dir), str(tmp_path), "--views", "2"])
+    assert e.value.code == 2 and "no result.json" in capsys.readouterr().err
+
 
 def test_fovolnet_sizes_chooses_the_cheapest_within_the_bound_at_a_common_epoch(tmp_path, capsys):
     """scripts/fovolnet_sizes.py compares the candidates at the last epoch all of them reached, against the mean

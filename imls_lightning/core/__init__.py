@@ -1,4 +1,5 @@
 """The method's formulas, free of training and I/O: compaction of a sampling pattern's pixels
 (:mod:`.compaction`), importance normalization and rejection sampling with the one mean-value search
 (:mod:`.importance`), sampling patterns and the plastic / blue-noise rank patterns (:mod:`.patterns`,
-:mod:`.rank_patterns`), and the image metrics every report and training log shares (:mod:`.metrics`)."""
+:mod:`.rank_patterns`), the image metrics every report and training log shares (:mod:`.metrics`), and the untrained
+importance of a C-Image's pixels (:mod:`.unpredictability`)."""

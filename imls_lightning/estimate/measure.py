@@ -7,7 +7,7 @@ the median over the views.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -169,6 +169,7 @@ class RecNNLead:
     recnn_db: float          # mean PSNR of the trained RecNN over the evaluation views
     upsampled_db: float      # the classical upsampling's, on the same views
     seconds: float
+    net: torch.nn.Module | None = field(default=None, repr=False, compare=False)  # the trained RecNN (eval mode)
 
     @property
     def lead_db(self) -> float:
@@ -238,7 +239,7 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
             c = compact(target, pattern.indices, pattern.c_size)
             rec.append(psnr_db(net(c).clamp(0, 1), target))
             up.append(psnr_db(upsample_c_image(c, pattern)[0], target))
-    return RecNNLead(int(steps), len(train_frames), float(np.mean(rec)), float(np.mean(up)), time.perf_counter() - t0)
+    return RecNNLead(int(steps), len(train_frames), float(np.mean(rec)), float(np.mean(up)), time.perf_counter() - t0, net)
 
 
 @torch.inference_mode()

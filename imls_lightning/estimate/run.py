@@ -19,12 +19,13 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.atomic import atomic_json, atomic_write
 from data_gen.cache_keys import jsonable, settings_hash
 from data_gen.errors import InputError
-from data_gen.validate import check_integer
+from data_gen.validate import check_integer, check_number
 
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
-from .bound import bound_table, share_for_speedup
-from .measure import build_networks, measure_view, network_ms, recnn_lead, render_cost
+from .bound import bound_table, share_for_speedup, speedup_at
+from .measure import RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, upsample_c_image
+from .needed_share import NeededShare, needed_share
 
 RESULT = "estimate.json"
 #: the goal of issue 31 per pattern kind: 2x for super-resolution, 1.5x for foveated rendering
@@ -86,6 +87,7 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "candidates": OmegaConf.to_container(cfg.get("candidates") or OmegaConf.create([]), resolve=True), "views": int(cfg.views), "seed": int(cfg.seed),
         "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
         "background_density": float(cfg.background_density), "target": cfg.target,
+        "needed_share": bool(cfg.get("needed_share", True)), "epsilon_db": cfg.get("epsilon_db", 1.0),
     })
 
 
@@ -156,6 +158,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     register_resolvers()
     n_views = check_integer(cfg.views, "views", 1)
     lead_cfg = _lead_settings(cfg)
+    check_number(cfg.get("epsilon_db", 1.0), "epsilon_db", 0.0, lo_open=True, what="a positive PSNR tolerance in dB")
     repeats = check_integer(cfg.repeats, "repeats", 1)
     warmup = check_integer(cfg.warmup, "warmup", 0)
     opts = NetOptions.from_config(OmegaConf.to_container(cfg.options, resolve=True))  # half: auto measured here
@@ -184,8 +187,18 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
     lead = measure_lead(cfg, lead_cfg, renderer, pattern, scene, [v.fr for v in measured], opts)
+    needed = measure_needed_share(cfg, lead, renderer, pattern, views, measured, repeats, warmup)
+    alone = c_render_ms + nets_t["recnn_ms"]
     return {
-        "candidates": candidates, "recnn_lead": lead,
+        "candidates": candidates, "recnn_lead": lead.to_dict() if lead else None,
+        "needed": needed.to_dict() if needed else None,
+        "needed_share": needed.needed_share if needed else None,
+        # the speed-up at the needed share: the render of exactly the untrained mask's pixels, and the bound's model
+        "speedup_at_needed": (alone / (nets_ms + needed.render_at(needed.needed_share) + nets_t["recnn_ms"])
+                              if needed and needed.needed_share is not None else None),
+        "bound_at_needed": (speedup_at(cost, needed.needed_share, c_render_ms=c_render_ms, nets_ms=nets_ms,
+                                       recnn_ms=nets_t["recnn_ms"], background_density=density)
+                            if needed and needed.needed_share is not None else None),
         "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
         "recnn": str(cfg.recnn.name), "pattern": pattern.kind, "fr_size": pattern.fr_size, "c_size": pattern.c_size,
         "c_render_ms": c_render_ms, "full_frame_ms": float(np.median([v.full_ms for v in measured])),
@@ -205,7 +218,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
 
 
 def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern, scene, eval_frames: list,
-                 opts: NetOptions) -> dict[str, Any] | None:
+                 opts: NetOptions) -> RecNNLead | None:
     """Issue 31's third bar, before any cache: the RecNN of the chosen size trained ``recnn_lead.steps`` steps on
     ``recnn_lead.train_views`` more random views (another seed), scored on the estimate's views; None when off."""
     from data_gen.views import sample_training_views
@@ -224,7 +237,34 @@ def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern
                       batch=lead_cfg["batch"], lr=lead_cfg["lr"], seed=seed, device=opts.device)
     _say(f"RecNN lead: {lead.steps} steps on {lead.train_views} views in {lead.seconds:.0f} s: {lead.recnn_db:.2f} dB, "
          f"{lead.lead_db:+.2f} dB over {lead.upsampled_db:.2f} dB")
-    return lead.to_dict()
+    return lead
+
+
+def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, pattern, views, measured,
+                         repeats: int, warmup: int) -> NeededShare | None:
+    """The share of C the scene needs within ``epsilon_db``, from an untrained importance and fill
+    (:mod:`.needed_share`), rebuilt by the quick RecNN when ``recnn_lead`` trained one, else by the classical
+    upsampling; None when ``needed_share=false``."""
+    if not cfg.get("needed_share", True):
+        return None
+    if lead is not None and lead.net is not None:
+        net = lead.net
+        dev = next(net.parameters()).device
+
+        def rebuild(c):
+            return net(c.to(dev)).float().cpu()
+        name = f"recnn ({lead.steps} steps)"
+    else:
+        def rebuild(c):
+            return upsample_c_image(c, pattern)[0]
+        name = upsample_c_image(torch.zeros(1, 3, pattern.c_size, pattern.c_size), pattern)[1]
+    ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
+                      epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density), repeats=max(1, min(repeats, 3)), warmup=min(warmup, 1),
+                      seed=int(cfg.seed))
+    where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
+    _say(f"needed share: an untrained importance mask and fill, rebuilt by the {name}, stay within "
+         f"{ns.epsilon_db:g} dB at {where} ({ns.seconds:.0f} s)")
+    return ns
 
 
 def check_candidates(cfg: DictConfig) -> list[dict[str, Any]]:
@@ -275,6 +315,19 @@ def format_report(est: Mapping[str, Any]) -> str:
     if lead:
         lines.append(f"  a RecNN trained {lead['steps']} steps on {lead['train_views']} views: {lead['recnn_db']:.2f} dB, "
                      f"{lead['lead_db']:+.2f} dB over {est['upsampler']} (the paper regime asks +2 dB of the trained RecNN)")
+    need = est.get("needed")
+    if need:
+        rows = need["rows"]
+        lines.append(f"  untrained importance + fill, rebuilt by the {need['reference']}: gap to it (dB) at")
+        lines.append("  share of C   " + " ".join(f"{r['kept']:>5.0%}" for r in rows[1::2]))
+        lines.append("  gap (dB)     " + " ".join(f"{r['gap_db']:>5.2f}" for r in rows[1::2]))
+        lines.append("  render (ms)  " + " ".join(f"{r['render_ms']:>5.0f}" for r in rows[1::2]))
+        if est.get("needed_share") is not None:
+            lines.append(f"  needed share within {need['epsilon_db']:g} dB: {est['needed_share']:.0%} of C, where IML/S "
+                         f"would run at {est['speedup_at_needed']:.2f}x (rendering exactly those pixels; the bound's "
+                         f"model says {est['bound_at_needed']:.2f}x)")
+        else:
+            lines.append(f"  no share keeps {need['epsilon_db']:g} dB")
     for c in est.get("candidates") or []:
         reach = f"up to {c['share_for_target']:.0%} of C" if c["share_for_target"] is not None else "nowhere"
         lines.append(f"  sizes {c['sizes']}: RecNN {c['recnn_ms']:.1f} ms, IML/S adds {c['nets_ms']:.1f} ms, "
@@ -288,7 +341,8 @@ def format_report(est: Mapping[str, Any]) -> str:
 #: the columns of the estimates table (``table=...``): one row per (scene, RecNN), the newest estimate
 TABLE_COLUMNS = ("scene", "recnn", "volume_dims", "full_frame_ms", "c_render_ms", "object_fraction", "ims_ms", "decoder_ms",
                  "nets_ms", "recnn_ms", "render_to_nets", "bilinear_db", "half", "bound_10", "bound_20", "bound_40",
-                 "limit_20", "target", "share_for_target", "recnn_lead_db", "seconds", "path")
+                 "limit_20", "target", "share_for_target", "recnn_lead_db", "needed_share", "speedup_at_needed",
+                 "seconds", "path")
 
 
 def _sig(v: Any) -> Any:
@@ -304,7 +358,9 @@ def table_row(est: Mapping[str, Any], path: Path) -> dict[str, Any]:
     row = {k: _sig(est.get(k, "")) for k in TABLE_COLUMNS}
     row.update(half=est["options"]["half"], bound_10=_sig(bound[0.1]), bound_20=_sig(bound[0.2]), bound_40=_sig(bound[0.4]),
                limit_20=_sig(limit[0.2]), recnn_lead_db=_sig((est.get("recnn_lead") or {}).get("lead_db", "")),
-               share_for_target=est["share_for_target"] if est["share_for_target"] is not None else "", path=str(path))
+               share_for_target=est["share_for_target"] if est["share_for_target"] is not None else "", path=str(path),
+               needed_share=_sig(est.get("needed_share")) if est.get("needed_share") is not None else "",
+               speedup_at_needed=_sig(est.get("speedup_at_needed")) if est.get("speedup_at_needed") is not None else "")
     return row
 
 

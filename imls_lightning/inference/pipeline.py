@@ -13,6 +13,9 @@ method                 stages
 ``imls``               ``importance`` (IMS mask head, view only), ``selective_render`` (only the
                        important pixels), ``decoder``, ``recnn`` - the product
 ``las``                ``low_res_render``, ``importance``, ``selective_render`` (at FR), ``recnn``
+``two_pass``           ``low_res_render`` (a blue-noise base of the pattern), ``importance`` (the base's
+                       unpredictability), ``selective_render``, ``decoder`` (pull-push fill), ``recnn`` -
+                       the classical alternative, nothing learned but the RecNN (:mod:`.two_pass`)
 =====================  =====================================================================
 
 Selective rendering is real: only the chosen pixels are ray-cast by the scene's renderer

@@ -8,7 +8,7 @@ import importlib
 import pytest
 
 
-@pytest.mark.parametrize("module", ["", ".bound", ".measure", ".run"])
+@pytest.mark.parametrize("module", ["", ".bound", ".measure", ".needed_share", ".run"])
 def test_module_doctests(module):
     result = doctest.testmod(importlib.import_module(f"imls_lightning.estimate{module}"))
     assert result.attempted > 0 and result.failed == 0, result

@@ -114,6 +114,7 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     ("recnn_sizes.enhancenet.channels=0", "channels=0"),
     ("recnn_lead.steps=-1", "recnn_lead.steps"),
     ("recnn_lead.lr=0", "recnn_lead.lr=0"),
+    ("epsilon_db=0", "epsilon_db"),
 ])
 def test_cli_exception_bad_settings(tmp_path, override, match):
     r = _cli(tmp_path, override)
@@ -220,10 +221,29 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     assert lead["steps"] == 3 and lead["train_views"] == 1 and np.isfinite(lead["lead_db"])
     assert lead["upsampled_db"] == pytest.approx(est["bilinear_db"], abs=1e-4)  # scored on the estimate's own views
     assert "a RecNN trained 3 steps on 1 views" in r.stdout
+    # the quality half: the untrained masks rebuilt by that quick RecNN, every share's gap finite, 0 at the whole pattern
+    need = est["needed"]
+    assert need["reference"] == "recnn (3 steps)" and len(need["rows"]) == 20
+    assert all(np.isfinite(row["gap_db"]) and row["render_ms"] >= 0 for row in need["rows"])
+    assert need["rows"][-1]["kept"] == 1.0 and need["rows"][-1]["gap_db"] == pytest.approx(0.0, abs=1e-6)
+    assert est["needed_share"] is not None and 0.05 <= est["needed_share"] <= 1.0
+    assert est["speedup_at_needed"] > 0 and est["bound_at_needed"] > 0 and "needed share within 1 dB" in r.stdout
     import csv
 
     rows = {row["scene"]: row for row in csv.DictReader(table.open())}
     assert rows["old"]["recnn_lead_db"] == "" and float(rows["tiny"]["recnn_lead_db"]) == pytest.approx(lead["lead_db"], abs=1e-3)
+    assert float(rows["tiny"]["needed_share"]) == pytest.approx(est["needed_share"], rel=1e-3) and rows["old"]["needed_share"] == ""
+
+
+def test_cli_needed_share_off_or_without_a_quick_recnn(tmp_path):
+    """Without recnn_lead the masks are rebuilt by the classical upsampling; needed_share=false measures nothing."""
+    r = _cli(tmp_path)
+    est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
+    assert est["needed"]["reference"] == "bilinear" and len(est["needed"]["rows"]) == 20
+    off = _cli(tmp_path, "needed_share=false")
+    assert off.returncode == 0, off.stderr
+    est = json.loads(Path(off.stdout.strip().splitlines()[-1]).read_text())
+    assert est["needed"] is None and est["needed_share"] is None and est["speedup_at_needed"] is None
 
 
 @pytest.mark.slow  # two estimate CLI runs; keeps the default suite under 15 minutes on 2 cores

@@ -1,0 +1,76 @@
+"""The classical two-pass sampler: the simplest alternative to the IMS, with no network but the RecNN.
+
+What a visualization engineer would do instead of learning a mask: ray-cast a blue-noise ``base`` share of
+the RecNN's pattern, find where those pixels do not predict each other
+(:func:`~imls_lightning.core.unpredictability.base_unpredictability`), ray-cast the most unpredictable
+further pixels up to the ``share``, fill the rest by pull-push and run the RecNN. Its stages:
+
+=====================  =====================================================================
+``low_res_render``     the base pixels (one selective ray cast)
+``importance``         the base's unpredictability and the mask at the share
+``selective_render``   the further pixels (a second selective ray cast)
+``decoder``            the pull-push fill of the C-Image (no weights)
+``recnn``              the RecNN
+=====================  =====================================================================
+
+Example:
+    >>> m = TwoPassFill(renderer, pattern, recnn, share=0.6, base=0.2)   # doctest: +SKIP
+    >>> image, timings = m.render(view)                                  # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import torch
+
+from data_gen.errors import InputError
+
+from ..core.unpredictability import base_unpredictability, two_pass_mask
+from ..models.pull_push import fill_c_image
+from .pipeline import NetOptions, RenderResult, StageTimer, _PatternMethod, prepare_net, to_uint8_image
+
+
+class TwoPassFill(_PatternMethod):
+    """Two selective ray casts (a blue-noise base, then the base's most unpredictable neighbours), a pull-push
+    fill, the RecNN. ``share``: of the pattern's pixels in all (the base included); ``base``: the first pass's
+    share, below ``share``; ``floor``: the importance every pixel keeps, relative to the mean."""
+
+    name = "two_pass"
+
+    def __init__(self, renderer, pattern, recnn: torch.nn.Module, share: float, base: float = 0.2,
+                 floor: float = 0.25, seed: int = 0, opts: NetOptions | None = None):
+        super().__init__(renderer, pattern, opts)
+        if not 0.0 < float(base) < float(share) <= 1.0:
+            raise InputError(f"base={base}, share={share}: expected 0 < base < share <= 1 (the first pass is part "
+                             "of the share)")
+        self.recnn = prepare_net(recnn, self.device, self.opts)
+        self.share, self.base, self.floor, self.seed = float(share), float(base), float(floor), int(seed)
+        # the base is the same for every view: its blue-noise pixels are fixed once
+        ones = torch.ones(1, 3, pattern.c_size, pattern.c_size)
+        self._first = base_unpredictability(ones, pattern, self.base, seed=self.seed)[1]
+
+    def mask(self, c_first: torch.Tensor) -> torch.Tensor:
+        """``(n, n)`` bool: the pixels to ray-cast in all, from the first pass's C-Image ``(1, 3, n, n)`` (0 elsewhere)."""
+        score, first = base_unpredictability(c_first, self.pattern, self.base, seed=self.seed)
+        return two_pass_mask(score, first, self.share, self.pattern, self.floor)[0, 0]
+
+    def run(self, view) -> RenderResult:
+        timer = StageTimer(self.device)
+        first = self._first
+        with timer.stage("low_res_render"):
+            c1, n1 = self._render_c_pixels(view, first)
+        with timer.stage("importance"):
+            keep = self.mask(c1.float())
+            second = keep & ~first.to(keep.device)
+        with timer.stage("selective_render"):
+            c2, n2 = self._render_c_pixels(view, second)
+        with timer.stage("decoder"):
+            m = keep[None, None].to(c1.dtype)
+            c = fill_c_image(c1 + c2, m, self.pattern)
+        with timer.stage("recnn"), self.opts.autocast(self.device):
+            fr = self.recnn(self._tensor(c))
+        count = n1 + n2
+        return RenderResult(to_uint8_image(fr), timer.result(),
+                            {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
+                             "rendered_pixels": count, "im": keep.cpu()})
+
+
+__all__ = ["TwoPassFill"]
