@@ -10,7 +10,8 @@ share, the protocol's 95% bound on it (``--future-views`` new views) and the nee
 
 ``--base B`` scores the classical two-pass sampler instead (:class:`imls_lightning.inference.two_pass.TwoPassFill`):
 the importance from a blue-noise first pass of ``B`` of C only. Choose its share on ``--split val`` (the smallest
-share whose bound is within epsilon), then read that share on the test views, and time it against the product with
+share whose bound is within epsilon), then read that share on the test views. ``--time SHARE`` times it against the
+RecNN alone in the same run (the scene's renderer rebuilt from the cache's manifest); against the product too with
 ``scripts/retime_orp.py --two-pass SHARE --base B``.
 
     python scripts/needed_share_check.py cache/ct_head-a1e18fbae574 runs/paper/recnn-enhancenet-ct_head-ef962bac
@@ -39,6 +40,51 @@ from imls_lightning.inference.checkpoints import load_recnn  # noqa: E402
 from imls_lightning.orp.search import gap_upper_bound  # noqa: E402
 
 
+def time_two_pass(cache, recnn, pattern, share: float, base: float, floor: float, views: int, repeats: int) -> dict:
+    """The two-pass sampler against the RecNN alone, alternated run by run on ``views`` test views (medians of
+    ``repeats`` runs per view, mean over views); printed as a table and returned."""
+    from data_gen.renderers import make_renderer
+    from imls_lightning.evaluation.measurement import image_quality, spaced
+    from imls_lightning.inference.pipeline import NetOptions, RecNNAlone
+    from imls_lightning.inference.two_pass import TwoPassFill
+
+    if views < 1 or repeats < 1:
+        raise InputError(f"--time-views={views}, --repeats={repeats}: expected at least 1 each")
+    renderer = make_renderer(cache.scene(), cache.manifest["renderer"]["pixel_settings"])
+    opts = NetOptions.from_config({"half": "auto"})
+    methods = {"RecNN alone": RecNNAlone(renderer, pattern, recnn, opts),
+               f"two passes ({base:.0%} first) + fill + RecNN": TwoPassFill(renderer, pattern, recnn, share=share,
+                                                                           base=base, floor=floor, opts=opts)}
+    test = np.asarray(cache.splits["test"])
+    stages = ("low_res_render", "importance", "selective_render", "decoder", "recnn", "total")
+    per = {k: [] for k in methods}
+    quality = {k: [] for k in methods}
+    with torch.inference_mode():
+        for row in test[spaced(len(test), views)]:
+            view = np.asarray(cache.views[row], np.float64)
+            runs, last = {k: [] for k in methods}, {}
+            for r in range(1 + repeats):      # one untimed run first; alternated: a disturbance hits both alike
+                for name, m in methods.items():
+                    last[name] = m.run(view)
+                    if r:
+                        runs[name].append(dict(last[name].timings, c_share=last[name].info["c_share"]))
+            for name in methods:
+                per[name].append({k: float(np.median([x.get(k, 0.0) for x in runs[name]])) for k in (*stages, "c_share")})
+                quality[name].append(image_quality(last[name].image, np.asarray(cache.images[row]))[0])
+    out = {}
+    print("| method | C-share | first pass | importance | selective render | fill | RecNN | total | PSNR |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for name in methods:
+        ms = {k: 1e3 * float(np.mean([v[k] for v in per[name]])) for k in stages}
+        out[name] = {**ms, "c_share": float(np.mean([v["c_share"] for v in per[name]])), "psnr": float(np.mean(quality[name]))}
+        print(f"| {name} | {out[name]['c_share']:.1%} | " + " | ".join(f"{ms[k]:.1f}" for k in stages)
+              + f" | {out[name]['psnr']:.2f} |")
+    names = list(methods)
+    speed = out[names[0]]["total"] / out[names[1]]["total"]
+    print(f"speed-up of the two-pass sampler over the RecNN alone: {speed:.2f}x ({views} test views, {repeats} runs each)")
+    return {"methods": out, "speedup": speed, "views": views, "repeats": repeats, "share": share}
+
+
 @cli_errors
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -55,8 +101,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--base", type=float, default=None,
                     help="a two-pass sampler: the importance from this blue-noise share of C only (rendered first, "
                          "always kept); default: from the whole C-Image, as the estimate")
+    ap.add_argument("--time", type=float, default=None, metavar="SHARE",
+                    help="with --base: also time the two-pass sampler at this share against the RecNN alone, alternated "
+                         "run by run on --time-views test views (the scene's renderer rebuilt from the cache)")
+    ap.add_argument("--time-views", type=int, default=6)
+    ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
+    if a.time is not None and a.base is None:
+        raise InputError("--time: expected --base too (it times the two-pass sampler)")
     result = a.recnn_run / "result.json"
     if a.recnn_run.is_file():
         checkpoint = a.recnn_run
@@ -90,8 +143,10 @@ def main(argv: list[str] | None = None) -> None:
     print("95% bound   " + " ".join(f"{b:>5.2f}" for b in bounds[1::2]))
     print(f"needed share within {a.epsilon:g} dB: " + (f"{need:.1%} of C" if need is not None else "none")
           + "; smallest share whose 95% bound is within it: " + (f"{within[0]:.0%}" if within else "none"))
+    timing = time_two_pass(cache, recnn, pattern, a.time, a.base, a.floor, a.time_views, a.repeats) \
+        if a.time is not None else None
     if a.json:
-        atomic_json(a.json, {"cache": str(a.cache), "recnn_run": str(a.recnn_run), "views": pick.tolist(),
+        atomic_json(a.json, {"timing": timing, "cache": str(a.cache), "recnn_run": str(a.recnn_run), "views": pick.tolist(),
                              "split": a.split, "epsilon_db": a.epsilon, "floor": a.floor, "base": a.base,
                              "needed_share": need, "bound_share": within[0] if within else None,
                              "future_views": a.future_views,

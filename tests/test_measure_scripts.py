@@ -378,6 +378,17 @@ def test_needed_share_check_scores_the_estimates_masks_with_the_trained_recnn(ti
     data = json.loads(out.read_text())
     assert data["base"] == 0.3 and data["split"] == "val" and min(r["kept"] for r in data["rows"]) >= 0.29
     assert "two passes, the first 30% of C" in capsys.readouterr().out
+    # timed against the RecNN alone on the renderer rebuilt from the cache
+    mod.main([str(cache_dir), str(run), "--views", "2", "--base", "0.3", "--time", "0.8", "--time-views", "1",
+              "--repeats", "1", "--json", str(out)])
+    timing = json.loads(out.read_text())["timing"]
+    two = timing["methods"]["two passes (30% first) + fill + RecNN"]
+    assert abs(two["c_share"] - 0.8) < 0.08 and timing["methods"]["RecNN alone"]["c_share"] == 1.0
+    assert timing["speedup"] > 0 and all(np.isfinite(v) for v in two.values())
+    assert "speed-up of the two-pass sampler over the RecNN alone" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        mod.main([str(cache_dir), str(run), "--time", "0.8"])
+    assert "--time: expected --base too" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
         mod.main([str(cache_dir), str(tmp_path), "--views", "2"])
     assert e.value.code == 2 and "no result.json" in capsys.readouterr().err
