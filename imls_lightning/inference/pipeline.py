@@ -250,7 +250,10 @@ class FullRayCast(Method):
         return RenderResult(img, timer.result(), {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
 
 
-class _PatternMethod(Method):
+class PatternMethod(Method):
+    """A method on a RecNN's sampling pattern: ray-casts chosen C-Image pixels (:meth:`_render_c_pixels`), the
+    base of every pattern method here and of :class:`~imls_lightning.inference.two_pass.TwoPassFill`."""
+
     def __init__(self, renderer, pattern: SamplingPattern, opts: NetOptions | None = None):
         super().__init__(renderer, pattern.fr_size, opts)
         self.pattern = pattern
@@ -279,7 +282,7 @@ class _PatternMethod(Method):
         return self._tensor(c), int(len(fr))
 
 
-class RecNNAlone(_PatternMethod):
+class RecNNAlone(PatternMethod):
     """Baseline 2: render the RecNN's whole sampling pattern, reconstruct with the RecNN."""
 
     name = "recnn"
@@ -298,7 +301,7 @@ class RecNNAlone(_PatternMethod):
                             {"ipr": count / self.fr_size**2, "c_share": 1.0, "rendered_pixels": count})
 
 
-class IMLPlusRecNN(_PatternMethod):
+class IMLPlusRecNN(PatternMethod):
     """Baseline 4: IML + RecNN, the importance taken from the rendered C-Image (an upper bound).
 
     Renders the whole pattern (the IML needs the C-Image), so it is never faster than the RecNN
@@ -355,7 +358,7 @@ def prepare_mask_head(head: IMSMaskHead, device: torch.device, opts: NetOptions)
     return head.with_generator(prepare_net(head.generator, device, opts)).to(device).eval()
 
 
-class IMLSRenderer(_PatternMethod):
+class IMLSRenderer(PatternMethod):
     """The product: IML/S + RecNN. View -> mask head -> IM -> ray-cast only those pixels -> decoder -> RecNN.
 
     Args:

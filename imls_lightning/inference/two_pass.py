@@ -25,10 +25,10 @@ from data_gen.errors import InputError
 
 from ..core.unpredictability import base_unpredictability, two_pass_mask
 from ..models.pull_push import fill_c_image
-from .pipeline import NetOptions, RenderResult, StageTimer, _PatternMethod, prepare_net, to_uint8_image
+from .pipeline import NetOptions, RenderResult, StageTimer, PatternMethod, prepare_net, to_uint8_image
 
 
-class TwoPassFill(_PatternMethod):
+class TwoPassFill(PatternMethod):
     """Two selective ray casts (a blue-noise base, then the base's most unpredictable neighbours), a pull-push
     fill, the RecNN. ``share``: of the pattern's pixels in all (the base included); ``base``: the first pass's
     share, below ``share``; ``floor``: the importance every pixel keeps, relative to the mean."""
