@@ -48,6 +48,12 @@ def object_pixels(colours: np.ndarray, background) -> np.ndarray:
     return (np.abs(colours.astype(np.float64) - bg[None, :]) > BACKGROUND_TOLERANCE).any(axis=1)
 
 
+def upsampler_name(pattern: SamplingPattern) -> str:
+    """The classical C -> FR upsampling :func:`upsample_c_image` uses for ``pattern``: ``"bilinear"`` on a regular grid,
+    ``"pull-push"`` otherwise."""
+    return "bilinear" if pattern.kind == "downsample" else "pull-push"
+
+
 def upsample_c_image(c: torch.Tensor, pattern: SamplingPattern) -> tuple[torch.Tensor, str]:
     """The classical C -> FR upsampling a RecNN has to beat: ``(B, 3, n, n)`` -> ``(B, 3, m, m)``.
 
@@ -70,10 +76,11 @@ def upsample_c_image(c: torch.Tensor, pattern: SamplingPattern) -> tuple[torch.T
         pos = (torch.arange(m, dtype=torch.float32) - o) / f  # FR pixel -> C coordinate
         g = (pos.clamp(0, n - 1) / max(n - 1, 1)) * 2 - 1
         grid = torch.stack(torch.meshgrid(g, g, indexing="xy"), dim=-1)[None].expand(c.shape[0], m, m, 2)
-        return F.grid_sample(c.float(), grid.to(c.device), mode="bilinear", padding_mode="border", align_corners=True), "bilinear"
+        up = F.grid_sample(c.float(), grid.to(c.device), mode="bilinear", padding_mode="border", align_corners=True)
+        return up, upsampler_name(pattern)
     idx = pattern.indices.to(c.device)
     ones = torch.ones(c.shape[0], 1, pattern.c_size, pattern.c_size, device=c.device)
-    return pull_push_inpaint(decompact(c.float(), idx, m), decompact(ones, idx, m)), "pull-push"
+    return pull_push_inpaint(decompact(c.float(), idx, m), decompact(ones, idx, m)), upsampler_name(pattern)
 
 
 def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -278,5 +285,5 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
     return out
 
 
-__all__ = ["median_ms", "object_pixels", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
+__all__ = ["median_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
            "render_cost", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]

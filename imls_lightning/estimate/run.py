@@ -24,7 +24,8 @@ from data_gen.validate import check_integer, check_number
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
 from .bound import bound_table, share_for_speedup, speedup_at
-from .measure import RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, upsample_c_image
+from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, upsample_c_image,
+                      upsampler_name)
 from .needed_share import NeededShare, needed_share
 
 RESULT = "estimate.json"
@@ -205,7 +206,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "nets_ms": nets_ms, "ims_ms": nets_t["ims_ms"], "decoder_ms": nets_t["decoder_ms"], "recnn_ms": nets_t["recnn_ms"],
         "render_to_nets": c_render_ms / nets_ms, "bilinear_db": float(np.mean([v.bilinear_db for v in measured])),
         "bilinear_db_per_view": [v.bilinear_db for v in measured],
-        "upsampler": "bilinear" if pattern.kind == "downsample" else "pull-push",
+        "upsampler": upsampler_name(pattern),
         "object_fraction": cost.object_fraction, "render_cost": cost.to_dict(),
         "modelled_c_render_ms": cost.render_ms(1.0, density), "background_density": density,
         "bound": [{"share": r["share"], "speedup": r["speedup"]} for r in table],
@@ -257,10 +258,11 @@ def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, patt
     else:
         def rebuild(c):
             return upsample_c_image(c, pattern)[0]
-        name = upsample_c_image(torch.zeros(1, 3, pattern.c_size, pattern.c_size), pattern)[1]
+        name = upsampler_name(pattern)
+    # at most 3 timed renders per mask: 20 shares on every view
     ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
-                      epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density), repeats=max(1, min(repeats, 3)), warmup=min(warmup, 1),
-                      seed=int(cfg.seed))
+                      epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density),
+                      repeats=max(1, min(repeats, 3)), warmup=min(warmup, 1), seed=int(cfg.seed))
     where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
     _say(f"needed share: an untrained importance mask and fill, rebuilt by the {name}, stay within "
          f"{ns.epsilon_db:g} dB at {where} ({ns.seconds:.0f} s)")
