@@ -347,6 +347,7 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     assert "speed-up of two passes (30% first) + fill + RecNN over the RecNN alone" in out
 
 
+@pytest.mark.slow  # about 40 s on 2 cores; share_gaps and TwoPassFill are unit-tested in tests/estimate and tests/inference
 def test_needed_share_check_scores_the_estimates_masks_with_the_trained_recnn(tiny_checkpoints, tmp_path, capsys):
     """scripts/needed_share_check.py on the tiny cache and RecNN: the same gaps as share_gaps with that RecNN, the
     whole pattern at gap 0, a two-pass variant that keeps its first pass; a folder that is not a run is refused."""

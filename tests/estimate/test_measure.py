@@ -75,8 +75,9 @@ def test_render_cost_takes_the_fixed_cost_off_and_medians_over_views():
 
 def _cli(tmp_path, *extra):
     env = dict(os.environ, IMLS_RUNS_DIR=str(tmp_path))
+    # the needed share (20 masks rendered and rebuilt per view) only where a test asks for it: the suite's time
     args = ["scene=tiny", "resolution=32", "views=2", "repeats=1", "warmup=0", "options.half=false",
-            "recnn_sizes.enhancenet.channels=4", "recnn_sizes.enhancenet.blocks=1", *extra]
+            "recnn_sizes.enhancenet.channels=4", "recnn_sizes.enhancenet.blocks=1", "needed_share=false", *extra]
     return subprocess.run([sys.executable, "-m", "imls_lightning.estimate", *args], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=300)
 
@@ -214,7 +215,7 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     table = tmp_path / "estimates.csv"
     table.write_text("scene,recnn,volume_dims\nold,enhancenet,8x8x8\n")  # an older table with fewer columns is extended
     r = _cli(tmp_path, "recnn_lead.steps=3", "recnn_lead.train_views=1", "recnn_lead.crop=16", "recnn_lead.batch=2",
-             f"table={table}")
+             f"table={table}", "needed_share=true")
     assert r.returncode == 0, r.stderr
     est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
     lead = est["recnn_lead"]
@@ -237,7 +238,7 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
 
 def test_cli_needed_share_off_or_without_a_quick_recnn(tmp_path):
     """Without recnn_lead the masks are rebuilt by the classical upsampling; needed_share=false measures nothing."""
-    r = _cli(tmp_path)
+    r = _cli(tmp_path, "needed_share=true")
     est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
     assert est["needed"]["reference"] == "bilinear" and len(est["needed"]["rows"]) == 20
     off = _cli(tmp_path, "needed_share=false")
