@@ -63,6 +63,13 @@ def unpredictability(c: torch.Tensor, pattern: SamplingPattern, seed: int = 0) -
     return cross_fill_error(c, half, ~half & valid, pattern)
 
 
+def first_pass(pattern: SamplingPattern, base: float, seed: int = 0) -> torch.Tensor:
+    """``(n, n)`` bool: a two-pass sampler's first pass, the blue-noise ``base`` share of the pattern's pixels."""
+    if not 0.0 < float(base) < 1.0:
+        raise InputError(f"base={base}: expected the share of a first pass in (0, 1)")
+    return (blue_noise(pattern.c_size, seed) < float(base)) & pattern.valid
+
+
 def base_unpredictability(c: torch.Tensor, pattern: SamplingPattern, base: float, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`unpredictability` as a two-pass renderer could know it: from a blue-noise ``base`` share of the
     C-Image only. The base pixels are scored against each other (the halves of their own blue-noise split) and
@@ -70,11 +77,9 @@ def base_unpredictability(c: torch.Tensor, pattern: SamplingPattern, base: float
     (n, n) bool)``: what a classical adaptive sampler would render first, and where it would add pixels next.
     """
     n = pattern.c_size
-    if not 0.0 < float(base) < 1.0:
-        raise InputError(f"base={base}: expected the share of a first pass in (0, 1)")
     valid = pattern.valid.to(c.device)
     ranks = blue_noise(n, seed).to(c.device)
-    first = (ranks < float(base)) & valid
+    first = first_pass(pattern, base, seed).to(c.device)
     half = first & (ranks < float(base) / 2)   # the base's own blue-noise halves: blue noise below b/2 and the rest
     other = first & ~half
     err = cross_fill_error(c, half, other, pattern)
@@ -122,4 +127,4 @@ def two_pass_mask(score: torch.Tensor, first: torch.Tensor, share: float, patter
     return importance_mask(score, rest, pattern, floor, among=~first) | first
 
 
-__all__ = ["cross_fill_error", "unpredictability", "base_unpredictability", "importance_mask", "two_pass_mask"]
+__all__ = ["first_pass", "cross_fill_error", "unpredictability", "base_unpredictability", "importance_mask", "two_pass_mask"]

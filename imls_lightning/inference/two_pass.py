@@ -23,7 +23,7 @@ import torch
 
 from data_gen.errors import InputError
 
-from ..core.unpredictability import base_unpredictability, two_pass_mask
+from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
 from ..models.pull_push import fill_c_image
 from .pipeline import NetOptions, RenderResult, StageTimer, PatternMethod, prepare_net, to_uint8_image
 
@@ -44,8 +44,7 @@ class TwoPassFill(PatternMethod):
         self.recnn = prepare_net(recnn, self.device, self.opts)
         self.share, self.base, self.floor, self.seed = float(share), float(base), float(floor), int(seed)
         # the base is the same for every view: its blue-noise pixels are fixed once
-        ones = torch.ones(1, 3, pattern.c_size, pattern.c_size)
-        self._first = base_unpredictability(ones, pattern, self.base, seed=self.seed)[1]
+        self._first = first_pass(pattern, self.base, self.seed)
 
     def mask(self, c_first: torch.Tensor) -> torch.Tensor:
         """``(n, n)`` bool: the pixels to ray-cast in all, from the first pass's C-Image ``(1, 3, n, n)`` (0 elsewhere)."""
