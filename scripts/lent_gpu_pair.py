@@ -1,20 +1,22 @@
-"""Issue 31 on a lent GPU machine: a FoVolNet pair's learned stages at 512^2, time-boxed, for the evaluation here.
+"""Issue 31 on a lent GPU machine: one RecNN's pair (its IML, IMS, blue-noise decoder, sparser-pattern RecNN and,
+for EnhanceNet, LAS) at 512^2, time-boxed, for the evaluation here.
 
-FoVolNet's RecNN at the chosen size (8 / 8 / 8 channels, 2 kernel levels of 3x3) was trained on the last lent
-machine (BENCHMARKS.md, "FoVolNet's sizes"); its run travels with the call (``carry``) and is reused. What 2 CPU
-cores cannot train in a sitting runs here, on the GPU schedule of ``conf/pipelines/bench_paper_gpu.yaml``:
+The pair's RecNN may travel with the call (``carry``): a finished run is reused, or continued to the GPU schedule's
+epochs inside its box. What 2 CPU cores cannot train in a sitting runs here, on the GPU schedule of
+``conf/pipelines/bench_paper_gpu.yaml``:
 
 * the scene's cache on all cores first (the lesson of the earlier lent runs: render, then train);
-* then, side by side on the one GPU: the IML, the blue-noise decoder and the sparser-pattern FoVolNet, while the
-  IMS's own 1,620-view cache (C-pixels only for its training views) renders on the cores the trainings leave;
-* the IMS once the IML is done, until the deadline.
+* then the RecNN on the GPU, while the IMS's own 1,500-view cache (C-pixels only for its training views) renders
+  on most of the cores;
+* then, side by side on the one GPU: the IML, the blue-noise decoder, the sparser-pattern RecNN and LAS;
+* the IMS once the IML and its cache are done, until the deadline.
 
 The stage commands are ``make bench-paper``'s own (its ``dry_run=true`` lines), each given a ``trainer.max_time``
 box; trainer limits are not part of a run's settings hash, and a time-boxed run counts as finished, so
-``python -m imls_lightning.bench_paper --config-name bench_paper_gpu scene=<scene> recnns=[fovolnet]`` here finds
+``python -m imls_lightning.bench_paper --config-name bench_paper_gpu scene=<scene> recnns=[<recnn>]`` here finds
 every run and goes straight to the evaluation. Nothing is tuned here.
 
-    python3 scripts/lent_gpu_fovolnet_pair.py --out "$OUT" --deadline 540
+    python3 scripts/lent_gpu_pair.py --out "$OUT" --recnn enhancenet --scene flame_sheets --deadline 560
 
 Writes ``<out>/summary.json`` (cache times, each stage's rc, epochs and best score), ``<out>/runs.tgz.NNN`` (the runs'
 result.json, metrics, config and best checkpoint, one gzip tar split into parts of at most 15 MiB: an IMS
@@ -43,11 +45,11 @@ LABELS = 30   # the IMS labels its 1,620 views with the IML before its fit start
 END = 45      # seconds kept after the boxes: the last checkpoint, result.json, the pack
 
 
-def stage_commands(scene: str, data: str) -> dict[str, list[str]]:
-    """``{stage: argv}`` of bench-paper's FoVolNet pair, from its dry run (the placeholders ``<RecNN>`` and ``<IML>``
+def stage_commands(scene: str, data: str, recnn: str) -> dict[str, list[str]]:
+    """``{stage: argv}`` of bench-paper's pair for ``recnn``, from its dry run (the placeholders ``<RecNN>`` and ``<IML>``
     are the input checkpoints)."""
     out = subprocess.run([PY, "-m", "imls_lightning.bench_paper", "--config-name", "bench_paper_gpu", f"scene={scene}",
-                          "recnns=[fovolnet]", f"data={data}", "train_only=true", "dry_run=true"],
+                          f"recnns=[{recnn}]", f"data={data}", "train_only=true", "dry_run=true"],
                          capture_output=True, text=True, check=True)
     stages: dict[str, list[str]] = {}
     for line in (out.stdout + out.stderr).splitlines():
@@ -59,7 +61,8 @@ def stage_commands(scene: str, data: str) -> dict[str, list[str]]:
             name = {"recnn": "sparser" if any(a.startswith("pattern.") for a in argv) else "recnn", "ims": "ims", "las": "las",
                     "iml": "blue_noise" if "model.importance=uniform" in argv else "iml"}[model]
             stages[name] = [PY, *argv[1:]]
-    missing = {"cache", "recnn", "sparser", "iml", "ims", "blue_noise"} - set(stages)
+    # the paper's LAS does not serve a foveated RecNN (las_with), so only a grid pattern's pair has it
+    missing = {"cache", "recnn", "sparser", "iml", "ims", "blue_noise", *(["las"] if recnn == "enhancenet" else [])} - set(stages)
     if missing:
         raise SystemExit(f"bench-paper's dry run named no {sorted(missing)} stage:\n{out.stdout}{out.stderr}")
     return stages
@@ -95,12 +98,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--deadline", type=float, default=540.0, help="seconds for everything, packing included")
+    ap.add_argument("--recnn", default="fovolnet", choices=["enhancenet", "fovolnet"])
     ap.add_argument("--scene", default="rayleigh_taylor")
     ap.add_argument("--data", default="paper_cpu", help="the data preset (tiny: a local smoke test of this script)")
     ap.add_argument("--render-workers", type=int, default=15)
-    ap.add_argument("--ims-cache-workers", type=int, default=7, help="render processes beside the three trainings")
+    ap.add_argument("--ims-cache-workers", type=int, default=10, help="render processes beside the trainings")
+    ap.add_argument("--recnn-seconds", type=float, default=60.0, help="the RecNN's box (a finished run takes none)")
     ap.add_argument("--iml-seconds", type=float, default=150.0)
     ap.add_argument("--val-every", type=int, default=2, help="trainer.check_val_every_n_epoch (not part of the hash)")
+    ap.add_argument("--override", action="append", default=[],
+                    help="appended to every training stage (a smoke test on --data tiny: data.crop=null)")
     ap.add_argument("--ims-cache", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.ims_cache is not None:
@@ -108,10 +115,10 @@ def main() -> None:
     clock, logs = Clock(a.deadline), Path(tempfile.mkdtemp(prefix="lent_pair_")) / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     a.out.mkdir(parents=True, exist_ok=True)
-    summary: dict = {"scene": a.scene, "cpu_count": os.cpu_count(), "stages": {}}
+    summary: dict = {"scene": a.scene, "recnn": a.recnn, "cpu_count": os.cpu_count(), "stages": {}}
     summary["gpu"] = gpu_name()
-    stages = stage_commands(a.scene, a.data)
-    limits = [f"trainer.check_val_every_n_epoch={a.val_every}", "data.loader_workers=1"]
+    stages = stage_commands(a.scene, a.data, a.recnn)
+    limits = [f"trainer.check_val_every_n_epoch={a.val_every}", "data.loader_workers=1", *a.override]
     env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONUNBUFFERED": "1"}
     procs: dict[str, subprocess.Popen] = {}
     try:
@@ -120,28 +127,31 @@ def main() -> None:
                             stderr=subprocess.STDOUT, timeout=max(1, clock.left() - 200)).returncode
         summary["cache"] = {"rc": rc, "seconds": round(time.monotonic() - t, 1)}
         print(f"[lent] cache rc {rc} in {time.monotonic() - t:.0f} s ({clock.left():.0f} s left)", flush=True)
-        # the RecNN: the carried run is reused at once (a smoke test on --data tiny trains it)
-        rc = subprocess.run([*stages["recnn"], *limits, box(60)], stdout=open(logs / "recnn.log", "w"),
+        # the IMS's own cache needs no network: it renders beside the RecNN and the trainings after it
+        t_ims = time.monotonic()
+        procs["ims_cache"] = start([PY, str(Path(__file__).resolve()), "--out", str(a.out), "--ims-cache-workers",
+                                    str(a.ims_cache_workers), "--ims-cache", *stages["ims"][3:]], logs / "ims_cache.log", env=env)
+        # the RecNN: a carried, finished run is reused at once (a smoke test on --data tiny trains it)
+        rc = subprocess.run([*stages["recnn"], *limits, box(a.recnn_seconds)], stdout=open(logs / "recnn.log", "w"),
                             stderr=subprocess.STDOUT, env=env, timeout=max(1, clock.left() - 150)).returncode
         recnn = last_line(logs / "recnn.log")
         summary["stages"]["recnn"] = {"rc": rc, "checkpoint": recnn}
+        print(f"[lent] RecNN rc {rc}: {recnn} ({clock.left():.0f} s left)", flush=True)
         if rc != 0 or not recnn.endswith(".ckpt"):
             raise RuntimeError(f"the RecNN stage gave no checkpoint (rc {rc})")
         # the boxes end here, before the pack; a box counts from the fit's start, after imports and data setup
         late = a.deadline - END - STARTUP
         procs["iml"] = start([*with_inputs(stages["iml"], recnn=recnn), *limits, box(min(a.iml_seconds, late - clock.elapsed() - 120))],
                              logs / "iml.log", env=env)
-        for name in ("blue_noise", "sparser"):
-            procs[name] = start([*with_inputs(stages[name], recnn=recnn), *limits, box(late - clock.elapsed())],
-                                logs / f"{name}.log", env=env)
-        t = time.monotonic()
-        procs["ims_cache"] = start([PY, str(Path(__file__).resolve()), "--out", str(a.out), "--ims-cache-workers",
-                                    str(a.ims_cache_workers), "--ims-cache", *stages["ims"][3:]], logs / "ims_cache.log", env=env)
+        for name in ("blue_noise", "sparser", "las"):
+            if name in stages:
+                procs[name] = start([*with_inputs(stages[name], recnn=recnn), *limits, box(late - clock.elapsed())],
+                                    logs / f"{name}.log", env=env)
         while clock.left() > END + STARTUP + LABELS + 30:
             done = {n: p.poll() is not None for n, p in procs.items()}
             if done["ims_cache"] and "ims_cache" not in summary:
-                summary["ims_cache"] = {"rc": procs["ims_cache"].returncode, "seconds": round(time.monotonic() - t, 1)}
-                print(f"[lent] IMS cache rc {procs['ims_cache'].returncode} in {time.monotonic() - t:.0f} s", flush=True)
+                summary["ims_cache"] = {"rc": procs["ims_cache"].returncode, "seconds": round(time.monotonic() - t_ims, 1)}
+                print(f"[lent] IMS cache rc {procs['ims_cache'].returncode} in {time.monotonic() - t_ims:.0f} s", flush=True)
             if "ims" not in procs and done["iml"] and done["ims_cache"]:
                 iml = last_line(logs / "iml.log")
                 if procs["iml"].returncode != 0 or not iml.endswith(".ckpt"):
@@ -164,7 +174,7 @@ def main() -> None:
             p.wait()
         summary["stages"].setdefault(name, {})["rc"] = p.returncode
     # only the carried RecNN and this call's runs are there (the other sizes' runs did not travel)
-    pattern = f"runs/paper/*-fovolnet-{a.scene}-*"
+    pattern = f"runs/paper/*-{a.recnn}-{a.scene}-*"
     for run in sorted(glob.glob(pattern)):
         r = Path(run) / "result.json"
         if r.is_file():
