@@ -37,6 +37,7 @@ METHOD_STAGES = {
     "imls": {"importance", "selective_render", "decoder", "recnn"},
     "imls_fill": {"importance", "selective_render", "decoder", "recnn"},
     "blue_noise": {"importance", "selective_render", "decoder", "recnn"},
+    "two_pass": {"low_res_render", "importance", "selective_render", "decoder", "recnn"},
 }
 PLOTS = ("stage_breakdown.png", "psnr_per_view.png", "latency_vs_psnr.png", "image_grid.png", "speed_quality_front.png")
 
@@ -159,7 +160,8 @@ def test_report_has_the_paper_tables(run):
     assert lines[0].startswith("| Method | IPR |") and "RecNN (ms)" in lines[0] and "decoder (ms)" in lines[0]
     assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "RecNN alone, sparser pattern", "LAS",
                                                               "IML + RecNN", "IML/S + RecNN",
-                                                              "IML/S mask + fill + RecNN", "blue noise + decoder + RecNN"]
+                                                              "IML/S mask + fill + RecNN", "blue noise + decoder + RecNN",
+                                                              "two passes + fill + RecNN (no IMS)"]
     # the speed-up over the RecNN alone is its total over IML/S's total
     s = summary(run["out"] / "metrics.csv")
     ratio = s["recnn"]["latency_ms"]["total"] / s["imls"]["latency_ms"]["total"]
@@ -702,3 +704,50 @@ def test_orp_with_lift_auto_searches_again_lifted_only_when_the_rescale_finds_no
     for lift in (False, True):
         res = orp_with_lift(search, lift)
         assert res.lifted is lift and res.found is lift and getattr(res, "rescale_points", None) is None
+
+
+# ---- the two-pass sampler (the classical alternative: no IMS, no decoder) --------------------------------
+def test_two_pass_sampler_runs_at_a_share_searched_on_the_orps_views_and_reports_its_test_gap(run):
+    """On by default (two_pass.base=0.2): its share is the smallest searched share above the first pass whose bound
+    holds on the ORP's search views; the summary keeps every searched share and its gap on the evaluated views, and
+    its rows render exactly that share's pixels (the base's blue noise, then its most unpredictable neighbours)."""
+    import json
+
+    s = json.loads((run["out"] / "summary.json").read_text())
+    tp = s["two_pass"]
+    assert (tp["base"], tp["floor"], tp["epsilon_db"]) == (0.2, 0.25, 1.0)
+    shares = [r["share"] for r in tp["rows"]]
+    assert shares == sorted(shares) and shares[0] == 0.25 and shares[-1] == 1.0
+    if tp["found"]:
+        chosen = next(r for r in tp["rows"] if r["share"] == tp["share"])
+        assert chosen["gap_bound_db"] <= 1.0 < min([r["gap_bound_db"] for r in tp["rows"] if r["share"] < tp["share"]] or [2.0])
+        assert tp["record"]["gap_bound_db"] == chosen["gap_bound_db"]
+    else:
+        assert tp["share"] == 1.0 and tp["record"] is None
+    assert "held-out views" in tp["where"] and tp["test"]["views"] == 2 and math.isfinite(tp["test"]["gap_db"])
+    _, rows = _rows(run["out"] / "metrics.csv")
+    two = [r for r in rows if r["method"] == "two_pass"]
+    assert len(two) == 2 and all(abs(float(r["c_share"]) - tp["share"]) <= 0.05 for r in two)
+    text = run["report"].read_text()
+    assert "two passes + fill + RecNN (no IMS)" in text and "Two passes + fill + RecNN (no IMS, no decoder" in text
+    settings = yaml.safe_load((run["out"] / "config.yaml").read_text())["settings"]
+    assert settings["two_pass"] == {"base": 0.2, "floor": 0.25}
+
+
+def test_two_pass_off_keeps_the_settings_hash_of_evaluations_without_it(run):
+    from imls_lightning.evaluation import parse_settings
+
+    off = parse_settings(_compose(*_args(run["ck"], "two_pass.base=null")))
+    assert off.two_pass_base is None and "two_pass" not in off.hashed()
+
+
+@pytest.mark.parametrize("override, message", [
+    ("two_pass.base=1.0", "two_pass.base=1.0: expected the first pass's share of C in (0, 1), or null (no two-pass sampler)"),
+    ("two_pass.base=0", "two_pass.base=0: expected the first pass's share of C in (0, 1)"),
+    ("two_pass.floor=-1", "two_pass.floor=-1: expected a number >= 0"),
+])
+def test_exception_two_pass_settings_are_one_line(run, override, message):
+    from imls_lightning.evaluation import parse_settings
+
+    with pytest.raises(InputError, match=re.escape(message)):
+        parse_settings(_compose(*_args(run["ck"], override)))

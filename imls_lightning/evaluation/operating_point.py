@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -113,9 +114,21 @@ def _search_paths(s: Settings, cfg, scene, n: int, seed: int) -> tuple[str, list
     return str(out), [i // per for i in range(len(views))]
 
 
-def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
-    """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
-    its bound is for the mean gap of ``future_views`` new views (the evaluated ones)."""
+@dataclass
+class SearchViews:
+    """The views an operating point is searched on and how the protocol counts them (:func:`search_views`)."""
+    cache: Any
+    rows: Any
+    where: str                        # how the report says where the search ran
+    distances: list[float]            # each view's camera distance
+    strata: list[int] | None          # each view's band of camera distance (orp_strata > 1)
+    passes: list[int] | None          # each view's pass (orp_views=path): a pass, not a view, is one observation
+    paths: int                        # the camera paths the views lie on (1 without paths)
+
+
+def search_views(s: Settings, cfg, cache, scene) -> SearchViews:
+    """:func:`orp_search_views` with their bands of camera distance and passes: one home for the product's ORP
+    and every other operating point searched beside it (the two-pass sampler's share), so both are judged alike."""
     from ..orp import path_passes, strata_by_rank
 
     cache, rows, where, paths = orp_search_views(s, cfg, cache, scene)
@@ -129,9 +142,21 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
         where += f" ({len(set(passes))} passes: the bound counts passes)"
     if strata is not None:
         where += f", in each of {s.orp_strata} equal-count bands of camera distance"
-    judged = "one new trajectory's passes" if passes is not None else f"{future_views or 'all'} new views"
-    print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of {judged}",
-          file=sys.stderr, flush=True)
+    return SearchViews(cache, rows, where, distances, strata, passes, npaths)
+
+
+def judged(v: SearchViews, future_views: int | None) -> str:
+    """What the bound is for, in the log's words."""
+    return "one new trajectory's passes" if v.passes is not None else f"{future_views or 'all'} new views"
+
+
+def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
+    """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
+    its bound is for the mean gap of ``future_views`` new views (the evaluated ones)."""
+    v = search_views(s, cfg, cache, scene)
+    cache, rows, where, distances, strata, passes, npaths = v.cache, v.rows, v.where, v.distances, v.strata, v.passes, v.paths
+    print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
+          f"{judged(v, future_views)}", file=sys.stderr, flush=True)
     ims = nets.ims_task.to(device)
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))

@@ -26,6 +26,7 @@ from .operating_point import (camera_distance, distance_means, gap_by_distance, 
                               record_operating_point)
 from .settings import Settings, parse_settings
 from .sweeps import Sweeps, front_notes, options_sweep
+from .two_pass import TwoPassPoint, two_pass_method, two_pass_point
 
 #: the checkpoint keys of ``checkpoints.<key>`` and the settings that name them
 CHECKPOINT_KEYS = ("ims", "las", "recnn", "iml", "blue_noise", "recnn_sparser")
@@ -107,9 +108,11 @@ def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list
 
 
 def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
-                  imls_mean: float | None, lift: bool, notes: list[str], by_distance=None) -> tuple[dict[str, Method], float | None]:
+                  imls_mean: float | None, lift: bool, notes: list[str], by_distance=None,
+                  two_pass: TwoPassPoint | None = None) -> tuple[dict[str, Method], float | None]:
     """Every method measured (the networks are shared between methods with the same options) and the
-    IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance."""
+    IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance;
+    ``two_pass``: the two-pass sampler's operating point (None: not measured)."""
     opts, pattern, ims = s.options, nets.ims_task.pattern, nets.ims_task
     imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift,
                         by_distance=by_distance)
@@ -138,7 +141,22 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
     if nets.blue is not None:
         shares = [c / pattern.count for c in _imls_counts(imls, cache, rows_all, positions, device)]
         methods["blue_noise"] = blue_noise_method(renderer, pattern, nets.blue, nets.recnn, float(np.mean(shares)), opts)
+    if two_pass is not None:
+        methods["two_pass"] = two_pass_method(two_pass, renderer, pattern, nets.recnn, opts)
+        notes.append(two_pass_note(two_pass))
     return methods, las_ipr_used
+
+
+def two_pass_note(point: TwoPassPoint) -> str:
+    """The report's line on where the two-pass sampler runs and why."""
+    head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
+            f"{point.base:.0%} of C, then the pixels whose neighbours predict them worst, pull-push filled; its share "
+            f"was searched on {point.where}")
+    if point.found:
+        rec = point.record
+        return (f"{head}: {point.share:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
+                f"<= {point.epsilon_db:g} dB).")
+    return f"{head}: no share below 100% kept the bound within {point.epsilon_db:g} dB, so it renders all of C."
 
 
 def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[str, Method], order: list[str],
@@ -197,8 +215,10 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     device = pick_device(s.options.device)
     notes: list[str] = []
     orp_result, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes)
+    two_pass = None if s.two_pass_base is None else two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device,
+                                                                   future_views=len(positions))
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
-                                          by_distance=distance_means(orp_result))
+                                          by_distance=distance_means(orp_result), two_pass=two_pass)
     order = [k for k in rep.METHOD_ORDER if k in methods]
 
     grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()
@@ -225,7 +245,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
 
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
                    methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp_result=orp_result,
-                   equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos)
+                   equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass)
     return write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
 
 
@@ -243,6 +263,9 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         orp["test"] = paired_gap(rows, "recnn", "imls")
         # and where on them it is lost: the gap by camera distance (seed_shell's grew on close-ups)
         orp["test_by_distance"] = gap_by_distance(rows, lambda row: camera_distance(cache, row))
+    two_pass = None
+    if res.get("two_pass") is not None:  # its search beside its gap on the evaluated views, as the ORP's
+        two_pass = {**res["two_pass"].to_dict(), "test": paired_gap(rows, "recnn", "two_pass")}
     front = rep.front_points(rows, sweep_rows, sweep_pos,
                              notes=front_notes(res["methods"], res["imls_mean"], orp_result, res["las_ipr"]))
     # the machine-readable results the benchmarks collect (make bench-paper)
@@ -250,7 +273,8 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
         "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "imls_mean": res["imls_mean"], "orp": orp,
         "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "methods": rep.summarize_rows(rows),
-        "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos]}, indent=1, default=float))
+        "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass},
+        indent=1, default=float))
     ctx = rep.ReportContext(
         out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,
         pattern=pattern.summary(), renderer=str(rcfg.get("name")), views=s.views, positions=[int(p) for p in positions],

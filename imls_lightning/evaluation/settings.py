@@ -97,6 +97,8 @@ class Settings:
     orp_strata: int = 1
     orp_by_distance: bool = False
     orp_paths: int = 4
+    two_pass_base: float | None = None   # the two-pass sampler's first pass (share of C); None: not measured
+    two_pass_floor: float = 0.25
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -115,6 +117,7 @@ class Settings:
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
+            **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor}} if self.two_pass_base is not None else {}),
         }
 
 
@@ -156,8 +159,20 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
-        orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg),
+        orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg),
     )
+
+
+def _two_pass(cfg) -> dict[str, Any]:
+    """``two_pass.base`` (the first pass's share of C, in (0, 1); null: the two-pass sampler is not measured) and
+    ``two_pass.floor`` (the importance every pixel keeps, relative to the mean, >= 0)."""
+    base = OmegaConf.select(cfg, "two_pass.base", default=None)
+    floor = OmegaConf.select(cfg, "two_pass.floor", default=0.25)
+    if base is not None and (isinstance(base, bool) or not isinstance(base, (int, float)) or not 0.0 < float(base) < 1.0):
+        raise InputError(f"two_pass.base={base}: expected the first pass's share of C in (0, 1), or null (no two-pass sampler)")
+    if isinstance(floor, bool) or not isinstance(floor, (int, float)) or not math.isfinite(float(floor)) or float(floor) < 0.0:
+        raise InputError(f"two_pass.floor={floor}: expected a number >= 0 (the importance every pixel keeps, relative to the mean)")
+    return {"two_pass_base": None if base is None else float(base), "two_pass_floor": float(floor)}
 
 
 def _paths(cfg) -> int:

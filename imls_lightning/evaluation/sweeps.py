@@ -71,6 +71,8 @@ def front_notes(methods: dict[str, Method], imls_mean: float | None, orp_result,
     at = f"ORP u={imls_mean:.3g}" if imls_mean is not None and orp_result is not None and orp_result.found else "trained u"
     notes = {"full": "every pixel", "recnn": "its pattern", "imls": at, "iml": f"{at} (bound)", "imls_fill": f"IML/S's pixels, {at}",
              "blue_noise": "IML/S's share"}
+    if "two_pass" in methods:
+        notes["two_pass"] = f"its own searched share, {methods['two_pass'].share:.0%} of C"
     if "recnn_sparser" in methods:
         pat = methods["recnn_sparser"].pattern
         notes["recnn_sparser"] = f"{pat.count} pixels ({pat.count / methods['recnn'].pattern.count:.0%} of C)"

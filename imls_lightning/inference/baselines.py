@@ -207,7 +207,7 @@ def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Mo
                     passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any]:
     """IML/S + RecNN at mean value ``u`` against the RecNN alone on the prepared views: the record of
     :func:`product_orp` (one home for both the search and :func:`product_point`)."""
-    from ..orp import future_path_passes, gap_upper_bound, pass_gap_bound, stratified_gap_bound
+    from ..orp import protocol_gap_record
 
     ps, pr, shares = [], [], []
     for c, fr, g, p_rec in prepared:
@@ -217,19 +217,11 @@ def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Mo
         shares.append(im.flatten(1).sum(1))
     p_imls, p_rec, cnt = torch.cat(ps), torch.cat(pr), torch.cat(shares).float().mean()
     gaps = (p_rec - p_imls).double().cpu().tolist()
-    b = gap_upper_bound(gaps, confidence, future_views)
     k = float(mask_head.valid.sum())
     m2 = float(prepared[0][1].shape[-1]) ** 2
-    rec = {"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
-           "confidence": b.confidence, "future_views": b.future_views,
-           "psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()),
-           "c_share": float(cnt) / k, "ipr": float(cnt) / m2}
-    if passes is not None:  # views along camera paths: a pass, not a view, is one observation
-        pb = pass_gap_bound(gaps, passes, confidence, future_path_passes(len(set(passes)), paths))
-        rec.update(gap_bound_db=pb.bound, passes=pb.passes)
-    if strata is not None:
-        worst, each = stratified_gap_bound(gaps, strata, confidence, future_views, passes, paths)
-        rec.update(gap_bound_db=worst.bound, strata_gap_db=[e.mean for e in each])
+    rec = protocol_gap_record(gaps, confidence, future_views, strata, passes, paths)
+    rec.update({"psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()), "c_share": float(cnt) / k,
+                "ipr": float(cnt) / m2})
     return rec
 
 

@@ -71,6 +71,7 @@ from .search import (
     round_mean,
     strata_by_rank,
     stratified_gap_bound,
+    protocol_gap_record,
 )
 
 __all__ = [
@@ -89,6 +90,7 @@ __all__ = [
     "path_passes",
     "future_path_passes",
     "stratified_gap_bound",
+    "protocol_gap_record",
     "strata_by_rank",
     "GapBound",
     "round_mean",

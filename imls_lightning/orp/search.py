@@ -348,6 +348,36 @@ def stratified_gap_bound(gaps: Sequence[float], strata: Sequence[int], confidenc
     return max(each, key=lambda b: b.bound), each
 
 
+def protocol_gap_record(gaps: Sequence[float], confidence: float = 0.95, future_views: int | None = None,
+                        strata: Sequence[int] | None = None, passes: Sequence[int] | None = None,
+                        paths: int = 1) -> dict[str, Any]:
+    """The ORP protocol's judgement of per-view gaps, one home for every operating point searched on views: the
+    mean gap and its bound for ``future_views`` new views (:func:`gap_upper_bound`); with ``passes`` (views along
+    ``paths`` camera paths) the bound over passes for one new path (:func:`pass_gap_bound`); with ``strata`` the
+    largest stratum's bound (:func:`stratified_gap_bound`), which must hold in each band.
+
+    Returns:
+        ``gap_db`` (the mean per-view gap), ``gap_std_db``, ``gap_bound_db`` (what a search compares with epsilon),
+        ``views``, ``confidence``, ``future_views``; with ``passes`` also ``passes``, with ``strata`` also
+        ``strata_gap_db`` (each stratum's mean gap).
+
+    Example:
+        >>> r = protocol_gap_record([0.4, 0.6, 0.5, 0.5], confidence=0.5)
+        >>> round(r["gap_db"], 2), round(r["gap_bound_db"], 2)
+        (0.5, 0.5)
+    """
+    b = gap_upper_bound(gaps, confidence, future_views)
+    rec: dict[str, Any] = {"gap_db": b.mean, "gap_std_db": b.std, "gap_bound_db": b.bound, "views": b.views,
+                           "confidence": b.confidence, "future_views": b.future_views}
+    if passes is not None:  # views along camera paths: a pass, not a view, is one observation
+        pb = pass_gap_bound(gaps, passes, confidence, future_path_passes(len(set(passes)), paths))
+        rec.update(gap_bound_db=pb.bound, passes=pb.passes)
+    if strata is not None:
+        worst, each = stratified_gap_bound(gaps, strata, confidence, future_views, passes, paths)
+        rec.update(gap_bound_db=worst.bound, strata_gap_db=[e.mean for e in each])
+    return rec
+
+
 @dataclass
 class Evaluation:
     """One mean value tried: its gap (dB), status and the job's record.

@@ -14,9 +14,10 @@ METHOD_LABELS = {
     "imls": "IML/S + RecNN",
     "imls_fill": "IML/S mask + fill + RecNN",
     "blue_noise": "blue noise + decoder + RecNN",
+    "two_pass": "two passes + fill + RecNN (no IMS)",
     "iml_selective": "IML IM, selectively rendered",
 }
-METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "iml", "imls", "imls_fill", "blue_noise")
+METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "iml", "imls", "imls_fill", "blue_noise", "two_pass")
 STAGE_LABELS = {
     "low_res_render": "low-res render",
     "render": "render",
@@ -35,7 +36,8 @@ STAGE_COLORS = {
     "recnn": "#d62728",
 }
 METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "iml": "#ff7f0e",
-                 "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f"}
+                 "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f",
+                 "two_pass": "#bcbd22"}
 
 #: columns of metrics.csv, in order
 METRIC_COLUMNS = (

@@ -146,7 +146,7 @@ def sweep_table(points: Mapping[tuple[str, float], Mapping[str, Any]]) -> str:
 
 
 def speedup_table(summ: Mapping[str, Mapping[str, Any]], target: str = "imls",
-                  over: Sequence[str] = ("recnn", "las", "full", "iml")) -> str:
+                  over: Sequence[str] = ("recnn", "las", "full", "iml", "two_pass")) -> str:
     """Speed-up of ``target`` (IML/S + RecNN) over each baseline: ``their total / its total`` and the PSNR change."""
     t = summ[target]
     t_ms = t["latency_ms"].get("total", math.nan)

@@ -245,6 +245,22 @@ def test_stratified_gap_bound_with_passes_bounds_each_bands_passes_for_one_new_p
         orp.future_path_passes(3, 0)
 
 
+def test_protocol_gap_record_is_the_view_bound_then_the_pass_bound_then_the_worst_band():
+    """One home for how the protocol judges per-view gaps (the ORP search and the two-pass sampler's share):
+    the view bound; with passes, the pass bound for one new path replaces it; with bands, the worst band's."""
+    gaps, passes, strata = [0.2, 0.4, 0.9, 1.1, 0.3, 0.5], [0, 0, 1, 1, 2, 2], [0, 0, 1, 1, 0, 0]
+    plain = orp.protocol_gap_record(gaps, 0.95, 6)
+    b = orp.gap_upper_bound(gaps, 0.95, 6)
+    assert (plain["gap_db"], plain["gap_std_db"], plain["gap_bound_db"], plain["views"]) == (b.mean, b.std, b.bound, 6)
+    assert "passes" not in plain and "strata_gap_db" not in plain
+    by_pass = orp.protocol_gap_record(gaps, 0.95, 6, passes=passes, paths=3)
+    pb = orp.pass_gap_bound(gaps, passes, 0.95, orp.future_path_passes(3, 3))
+    assert (by_pass["gap_db"], by_pass["gap_bound_db"], by_pass["passes"]) == (b.mean, pb.bound, 3)
+    banded = orp.protocol_gap_record(gaps, 0.95, 6, strata=strata)
+    worst, each = orp.stratified_gap_bound(gaps, strata, 0.95, 6)
+    assert banded["gap_bound_db"] == worst.bound and banded["strata_gap_db"] == [e.mean for e in each]
+
+
 def test_strata_by_rank_makes_equal_count_bands_by_value():
     assert orp.strata_by_rank([5, 1, 4, 2, 3, 6], 3) == [2, 0, 1, 0, 1, 2]
     assert orp.strata_by_rank([1.0, 2.0], 4) == [0, 1]  # more strata than values: one value each

@@ -1,0 +1,98 @@
+"""The classical two-pass sampler in an evaluation ("beat the simplest alternative"): what a user would do instead
+of training an IMS, measured beside the product on the same views.
+
+Its share of C is an operating point like the product's, so it is chosen the same way: on the ORP's own search
+views (:func:`~imls_lightning.evaluation.operating_point.search_views`), the smallest share of
+:data:`~imls_lightning.estimate.needed_share.NEEDED_SHARES` above the first pass whose protocol bound
+(:func:`~imls_lightning.orp.search.protocol_gap_record`: passes, bands of camera distance) stays within
+``epsilon_db`` of the RecNN alone. The evaluated (test) views are never looked at. Then
+:class:`~imls_lightning.inference.two_pass.TwoPassFill` runs at that share on the real ray caster like every other
+method.
+
+Example:
+    >>> point = two_pass_point(s, cfg, cache, scene, nets, pattern, "cpu", future_views=120)   # doctest: +SKIP
+    >>> point.share, point.found                                                                # doctest: +SKIP
+    (0.7, True)
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..estimate.needed_share import NEEDED_SHARES, share_gaps
+from ..orp import protocol_gap_record
+from .networks import Networks
+from .operating_point import judged, search_views
+from .settings import Settings
+
+
+@dataclass
+class TwoPassPoint:
+    """The two-pass sampler's operating point: the share it runs at and the search that chose it."""
+    base: float                    # the first pass's share of C (blue noise, always rendered)
+    floor: float                   # the importance every pixel keeps, relative to the mean
+    share: float                   # the share it runs at (1 where no share kept the bound)
+    found: bool                    # whether a share below 1 kept the bound
+    where: str                     # the search views, in the report's words
+    epsilon_db: float
+    record: dict[str, Any] | None  # the chosen share's protocol record (None: none found)
+    rows: list[dict[str, Any]] = field(default_factory=list)  # every share searched: share, c_share, gap_db, gap_bound_db
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"base": self.base, "floor": self.floor, "share": self.share, "found": self.found, "where": self.where,
+                "epsilon_db": self.epsilon_db, "record": self.record,
+                "rows": [{k: r[k] for k in ("share", "c_share", "gap_db", "gap_bound_db")} for r in self.rows]}
+
+
+def candidate_shares(base: float) -> list[float]:
+    """The shares searched: those of :data:`NEEDED_SHARES` above the first pass (it is part of the share).
+
+    Example:
+        >>> candidate_shares(0.8)
+        [0.85, 0.9, 0.95, 1.0]
+    """
+    return [x for x in NEEDED_SHARES if x > base + 1e-9]
+
+
+def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, device,
+                   future_views: int | None = None) -> TwoPassPoint:
+    """Search the two-pass sampler's share on the ORP's search views (``s.two_pass_base``, ``s.two_pass_floor``;
+    the bound at ``s.orp_confidence`` for ``future_views`` new views, within ``s.epsilon_db``)."""
+    v = search_views(s, cfg, cache, scene)
+    base, floor = float(s.two_pass_base), float(s.two_pass_floor)
+    print(f"[evaluate] two-pass sampler (first pass {base:.0%} of C): its share searched on {v.where}, judged by the "
+          f"{s.orp_confidence:.0%} upper bound on the mean gap of {judged(v, future_views)}", file=sys.stderr, flush=True)
+    recnn = nets.recnn.to(device).eval()
+    shares = candidate_shares(base)
+
+    def rebuild(c: torch.Tensor) -> torch.Tensor:
+        return recnn(c.to(device)).float().cpu()
+
+    frames = [np.asarray(v.cache.images[r]) for r in v.rows]
+    kept, gaps = share_gaps(rebuild, pattern, frames, shares, floor=floor, base=base)
+    rows, chosen = [], None
+    for j, share in enumerate(shares):
+        rec = protocol_gap_record(gaps[:, j].tolist(), s.orp_confidence, future_views, v.strata, v.passes, v.paths)
+        rec.update(share=share, c_share=float(kept[:, j].mean()))
+        rows.append(rec)
+        if chosen is None and rec["gap_bound_db"] <= s.epsilon_db:
+            chosen = rec
+    if chosen is not None:
+        print(f"[evaluate] two-pass sampler: {chosen['share']:.0%} of C, gap {chosen['gap_db']:.2f} dB "
+              f"(bound {chosen['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
+    return TwoPassPoint(base=base, floor=floor, share=float(chosen["share"]) if chosen else 1.0, found=chosen is not None,
+                        where=v.where, epsilon_db=float(s.epsilon_db), record=chosen, rows=rows)
+
+
+def two_pass_method(point: TwoPassPoint, renderer, pattern, recnn, opts):
+    """The method the evaluation measures at ``point``."""
+    from ..inference.two_pass import TwoPassFill
+
+    return TwoPassFill(renderer, pattern, recnn, share=point.share, base=point.base, floor=point.floor, opts=opts)
+
+
+__all__ = ["TwoPassPoint", "candidate_shares", "two_pass_point", "two_pass_method"]
