@@ -37,6 +37,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+# the package, for the IMS cache's renders in a process of this script's own (a lent machine has it on no path:
+# the first EnhanceNet pair's IMS cache failed there on the import, and its IMS ran out of time rendering it)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lent_gpu_regime import PY, Clock, box, gpu_name, pack_runs, start  # noqa: E402
 
 PART = 15 * 2**20  # bytes per part that comes back
@@ -106,6 +109,9 @@ def main() -> None:
     ap.add_argument("--recnn-seconds", type=float, default=60.0, help="the RecNN's box (a finished run takes none)")
     ap.add_argument("--iml-seconds", type=float, default=150.0)
     ap.add_argument("--val-every", type=int, default=2, help="trainer.check_val_every_n_epoch (not part of the hash)")
+    ap.add_argument("--ims-from", nargs=2, metavar=("RECNN_CKPT", "IML_CKPT"), default=None,
+                    help="the IMS alone, from these carried checkpoints: its cache on every core, then its training "
+                         "until the deadline (a second call when the first one's IMS ran out of time)")
     ap.add_argument("--override", action="append", default=[],
                     help="appended to every training stage (a smoke test on --data tiny: data.crop=null)")
     ap.add_argument("--ims-cache", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
@@ -121,6 +127,8 @@ def main() -> None:
     limits = [f"trainer.check_val_every_n_epoch={a.val_every}", "data.loader_workers=1", *a.override]
     env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONUNBUFFERED": "1"}
     procs: dict[str, subprocess.Popen] = {}
+    if a.ims_from is not None:
+        return ims_alone(a, stages, limits, env, clock, logs, summary)
     try:
         t = time.monotonic()
         rc = subprocess.run([*stages["cache"], f"data.workers={a.render_workers}"], stdout=open(logs / "cache.log", "w"),
@@ -166,6 +174,34 @@ def main() -> None:
     except Exception as err:  # whatever stopped the schedule, what was trained still comes back
         summary["error"] = f"{type(err).__name__}: {err}"
         print(f"[lent] {summary['error']}", flush=True)
+    finish(a, procs, clock, logs, summary, f"runs/paper/*-{a.recnn}-{a.scene}-*")
+
+
+def ims_alone(a, stages, limits, env, clock: Clock, logs: Path, summary: dict) -> None:
+    """The IMS from carried RecNN and IML checkpoints: its cache on every core, then its training until the deadline."""
+    recnn, iml = a.ims_from
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        t = time.monotonic()
+        rc = subprocess.run([PY, str(Path(__file__).resolve()), "--out", str(a.out), "--ims-cache-workers", str(a.render_workers),
+                             "--ims-cache", *stages["ims"][3:]], stdout=open(logs / "ims_cache.log", "w"), stderr=subprocess.STDOUT,
+                            env=env, timeout=max(1, clock.left() - END - STARTUP - LABELS - 30)).returncode
+        summary["ims_cache"] = {"rc": rc, "seconds": round(time.monotonic() - t, 1)}
+        print(f"[lent] IMS cache rc {rc} in {time.monotonic() - t:.0f} s ({clock.left():.0f} s left)", flush=True)
+        if rc != 0:
+            raise RuntimeError(f"the IMS cache failed (rc {rc})")
+        summary["stages"]["iml_checkpoint"] = iml
+        procs["ims"] = start([*with_inputs(stages["ims"], recnn=recnn, iml=iml), *limits,
+                              box(clock.left() - END - STARTUP - LABELS)], logs / "ims.log", env=env)
+    except Exception as err:  # what was trained still comes back
+        summary["error"] = f"{type(err).__name__}: {err}"
+        print(f"[lent] {summary['error']}", flush=True)
+    finish(a, procs, clock, logs, summary, f"runs/paper/ims-{a.recnn}-{a.scene}-*")  # the carried runs are here already
+
+
+def finish(a, procs: dict[str, subprocess.Popen], clock: Clock, logs: Path, summary: dict, pattern: str) -> None:
+    """Wait for the stages until the deadline, then write the summary and pack the runs matching ``pattern`` and the
+    logs into ``a.out``."""
     while any(p.poll() is None for p in procs.values()) and clock.left() > 20:
         time.sleep(2)
     for name, p in procs.items():
@@ -173,8 +209,7 @@ def main() -> None:
             p.kill()
             p.wait()
         summary["stages"].setdefault(name, {})["rc"] = p.returncode
-    # only the carried RecNN and this call's runs are there (the other sizes' runs did not travel)
-    pattern = f"runs/paper/*-{a.recnn}-{a.scene}-*"
+    # only the carried runs and this call's are there (the other sizes' runs did not travel)
     for run in sorted(glob.glob(pattern)):
         r = Path(run) / "result.json"
         if r.is_file():
