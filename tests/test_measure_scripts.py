@@ -457,6 +457,34 @@ def test_lent_gpu_fovolnet_driver_on_the_tiny_scene(tmp_path):
     assert len(list(out.iterdir())) <= 8
 
 
+@pytest.mark.slow
+def test_lent_gpu_pair_driver_on_the_tiny_scene(tmp_path):
+    """scripts/lent_gpu_pair.py end to end on the tiny scene (CPU): bench-paper's own stage commands, the scene's
+    cache, the RecNN, then the IML beside the blue-noise decoder and the sparser RecNN, the IMS's own cache rendered by
+    the driver's helper process (from a folder where only PYTHONPATH finds the package, as on a lent machine), the
+    IMS once the IML is done; one summary and the runs packed within the eight files a lent machine sends back."""
+    import tarfile
+
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT))
+    p = subprocess.run([PY, str(ROOT / "scripts" / "lent_gpu_pair.py"), "--out", str(out), "--recnn", "enhancenet",
+                        "--scene", "tiny", "--data", "tiny", "--deadline", "330", "--render-workers", "1",
+                        "--ims-cache-workers", "1", "--recnn-seconds", "40", "--iml-seconds", "40", "--val-every", "1",
+                        "--override", "data.crop=null"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=420)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["recnn"] == "enhancenet" and summary["cache"]["rc"] == 0 and "error" not in summary
+    assert summary["ims_cache"]["rc"] == 0  # the helper process found the package
+    for stage in ("recnn", "iml", "blue_noise", "sparser", "ims"):
+        assert summary["stages"][stage]["rc"] == 0, stage
+    assert any(k.startswith("ims-enhancenet-tiny-") for k in summary["stages"])
+    parts = sorted(out.glob("runs.tgz.*"))
+    assert parts and len(list(out.iterdir())) <= 8
+    with tarfile.open(fileobj=__import__("io").BytesIO(b"".join(q.read_bytes() for q in parts))) as tar:
+        names = tar.getnames()
+    assert any(n.startswith("runs/paper/ims-enhancenet-tiny-") and n.endswith(".ckpt") for n in names)
+
+
 def test_regime_evidence_error_map_draws_truth_and_both_errors(tiny_checkpoints, tmp_path):
     """--error-map: the truth, then |bilinear - truth| x8 and |RecNN - truth| x8 of one test view, side by side
     (the RecNN: the run's best checkpoint); a view outside the test trajectory is refused in one line."""

@@ -143,20 +143,8 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
         methods["blue_noise"] = blue_noise_method(renderer, pattern, nets.blue, nets.recnn, float(np.mean(shares)), opts)
     if two_pass is not None:
         methods["two_pass"] = two_pass_method(two_pass, renderer, pattern, nets.recnn, opts)
-        notes.append(two_pass_note(two_pass))
+        notes.append(two_pass.describe())
     return methods, las_ipr_used
-
-
-def two_pass_note(point: TwoPassPoint) -> str:
-    """The report's line on where the two-pass sampler runs and why."""
-    head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
-            f"{point.base:.0%} of C, then the pixels whose neighbours predict them worst, pull-push filled; its share "
-            f"was searched on {point.where}")
-    if point.found:
-        rec = point.record
-        return (f"{head}: {point.share:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
-                f"<= {point.epsilon_db:g} dB).")
-    return f"{head}: no share below 100% kept the bound within {point.epsilon_db:g} dB, so it renders all of C."
 
 
 def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[str, Method], order: list[str],

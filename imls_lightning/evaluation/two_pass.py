@@ -42,6 +42,17 @@ class TwoPassPoint:
     record: dict[str, Any] | None  # the chosen share's protocol record (None: none found)
     rows: list[dict[str, Any]] = field(default_factory=list)  # every share searched: share, c_share, gap_db, gap_bound_db
 
+    def describe(self) -> str:
+        """The report's line on where the two-pass sampler runs and why."""
+        head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
+                f"{self.base:.0%} of C, then the pixels whose neighbours predict them worst, pull-push filled; its share "
+                f"was searched on {self.where}")
+        if self.found:
+            rec = self.record
+            return (f"{head}: {self.share:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
+                    f"<= {self.epsilon_db:g} dB).")
+        return f"{head}: no share below 100% kept the bound within {self.epsilon_db:g} dB, so it renders all of C."
+
     def to_dict(self) -> dict[str, Any]:
         return {"base": self.base, "floor": self.floor, "share": self.share, "found": self.found, "where": self.where,
                 "epsilon_db": self.epsilon_db, "record": self.record,
