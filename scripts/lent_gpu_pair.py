@@ -97,6 +97,12 @@ def render_ims_cache(argv: list[str], workers: int) -> None:
     print(dm.cache_path, flush=True)
 
 
+def ims_cache_command(a, stages: dict[str, list[str]], workers: int) -> list[str]:
+    """This script in its ``--ims-cache`` mode: the IMS stage's own cache on ``workers`` processes."""
+    return [PY, str(Path(__file__).resolve()), "--out", str(a.out), "--ims-cache-workers", str(workers),
+            "--ims-cache", *stages["ims"][3:]]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True)
@@ -137,8 +143,7 @@ def main() -> None:
         print(f"[lent] cache rc {rc} in {time.monotonic() - t:.0f} s ({clock.left():.0f} s left)", flush=True)
         # the IMS's own cache needs no network: it renders beside the RecNN and the trainings after it
         t_ims = time.monotonic()
-        procs["ims_cache"] = start([PY, str(Path(__file__).resolve()), "--out", str(a.out), "--ims-cache-workers",
-                                    str(a.ims_cache_workers), "--ims-cache", *stages["ims"][3:]], logs / "ims_cache.log", env=env)
+        procs["ims_cache"] = start(ims_cache_command(a, stages, a.ims_cache_workers), logs / "ims_cache.log", env=env)
         # the RecNN: a carried, finished run is reused at once (a smoke test on --data tiny trains it)
         rc = subprocess.run([*stages["recnn"], *limits, box(a.recnn_seconds)], stdout=open(logs / "recnn.log", "w"),
                             stderr=subprocess.STDOUT, env=env, timeout=max(1, clock.left() - 150)).returncode
@@ -183,8 +188,7 @@ def ims_alone(a, stages, limits, env, clock: Clock, logs: Path, summary: dict) -
     procs: dict[str, subprocess.Popen] = {}
     try:
         t = time.monotonic()
-        rc = subprocess.run([PY, str(Path(__file__).resolve()), "--out", str(a.out), "--ims-cache-workers", str(a.render_workers),
-                             "--ims-cache", *stages["ims"][3:]], stdout=open(logs / "ims_cache.log", "w"), stderr=subprocess.STDOUT,
+        rc = subprocess.run(ims_cache_command(a, stages, a.render_workers), stdout=open(logs / "ims_cache.log", "w"), stderr=subprocess.STDOUT,
                             env=env, timeout=max(1, clock.left() - END - STARTUP - LABELS - 30)).returncode
         summary["ims_cache"] = {"rc": rc, "seconds": round(time.monotonic() - t, 1)}
         print(f"[lent] IMS cache rc {rc} in {time.monotonic() - t:.0f} s ({clock.left():.0f} s left)", flush=True)
