@@ -730,8 +730,37 @@ def test_two_pass_sampler_runs_at_a_share_searched_on_the_orps_views_and_reports
     assert len(two) == 2 and all(abs(float(r["c_share"]) - tp["share"]) <= 0.05 for r in two)
     text = run["report"].read_text()
     assert "two passes + fill + RecNN (no IMS)" in text and "Two passes + fill + RecNN (no IMS, no decoder" in text
+    assert "## The two-pass sampler's share (no IMS, searched like the ORP)" in text and tp["by_distance"] is None
+    assert sum(b["views"] for b in tp["test_by_distance"]) == 2
     settings = yaml.safe_load((run["out"] / "config.yaml").read_text())["settings"]
     assert settings["two_pass"] == {"base": 0.2, "floor": 0.25}
+
+
+def test_two_pass_sampler_by_distance_gives_each_band_its_own_share(run):
+    """orp_by_distance=true: the two-pass sampler's share is searched per band of camera distance as the ORP's mean
+    value is (never above the share that held in every band), from the gaps its search measured; its method runs each
+    view at its band's share, and the settings hash changes with it (its results do)."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.two_pass import two_pass_method, two_pass_point
+
+    caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
+    main = next(c for c in caches if c.manifest["data"]["seed"] == 0)
+    cfg = _compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=true", "orp_confidence=0.5", "epsilon_db=3.0"))
+    s = parse_settings(cfg)
+    assert s.hashed()["two_pass"] == {"base": 0.2, "floor": 0.25, "by_distance": True}
+    nets = load_networks(s, int(cfg.data.resolution))
+    point = two_pass_point(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
+    assert point.found
+    b = point.by_distance
+    assert len(b["shares"]) == 2 and all(0.2 < x <= point.share for x in b["shares"]) and b["views"] == [2, 2]
+    assert b["hi"][0] < b["edges"][0] < b["lo"][1] and all(g <= 3.0 for g in b["bounds_db"])
+    method = two_pass_method(point, object(), nets.ims_task.pattern, nets.recnn, None)
+    assert method.shares == pytest.approx(b["shares"])
+    near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    far = [0.0, 0.0, b["hi"][1], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert (method.share_for(near), method.share_for(far)) == pytest.approx(tuple(b["shares"]))
 
 
 def test_two_pass_off_keeps_the_settings_hash_of_evaluations_without_it(run):

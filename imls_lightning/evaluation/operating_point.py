@@ -4,7 +4,6 @@ paper's rescale finds none: :func:`orp_with_lift`), summarized for the report (:
 :func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`)."""
 from __future__ import annotations
 
-import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -208,13 +207,29 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
             out[key].append(float(value) if key != "views" else int(value))
         print(f"[evaluate] ORP by distance: band {k + 1} of {len(labels)} ({min(d):.2f}-{max(d):.2f}): u = {u:.3f}, "
               f"{rec['c_share']:.1%} of C, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
-    out["edges"] = [0.5 * (hi + lo) for hi, lo in zip(out["hi"][:-1], out["lo"][1:])]
-    if any(b <= a for a, b in zip([-math.inf, *out["edges"]], out["edges"])) or any(
-            hi >= lo for hi, lo in zip(out["hi"][:-1], out["lo"][1:])):
+    out["edges"] = band_edges(out["lo"], out["hi"])
+    if out["edges"] is None:
         print("[evaluate] warning: orp_by_distance: the search views' camera distances do not separate the bands; "
               f"every view runs at u = {result.mean:.3f}", file=sys.stderr, flush=True)
         return None
     return out
+
+
+def band_edges(lo: Sequence[float], hi: Sequence[float]) -> list[float] | None:
+    """The distances between neighbouring bands of camera distance, each the midpoint between one band's farthest
+    search view (``hi``) and the next band's nearest (``lo``), near to far; ``None`` where the bands' views do not
+    separate (a band reaching into the next). One home for every by-distance operating point (the ORP's mean
+    values, the two-pass sampler's shares).
+
+    Example:
+        >>> band_edges([2.5, 3.0, 3.5], [2.75, 3.25, 4.0])
+        [2.875, 3.375]
+        >>> band_edges([2.8, 2.9], [3.0, 3.3]) is None
+        True
+    """
+    if any(h >= l for h, l in zip(hi[:-1], lo[1:])):
+        return None
+    return [0.5 * (h + l) for h, l in zip(hi[:-1], lo[1:])]
 
 
 def distance_means(result):

@@ -253,7 +253,8 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         orp["test_by_distance"] = gap_by_distance(rows, lambda row: camera_distance(cache, row))
     two_pass = None
     if res.get("two_pass") is not None:  # its search beside its gap on the evaluated views, as the ORP's
-        two_pass = {**res["two_pass"].to_dict(), "test": paired_gap(rows, "recnn", "two_pass")}
+        two_pass = {**res["two_pass"].to_dict(), "test": paired_gap(rows, "recnn", "two_pass"),
+                    "test_by_distance": gap_by_distance(rows, lambda row: camera_distance(cache, row), method="two_pass")}
     front = rep.front_points(rows, sweep_rows, sweep_pos,
                              notes=front_notes(res["methods"], res["imls_mean"], orp_result, res["las_ipr"]))
     # the machine-readable results the benchmarks collect (make bench-paper)
@@ -271,7 +272,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         iml_mean=float(nets.iml.mean), rows=rows, sweep_rows=sweep_rows, option_rows=res["option_rows"], order=res["order"],
         sweep_positions=sweep_pos, grid=res["grid"], pattern_obj=pattern, notes=res["notes"], las_ipr=res["las_ipr"],
         machine=rep.machine_info(str(device)), command=command or command_line(), cache=str(cache.path),
-        orp=orp, equal_share=res["equal_share"], front=front,
+        orp=orp, equal_share=res["equal_share"], front=front, two_pass=two_pass,
     )
     report = rep.write_report(ctx)
     if orp is not None:  # after the report: only a finished evaluation records its point

@@ -117,7 +117,10 @@ class Settings:
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
-            **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor}} if self.two_pass_base is not None else {}),
+            **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
+                             # its share per band of camera distance, as the ORP's mean value (results changed with it)
+                             **({"by_distance": True} if self.orp_by_distance else {})}}
+               if self.two_pass_base is not None else {}),
         }
 
 

@@ -72,7 +72,9 @@ def front_notes(methods: dict[str, Method], imls_mean: float | None, orp_result,
     notes = {"full": "every pixel", "recnn": "its pattern", "imls": at, "iml": f"{at} (bound)", "imls_fill": f"IML/S's pixels, {at}",
              "blue_noise": "IML/S's share"}
     if "two_pass" in methods:
-        notes["two_pass"] = f"its own searched share, {methods['two_pass'].share:.0%} of C"
+        shares = methods["two_pass"].shares
+        per_band = "s per band of camera distance (near to far)" if len(shares) > 1 else ""
+        notes["two_pass"] = f"its own searched share{per_band}, {' / '.join(f'{x:.0%}' for x in shares)} of C"
     if "recnn_sparser" in methods:
         pat = methods["recnn_sparser"].pattern
         notes["recnn_sparser"] = f"{pat.count} pixels ({pat.count / methods['recnn'].pattern.count:.0%} of C)"

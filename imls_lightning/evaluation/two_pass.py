@@ -5,9 +5,11 @@ Its share of C is an operating point like the product's, so it is chosen the sam
 views (:func:`~imls_lightning.evaluation.operating_point.search_views`), the smallest share of
 :data:`~imls_lightning.estimate.needed_share.NEEDED_SHARES` above the first pass whose protocol bound
 (:func:`~imls_lightning.orp.search.protocol_gap_record`: passes, bands of camera distance) stays within
-``epsilon_db`` of the RecNN alone. The evaluated (test) views are never looked at. Then
-:class:`~imls_lightning.inference.two_pass.TwoPassFill` runs at that share on the real ray caster like every other
-method.
+``epsilon_db`` of the RecNN alone. With ``orp_by_distance``, as the product's mean value, each band of camera
+distance then gets its own share (:func:`band_shares`): the smallest that keeps the band's own bound, never above the
+share that held in every band. The evaluated (test) views are never looked at. Then
+:class:`~imls_lightning.inference.two_pass.TwoPassFill` runs at that share (each view at its band's) on the real ray
+caster like every other method.
 
 Example:
     >>> point = two_pass_point(s, cfg, cache, scene, nets, pattern, "cpu", future_views=120)   # doctest: +SKIP
@@ -26,7 +28,7 @@ import torch
 from ..estimate.needed_share import NEEDED_SHARES, share_gaps
 from ..orp import protocol_gap_record
 from .networks import Networks
-from .operating_point import judged, search_views
+from .operating_point import SearchViews, band_edges, judged, search_views
 from .settings import Settings
 
 
@@ -41,6 +43,17 @@ class TwoPassPoint:
     epsilon_db: float
     record: dict[str, Any] | None  # the chosen share's protocol record (None: none found)
     rows: list[dict[str, Any]] = field(default_factory=list)  # every share searched: share, c_share, gap_db, gap_bound_db
+    # orp_by_distance: each band's own share (band_shares: edges, shares near to far, c_shares, gaps_db, bounds_db,
+    # views, lo, hi); None: ``share`` for every view
+    by_distance: dict[str, Any] | None = None
+
+    def shares_by_distance(self):
+        """The :class:`~imls_lightning.models.ims.DistanceMeans` of the bands' shares (``None``: one share)."""
+        if not self.by_distance:
+            return None
+        from ..models.ims import DistanceMeans
+
+        return DistanceMeans(self.by_distance["edges"], self.by_distance["shares"])
 
     def describe(self) -> str:
         """The report's line on where the two-pass sampler runs and why."""
@@ -49,13 +62,20 @@ class TwoPassPoint:
                 f"was searched on {self.where}")
         if self.found:
             rec = self.record
-            return (f"{head}: {self.share:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
-                    f"<= {self.epsilon_db:g} dB).")
+            line = (f"{head}: {self.share:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
+                    f"<= {self.epsilon_db:g} dB)")
+            if not self.by_distance:
+                return line + "."
+            b = self.by_distance
+            bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.0%} (bound {bd:.2f} dB)"
+                              for lo, hi, x, bd in zip(b["lo"], b["hi"], b["shares"], b["bounds_db"]))
+            return (f"{line}; then each band of camera distance its own share, never above that one, judged on its own "
+                    f"search views: {bands}.")
         return f"{head}: no share below 100% kept the bound within {self.epsilon_db:g} dB, so it renders all of C."
 
     def to_dict(self) -> dict[str, Any]:
         return {"base": self.base, "floor": self.floor, "share": self.share, "found": self.found, "where": self.where,
-                "epsilon_db": self.epsilon_db, "record": self.record,
+                "epsilon_db": self.epsilon_db, "record": self.record, "by_distance": self.by_distance,
                 "rows": [{k: r[k] for k in ("share", "c_share", "gap_db", "gap_bound_db")} for r in self.rows]}
 
 
@@ -92,18 +112,61 @@ def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, devi
         rows.append(rec)
         if chosen is None and rec["gap_bound_db"] <= s.epsilon_db:
             chosen = rec
+    by_distance = None
     if chosen is not None:
         print(f"[evaluate] two-pass sampler: {chosen['share']:.0%} of C, gap {chosen['gap_db']:.2f} dB "
               f"(bound {chosen['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
+        if s.orp_by_distance and v.strata is not None:
+            by_distance = band_shares(v, shares[:shares.index(chosen["share"]) + 1], kept, gaps, s.orp_confidence,
+                                      s.epsilon_db, future_views)
     return TwoPassPoint(base=base, floor=floor, share=float(chosen["share"]) if chosen else 1.0, found=chosen is not None,
-                        where=v.where, epsilon_db=float(s.epsilon_db), record=chosen, rows=rows)
+                        where=v.where, epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
+
+
+def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,
+                epsilon_db: float, future_views: int | None) -> dict[str, Any] | None:
+    """Each band of camera distance's own share, as the product's ORP gets a mean value per band: the smallest of
+    ``shares`` (ascending; the last is the share that held in every band, which a band keeps where none below it
+    holds) whose bound on the band's own search views, for its share of ``future_views`` and counting its passes
+    (:func:`~imls_lightning.orp.search.protocol_gap_record`), stays within ``epsilon_db``. ``kept`` and ``gaps``:
+    ``(views, len(shares))`` or wider, as :func:`~imls_lightning.estimate.needed_share.share_gaps` measured them on
+    ``v``'s views, so no view is rebuilt again.
+
+    Returns ``edges`` (:func:`~imls_lightning.evaluation.operating_point.band_edges`), and per band near to far
+    ``shares``, ``c_shares``, ``gaps_db``, ``bounds_db``, ``views``, ``lo``, ``hi``; ``None`` (one line says so)
+    where the views' distances do not separate the bands.
+    """
+    labels = sorted(set(v.strata))
+    out: dict[str, list] = {k: [] for k in ("shares", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
+    for k in labels:
+        idx = [i for i, lab in enumerate(v.strata) if lab == k]
+        own = None if future_views is None else max(1, round(future_views * len(idx) / len(v.rows)))
+        passes = None if v.passes is None else [v.passes[i] for i in idx]
+        for j, share in enumerate(shares):
+            rec = protocol_gap_record(gaps[idx, j].tolist(), confidence, own, None, passes, v.paths)
+            if rec["gap_bound_db"] <= epsilon_db or j == len(shares) - 1:
+                break
+        d = [v.distances[i] for i in idx]
+        for key, value in (("shares", share), ("c_shares", kept[idx, j].mean()), ("gaps_db", rec["gap_db"]),
+                           ("bounds_db", rec["gap_bound_db"]), ("lo", min(d)), ("hi", max(d))):
+            out[key].append(float(value))
+        out["views"].append(len(idx))
+        print(f"[evaluate] two-pass sampler by distance: band {k + 1} of {len(labels)} ({min(d):.2f}-{max(d):.2f}): "
+              f"{share:.0%} of C, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
+    out["edges"] = band_edges(out["lo"], out["hi"])
+    if out["edges"] is None:
+        print(f"[evaluate] warning: the two-pass sampler by distance: the search views' camera distances do not separate "
+              f"the bands; every view runs at {shares[-1]:.0%} of C", file=sys.stderr, flush=True)
+        return None
+    return out
 
 
 def two_pass_method(point: TwoPassPoint, renderer, pattern, recnn, opts):
     """The method the evaluation measures at ``point``."""
     from ..inference.two_pass import TwoPassFill
 
-    return TwoPassFill(renderer, pattern, recnn, share=point.share, base=point.base, floor=point.floor, opts=opts)
+    return TwoPassFill(renderer, pattern, recnn, share=point.share, base=point.base, floor=point.floor, opts=opts,
+                       by_distance=point.shares_by_distance())
 
 
-__all__ = ["TwoPassPoint", "candidate_shares", "two_pass_point", "two_pass_method"]
+__all__ = ["TwoPassPoint", "candidate_shares", "two_pass_point", "band_shares", "two_pass_method"]

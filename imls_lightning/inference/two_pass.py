@@ -31,25 +31,45 @@ from .pipeline import NetOptions, RenderResult, StageTimer, PatternMethod, prepa
 class TwoPassFill(PatternMethod):
     """Two selective ray casts (a blue-noise base, then the base's most unpredictable neighbours), a pull-push
     fill, the RecNN. ``share``: of the pattern's pixels in all (the base included); ``base``: the first pass's
-    share, below ``share``; ``floor``: the importance every pixel keeps, relative to the mean."""
+    share, below ``share``; ``floor``: the importance every pixel keeps, relative to the mean; ``by_distance``: a
+    :class:`~imls_lightning.models.ims.DistanceMeans` of shares, each view then at its band of camera distance's
+    share instead of ``share`` (the evaluation's ``orp_by_distance`` point), each above ``base``."""
 
     name = "two_pass"
 
     def __init__(self, renderer, pattern, recnn: torch.nn.Module, share: float, base: float = 0.2,
-                 floor: float = 0.25, seed: int = 0, opts: NetOptions | None = None):
+                 floor: float = 0.25, seed: int = 0, opts: NetOptions | None = None,
+                 by_distance: torch.nn.Module | None = None):
         super().__init__(renderer, pattern, opts)
         if not 0.0 < float(base) < float(share) <= 1.0:
             raise InputError(f"base={base}, share={share}: expected 0 < base < share <= 1 (the first pass is part "
                              "of the share)")
+        self.by_distance = by_distance
         self.recnn = prepare_net(recnn, self.device, self.opts)
         self.share, self.base, self.floor, self.seed = float(share), float(base), float(floor), int(seed)
+        if not all(self.base < x <= 1.0 for x in self.shares):
+            raise InputError(f"by_distance: shares {self.shares}: expected each in (base={base}, 1] (the first pass is "
+                             "part of the share)")
         # the base is the same for every view: its blue-noise pixels are fixed once
         self._first = first_pass(pattern, self.base, self.seed)
 
-    def mask(self, c_first: torch.Tensor) -> torch.Tensor:
-        """``(n, n)`` bool: the pixels to ray-cast in all, from the first pass's C-Image ``(1, 3, n, n)`` (0 elsewhere)."""
+    def mask(self, c_first: torch.Tensor, share: float | None = None) -> torch.Tensor:
+        """``(n, n)`` bool: the pixels to ray-cast in all at ``share`` (None: ``self.share``), from the first pass's
+        C-Image ``(1, 3, n, n)`` (0 elsewhere)."""
         score, first = base_unpredictability(c_first, self.pattern, self.base, seed=self.seed)
-        return two_pass_mask(score, first, self.share, self.pattern, self.floor)[0, 0]
+        return two_pass_mask(score, first, self.share if share is None else share, self.pattern, self.floor)[0, 0]
+
+    @property
+    def shares(self) -> list[float]:
+        """The shares of C it runs at: ``[share]``, or its bands' near to far (``by_distance``)."""
+        # the bands' buffer is float32: round back to the shares it was given (0.4, not 0.4000000059)
+        return [self.share] if self.by_distance is None else [round(float(x), 6) for x in self.by_distance.means.tolist()]
+
+    def share_for(self, view) -> float:
+        """The share of C a validated view ``(9,)`` runs at: its band's with ``by_distance``, else ``share``."""
+        if self.by_distance is None:
+            return self.share
+        return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
 
     def run(self, view) -> RenderResult:
         timer = StageTimer(self.device)
@@ -57,7 +77,7 @@ class TwoPassFill(PatternMethod):
         with timer.stage("low_res_render"):
             c1, n1 = self._render_c_pixels(view, first)
         with timer.stage("importance"):
-            keep = self.mask(c1.float())
+            keep = self.mask(c1.float(), self.share_for(view))
             second = keep & ~first.to(keep.device)
         with timer.stage("selective_render"):
             c2, n2 = self._render_c_pixels(view, second)

@@ -66,6 +66,8 @@ class ReportContext:
     equal_share: list[dict[str, Any]] = field(default_factory=list)
     #: the speed-quality front's points on ``sweep_positions`` (:func:`~imls_lightning.report.front.front_points`)
     front: list[dict[str, Any]] = field(default_factory=list)
+    #: the two-pass sampler's search and its gap on the evaluated views (``summary.json``'s ``two_pass``; None: not measured)
+    two_pass: dict[str, Any] | None = None
 
 
 def _latency_points(ctx: ReportContext, summ, points) -> tuple[dict, dict, float | None]:
@@ -148,6 +150,8 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
 
     if ctx.orp is not None:
         L.extend(_orp_lines(ctx.orp, ctx.views))
+    if ctx.two_pass is not None:
+        L.extend(_two_pass_lines(ctx.two_pass, ctx.views))
 
     if ctx.front:
         L.extend(_front_lines(ctx))
@@ -346,6 +350,39 @@ def _gap_lines(o: dict[str, Any], split: str = "test") -> list[str]:
               md_table(["camera distance", "views", "mean gap (dB)", "largest gap (dB)", "IML/S C-share"],
                        [[f"{fmt(b['lo'], 2)}–{fmt(b['hi'], 2)}", b["views"], fmt(b["gap_db"], 2), fmt(b["max_gap_db"], 2),
                          "–" if b.get("c_share") is None else f"{100 * float(b['c_share']):.1f}%"] for b in bins], "lrrrr"), ""]
+    return L
+
+
+def _two_pass_lines(tp: dict[str, Any], views: str) -> list[str]:
+    """The section ``Two-pass sampler's share``: its search, by band where it has bands, and its gap on the evaluated
+    views by camera distance, judged as the ORP is (the strongest untrained rival gets the product's protocol)."""
+    eps = float(tp["epsilon_db"])
+    L = ["## The two-pass sampler's share (no IMS, searched like the ORP)", "",
+         f"A blue-noise first pass of {100 * float(tp['base']):.0f}% of C, then the pixels it predicts worst. Its share was "
+         f"searched on {tp['where']}: the smallest whose bound stays within ε = {fmt(eps, 2)} dB of the RecNN alone.", "",
+         md_table(["share of C", "gap (dB)", "gap bound (dB)", "C-share kept"],
+                  [[f"{100 * float(r['share']):.0f}%", fmt(r["gap_db"], 2), fmt(r["gap_bound_db"], 2),
+                    f"{100 * float(r['c_share']):.1f}%"] for r in tp["rows"]], "rrrr"), ""]
+    b = tp.get("by_distance")
+    if b:
+        L += ["Then each band of camera distance its own share, never above the one that held in every band, judged on "
+              "its own search views and its part of the new views:", "",
+              md_table(["band (search views' distance)", "up to", "views", "share of C", "C-share kept", "gap (dB)", "gap bound (dB)"],
+                       [[f"{fmt(lo, 2)}-{fmt(hi, 2)}", fmt(e, 3) if e is not None else "–", n, f"{100 * float(x):.0f}%",
+                         f"{100 * float(c):.1f}%", fmt(g, 2), fmt(bd, 2)]
+                        for lo, hi, e, n, x, c, g, bd in zip(b["lo"], b["hi"], [*b["edges"], None], b["views"], b["shares"],
+                                                              b["c_shares"], b["gaps_db"], b["bounds_db"])], "lrrrrrr"), ""]
+    t = tp.get("test")
+    if t:
+        ok = "yes" if t["gap_db"] <= eps else "**no**"
+        L += [f"On {views}, never tuned on: {fmt(t['psnr_recnn'], 2)} dB for the RecNN alone, {fmt(t['psnr_imls'], 2)} dB "
+              f"for the two-pass sampler, a mean gap of {fmt(t['gap_db'], 2)} dB (std {fmt(t['gap_std_db'], 2)}, {t['views']} "
+              f"views; within ε: {ok}).", ""]
+    bins = tp.get("test_by_distance") or []
+    if t and len(bins) > 1:
+        L += [md_table(["camera distance", "views", "mean gap (dB)", "largest gap (dB)", "C-share"],
+                       [[f"{fmt(x['lo'], 2)}–{fmt(x['hi'], 2)}", x["views"], fmt(x["gap_db"], 2), fmt(x["max_gap_db"], 2),
+                         "–" if x.get("c_share") is None else f"{100 * float(x['c_share']):.1f}%"] for x in bins], "lrrrr"), ""]
     return L
 
 

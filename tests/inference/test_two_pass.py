@@ -67,3 +67,33 @@ def test_exception_two_pass_shares(env, share, base):  # noqa: F811
     with pytest.raises(InputError, match="base=.*share=") as e:
         TwoPassFill(env["renderer"], env["ims"].pattern, env["ims"].recnn, share=share, base=base, opts=CPU)
     assert "\n" not in str(e.value)
+
+
+def test_two_pass_by_distance_runs_each_view_at_its_bands_share(env):  # noqa: F811
+    """``by_distance`` (the evaluation's per-band point): a view runs exactly as the fixed-share sampler at its band's
+    share of C."""
+    from imls_lightning.models.ims import DistanceMeans
+
+    ims = env["ims"]
+    views = env["views"]
+    d = [float(np.linalg.norm(np.asarray(v, np.float64)[:3])) for v in views]
+    near, far = int(np.argmin(d)), int(np.argmax(d))
+    assert d[near] < d[far]
+    sched = DistanceMeans([0.5 * (d[near] + d[far])], [0.4, 0.8])
+    method = TwoPassFill(env["renderer"], ims.pattern, ims.recnn, share=0.8, base=0.2, opts=CPU, by_distance=sched)
+    assert method.shares == [0.4, 0.8] and TwoPassFill(env["renderer"], ims.pattern, ims.recnn, share=0.6, opts=CPU).shares == [0.6]
+    for i, share in ((near, 0.4), (far, 0.8)):
+        assert method.share_for(views[i]) == pytest.approx(share)
+        got = method.run(views[i])
+        fixed = TwoPassFill(env["renderer"], ims.pattern, ims.recnn, share=share, base=0.2, opts=CPU).run(views[i])
+        assert torch.equal(got.info["im"], fixed.info["im"]) and np.array_equal(got.image, fixed.image)
+        assert abs(got.info["c_share"] - share) < 0.08
+
+
+def test_exception_two_pass_band_shares_at_or_below_the_base(env):  # noqa: F811
+    from imls_lightning.models.ims import DistanceMeans
+
+    with pytest.raises(InputError, match=r"by_distance: shares \[0.2, 0.8\]: expected each in \(base=0.2, 1\]") as e:
+        TwoPassFill(env["renderer"], env["ims"].pattern, env["ims"].recnn, share=0.8, base=0.2, opts=CPU,
+                    by_distance=DistanceMeans([3.0], [0.2, 0.8]))
+    assert "\n" not in str(e.value)
