@@ -588,6 +588,10 @@ class NumbaRenderer:
         threads: CPU threads (``0``: all of numba's threads, i.e. every core).
         warmup: compile (or load from numba's on-disk cache) in the constructor, so that no
             render call pays for compilation.
+        skip_empty: jump over bricks the transfer function makes exactly transparent (default). False marches
+            every sample inside the volume's box, as a ray caster without empty-space skipping does (the paper's
+            regime, where a background ray inside the box costs as much as an object ray, or more): the same
+            pixels, other costs.
 
     Attributes:
         last_render_seconds: wall time of the last compiled ray-casting call.
@@ -605,8 +609,11 @@ class NumbaRenderer:
 
     name = "numba"
 
-    def __init__(self, scene: Scene, threads: int = 0, warmup: bool = True):
+    def __init__(self, scene: Scene, threads: int = 0, warmup: bool = True, skip_empty: bool = True):
         self.scene = scene
+        if not isinstance(skip_empty, bool):
+            raise InputError(f"renderer.skip_empty={skip_empty!r}: expected true or false (empty-space skipping)")
+        self.skip_empty = skip_empty
         self.threads = check_integer(threads, "renderer.threads", 0, what="an integer >= 0 (0 = all cores)")
         vol = scene.volume
         data = vol.data
@@ -661,6 +668,8 @@ class NumbaRenderer:
         # the fixed-point rounding can move an integer sample by one unit: widen the brick ranges
         pad = 1.0 if self._int_index else 0.0
         self._transparent = transparent_bricks(bmin - pad, bmax + pad, self.scene.volume.value_range, self._lut[:, 3])
+        if not self.skip_empty:  # distance 0 everywhere: every brick is sampled
+            return np.zeros_like(skip_distance(self._transparent))
         return skip_distance(self._transparent)
 
     @property

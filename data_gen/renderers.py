@@ -10,8 +10,10 @@ The ``renderer`` node:
 * ``mapper`` (vtk): ``fixed_point`` (CPU, default) | ``gpu``.
 * ``threads``: CPU threads of one renderer; ``0`` = automatic (the cache divides the machine's
   cores among its worker processes).
+* ``skip_empty`` (numba): empty-space skipping, ``true`` by default; ``false`` marches every sample in the
+  volume's box, as a ray caster without it does (same pixels, other costs: where IML/S is meant to pay).
 
-Keys that cannot change pixels (``threads``) are left out of :func:`renderer_pixel_settings`, the
+Keys that cannot change pixels (``threads``, ``skip_empty``) are left out of :func:`renderer_pixel_settings`, the
 part of the renderer config that is hashed into cache keys.
 """
 from __future__ import annotations
@@ -26,7 +28,7 @@ from .scene import Scene
 from .validate import check_integer, check_mapping
 
 # keys of the renderer node that never change the pixels (how fast, not what)
-NON_PIXEL_KEYS = frozenset({"threads"})
+NON_PIXEL_KEYS = frozenset({"threads", "skip_empty"})
 
 
 def _plain(cfg) -> dict[str, Any]:
@@ -53,7 +55,7 @@ def _make_numba(scene: Scene, cfg: Mapping[str, Any], threads: int):
     # the project's own compiled ray caster (VTK's scene model; casts any pixel subset)
     from .render_numba import NumbaRenderer
 
-    return NumbaRenderer(scene, threads=threads)
+    return NumbaRenderer(scene, threads=threads, skip_empty=cfg.get("skip_empty", True))
 
 
 # name -> factory(scene, renderer_cfg, threads); a new renderer only needs an entry here

@@ -81,6 +81,9 @@ def test_run_hash_of_the_demos_recnn_stage_is_pinned():
     # a key added later enters the hash only away from the value every earlier run had
     assert _run_hash([*demo_recnn, "data.train_pixels=all"]) == "898ec7f5"
     assert _run_hash([*demo_recnn, "data.train_pixels=pattern"]) != "898ec7f5"
+    # renderer.skip_empty (numba.yaml's new key, true) too: caches and runs made before it keep their hashes
+    assert _run_hash([*demo_recnn, "renderer.skip_empty=true"]) == "898ec7f5"
+    assert _run_hash([*demo_recnn, "renderer.skip_empty=false"]) != "898ec7f5"
 
 
 def test_model_fill_defaults_by_pattern_kind_and_only_a_foveal_run_changes_its_hash():

@@ -64,7 +64,9 @@ def output_dir(cfg: DictConfig, s: Settings, scene, rcfg: dict[str, Any], paths:
     from data_gen.renderers import renderer_pixel_settings
 
     ck_hashes = {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}
-    run_hash = settings_hash(ck_hashes, cfg.scene, cfg.data, renderer_pixel_settings(rcfg), s.hashed())
+    # renderer.skip_empty=false changes no pixel but every time: such an evaluation is a run of its own
+    costs = [{"skip_empty": False}] if rcfg.get("skip_empty", True) is False else []
+    run_hash = settings_hash(ck_hashes, cfg.scene, cfg.data, renderer_pixel_settings(rcfg), s.hashed(), *costs)
     if s.output_dir:
         return Path(s.output_dir)
     return Path(str(cfg.paths.runs_dir)) / "eval" / f"{scene.name}-{recnn_name(s)}-{run_hash}"

@@ -182,14 +182,24 @@ def test_background_rays_are_not_marched(blob_scene, numba_renderer):
 
 
 def test_empty_space_skipping_is_exact(blob_scene, numba_renderer):
+    """renderer.skip_empty=false marches every brick (a ray caster without empty-space skipping): the same pixels."""
+    from data_gen.renderers import make_renderer
+
     assert 0.0 < numba_renderer.transparent_brick_fraction < 1.0  # the test does exercise skipping
-    with_skip = numba_renderer.render(VIEWS[1], 40)
-    saved = numba_renderer._bricks.copy()
-    try:
-        numba_renderer._bricks[:] = 0
-        assert np.array_equal(numba_renderer.render(VIEWS[1], 40), with_skip)
-    finally:
-        numba_renderer._bricks[:] = saved
+    marching = make_renderer(blob_scene, {"name": "numba", "skip_empty": False})
+    assert marching.skip_empty is False and not marching._bricks.any() and numba_renderer._bricks.any()
+    for view in VIEWS[:2]:
+        assert np.array_equal(marching.render(view, 40), numba_renderer.render(view, 40))
+    px = np.array([0, 777, 820, 1599])
+    assert np.array_equal(marching.render_pixels(VIEWS[1], 40, px), numba_renderer.render_pixels(VIEWS[1], 40, px))
+
+
+def test_exception_skip_empty_is_a_boolean(blob_scene):
+    from data_gen.renderers import make_renderer
+
+    with pytest.raises(InputError, match=r"renderer.skip_empty='no': expected true or false \(empty-space skipping\)") as e:
+        make_renderer(blob_scene, {"name": "numba", "skip_empty": "no"})
+    assert "\n" not in str(e.value)
 
 
 def test_skip_distance_against_brute_force():

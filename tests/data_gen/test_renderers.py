@@ -32,6 +32,8 @@ def test_pixel_settings_fill_defaults_and_leave_out_threads():
     assert renderer_pixel_settings({"name": "vtk", "mapper": "fixed_point", "threads": 3}) == a
     assert renderer_pixel_settings(None) == a
     assert renderer_pixel_settings({"name": "numba", "threads": 2}) == {"name": "numba", "revision": RENDERER_REVISION["numba"]}
+    # empty-space skipping changes costs, never pixels: caches are shared
+    assert renderer_pixel_settings({"name": "numba", "skip_empty": False}) == renderer_pixel_settings({"name": "numba"})
     assert renderer_pixel_settings({"name": "vtk", "mapper": "gpu"}) != a
     with pytest.raises(InputError, match="renderer.threads"):
         renderer_pixel_settings({"name": "numba", "threads": "many"})
