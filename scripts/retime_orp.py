@@ -13,6 +13,9 @@ Usage:
         --views 6 --repeats 10
     # and the classical two-pass sampler at the share it needs on the validation views (needed_share_check.py)
     .venv/bin/python scripts/retime_orp.py <ims ckpt> <cache> --two-pass 0.6 --base 0.2
+    # the same networks and pixels on a ray caster without empty-space skipping (renderer.skip_empty=false): where
+    # a background ray inside the volume's box costs as much as an object ray, as in the paper's renderer
+    .venv/bin/python scripts/retime_orp.py <ims ckpt> <cache> --no-skip-empty
 """
 from __future__ import annotations
 
@@ -38,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the classical two-pass sampler at this share of C (choose it on validation views: "
                          "scripts/needed_share_check.py --split val --base B), alternated with the others")
     ap.add_argument("--base", type=float, default=0.2, help="the two-pass sampler's first pass, a share of C (default 0.2)")
+    ap.add_argument("--no-skip-empty", action="store_true",
+                    help="ray-cast without empty-space skipping (renderer.skip_empty=false: the same pixels, the costs of "
+                         "a ray caster without it)")
     a = ap.parse_args(argv)
     if a.views < 1 or a.repeats < 1 or a.warmup < 0:
         ap.error("--views and --repeats must be >= 1, --warmup >= 0")
@@ -49,7 +55,17 @@ def main(argv: list[str] | None = None) -> int:
     from imls_lightning.evaluation.measurement import image_quality, spaced
     from imls_lightning.inference.pipeline import IMLSRenderer, RecNNAlone
 
-    product = IMLSRenderer.from_checkpoints(a.ims_checkpoint, recnn_checkpoint=a.recnn)
+    renderer_cfg = None
+    if a.no_skip_empty:
+        from imls_lightning.inference.checkpoints import load_task
+
+        trained = dict(load_task(a.ims_checkpoint, expect="IMSTask", what="ims").hparams.get("renderer") or {})
+        if trained.get("name") != "numba":
+            print(f"error: --no-skip-empty: the IMS was trained with renderer={trained.get('name')!r}; only numba skips "
+                  "empty space", file=sys.stderr)
+            return 2
+        renderer_cfg = {**trained, "skip_empty": False}
+    product = IMLSRenderer.from_checkpoints(a.ims_checkpoint, recnn_checkpoint=a.recnn, renderer_cfg=renderer_cfg)
     if product.operating_point is None or not product.operating_point.found:
         print(f"error: {a.ims_checkpoint}: no recorded operating point (the evaluation writes it beside the checkpoint)",
               file=sys.stderr)
@@ -88,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     stages = ["low_res_render", "importance", "selective_render", "decoder", "recnn", "total"]
     mean = {n: {k: 1e3 * float(np.mean([v.get(k, 0.0) for v in per_view[n]])) for k in stages} for n in methods}
     share = {n: float(np.mean([v["c_share"] for v in per_view[n]])) for n in methods}
+    skip = getattr(product.renderer, "skip_empty", True)
+    print(f"ray caster: {product.renderer.name}, empty-space skipping {'on' if skip else 'off'}")
     print(f"ORP: u = {product.mean:.4f} (lift {product.lift}), recorded by the evaluation; {len(rows)} test views "
           f"(rows {', '.join(map(str, rows))}), median of {a.repeats} interleaved runs each, mean over views\n")
     print("| method | C-share | first pass (ms) | importance (ms) | selective render (ms) | decoder or fill (ms) | RecNN (ms) "

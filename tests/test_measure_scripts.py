@@ -346,6 +346,14 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     assert len(two) == 1 and abs(float(two[0][1].rstrip("%")) - 80.0) < 8.0, out
     assert "speed-up of two passes (30% first) + fill + RecNN over the RecNN alone" in out
 
+    # without empty-space skipping: the same pixels (PSNR to the last digit), other costs
+    assert mod.main(args + ["--no-skip-empty"]) == 0
+    out = capsys.readouterr().out
+    assert "empty-space skipping off" in out
+    off = {line.split(" | ")[0].lstrip("| "): line.split(" | ") for line in out.splitlines()
+           if line.startswith("| ") and "---" not in line and not line.startswith("| method")}
+    assert off["IML/S + RecNN (recorded ORP)"][-2] == got[-2] and off["IML/S + RecNN (recorded ORP)"][1] == got[1]
+
 
 @pytest.mark.slow  # about 40 s on 2 cores; share_gaps and TwoPassFill are unit-tested in tests/estimate and tests/inference
 def test_needed_share_check_scores_the_estimates_masks_with_the_trained_recnn(tiny_checkpoints, tmp_path, capsys):
