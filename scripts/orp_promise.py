@@ -12,7 +12,9 @@ them. IML/S runs here on the cached pixels (what the selective ray cast returns)
         --variant orp_views=path --variant orp_views=path,orp_strata=4 \\
         --variant orp_views=path,orp_strata=4,orp_by_distance=true --json benchmarks/orp_promise_seed_shell.json
 
-Prints a markdown table; ``--json`` writes the rows.
+Prints a markdown table; ``--json`` writes the rows. ``--two-pass``: for each variant also the classical two-pass
+sampler's share, searched as the evaluation searches it (:func:`imls_lightning.evaluation.two_pass.two_pass_point`: a
+share per band of camera distance with ``orp_by_distance``), tested the same way on the cached test views.
 """
 from __future__ import annotations
 
@@ -69,12 +71,40 @@ def test_gap(nets, cache, rows, pattern, u, lift: bool) -> dict:
             "test_gap_by_distance_quarter_db": quarters, "test_views": len(gaps)}
 
 
+def two_pass_test(s, cfg, cache, scene, nets, pattern, rows) -> dict:
+    """The two-pass sampler's share searched as the evaluation does, then its gap to the RecNN alone on ``rows`` (the
+    cached pixels: :func:`~imls_lightning.estimate.needed_share.share_gaps` with its first pass, each view at its
+    band's share): the search's record and bands, the test gap, its C-share and the gap by distance quarter."""
+    from imls_lightning.estimate.needed_share import share_gaps
+    from imls_lightning.evaluation.operating_point import camera_distance
+    from imls_lightning.evaluation.two_pass import two_pass_method, two_pass_point
+
+    point = two_pass_point(s, cfg, cache, scene, nets, pattern, "cpu", future_views=len(rows))
+    method = two_pass_method(point, None, pattern, nets.recnn, None)  # for its share per view only: no ray is cast
+    recnn = nets.recnn.eval()
+    gaps, kept, one = [], [], []
+    for r in rows:
+        share = method.share_for(np.asarray(cache.views[r], np.float64))
+        both = sorted({share, point.share})  # its band's share, and the one share that held in every band
+        k, g = share_gaps(lambda c: recnn(c).float(), pattern, [np.asarray(cache.images[r])], both,
+                          floor=point.floor, base=point.base)
+        gaps.append(float(g[0, both.index(share)]))
+        kept.append(float(k[0, both.index(share)]))
+        one.append(float(g[0, both.index(point.share)]))
+    d = np.array([camera_distance(cache, r) for r in rows])
+    g = np.array(gaps)
+    return {"shares": method.shares, "share": point.share, "record": point.record, "by_distance": point.by_distance,
+            "test_gap_db": float(g.mean()), "test_c_share": float(np.mean(kept)), "test_gap_one_share_db": float(np.mean(one)),
+            "test_gap_by_distance_quarter_db": [float(g[part].mean()) for part in np.array_split(np.argsort(d, kind="stable"), 4)]}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("evaluation", type=Path, help="a finished evaluation's folder (config.yaml, summary.json)")
     ap.add_argument("--variant", action="append", default=[], help="search settings, e.g. orp_views=path,orp_strata=4 "
                     "(repeatable; the evaluation's own settings always come first)")
     ap.add_argument("--json", type=Path, help="write the rows here")
+    ap.add_argument("--two-pass", action="store_true", help="also search and test the two-pass sampler's share per variant")
     a = ap.parse_args(argv)
     from data_gen.scene import build_scene
     from data_gen.scene import register_resolvers as register_scene_resolvers
@@ -110,9 +140,12 @@ def main(argv: list[str] | None = None) -> int:
         if res.found:
             sched = distance_means(res)
             row.update(test_gap(nets, cache, rows, pattern, res.mean if sched is None else sched, bool(res.lifted)))
+        if a.two_pass:
+            row["two_pass"] = two_pass_test(sv, cfg, cache, scene, nets, pattern, rows)
         row["seconds"] = round(time.perf_counter() - t, 1)
         if not variant:
             row["evaluation_test_gap_db"] = measured.get("gap_db")
+            row["evaluation_two_pass_test_gap_db"] = ((summary.get("two_pass") or {}).get("test") or {}).get("gap_db")
         out.append(row)
         print(json.dumps(row, default=float), file=sys.stderr, flush=True)
     print(f"\n{summary.get('scene')} / {summary.get('recnn')}: ORP variants, each tested on {len(rows)} test-trajectory views\n")
@@ -127,6 +160,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {r['orp_views']} | {r['orp_strata']} | {u}{' (lifted)' if r['lift'] else ''} | "
               f"{r['search_gap_db']:.2f} / {r['search_bound_db']:.2f} dB | {r['search_c_share']:.1%} | **{r['test_gap_db']:.2f} dB** | "
               f"{r['test_c_share']:.1%} | {q} |")
+    if a.two_pass:
+        print("\nThe two-pass sampler, its share searched as the evaluation searches it, on the same test views:\n")
+        print("| search | strata | share of C (near → far) | search gap / bound | test gap | test C-share | test gap by distance quarter (near → far) "
+              "| test gap at the one share |")
+        print("| --- | ---: | --- | ---: | ---: | ---: | --- | ---: |")
+        for r in out:
+            tp = r["two_pass"]
+            shares = " / ".join(f"{x:.0%}" for x in tp["shares"])
+            q = " / ".join(f"{x:.2f}" for x in tp["test_gap_by_distance_quarter_db"])
+            rec = tp["record"] or {}
+            print(f"| {r['orp_views']} | {r['orp_strata']} | {shares} | {rec.get('gap_db', float('nan')):.2f} / "
+                  f"{rec.get('gap_bound_db', float('nan')):.2f} dB | **{tp['test_gap_db']:.2f} dB** | {tp['test_c_share']:.1%} | {q} "
+                  f"| {tp['test_gap_one_share_db']:.2f} dB at {tp['share']:.0%} |")
+    if a.two_pass and out and out[0].get("evaluation_two_pass_test_gap_db") is not None:
+        print(f"\nCheck: the evaluation measured the two-pass sampler's test gap at {out[0]['evaluation_two_pass_test_gap_db']:.2f} dB "
+              f"(its one share, selective ray cast); here {out[0]['two_pass']['test_gap_one_share_db']:.2f} dB at "
+              f"{out[0]['two_pass']['share']:.0%} of C.")
     if out and out[0].get("evaluation_test_gap_db") is not None and out[0]["found"]:
         print(f"\nCheck: the evaluation measured a test gap of {out[0]['evaluation_test_gap_db']:.2f} dB at its own ORP "
               f"(selective ray cast, its network options); here {out[0]['test_gap_db']:.2f} dB.")

@@ -413,6 +413,15 @@ def test_orp_promise_script_tests_each_searched_point_on_the_evaluated_views(run
     assert banded["orp_strata"] == 2 and len(banded["by_distance"]["means"]) == 2 and math.isfinite(banded["test_gap_db"])
     table = capsys.readouterr().out
     assert " / ".join(f"{u:.3f}" for u in banded["by_distance"]["means"]) in table
+    # --two-pass: the sampler's share searched as the evaluation searches it, tested on the same cached views
+    assert mod.main([str(run["out"]), "--variant", "orp_strata=2,orp_by_distance=true,orp_confidence=0.5", "--two-pass",
+                     "--json", str(out)]) == 0
+    own, banded = json.loads(out.read_text())
+    assert own["two_pass"]["shares"] == [own["two_pass"]["share"]] and len(banded["two_pass"]["shares"]) in (1, 2)
+    assert all(math.isfinite(r["two_pass"]["test_gap_db"]) for r in (own, banded))
+    # its one share on the cached pixels is the evaluation's selective ray cast (float32, the same masks)
+    assert own["two_pass"]["test_gap_one_share_db"] == pytest.approx(own["evaluation_two_pass_test_gap_db"], abs=0.1)
+    assert "The two-pass sampler, its share searched as the evaluation searches it" in capsys.readouterr().out
 
 
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
