@@ -29,6 +29,22 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+def searched_two_pass(path: Path) -> dict:
+    """The two-pass sampler's searched point in ``path``: an evaluation's ``summary.json`` (``two_pass``) or
+    ``scripts/orp_promise.py --two-pass``'s rows (the first's ``two_pass``). Exits with one line otherwise."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"--two-pass-from {path}: cannot read it as JSON ({err})")
+    tp = data.get("two_pass") if isinstance(data, dict) else (data[0].get("two_pass") if data and isinstance(data[0], dict) else None)
+    if not isinstance(tp, dict) or "share" not in tp:
+        raise SystemExit(f"--two-pass-from {path}: expected an evaluation's summary.json or orp_promise.py --two-pass rows "
+                         "with a two_pass point (share, by_distance)")
+    return tp
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("ims_checkpoint", help="a model=ims checkpoint with an evaluation's <ckpt>.orp.json beside it")
@@ -41,6 +57,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the classical two-pass sampler at this share of C (choose it on validation views: "
                          "scripts/needed_share_check.py --split val --base B), alternated with the others")
     ap.add_argument("--base", type=float, default=0.2, help="the two-pass sampler's first pass, a share of C (default 0.2)")
+    ap.add_argument("--two-pass-from", type=Path, default=None, metavar="JSON",
+                    help="also the two-pass sampler at the operating point searched for it: an evaluation's summary.json "
+                         "(its two_pass) or scripts/orp_promise.py --two-pass's JSON (its first row); a share per band "
+                         "of camera distance where it has one")
     ap.add_argument("--no-skip-empty", action="store_true",
                     help="ray-cast without empty-space skipping (renderer.skip_empty=false: the same pixels, the costs of "
                          "a ray caster without it)")
@@ -82,6 +102,20 @@ def main(argv: list[str] | None = None) -> int:
         name = f"two passes ({a.base:.0%} first) + fill + RecNN"
         methods[name] = TwoPassFill(product.renderer, product.pattern, product.recnn, share=a.two_pass, base=a.base,
                                     opts=product.opts)
+    if a.two_pass_from is not None:
+        from imls_lightning.inference.two_pass import TwoPassFill
+
+        tp = searched_two_pass(a.two_pass_from)
+        sched = None
+        if tp.get("by_distance"):
+            from imls_lightning.models.ims import DistanceMeans
+
+            sched = DistanceMeans(tp["by_distance"]["edges"], tp["by_distance"]["shares"])
+        method = TwoPassFill(product.renderer, product.pattern, product.recnn, share=float(tp["share"]),
+                             base=float(tp.get("base", a.base)), floor=float(tp.get("floor", 0.25)), opts=product.opts,
+                             by_distance=sched)
+        methods["two passes, its searched " + ("shares per band" if sched is not None else "share") + " ("
+                + " / ".join(f"{x:.0%}" for x in method.shares) + ")"] = method
     per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
     quality: dict[str, list[tuple[float, float]]] = {k: [] for k in methods}
     with torch.inference_mode():

@@ -346,6 +346,23 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     assert len(two) == 1 and abs(float(two[0][1].rstrip("%")) - 80.0) < 8.0, out
     assert "speed-up of two passes (30% first) + fill + RecNN over the RecNN alone" in out
 
+    # the two-pass sampler at a searched point with a share per band (orp_promise --two-pass's rows)
+    import json
+
+    views = [np.asarray(cache.views[r], np.float64) for r in test[spaced(len(test), 2)]]
+    d = sorted(float(np.linalg.norm(v[:3])) for v in views)
+    rows_json = tmp_path / "promise.json"
+    rows_json.write_text(json.dumps([{"two_pass": {"share": 0.8, "base": 0.3, "floor": 0.25,
+                                                    "by_distance": {"edges": [0.5 * (d[0] + d[1]) if d[1] > d[0] else d[0] + 1],
+                                                                    "shares": [0.8, 0.5]}}}]))
+    assert mod.main(args + ["--two-pass-from", str(rows_json)]) == 0
+    out = capsys.readouterr().out
+    assert "| two passes, its searched shares per band (80% / 50%) |" in out, out
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    with pytest.raises(SystemExit, match="expected an evaluation's summary.json or orp_promise.py --two-pass rows"):
+        mod.main(args + ["--two-pass-from", str(bad)])
+
     # without empty-space skipping: the same pixels (PSNR to the last digit), other costs
     assert mod.main(args + ["--no-skip-empty"]) == 0
     out = capsys.readouterr().out
