@@ -669,7 +669,7 @@ class NumbaRenderer:
         pad = 1.0 if self._int_index else 0.0
         self._transparent = transparent_bricks(bmin - pad, bmax + pad, self.scene.volume.value_range, self._lut[:, 3])
         if not self.skip_empty:  # distance 0 everywhere: every brick is sampled
-            return np.zeros_like(skip_distance(self._transparent))
+            return np.zeros(self._transparent.shape, np.uint8)
         return skip_distance(self._transparent)
 
     @property

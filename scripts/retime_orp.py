@@ -39,9 +39,9 @@ def searched_two_pass(path: Path) -> dict:
     except (OSError, ValueError) as err:
         raise SystemExit(f"--two-pass-from {path}: cannot read it as JSON ({err})")
     tp = data.get("two_pass") if isinstance(data, dict) else (data[0].get("two_pass") if data and isinstance(data[0], dict) else None)
-    if not isinstance(tp, dict) or "share" not in tp:
+    if not isinstance(tp, dict) or not {"share", "base", "floor"} <= set(tp):
         raise SystemExit(f"--two-pass-from {path}: expected an evaluation's summary.json or orp_promise.py --two-pass rows "
-                         "with a two_pass point (share, by_distance)")
+                         "with a two_pass point (share, base, floor, by_distance)")
     return tp
 
 
@@ -77,9 +77,10 @@ def main(argv: list[str] | None = None) -> int:
 
     renderer_cfg = None
     if a.no_skip_empty:
-        from imls_lightning.inference.checkpoints import load_task
+        from imls_lightning.config import load_checkpoint
 
-        trained = dict(load_task(a.ims_checkpoint, expect="IMSTask", what="ims").hparams.get("renderer") or {})
+        # the renderer the IMS was trained with, from its hyper-parameters (no network is built for it)
+        trained = dict(load_checkpoint(a.ims_checkpoint, what="ims").get("hyper_parameters", {}).get("renderer") or {})
         if trained.get("name") != "numba":
             print(f"error: --no-skip-empty: the IMS was trained with renderer={trained.get('name')!r}; only numba skips "
                   "empty space", file=sys.stderr)
@@ -103,18 +104,11 @@ def main(argv: list[str] | None = None) -> int:
         methods[name] = TwoPassFill(product.renderer, product.pattern, product.recnn, share=a.two_pass, base=a.base,
                                     opts=product.opts)
     if a.two_pass_from is not None:
-        from imls_lightning.inference.two_pass import TwoPassFill
+        from imls_lightning.evaluation.two_pass import TwoPassPoint, two_pass_method
 
-        tp = searched_two_pass(a.two_pass_from)
-        sched = None
-        if tp.get("by_distance"):
-            from imls_lightning.models.ims import DistanceMeans
-
-            sched = DistanceMeans(tp["by_distance"]["edges"], tp["by_distance"]["shares"])
-        method = TwoPassFill(product.renderer, product.pattern, product.recnn, share=float(tp["share"]),
-                             base=float(tp.get("base", a.base)), floor=float(tp.get("floor", 0.25)), opts=product.opts,
-                             by_distance=sched)
-        methods["two passes, its searched " + ("shares per band" if sched is not None else "share") + " ("
+        point = TwoPassPoint.from_dict(searched_two_pass(a.two_pass_from))
+        method = two_pass_method(point, product.renderer, product.pattern, product.recnn, product.opts)
+        methods["two passes, its searched " + ("shares per band" if point.by_distance else "share") + " ("
                 + " / ".join(f"{x:.0%}" for x in method.shares) + ")"] = method
     per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
     quality: dict[str, list[tuple[float, float]]] = {k: [] for k in methods}

@@ -186,13 +186,11 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
     (one line says so) where the views' distances do not separate the bands."""
     from ..inference.baselines import product_orp, product_point
 
-    labels = sorted(set(strata))
+    bands = split_bands(strata, future_views, passes)
     out: dict[str, list] = {k: [] for k in ("means", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
-    for k in labels:
-        idx = [i for i, lab in enumerate(strata) if lab == k]
-        share = None if future_views is None else max(1, round(future_views * len(idx) / len(rows)))
+    for band in bands:
+        k, idx, share, own_passes = band.label, band.idx, band.future_views, band.passes
         batches = list(view_loader(cache, [rows[i] for i in idx], pattern))
-        own_passes = None if passes is None else [passes[i] for i in idx]
         own = product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
                           lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         if own.found and own.mean <= result.mean:
@@ -205,13 +203,39 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
         for key, value in (("means", u), ("c_shares", rec["c_share"]), ("gaps_db", rec["gap_db"]),
                            ("bounds_db", rec["gap_bound_db"]), ("views", len(idx)), ("lo", min(d)), ("hi", max(d))):
             out[key].append(float(value) if key != "views" else int(value))
-        print(f"[evaluate] ORP by distance: band {k + 1} of {len(labels)} ({min(d):.2f}-{max(d):.2f}): u = {u:.3f}, "
+        print(f"[evaluate] ORP by distance: band {k + 1} of {len(bands)} ({min(d):.2f}-{max(d):.2f}): u = {u:.3f}, "
               f"{rec['c_share']:.1%} of C, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
     out["edges"] = band_edges(out["lo"], out["hi"])
     if out["edges"] is None:
         print("[evaluate] warning: orp_by_distance: the search views' camera distances do not separate the bands; "
               f"every view runs at u = {result.mean:.3f}", file=sys.stderr, flush=True)
         return None
+    return out
+
+
+@dataclass
+class Band:
+    """One band of camera distance among an operating point's search views (:func:`split_bands`)."""
+    label: int
+    idx: list[int]                # the band's search views (indices into the search views)
+    future_views: int | None      # its share of the new views the bound is for
+    passes: list[int] | None      # its views' pass labels (views along paths), else None
+
+
+def split_bands(strata: Sequence[int], future_views: int | None, passes: Sequence[int] | None = None) -> list[Band]:
+    """The search views of each band of camera distance, near to far, as every by-distance operating point judges
+    them (the ORP's mean values, the two-pass sampler's shares): their indices, the band's share of the
+    ``future_views`` new views its bound is for, and their passes.
+
+    Example:
+        >>> [(b.label, b.idx, b.future_views) for b in split_bands([0, 1, 0, 1, 1], future_views=10)]
+        [(0, [0, 2], 4), (1, [1, 3, 4], 6)]
+    """
+    out = []
+    for k in sorted(set(strata)):
+        idx = [i for i, lab in enumerate(strata) if lab == k]
+        own = None if future_views is None else max(1, round(future_views * len(idx) / len(strata)))
+        out.append(Band(k, idx, own, None if passes is None else [passes[i] for i in idx]))
     return out
 
 

@@ -28,7 +28,7 @@ import torch
 from ..estimate.needed_share import NEEDED_SHARES, share_gaps
 from ..orp import protocol_gap_record
 from .networks import Networks
-from .operating_point import SearchViews, band_edges, judged, search_views
+from .operating_point import SearchViews, band_edges, judged, search_views, split_bands
 from .settings import Settings
 
 
@@ -72,6 +72,13 @@ class TwoPassPoint:
             return (f"{line}; then each band of camera distance its own share, never above that one, judged on its own "
                     f"search views: {bands}.")
         return f"{head}: no share below 100% kept the bound within {self.epsilon_db:g} dB, so it renders all of C."
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "TwoPassPoint":
+        """The point :meth:`to_dict` wrote (``summary.json``'s ``two_pass``, ``scripts/orp_promise.py``'s rows)."""
+        return cls(base=float(d["base"]), floor=float(d["floor"]), share=float(d["share"]), found=bool(d.get("found", True)),
+                   where=str(d.get("where", "")), epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"),
+                   rows=list(d.get("rows", [])), by_distance=d.get("by_distance"))
 
     def to_dict(self) -> dict[str, Any]:
         return {"base": self.base, "floor": self.floor, "share": self.share, "found": self.found, "where": self.where,
@@ -136,14 +143,12 @@ def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.
     ``shares``, ``c_shares``, ``gaps_db``, ``bounds_db``, ``views``, ``lo``, ``hi``; ``None`` (one line says so)
     where the views' distances do not separate the bands.
     """
-    labels = sorted(set(v.strata))
+    bands = split_bands(v.strata, future_views, v.passes)
     out: dict[str, list] = {k: [] for k in ("shares", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
-    for k in labels:
-        idx = [i for i, lab in enumerate(v.strata) if lab == k]
-        own = None if future_views is None else max(1, round(future_views * len(idx) / len(v.rows)))
-        passes = None if v.passes is None else [v.passes[i] for i in idx]
+    for band in bands:
+        k, idx = band.label, band.idx
         for j, share in enumerate(shares):
-            rec = protocol_gap_record(gaps[idx, j].tolist(), confidence, own, None, passes, v.paths)
+            rec = protocol_gap_record(gaps[idx, j].tolist(), confidence, band.future_views, None, band.passes, v.paths)
             if rec["gap_bound_db"] <= epsilon_db or j == len(shares) - 1:
                 break
         d = [v.distances[i] for i in idx]
@@ -151,7 +156,7 @@ def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.
                            ("bounds_db", rec["gap_bound_db"]), ("lo", min(d)), ("hi", max(d))):
             out[key].append(float(value))
         out["views"].append(len(idx))
-        print(f"[evaluate] two-pass sampler by distance: band {k + 1} of {len(labels)} ({min(d):.2f}-{max(d):.2f}): "
+        print(f"[evaluate] two-pass sampler by distance: band {k + 1} of {len(bands)} ({min(d):.2f}-{max(d):.2f}): "
               f"{share:.0%} of C, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
     out["edges"] = band_edges(out["lo"], out["hi"])
     if out["edges"] is None:
