@@ -280,6 +280,40 @@ def register_resolvers() -> None:
         OmegaConf.register_new_resolver("imls_volume_name", volume_name)
 
 
+def preset_config(name: str, overrides=()):
+    """The ``conf/scene/<name>.yaml`` preset as ``python -m data_gen scene=<name>`` composes it: a preset may extend
+    another through its defaults list (``flame_whole`` is ``flame_sheets`` framed from farther away), which a plain
+    ``OmegaConf.load`` of the file would not follow.
+
+    Example:
+        >>> preset_config("flame_whole").camera_distance
+        [5.6, 8.0]
+
+    Raises:
+        InputError: no such preset, or an override that does not apply to it.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from hydra.initialize import get_gh_backup, restore_gh_from_backup
+    from omegaconf.errors import OmegaConfBaseException
+
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    if not (conf / "scene" / f"{name}.yaml").is_file():
+        known = sorted(p.stem for p in (conf / "scene").glob("*.yaml"))
+        raise InputError(f"scene={name!r}: no conf/scene/{name}.yaml; expected one of {', '.join(known)}")
+    register_resolvers()
+    backup = get_gh_backup()  # inside a running Hydra app: set its state aside, restore it after
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(str(conf), version_base="1.3", job_name="scene_preset"):
+            return compose("data_gen", overrides=[f"scene={name}", *overrides]).scene
+    except (HydraException, OmegaConfBaseException) as err:
+        raise InputError(f"scene={name} {' '.join(overrides)}: {err}") from None
+    finally:
+        restore_gh_from_backup(backup)
+
+
 def _plain(cfg) -> dict[str, Any]:
     """DictConfig or Mapping -> plain (resolved) dict."""
     register_resolvers()  # the volume-name interpolation resolves while the node is converted

@@ -46,16 +46,13 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 def load_scene(name: str):
     """The ``conf/scene/<name>.yaml`` preset, built as the data generator builds it."""
-    from omegaconf import OmegaConf
-
-    from data_gen.scene import build_scene, register_resolvers
+    from data_gen.scene import build_scene, preset_config
 
     path = ROOT / "conf" / "scene" / f"{name}.yaml"
     if not path.is_file():
         known = sorted(p.stem for p in (ROOT / "conf" / "scene").glob("*.yaml"))
         raise InputError(f"--scene {name}: no {path.relative_to(ROOT)} (known: {', '.join(known) or 'none'})")
-    register_resolvers()
-    return build_scene(OmegaConf.load(path))
+    return build_scene(preset_config(name))
 
 
 def bench_views(scene, count: int) -> np.ndarray:

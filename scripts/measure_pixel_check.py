@@ -31,12 +31,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--cache-dir", default=None)
     a = ap.parse_args(argv)
-    from omegaconf import OmegaConf
-
     from data_gen.cache import ViewImageCache, bad_views, render_cache
-    from data_gen.scene import build_scene
+    from data_gen.scene import build_scene, preset_config
 
-    scene = build_scene(OmegaConf.load(ROOT / "conf" / "scene" / f"{a.scene}.yaml"))
+    scene = build_scene(preset_config(a.scene))
     with tempfile.TemporaryDirectory() as tmp:
         d = {"num_views": a.views, "test_views": 0, "resolution": a.resolution, "workers": 0,
              "cache_dir": a.cache_dir or tmp}

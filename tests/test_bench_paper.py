@@ -66,6 +66,32 @@ def test_pair_config_smoke_crop_net_and_las_per_recnn():
     assert bp.pairs(_cfg(scene="flame", recnns="[enhancenet]")) == [("flame", "enhancenet")]
 
 
+def test_skip_empty_false_reaches_every_stage_that_times_and_no_stage_that_renders_pixels():
+    """skip_empty=false: the estimate, the evaluation and the adaptive mean time a ray caster without empty-space
+    skipping; the cache and the training render as before (the same pixels, so the same caches and runs)."""
+    plain, default = _cfg(skip_empty="false"), _cfg()
+    enh = bp.pair_config(plain, "flame_whole", "enhancenet")
+    assert "renderer.skip_empty=false" in enh.evaluate and "renderer.skip_empty=false" in enh.adaptive
+    assert "renderer.skip_empty=false" in bp.estimate_args(plain, enh)
+    assert enh.stages == bp.pair_config(default, "flame_whole", "enhancenet").stages
+    assert not any("skip_empty" in a for a in [*bp.pair_config(default, "x", "enhancenet").evaluate,
+                                               *bp.estimate_args(default, enh)])
+    with pytest.raises(InputError, match="skip_empty='no': expected true or false"):
+        bp.pair_config(_cfg(skip_empty="no"), "flame_whole", "enhancenet")
+
+
+def test_rows_timed_without_skipping_are_marked_in_both_tables():
+    rows = [bp.csv_row(_summary("ct_head")), bp.csv_row({**_summary("flame_whole"), "skip_empty": False})]
+    text = bp.section_text(rows, partial=False)
+    assert "| flame_whole (no skipping) |" in text and "| ct_head |" in text and "*(no skipping)*" in text
+    assert "no skipping" not in bp.section_text(rows[:1], partial=False)
+    md = bp.report_markdown(rows, [], partial=False, stage_minutes={}, command="", machine={})
+    assert "| flame_whole (no skipping) |" in md and "*(no skipping)*" in md
+    # a pair's per-view row still follows its main row
+    assert bp.rows_beside([["flame_whole (no skipping)", "enhancenet"]], {("flame_whole", "enhancenet"): ["x", "y"]}) == \
+        [["flame_whole (no skipping)", "enhancenet"], ["x", "y"]]
+
+
 def test_pairs_exception_unknown_recnn():
     with pytest.raises(InputError, match="recnns: 'srgan' is not a RecNN"):
         bp.pairs(_cfg(recnns="[srgan]"))
@@ -76,6 +102,7 @@ def test_csv_row_smoke_has_exactly_the_issue_columns():
     assert tuple(row) == bp.CSV_COLUMNS
     assert row["speedup"] == pytest.approx(500.0 / 200.0) and row["gap_db"] == pytest.approx(0.9)
     assert row["mean"] == 0.31 and row["las_ms"] == 350.0 and row["full_ms"] == 1500.0
+    assert row["skip_empty"] is True and bp.csv_row({**_summary(), "skip_empty": False})["skip_empty"] is False
 
 
 def test_csv_roundtrip_and_merge_keeps_other_pairs(tmp_path):
@@ -263,6 +290,11 @@ def test_legacy_table_reads_with_empty_estimate_columns(tmp_path):
     path.write_text(",".join(bp.LEGACY_COLUMNS) + "\n" + ",".join(["ct_head", "enhancenet"] + ["1"] * 15) + "\n")
     row = bp.read_rows(path)[0]
     assert row["scene"] == "ct_head" and all(row[k] == "" for k in bp.ESTIMATE_COLUMNS)
+    assert row["skip_empty"] is True  # timed before the knob existed: with skipping
+    # a table with the estimate's columns and without skip_empty reads too, and is written with it
+    path.write_text(",".join(bp.LEGACY_COLUMNS + bp.ESTIMATE_COLUMNS) + "\n" + ",".join(["ct_head", "enhancenet"] + ["1"] * 20) + "\n")
+    bp.write_csv([*bp.read_rows(path), {**bp.csv_row({**_summary("flame_whole"), "skip_empty": False})}], path)
+    assert [r["skip_empty"] for r in bp.read_rows(path)] == ["true", "false"]
     assert bp.estimate_cells(None, 0.3) == {k: "" for k in bp.ESTIMATE_COLUMNS}
 
 

@@ -543,6 +543,7 @@ def test_summary_json_has_what_the_benchmarks_collect(run):
     s = json.loads((run["out"] / "summary.json").read_text())
     assert (s["scene"], s["recnn"], s["fr_size"], s["c_size"]) == ("tiny", "enhancenet", 32, 16)
     assert s["views"] == s["timed_views"] == 2 and s["sample_distance_voxels"] > 0
+    assert s["skip_empty"] is True  # the renderer's default: bench_paper's skip_empty column
     assert set(METHOD_ORDER) <= set(s["methods"]) and s["orp"] is not None and s["equal_share"]
     # the same numbers as the report's metrics.csv
     assert s["methods"]["imls"]["psnr"] == pytest.approx(summary(run["out"] / "metrics.csv")["imls"]["psnr"])

@@ -123,7 +123,7 @@ def share_gaps(rebuild: Callable[[torch.Tensor], torch.Tensor], pattern: Samplin
 def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str, pattern: SamplingPattern,
                  renderer, views: Sequence, frames: Sequence[np.ndarray], epsilon_db: float = 1.0,
                  shares: Sequence[float] = NEEDED_SHARES, floor: float = 0.25, repeats: int = 3, warmup: int = 1,
-                 seed: int = 0) -> NeededShare:
+                 seed: int = 0, progress: Callable[[str], None] | None = None) -> NeededShare:
     """Measure the untrained importance mask's gap and render time at each share on ``views`` / ``frames``.
 
     Args:
@@ -134,6 +134,7 @@ def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str
         views, frames: the estimate's views and their FR frames ``(m, m, 3)`` uint8.
         epsilon_db: the ORP's tolerance (1 dB in the paper).
         floor: the importance every pixel keeps, relative to the mean (:func:`masks_at_share`).
+        progress: called with a line after each view's masks are measured (long on paper-size volumes).
     """
     eps = check_number(epsilon_db, "epsilon_db", 0.0, lo_open=True, what="a positive PSNR tolerance in dB")
     if len(views) != len(frames) or len(views) == 0:
@@ -143,6 +144,8 @@ def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str
 
     def time_render(v: int, j: int, pix: np.ndarray) -> None:
         ms[v, j] = median_ms(lambda: renderer.render_pixels(views[v], pattern.fr_size, pix), repeats, warmup)
+        if progress is not None and j == len(shares) - 1:
+            progress(f"needed share: view {v + 1}/{len(views)}, {len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
 
     kept, gaps = share_gaps(rebuild, pattern, frames, shares, floor, seed, on_mask=time_render)
     gap, share_kept = gaps.mean(0).tolist(), kept.mean(0).tolist()

@@ -262,7 +262,7 @@ def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, patt
     # at most 3 timed renders per mask: 20 shares on every view
     ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
                       epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density),
-                      repeats=max(1, min(repeats, 3)), warmup=min(warmup, 1), seed=int(cfg.seed))
+                      repeats=max(1, min(repeats, 3)), warmup=min(warmup, 1), seed=int(cfg.seed), progress=_say)
     where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
     _say(f"needed share: an untrained importance mask and fill, rebuilt by the {name}, stay within "
          f"{ns.epsilon_db:g} dB at {where} ({ns.seconds:.0f} s)")

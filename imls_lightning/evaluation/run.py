@@ -262,7 +262,8 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     # the machine-readable results the benchmarks collect (make bench-paper)
     rep.atomic_write_text(out / "summary.json", json.dumps({
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
-        "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "imls_mean": res["imls_mean"], "orp": orp,
+        "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "skip_empty": rcfg.get("skip_empty", True) is not False,
+        "imls_mean": res["imls_mean"], "orp": orp,
         "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "methods": rep.summarize_rows(rows),
         "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass},
         indent=1, default=float))

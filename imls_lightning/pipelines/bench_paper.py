@@ -31,7 +31,9 @@ LEGACY_COLUMNS = ("scene", "recnn", "fr_size", "c_size", "sample_distance_voxels
 #: issue 31 appends the before-training estimate's columns (python -m imls_lightning.estimate): the volume's size,
 #: the ray cast of the whole C pattern, the networks IML/S adds, bilinear C->FR and the bound at the row's share
 ESTIMATE_COLUMNS = ("volume_dims", "c_render_ms", "nets_ms", "bilinear_db", "estimated_speedup")
-CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS
+#: whether the ray caster skipped empty space where the row was timed (bench_paper's ``skip_empty``; rows before it: true)
+RENDERER_COLUMNS = ("skip_empty",)
+CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
@@ -73,9 +75,19 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
         "runs_dir": str(cfg.runs_dir), "cache_dir": str(cfg.cache_dir), "seed": int(cfg.seed),
         "progress": bool(cfg.progress), "dry_run": bool(cfg.dry_run),
         "train_only": bool(cfg.get("train_only", False)), "stages": stages,
-        "evaluate": override_list(cfg, "evaluate"),
-        "adaptive": override_list(cfg, "adaptive") if OmegaConf.select(cfg, "adaptive") is not None else None,
+        "evaluate": [*override_list(cfg, "evaluate"), *timing_overrides(cfg)],
+        "adaptive": ([*override_list(cfg, "adaptive"), *timing_overrides(cfg)]
+                     if OmegaConf.select(cfg, "adaptive") is not None else None),
     })
+
+
+def timing_overrides(cfg: DictConfig) -> list[str]:
+    """The renderer's overrides of every stage that times (the estimate, the evaluation, the adaptive mean), never of
+    the cache or training: ``skip_empty: false`` changes no pixel, only what a ray costs (``renderer.skip_empty``)."""
+    skip = cfg.get("skip_empty", True)
+    if not isinstance(skip, bool):
+        raise InputError(f"skip_empty={skip!r}: expected true or false")
+    return [] if skip else ["renderer.skip_empty=false"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -115,6 +127,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "speedup": recnn_ms / imls_ms if imls_ms > 0 else math.nan,
         "las_ms": _total(m, "las"), "las_psnr_db": las.get("psnr", math.nan), "full_ms": _total(m, "full"),
         **estimate_cells(estimate, imls.get("c_share")),
+        "skip_empty": summary.get("skip_empty", True),
     }
 
 
@@ -149,6 +162,8 @@ def adaptive_row(summary: Mapping[str, Any]) -> dict[str, Any] | None:
 
 
 def _cell(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
     if isinstance(v, float):
         return "" if not math.isfinite(v) else f"{v:.6g}"
     return "" if v is None else str(v)
@@ -168,10 +183,11 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         return []
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) not in (CSV_COLUMNS, LEGACY_COLUMNS):
+        if tuple(reader.fieldnames or ()) not in (CSV_COLUMNS, LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS):
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
-        # a table from before the estimate's columns: they stay empty until the pair is estimated
-        return [{**{k: "" for k in ESTIMATE_COLUMNS}, **dict(r)} for r in reader]
+        # a table from before the estimate's columns: they stay empty until the pair is estimated; every row timed
+        # before skip_empty existed was timed with empty-space skipping
+        return [{**{k: "" for k in ESTIMATE_COLUMNS}, "skip_empty": True, **dict(r)} for r in reader]
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:
@@ -292,7 +308,7 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
             "`speedup` = RecNN alone / IML/S + RecNN; `las_*` is LAS at IML/S's IPR.", ""]
     head = ["scene", "RecNN", "FR / C", "step (voxels)", "ORP mean", "C-share", "IPR", "RecNN PSNR", "IML/S PSNR", "gap (dB)",
             "RecNN (ms)", "IML/S (ms)", "speed-up", "LAS (ms)", "LAS PSNR", "full ray cast (ms)"]
-    main = [[r["scene"], r["recnn"], f"{r['fr_size']}² / {r['c_size']}²", fmt(r.get("sample_distance_voxels")), fmt(r.get("mean"), 3),
+    main = [[scene_cell(r), r["recnn"], f"{r['fr_size']}² / {r['c_size']}²", fmt(r.get("sample_distance_voxels")), fmt(r.get("mean"), 3),
              fmt_pct(_num(r.get("c_share"))), fmt_pct(_num(r.get("ipr"))), fmt(r.get("psnr_recnn_db")), fmt(r.get("psnr_imls_db")),
              fmt(r.get("gap_db")), fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
              fmt(r.get("las_ms"), 1), fmt(r.get("las_psnr_db")), fmt(r.get("full_ms"), 1)] for r in rows]
@@ -306,7 +322,7 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
                 fmt(a.get("psnr_recnn_db")), fmt(a.get("psnr_adaptive_db")), fmt(a.get("gap_db")), fmt(a.get("recnn_ms"), 1),
                 fmt(a.get("adaptive_ms"), 1), speedup(a.get("recnn_ms"), a.get("adaptive_ms")), "–", "–", "–"]
     body = rows_beside(main, per_view)
-    out += [md_table(head, body), "", "Files: `paper_scale.csv` (these rows but the per-view ones), `paper_scale_adaptive.csv` "
+    out += [md_table(head, body), *skipping_note(rows), "", "Files: `paper_scale.csv` (these rows but the per-view ones), `paper_scale_adaptive.csv` "
             "(the per-view adaptive mean: `python -m imls_lightning.adaptive`, its RecNN alone timed in the same run), "
             "`paper_scale_breakdown.png`.", ""]
     for s in summaries:
@@ -384,8 +400,9 @@ def rows_beside(main: Sequence[Sequence[str]], extra: Mapping[tuple[str, str], S
     out, left = [], dict(extra)
     for r in main:
         out.append(list(r))
-        if (r[0], r[1]) in left:
-            out.append(list(left.pop((r[0], r[1]))))
+        key = (str(r[0]).split(" ")[0], r[1])  # the scene's name without a note such as "(no skipping)"
+        if key in left:
+            out.append(list(left.pop(key)))
     return out + [list(v) for v in left.values()]
 
 
@@ -407,11 +424,28 @@ def las_cell(row: Mapping[str, Any]) -> str:
     return f"{fmt(row.get('las_ms'), 1)}, {fmt(row.get('las_psnr_db'))} dB"
 
 
+def skips_empty(row: Mapping[str, Any]) -> bool:
+    """Whether the row was timed with empty-space skipping (a bool from a summary, a string from the CSV)."""
+    return str(row.get("skip_empty", True)).strip().lower() not in ("false", "0")
+
+
+def scene_cell(row: Mapping[str, Any]) -> str:
+    return str(row["scene"]) + ("" if skips_empty(row) else " (no skipping)")
+
+
+def skipping_note(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    if all(skips_empty(r) for r in rows):
+        return []
+    return ["", "*(no skipping)*: timed on the ray caster without empty-space skipping (`make bench-paper skip_empty=false`, "
+            "`renderer.skip_empty=false`): every ray marches the volume's box, as the paper's ray caster does. The same pixels; "
+            "the other rows skip empty bricks."]
+
+
 def section_text(rows: Sequence[Mapping[str, Any]], partial: bool, adaptive: Sequence[Mapping[str, Any]] = ()) -> str:
     lines = ["## Paper scale (512² FR, 256² C, half-voxel sampling)" + (" — partial" if partial else ""), "",
              "`make bench-paper`; details, per-stage breakdown and the paper's figures in "
              "[benchmarks/paper_scale.md](benchmarks/paper_scale.md), rows in `benchmarks/paper_scale.csv`.", ""]
-    main = [[r["scene"], r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
+    main = [[scene_cell(r), r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
              fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
              las_cell(r)] for r in rows]
     per_view = {(a["scene"], a["recnn"]): [a["scene"], f"{a['recnn']}, per-view u", f"per view: {fmt_pct(_num(a.get('c_share')))}",
@@ -420,6 +454,7 @@ def section_text(rows: Sequence[Mapping[str, Any]], partial: bool, adaptive: Seq
                 for a in adaptive}
     lines.append(md_table(["scene", "RecNN", "ORP C-share", "IML/S PSNR (gap)", "RecNN alone (ms)", "IML/S + RecNN (ms)", "speed-up",
                            "LAS (ms, PSNR)"], rows_beside(main, per_view)))
+    lines += skipping_note(rows)
     if adaptive:
         lines += ["", "The per-view rows: `python -m imls_lightning.adaptive` on the same checkpoints and masks, its own RecNN "
                   "alone timed in the same run (`benchmarks/paper_scale_adaptive.csv`)."]
@@ -454,7 +489,7 @@ def estimate_args(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence
                 sizes.append(f"{keys[key]}={str(o).split('=', 1)[1]}")
     return ["-m", "imls_lightning.estimate", f"scene={stages.scene}", *scene_overrides, f"recnn={stages.recnn}",
             f"renderer={stages.renderer}", f"runs_dir={stages.runs_dir}", *[str(o) for o in net], *sizes,
-            *override_list(cfg, "estimate")]
+            *timing_overrides(cfg), *override_list(cfg, "estimate")]
 
 
 def pair_estimate(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence[str] = ()) -> dict[str, Any] | None:

@@ -55,6 +55,28 @@ def test_smoke_procedural_presets_build(name, tmp_path):
     assert float(s.transfer_function.opacity[:, 1].max()) >= 0.3
 
 
+def test_flame_whole_is_flame_sheets_framed_from_twice_as_far():
+    """flame_whole extends flame_sheets through Hydra's defaults list: the same volume, transfer function and
+    shading, only the name and the camera's distance differ (BENCHMARKS.md, "The whole flame in view")."""
+    from data_gen.scene import preset_config
+
+    whole = OmegaConf.to_container(preset_config("flame_whole"))
+    sheets = OmegaConf.to_container(preset_config("flame_sheets"))
+    assert whole.pop("name") == "flame_whole" and sheets.pop("name") == "flame_sheets"
+    assert whole.pop("camera_distance") == [2 * d for d in sheets.pop("camera_distance")]
+    assert whole == sheets and "defaults" not in whole
+    assert preset_config("flame_whole", ["scene.camera_distance=[5,6]"]).camera_distance == [5, 6]
+
+
+def test_exception_preset_config_names_the_preset():
+    from data_gen.scene import preset_config
+
+    with pytest.raises(InputError, match=r"scene='flame_hole': no conf/scene/flame_hole.yaml; expected one of .*flame_whole"):
+        preset_config("flame_hole")
+    with pytest.raises(InputError, match=r"scene=flame_whole scene.nope=1: "):
+        preset_config("flame_whole", ["scene.nope=1"])
+
+
 @pytest.mark.parametrize("name", sorted(PAPER_SIZE))
 def test_paper_size_presets_default_to_512_streamed(name, monkeypatch, tmp_path):
     """The preset asks for the generator's 512^3 default and streams it to the cache directory."""
@@ -171,12 +193,16 @@ def _half_voxel(dims_xyz, spacing_xyz) -> float:
 
 
 def test_every_scene_preset_defaults_to_auto_sample_distance():
+    from data_gen.scene import preset_config
+
     for p in sorted(CONF.glob("*.yaml")):
-        cfg = OmegaConf.load(p)
+        cfg = preset_config(p.stem)
         assert cfg.sample_distance == "auto", p.name
         # the paper-regime scenes step a quarter voxel: at half-voxel steps their thin opaque shells drew wood-grain rings
-        assert cfg.sample_distance_voxels == (0.25 if p.stem in PAPER_SIZE else None), p.name
-        assert "normalized" in p.read_text() and "voxel" in p.read_text(), f"{p.name}: the config must state the units"
+        paper_size = cfg.volume.get("generator") in PAPER_SIZE
+        assert cfg.sample_distance_voxels == (0.25 if paper_size else None), p.name
+        if "defaults" not in OmegaConf.load(p):  # a preset that extends another states the units there
+            assert "normalized" in p.read_text() and "voxel" in p.read_text(), f"{p.name}: the config must state the units"
 
 
 def test_auto_sample_distance_is_half_the_smallest_voxel(blob_volume):

@@ -241,6 +241,8 @@ def test_cli_needed_share_off_or_without_a_quick_recnn(tmp_path):
     r = _cli(tmp_path, "needed_share=true")
     est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
     assert est["needed"]["reference"] == "bilinear" and len(est["needed"]["rows"]) == 20
+    views = [line for line in r.stderr.splitlines() if "needed share: view" in line]   # progress, a line per view
+    assert len(views) == est["settings"]["views"] and "20 masks" in views[-1]
     off = _cli(tmp_path, "needed_share=false")
     assert off.returncode == 0, off.stderr
     est = json.loads(Path(off.stdout.strip().splitlines()[-1]).read_text())
