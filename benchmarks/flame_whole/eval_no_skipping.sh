@@ -1,7 +1,7 @@
 #!/bin/bash
 # flame_whole, EnhanceNet: the full protocol without the blue-noise decoder and LAS (not trained yet), on the ray
-# caster without empty-space skipping; the training loop is paused (SIGSTOP) meanwhile
-cd /work/main && source .venv/bin/activate
+# caster without empty-space skipping; the training loop is paused (SIGSTOP) meanwhile; the checkpoints are those of `make bench-paper scene=flame_whole recnns=[enhancenet] train_only=true`
+cd "$(dirname "$0")/../.." && source .venv/bin/activate
 python -m imls_lightning.evaluate scene=flame_whole data=paper_cpu renderer=numba data.cache_dir=cache paths.runs_dir=runs/paper \
   checkpoints.ims=runs/paper/ims-enhancenet-flame_whole-ded2f6f6/checkpoints/epoch001.ckpt \
   checkpoints.recnn=runs/paper/recnn-enhancenet-flame_whole-a28aacd7/checkpoints/epoch019.ckpt \
