@@ -280,7 +280,7 @@ def register_resolvers() -> None:
         OmegaConf.register_new_resolver("imls_volume_name", volume_name)
 
 
-def preset_config(name: str, overrides=()):
+def preset_config(name: str, overrides=(), context: str | None = None):
     """The ``conf/scene/<name>.yaml`` preset as ``python -m data_gen scene=<name>`` composes it: a preset may extend
     another through its defaults list (``flame_whole`` is ``flame_sheets`` framed from farther away), which a plain
     ``OmegaConf.load`` of the file would not follow.
@@ -290,7 +290,8 @@ def preset_config(name: str, overrides=()):
         [5.6, 8.0]
 
     Raises:
-        InputError: no such preset, or an override that does not apply to it.
+        InputError: no such preset, or an override that does not apply to it (Hydra's message after ``context``,
+            by default ``scene=<name> <overrides>``).
     """
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -309,7 +310,7 @@ def preset_config(name: str, overrides=()):
         with initialize_config_dir(str(conf), version_base="1.3", job_name="scene_preset"):
             return compose("data_gen", overrides=[f"scene={name}", *overrides]).scene
     except (HydraException, OmegaConfBaseException) as err:
-        raise InputError(f"scene={name} {' '.join(overrides)}: {err}") from None
+        raise InputError(f"{context or f'scene={name} ' + ' '.join(overrides)}: {err}") from None
     finally:
         restore_gh_from_backup(backup)
 

@@ -22,7 +22,6 @@ from data_gen.errors import InputError
 from data_gen.overrides import quote_override_value
 
 from ..orp.overrides import override_key
-from .paths import CONF_DIR
 
 
 class StageFailed(RuntimeError):
@@ -77,21 +76,9 @@ def check_scene_overrides(scene: str, overrides: Sequence[str]) -> None:
     """
     if not overrides:
         return
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.errors import HydraException
-    from hydra.initialize import get_gh_backup, restore_gh_from_backup
-    from omegaconf.errors import OmegaConfBaseException
+    from data_gen.scene import preset_config
 
-    backup = get_gh_backup()  # inside a running Hydra app: set its state aside, restore it after
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(CONF_DIR, version_base="1.3", job_name="scene_check"):
-            compose("data_gen", overrides=[f"scene={scene}", *overrides])
-    except (HydraException, OmegaConfBaseException) as err:
-        raise InputError(f"scene overrides {' '.join(overrides)} (scene={scene}): {err}") from None
-    finally:
-        restore_gh_from_backup(backup)
+    preset_config(scene, overrides, context=f"scene overrides {' '.join(overrides)} (scene={scene})")
 
 
 def dry_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo") -> str:
