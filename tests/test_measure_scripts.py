@@ -564,3 +564,53 @@ def test_regime_contact_sheet_stacks_each_scenes_first_estimate_view(tmp_path):
     assert np.array_equal(out[view.shape[0] + 20:, :], view[20:])  # below the label, the estimate's pixels
     with pytest.raises(InputError, match=f"nope: no enhancenet estimate in {table}"):
         mod.scene_rows(table, ["nope"])
+
+
+def test_estimate_vs_measured_on_the_committed_estimates(tmp_path, capsys):
+    """scripts/estimate_vs_measured.py: each prediction is speedup_at on the estimate's own content, the estimate's is
+    the slower render; the committed flame_whole estimate stays within 15% of its measured 1.72x."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import estimate_vs_measured as evm
+
+    from imls_lightning.estimate import RenderCost, RenderCurve, speedup_at
+
+    path = ROOT / "benchmarks" / "estimate_check" / "flame_whole_no_skipping.json"
+    out = tmp_path / "check.csv"
+    (row,) = evm.main([f"{path}:0.304751:1.72167", "--csv", str(out)])
+    est = json.loads(path.read_text())
+    kw = {"c_render_ms": est["c_render_ms"], "nets_ms": est["nets_ms"], "recnn_ms": est["recnn_ms"]}
+    sil = speedup_at(RenderCurve(**est["render_curve"]), 0.304751, **kw)
+    model = speedup_at(RenderCost(**est["render_cost"]), 0.304751, **kw, background_density=est["background_density"])
+    assert row["silhouette"] == pytest.approx(sil) and row["per_pixel_model"] == pytest.approx(model)
+    assert row["slower"] == pytest.approx(min(sil, model)) and abs(row["slower_error"]) < 0.15
+    assert "flame_whole (skip_empty=False) at 30.5% of C" in capsys.readouterr().out
+    assert out.read_text().splitlines()[0].startswith("estimate,scene,skip_empty,share")
+    with pytest.raises(SystemExit, match="expected estimate.json:share:measured"):
+        evm.main([f"{path}:0.3"])
+
+
+def test_ims_mask_shape_script_on_real_checkpoints(tiny_checkpoints, capsys):
+    """scripts/ims_mask_shape.py: densities in [0, 1] that account for the share, the rings against a direct distance,
+    and the timed ratios, on the tiny scene's real IMS (target=pim)."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import ims_mask_shape as ims
+
+    from data_gen.cache_reader import ViewImageCache
+
+    caches = [p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if p.is_dir() and p.name.startswith("tiny-")]
+    cache = next(p for p in caches if ViewImageCache.open(p).resolution == 32)
+    rows = ims.main(["--ims", str(tiny_checkpoints["ims_pim"]), "--cache", str(cache), "--mean", "0.4", "--views", "2",
+                     "--time", "--repeats", "1", "skip_empty=false"])
+    assert len(rows) == 2 and len(capsys.readouterr().out.strip().splitlines()) == 2
+    for row in rows:
+        assert 0 < row["share"] <= 1 and 0 <= row["object"] <= 1
+        dens = [v for k, v in row.items() if k.startswith("density_") and v is not None]
+        assert dens and all(0 <= v <= 1 for v in dens)
+        assert all(np.isfinite(row[k]) and row[k] > 0 for k in ("mask_ms", "pattern_ratio", "silhouette_4_ratio"))
+    on = np.zeros(16, bool)
+    on[5] = True                                      # a 4x4 C grid, the object at (1, 1)
+    d = ims.distance_to_object(on, 4, 16).reshape(4, 4)
+    yy, xx = np.mgrid[0:4, 0:4]
+    assert (d == np.maximum(abs(yy - 1), abs(xx - 1))).all()
+    with pytest.raises(SystemExit, match="--views=0"):
+        ims.main(["--ims", "x", "--cache", str(cache), "--views", "0"])

@@ -6,6 +6,7 @@ the median over the views.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
@@ -24,7 +25,7 @@ from ..inference.pipeline import NetOptions, pick_device, prepare_net
 from ..models.ims import IMSGenerator
 from ..models.iml import IMLNet
 from ..models.pull_push import pull_push_inpaint
-from .bound import RenderCost
+from .bound import RenderCost, RenderCurve
 
 #: a C pixel counts as background when no channel differs from the background colour by more than this (of 255)
 BACKGROUND_TOLERANCE = 2
@@ -100,6 +101,7 @@ class ViewMeasurement:
     bilinear_db: float
     fr: np.ndarray          # (m, m, 3) uint8
     upsampled: np.ndarray   # (m, m, 3) uint8
+    on_object: np.ndarray   # (K,) bool: the pattern's pixels on the object
 
 
 def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: int, warmup: int) -> ViewMeasurement:
@@ -129,7 +131,7 @@ def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: 
     target = frame_tensor(fr)
     up_u8 = (up[0].permute(1, 2, 0).clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
     return ViewMeasurement(full_ms, c_ms, empty_ms, obj_ms, bg_ms, int(obj.sum()), int((~obj).sum()),
-                           psnr_db(up, target), fr, up_u8)
+                           psnr_db(up, target), fr, up_u8, obj)
 
 
 def render_cost(views: list[ViewMeasurement]) -> RenderCost:
@@ -141,6 +143,65 @@ def render_cost(views: list[ViewMeasurement]) -> RenderCost:
                       background_ms_per_px=float(np.median(bg)) if bg else 0.0,
                       object_px=int(np.median([v.object_px for v in views])),
                       background_px=int(np.median([v.background_px for v in views])))
+
+
+def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """``(B, 1, n, n)`` blurred by a separable Gaussian of ``sigma`` pixels (replicated edges); ``sigma <= 0``:
+    ``x`` as it is."""
+    if sigma <= 0:
+        return x
+    r = max(int(math.ceil(3.0 * sigma)), 1)
+    t = torch.arange(-r, r + 1, dtype=x.dtype, device=x.device)
+    w = torch.exp(-t * t / (2.0 * sigma * sigma))
+    w = w / w.sum()
+    x = F.conv2d(F.pad(x, (r, r, 0, 0), mode="replicate"), w.view(1, 1, 1, -1))
+    return F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), w.view(1, 1, -1, 1))
+
+
+def silhouette_mask(on_object: np.ndarray, share: float, pattern: SamplingPattern, blur: float = 4.0,
+                    floor: float = 0.25) -> np.ndarray:
+    """The pattern pixels ``(K',)`` (FR raster indices) of a mask of the shape a trained IMS makes, before training:
+    the object's silhouette on the C grid blurred by ``blur`` C-pixels (the IMS sees only the view, so its
+    importance is smooth and spills onto the background next to the object), plus the ``floor`` everywhere,
+    made into the product's mask of ``share`` of the pattern (:func:`~imls_lightning.core.unpredictability.importance_mask`).
+
+    ``on_object``: ``(K,)`` bool, the pattern's pixels on the object (:func:`object_pixels`).
+
+    Example:
+        >>> from imls_lightning.core.patterns import build_pattern
+        >>> p = build_pattern({"kind": "downsample", "factor": 2}, 64)    # 32^2 C
+        >>> on_object = np.zeros(p.count, bool); on_object[:256] = True     # the top quarter of C
+        >>> pix = silhouette_mask(on_object, 0.3, p)
+        >>> round(len(pix) / p.count, 2), bool(np.isin(pix, p.indices.numpy()[on_object]).mean() > 0.6)
+        (0.29, True)
+    """
+    from ..core.unpredictability import importance_mask
+
+    k, n = pattern.count, pattern.c_size
+    obj = np.asarray(on_object, bool)
+    if obj.shape != (k,):
+        raise InputError(f"on_object: expected ({k},) bool, one per pattern pixel; got shape {obj.shape}")
+    grid = torch.zeros(n * n)
+    grid[:k] = torch.from_numpy(obj.astype(np.float32))
+    score = gaussian_blur(grid.view(1, 1, n, n), float(blur))
+    keep = importance_mask(score, share, pattern, floor).flatten()[:k].numpy()
+    return pattern.indices.numpy()[keep]
+
+
+def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
+                 floor: float, repeats: int, progress: Callable[[str], None] | None = None) -> RenderCurve:
+    """The render of exactly a :func:`silhouette_mask`'s pixels at each share, median over the views (the
+    renderer is warm: no untimed run)."""
+    times = np.zeros((len(views), len(shares)))
+    t0 = time.perf_counter()
+    for v, (view, meas) in enumerate(zip(views, measured)):
+        for j, s in enumerate(shares):
+            pix = silhouette_mask(meas.on_object, s, pattern, blur, floor)
+            times[v, j] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
+        if progress is not None:
+            progress(f"render curve: view {v + 1}/{len(views)}, {len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
+    fixed = float(np.median([m.empty_ms for m in measured]))
+    return RenderCurve(tuple(float(s) for s in shares), tuple(np.median(times, 0).tolist()), fixed)
 
 
 def build_networks(pattern: SamplingPattern, recnn_net: Mapping[str, Any], iml: Mapping[str, Any],

@@ -23,9 +23,9 @@ from data_gen.validate import check_integer, check_number
 
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
-from .bound import bound_table, share_for_speedup, speedup_at
-from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, upsample_c_image,
-                      upsampler_name)
+from .bound import SHARES, bound_table, share_for_speedup, slower_render, speedup_at
+from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, render_curve,
+                      upsample_c_image, upsampler_name)
 from .needed_share import NeededShare, needed_share
 
 RESULT = "estimate.json"
@@ -89,6 +89,7 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
         "background_density": float(cfg.background_density), "target": cfg.target,
         "needed_share": bool(cfg.get("needed_share", True)), "epsilon_db": cfg.get("epsilon_db", 1.0),
+        "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette and per-pixel model",
     })
 
 
@@ -99,7 +100,8 @@ def read_estimate(path: Path, settings: Mapping[str, Any] | None = None) -> dict
         est = json.loads(Path(path).read_text())
     except (OSError, ValueError):
         return None
-    keys = ("c_render_ms", "nets_ms", "recnn_ms", "bilinear_db", "bound", "share_for_2x", "render_cost", "settings")
+    keys = ("c_render_ms", "nets_ms", "recnn_ms", "bilinear_db", "bound", "share_for_2x", "render_cost", "render_curve",
+            "settings")
     if not isinstance(est, dict) or any(k not in est for k in keys) or len(est["bound"]) != 10:
         return None
     if settings is not None and est["settings"] != jsonable(settings):
@@ -136,6 +138,12 @@ def _lead_settings(cfg: DictConfig) -> dict[str, Any]:
     return out if out["steps"] else {"steps": 0}  # off: the other keys change no number
 
 
+def _blur(cfg: DictConfig) -> float:
+    """``silhouette_blur``: a number >= 0 of C-pixels (a one-line error otherwise)."""
+    return check_number(cfg.get("silhouette_blur", 4.0), "silhouette_blur", 0.0,
+                        what="a blur radius >= 0 in C-pixels (the smoothness of a trained IMS's mask)")
+
+
 def _target(cfg: DictConfig, pattern) -> float:
     t = cfg.get("target")
     if t is None:
@@ -168,6 +176,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     pattern = build_pattern(cfg.pattern, int(cfg.resolution))
     target = _target(cfg, pattern)
     cands = check_candidates(cfg)  # before any render
+    blur = _blur(cfg)
     nets = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)  # bad sizes fail before any render
     renderer = make_renderer(scene, cfg.renderer)
     # random views as the training views are drawn (another seed): never the test trajectory
@@ -179,12 +188,19 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         _say(f"view {i + 1}/{n_views}: frame {v.full_ms:.0f} ms, C pattern {v.c_render_ms:.1f} ms, "
              f"object {v.object_px / max(v.object_px + v.background_px, 1):.0%} of C, {v.bilinear_db:.2f} dB")
     nets_t = network_ms(nets, pattern, opts, repeats=max(repeats, 10), warmup=max(warmup, 2))
-    cost = render_cost(measured)
+    model = render_cost(measured)
     c_render_ms = float(np.median([v.c_render_ms for v in measured]))
     nets_ms = nets_t["ims_ms"] + nets_t["decoder_ms"]
     density = float(cfg.background_density)
-    table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
-                        background_density=density)
+    # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
+    # the bound takes the slower at each share (each misses a cost the other sees; bound.slower_render)
+    silhouette = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
+                              repeats=max(1, min(repeats, 3)), progress=_say)
+    cost = slower_render(silhouette, model, density)
+    table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
+    modelled = bound_table(model, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
+                           background_density=density)
+    measured_mask = bound_table(silhouette, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
     lead = measure_lead(cfg, lead_cfg, renderer, pattern, scene, [v.fr for v in measured], opts)
@@ -198,7 +214,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "speedup_at_needed": (alone / (nets_ms + needed.render_at(needed.needed_share) + nets_t["recnn_ms"])
                               if needed and needed.needed_share is not None else None),
         "bound_at_needed": (speedup_at(cost, needed.needed_share, c_render_ms=c_render_ms, nets_ms=nets_ms,
-                                       recnn_ms=nets_t["recnn_ms"], background_density=density)
+                                       recnn_ms=nets_t["recnn_ms"])
                             if needed and needed.needed_share is not None else None),
         "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
         "recnn": str(cfg.recnn.name), "pattern": pattern.kind, "fr_size": pattern.fr_size, "c_size": pattern.c_size,
@@ -207,9 +223,12 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "render_to_nets": c_render_ms / nets_ms, "bilinear_db": float(np.mean([v.bilinear_db for v in measured])),
         "bilinear_db_per_view": [v.bilinear_db for v in measured],
         "upsampler": upsampler_name(pattern),
-        "object_fraction": cost.object_fraction, "render_cost": cost.to_dict(),
-        "modelled_c_render_ms": cost.render_ms(1.0, density), "background_density": density,
+        "object_fraction": model.object_fraction, "render_cost": model.to_dict(),
+        "modelled_c_render_ms": model.render_ms(1.0, density), "background_density": density,
+        "render_curve": cost.to_dict(), "silhouette_ms": list(silhouette.times_ms), "silhouette_blur": blur,
         "bound": [{"share": r["share"], "speedup": r["speedup"]} for r in table],
+        "bound_modelled": [{"share": r["share"], "speedup": r["speedup"]} for r in modelled],
+        "bound_silhouette": [{"share": r["share"], "speedup": r["speedup"]} for r in measured_mask],
         "limit": [{"share": r["share"], "speedup": r["limit"]} for r in table],
         "target": target, "share_for_target": share_for_speedup(table, target),
         "share_for_2x": share_for_speedup(table, 2.0), "share_for_1_5x": share_for_speedup(table, 1.5),
@@ -313,6 +332,11 @@ def format_report(est: Mapping[str, Any]) -> str:
         "  speed-up     " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound"]),
         "  no networks  " + " ".join(f"{r['speedup']:>5.2f}" for r in est["limit"]),
     ]
+    if est.get("bound_modelled") and est.get("bound_silhouette"):  # the speed-up row is the slower render of these two
+        lines.append("  silhouette   " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound_silhouette"])
+                     + "  (a mask of the trained IMS's shape, rendered)")
+        lines.append("  per-px model " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound_modelled"])
+                     + "  (object first, mean background cost); the speed-up takes the slower render")
     lead = est.get("recnn_lead")
     if lead:
         lines.append(f"  a RecNN trained {lead['steps']} steps on {lead['train_views']} views: {lead['recnn_db']:.2f} dB, "
@@ -326,8 +350,8 @@ def format_report(est: Mapping[str, Any]) -> str:
         lines.append("  render (ms)  " + " ".join(f"{r['render_ms']:>5.0f}" for r in rows[1::2]))
         if est.get("needed_share") is not None:
             lines.append(f"  needed share within {need['epsilon_db']:g} dB: {est['needed_share']:.0%} of C, where IML/S "
-                         f"would run at {est['speedup_at_needed']:.2f}x (rendering exactly those pixels; the bound's "
-                         f"model says {est['bound_at_needed']:.2f}x)")
+                         f"would run at {est['speedup_at_needed']:.2f}x (rendering exactly those pixels; a mask of the "
+                         f"trained IMS's shape, the bound, {est['bound_at_needed']:.2f}x)")
         else:
             lines.append(f"  no share keeps {need['epsilon_db']:g} dB")
     for c in est.get("candidates") or []:

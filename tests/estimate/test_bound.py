@@ -86,3 +86,44 @@ def test_exception_bad_share_or_density(kw, match):
     with pytest.raises(InputError, match=match) as e:
         COST.render_ms(args["share"], args["background_density"])
     assert "\n" not in str(e.value)
+
+
+def test_render_curve_interpolates_from_the_fixed_cost_and_ignores_the_density():
+    from imls_lightning.estimate import RenderCurve
+
+    curve = RenderCurve(shares=(0.2, 0.6, 1.0), times_ms=(30.0, 70.0, 90.0), fixed_ms=2.0)
+    assert curve.render_ms(0.1) == pytest.approx(16.0) and curve.render_ms(0.4) == pytest.approx(50.0)
+    assert curve.render_ms(1.0) == 90.0 and curve.render_ms(0.0) == 2.0 and curve.render_ms(0.8, 0.5) == pytest.approx(80.0)
+    # the bound with a curve is the formula with the measured time
+    for row in bound_table(curve, c_render_ms=100.0, nets_ms=10.0, recnn_ms=5.0, shares=(0.2, 0.6)):
+        assert row["speedup"] == pytest.approx(105.0 / (10.0 + curve.render_ms(row["share"]) + 5.0), rel=1e-12)
+
+
+def test_speedup_from_estimate_prefers_the_measured_curve():
+    from imls_lightning.estimate import RenderCurve
+
+    curve = RenderCurve(shares=(0.5, 1.0), times_ms=(150.0, 240.0), fixed_ms=1.0)
+    est = {"render_cost": COST.to_dict(), "render_curve": curve.to_dict(), "c_render_ms": 240.0, "nets_ms": 30.0,
+           "recnn_ms": 15.0, "background_density": 0.25}
+    assert speedup_from_estimate(est, 0.5) == pytest.approx(255.0 / (30.0 + 150.0 + 15.0), rel=1e-12)
+    assert speedup_from_estimate({**est, "render_curve": None}, 0.37) == pytest.approx(direct_speedup(0.37, 240.0, 30.0, 15.0, 0.25))
+
+
+@pytest.mark.parametrize("shares,times", [((), ()), ((0.5, 0.2), (1.0, 2.0)), ((0.0, 1.0), (1.0, 2.0)), ((0.5,), (1.0, 2.0))])
+def test_exception_bad_render_curve(shares, times):
+    from imls_lightning.estimate import RenderCurve
+
+    with pytest.raises(InputError, match="render_curve: expected ascending shares") as e:
+        RenderCurve(shares=shares, times_ms=times)
+    assert "\n" not in str(e.value)
+
+
+def test_slower_render_takes_the_slower_prediction_at_each_share():
+    from imls_lightning.estimate import RenderCurve, slower_render
+
+    curve = RenderCurve(shares=SHARES, times_ms=tuple(300.0 * s for s in SHARES), fixed_ms=0.8)
+    out = slower_render(curve, COST, 0.25)
+    for s, t, c in zip(out.shares, out.times_ms, curve.times_ms):
+        assert t == max(c, COST.render_ms(s, 0.25))
+    assert out.fixed_ms == 0.8 and out.shares == curve.shares
+    assert any(t > c for t, c in zip(out.times_ms, curve.times_ms)) and any(t == c for t, c in zip(out.times_ms, curve.times_ms))

@@ -13,7 +13,8 @@ import torch
 
 from data_gen.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
-from imls_lightning.estimate.measure import ViewMeasurement, object_pixels, render_cost, upsample_c_image
+from imls_lightning.estimate.measure import (ViewMeasurement, gaussian_blur, object_pixels, render_cost, silhouette_mask,
+                                             upsample_c_image)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -61,7 +62,7 @@ def test_object_pixels_against_background_colour():
 
 def _view(empty, obj, bg, n_obj, n_bg):
     z = np.zeros((2, 2, 3), np.uint8)
-    return ViewMeasurement(0.0, 0.0, empty, obj, bg, n_obj, n_bg, 30.0, z, z)
+    return ViewMeasurement(0.0, 0.0, empty, obj, bg, n_obj, n_bg, 30.0, z, z, np.zeros(0, bool))
 
 
 def test_render_cost_takes_the_fixed_cost_off_and_medians_over_views():
@@ -71,6 +72,42 @@ def test_render_cost_takes_the_fixed_cost_off_and_medians_over_views():
     assert cost.object_ms_per_px == pytest.approx(np.median([0.01, 0.01, 0.008]))
     assert cost.background_ms_per_px == pytest.approx(np.median([0.001, 0.002]))
     assert (cost.object_px, cost.background_px) == (1000, 500)
+
+
+def test_gaussian_blur_matches_a_direct_sum_and_keeps_a_constant():
+    x = torch.rand(1, 1, 9, 11, dtype=torch.float64)
+    sigma, r = 1.3, 4
+    w = np.exp(-np.arange(-r, r + 1) ** 2 / (2 * sigma**2))
+    w /= w.sum()
+    a = x[0, 0].numpy()
+    direct = np.zeros_like(a)
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            for di in range(-r, r + 1):
+                for dj in range(-r, r + 1):   # replicated edges: indices clamped
+                    direct[i, j] += w[di + r] * w[dj + r] * a[min(max(i + di, 0), 8), min(max(j + dj, 0), 10)]
+    np.testing.assert_allclose(gaussian_blur(x, sigma)[0, 0].numpy(), direct, atol=1e-12)
+    assert torch.allclose(gaussian_blur(torch.full((1, 1, 6, 6), 0.3), 2.0), torch.full((1, 1, 6, 6), 0.3))
+    assert gaussian_blur(x, 0.0) is x
+
+
+def test_silhouette_mask_keeps_the_object_then_its_surroundings_then_the_floor():
+    """The shape of flame_whole's trained IMS masks: the object nearly whole, the background next to it denser than
+    the background far from it, every region above zero (the floor); the share is the one asked for."""
+    p = downsample_pattern(128, 2)                      # 64^2 C
+    yy, xx = np.divmod(np.arange(p.count), 64)
+    on_object = (abs(yy - 32) < 8) & (abs(xx - 32) < 8)     # a 16^2 square: 6% of C
+    dist = np.maximum(abs(yy - 32) - 8, abs(xx - 32) - 8)
+    pix = silhouette_mask(on_object, 0.25, p, blur=4.0, floor=0.25)
+    kept = np.isin(p.indices.numpy(), pix)
+    assert abs(kept.mean() - 0.25) < 0.01
+    near, far = kept[(dist >= 1) & (dist < 6)].mean(), kept[dist >= 20].mean()
+    assert kept[on_object].mean() > 0.95 and near > 2 * far and far > 0.05
+    sharp = np.isin(p.indices.numpy(), silhouette_mask(on_object, 0.25, p, blur=0.0, floor=0.25))
+    assert sharp[(dist >= 1) & (dist < 6)].mean() < near    # the blur is what spills onto the surroundings
+    with pytest.raises(InputError, match=r"on_object: expected \(4096,\) bool") as e:
+        silhouette_mask(on_object[:10], 0.25, p)
+    assert "\n" not in str(e.value)
 
 
 def _cli(tmp_path, *extra):
@@ -89,6 +126,20 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     est = json.loads(path.read_text())
     for key in ("c_render_ms", "nets_ms", "recnn_ms", "bilinear_db", "bound", "share_for_2x"):
         assert key in est
+    # the bound renders exactly a silhouette mask's pixels at each share: its speed-ups are the formula on that curve
+    # (or the per-pixel model's, where that is slower)
+    curve = est["render_curve"]
+    assert curve["shares"] == pytest.approx([0.1 * i for i in range(1, 11)]) and all(t >= 0 for t in curve["times_ms"])
+    from imls_lightning.estimate import RenderCost
+
+    model = RenderCost(**est["render_cost"])
+    alone = est["c_render_ms"] + est["recnn_ms"]
+    for b, t, sil, s in zip(est["bound"], curve["times_ms"], est["silhouette_ms"], curve["shares"]):
+        assert t == pytest.approx(max(sil, model.render_ms(s, est["background_density"])), rel=1e-12)
+        assert b["speedup"] == pytest.approx(alone / (est["nets_ms"] + t + est["recnn_ms"]), rel=1e-9)
+    assert len(est["bound_modelled"]) == len(est["bound_silhouette"]) == 10 and est["silhouette_blur"] == 4.0
+    assert "per-px model" in r.stdout and "silhouette " in r.stdout
+    assert "render curve: view 2/2" in r.stderr
     assert [b["share"] for b in est["bound"]] == pytest.approx([0.1 * i for i in range(1, 11)])
     assert all(np.isfinite(b["speedup"]) and b["speedup"] > 0 for b in est["bound"])
     assert est["volume_dims"] == "32x32x32" and est["fr_size"] == 32 and est["c_size"] == 16
@@ -116,6 +167,7 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     ("recnn_lead.steps=-1", "recnn_lead.steps"),
     ("recnn_lead.lr=0", "recnn_lead.lr=0"),
     ("epsilon_db=0", "epsilon_db"),
+    ("silhouette_blur=-1", "silhouette_blur"),
 ])
 def test_cli_exception_bad_settings(tmp_path, override, match):
     r = _cli(tmp_path, override)
