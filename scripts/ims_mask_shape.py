@@ -69,10 +69,11 @@ def main(argv=None) -> list[dict]:
     except (InputError, OSError) as err:
         raise SystemExit(f"--cache={a.cache}: {err}")
     scene = cache.scene()
-    renderer_cfg = {"name": "numba"}
-    for o in a.overrides:
-        key, _, value = o.partition("=")
-        renderer_cfg[key.split(".")[-1]] = {"false": False, "true": True}.get(value.lower(), value)
+    from omegaconf import OmegaConf
+
+    # key=value of conf/renderer, with or without the "renderer." prefix, typed as Hydra types them
+    dotlist = [o[len("renderer."):] if o.startswith("renderer.") else o for o in a.overrides]
+    renderer_cfg = {"name": "numba", **OmegaConf.to_container(OmegaConf.from_dotlist(dotlist))}
     from data_gen.renderers import make_renderer
 
     renderer = make_renderer(scene, renderer_cfg)

@@ -189,9 +189,9 @@ def silhouette_mask(on_object: np.ndarray, share: float, pattern: SamplingPatter
 
 
 def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
-                 floor: float, repeats: int, progress: Callable[[str], None] | None = None) -> RenderCurve:
+                 floor: float, repeats: int, fixed_ms: float, progress: Callable[[str], None] | None = None) -> RenderCurve:
     """The render of exactly a :func:`silhouette_mask`'s pixels at each share, median over the views (the
-    renderer is warm: no untimed run)."""
+    renderer is warm: no untimed run); ``fixed_ms``: the cost of a call with no pixel (:attr:`RenderCost.fixed_ms`)."""
     times = np.zeros((len(views), len(shares)))
     t0 = time.perf_counter()
     for v, (view, meas) in enumerate(zip(views, measured)):
@@ -200,8 +200,7 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
             times[v, j] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
         if progress is not None:
             progress(f"render curve: view {v + 1}/{len(views)}, {len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
-    fixed = float(np.median([m.empty_ms for m in measured]))
-    return RenderCurve(tuple(float(s) for s in shares), tuple(np.median(times, 0).tolist()), fixed)
+    return RenderCurve(tuple(float(s) for s in shares), tuple(np.median(times, 0).tolist()), float(fixed_ms))
 
 
 def build_networks(pattern: SamplingPattern, recnn_net: Mapping[str, Any], iml: Mapping[str, Any],

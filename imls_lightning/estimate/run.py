@@ -195,12 +195,12 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
     # the bound takes the slower at each share (each misses a cost the other sees; bound.slower_render)
     silhouette = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                              repeats=max(1, min(repeats, 3)), progress=_say)
+                              repeats=max(1, min(repeats, 3)), fixed_ms=model.fixed_ms, progress=_say)
     cost = slower_render(silhouette, model, density)
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
     modelled = bound_table(model, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
                            background_density=density)
-    measured_mask = bound_table(silhouette, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
+    silhouette_table = bound_table(silhouette, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup)
     lead = measure_lead(cfg, lead_cfg, renderer, pattern, scene, [v.fr for v in measured], opts)
@@ -228,7 +228,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "render_curve": cost.to_dict(), "silhouette_ms": list(silhouette.times_ms), "silhouette_blur": blur,
         "bound": [{"share": r["share"], "speedup": r["speedup"]} for r in table],
         "bound_modelled": [{"share": r["share"], "speedup": r["speedup"]} for r in modelled],
-        "bound_silhouette": [{"share": r["share"], "speedup": r["speedup"]} for r in measured_mask],
+        "bound_silhouette": [{"share": r["share"], "speedup": r["speedup"]} for r in silhouette_table],
         "limit": [{"share": r["share"], "speedup": r["limit"]} for r in table],
         "target": target, "share_for_target": share_for_speedup(table, target),
         "share_for_2x": share_for_speedup(table, 2.0), "share_for_1_5x": share_for_speedup(table, 1.5),
