@@ -7,6 +7,7 @@ minimum of 10 repeats) and the tests read what it wrote.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
 import re
@@ -389,6 +390,48 @@ def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
         parse_settings(_compose(*_args(run["ck"], "orp_by_distance=true")))
     with pytest.raises(InputError, match=re.escape("orp_by_distance=maybe: expected true or false")):
         parse_settings(_compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=maybe")))
+
+
+def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_path):
+    """ims_sharpness=[1, 3]: the ORP is searched at each sharpness, the point that ray-casts the smallest share of C
+    is kept, the task's masks stay at it, and the summary and the record beside the checkpoint carry it (a renderer
+    built from the checkpoint alone then makes the same masks). Bad values are one-line errors."""
+    import shutil
+
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import operating_share, orp_summary, product_path_orp, record_operating_point
+    from imls_lightning.inference.checkpoints import load_product
+
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    cfg = _compose(*_args(run["ck"], "ims_sharpness=[3,1]", "orp_confidence=0.5"))
+    s = parse_settings(cfg)
+    assert s.ims_sharpness == [1.0, 3.0] and s.hashed()["ims_sharpness"] == [1.0, 3.0]
+    assert "ims_sharpness" not in parse_settings(_compose(*_args(run["ck"]))).hashed()  # earlier folders kept
+    nets = load_networks(s, int(cfg.data.resolution))
+    res = product_path_orp(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
+    cands = res.sharpness_candidates
+    assert [c["sharpness"] for c in cands] == [1.0, 3.0]
+    found = [c for c in cands if c["found"]]
+    assert found and res.sharpness == min(found, key=lambda c: (c["c_share"], c["sharpness"]))["sharpness"]
+    assert operating_share(res) == pytest.approx(min(c["c_share"] for c in found))
+    assert nets.ims_task.mask_sharpness == res.sharpness == nets.ims_task.mask_head.sharpness
+    orp = orp_summary(res, s, lifted=res.lifted)
+    assert orp["sharpness"] == res.sharpness and orp["sharpness_candidates"] is cands
+    # the record travels with a copy of the checkpoint: its renderers sharpen their masks the same way
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(s.ims, ck)
+    record_operating_point(dataclasses.replace(s, ims=str(ck)), {**orp, "sharpness": 3.0}, "tiny", tmp_path / "report.md", 2)
+    product = load_product(ck)
+    assert product.operating_point.sharpness == 3.0 and product.nets.head.sharpness == 3.0
+    assert "sharpness 3" in product.operating_point.describe()
+    for bad, msg in (("ims_sharpness=0.5", "ims_sharpness=0.5: expected a number in [1, 8]"),
+                     ("ims_sharpness=[]", "ims_sharpness=[]: expected a number or a list"),
+                     ("ims_sharpness=[1,nan]", "ims_sharpness=nan")):
+        with pytest.raises(InputError, match=re.escape(msg)):
+            parse_settings(_compose(*_args(run["ck"], bad)))
 
 
 @pytest.mark.slow  # a benchmark script (three ORP searches); the by-distance search itself is tested above

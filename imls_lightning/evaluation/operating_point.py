@@ -32,7 +32,8 @@ def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report:
     point = OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
                            ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
                            scene=scene, report=str(Path(report).resolve()),
-                           by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")})
+                           by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
+                           sharpness=float(orp.get("sharpness", 1.0)))
     try:
         path = write_operating_point(s.ims, point)
     except OSError as err:
@@ -151,11 +152,48 @@ def judged(v: SearchViews, future_views: int | None) -> str:
 
 def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
     """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
-    its bound is for the mean gap of ``future_views`` new views (the evaluated ones)."""
+    its bound is for the mean gap of ``future_views`` new views (the evaluated ones).
+
+    With several ``ims_sharpness`` candidates the whole search (and the bands' own values) runs at each, and the
+    point that ray-casts the smallest share of C is kept (the smaller sharpness on a tie); ``result.sharpness``
+    is its sharpness, ``result.sharpness_candidates`` what each reached. The IMS task's masks then stay at it
+    (:attr:`~imls_lightning.tasks.ims.IMSTask.mask_sharpness`) for every method the evaluation builds."""
     v = search_views(s, cfg, cache, scene)
-    cache, rows, where, distances, strata, passes, npaths = v.cache, v.rows, v.where, v.distances, v.strata, v.passes, v.paths
-    print(f"[evaluate] ORP: searched on {where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
+    print(f"[evaluate] ORP: searched on {v.where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
           f"{judged(v, future_views)}", file=sys.stderr, flush=True)
+    ims = nets.ims_task
+    results = []
+    for gamma in s.ims_sharpness:
+        ims.mask_sharpness = gamma
+        if len(s.ims_sharpness) > 1:
+            print(f"[evaluate] ORP at mask sharpness {gamma:g}", file=sys.stderr, flush=True)
+        results.append(_orp_at_sharpness(s, v, nets, pattern, device, future_views))
+        results[-1].sharpness = gamma
+    found = [r for r in results if r.found]
+    best = min(found, key=lambda r: (operating_share(r), r.sharpness)) if found else results[0]
+    best.sharpness_candidates = [{"sharpness": r.sharpness, "found": r.found, "mean": r.mean, "c_share": operating_share(r),
+                                  "lift": r.lifted} for r in results] if len(results) > 1 else None
+    if len(results) > 1:
+        print("[evaluate] ORP by mask sharpness: " + "; ".join(
+            f"{c['sharpness']:g}: " + (f"{c['c_share']:.1%} of C" if c["found"] else "none") for c in best.sharpness_candidates)
+            + f"; kept {best.sharpness:g}", file=sys.stderr, flush=True)
+    ims.mask_sharpness = best.sharpness
+    return best
+
+
+def operating_share(result) -> float | None:
+    """The share of C an operating point ray-casts on its search views: the mean over its bands of camera distance
+    (equal-count bands) where it has them, else its single mean value's."""
+    bands = getattr(result, "by_distance", None)
+    if bands and bands.get("c_shares"):
+        return float(np.mean(bands["c_shares"]))
+    rec = result.best.record if result.best is not None else {}
+    return rec.get("c_share")
+
+
+def _orp_at_sharpness(s: Settings, v: "SearchViews", nets: Networks, pattern, device, future_views: int | None):
+    """One ORP search (and its bands' values) at the IMS task's current mask sharpness."""
+    cache, rows, where, distances, strata, passes, npaths = v.cache, v.rows, v.where, v.distances, v.strata, v.passes, v.paths
     ims = nets.ims_task.to(device)
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))
@@ -169,7 +207,7 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
             result.by_distance = band_means(s, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views,
                                             passes, npaths)
             where += "; then each band's own mean value"
-    result.where = where
+    result.where = where + ("" if ims.mask_sharpness == 1.0 else f"; masks at sharpness {ims.mask_sharpness:g}")
     return result
 
 
@@ -369,4 +407,6 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
             "c_share": rec.get("c_share"), "ipr": rec.get("ipr"), "psnr_imls": rec.get("psnr_imls"),
             "psnr_recnn": rec.get("psnr_recnn"), "evaluations": len(result.evaluations), "lift": lifted,
             "points": _points(result), "rescale_points": getattr(result, "rescale_points", None),
-            "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db"), "by_distance": getattr(result, "by_distance", None)}
+            "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db"), "by_distance": getattr(result, "by_distance", None),
+            "sharpness": float(getattr(result, "sharpness", 1.0)),
+            "sharpness_candidates": getattr(result, "sharpness_candidates", None)}

@@ -11,6 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.errors import InputError
 
 from ..config import to_plain
+from ..core.importance import check_sharpness
 from ..inference.pipeline import NetOptions
 
 MIN_REPEATS = 10
@@ -38,6 +39,19 @@ def _lift(cfg) -> bool | str:
     if v not in (True, False, "auto"):
         raise InputError(f"ims_lift={v}: expected auto, true or false")
     return v
+
+
+def _sharpness(cfg) -> list[float]:
+    """``ims_sharpness``: the IMS mask sharpnesses the ORP is searched at (a number or a list, each in [1, 8];
+    the one whose operating point ray-casts the smallest share of C is kept). Needs the IMS's ``target=pim``."""
+    v = to_plain(OmegaConf.select(cfg, "ims_sharpness", default=None))
+    if v is None:
+        return [1.0]
+    items = v if isinstance(v, list) else [v]
+    if not items:
+        raise InputError("ims_sharpness=[]: expected a number or a list of numbers in [1, 8] (1: the paper's mask)")
+    out = sorted({check_sharpness(x, "ims_sharpness") for x in items})
+    return out
 
 
 def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
@@ -89,6 +103,7 @@ class Settings:
     shares: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.4])
     timed_views: int | None = None
     ims_lift: bool | str = "auto"
+    ims_sharpness: list[float] = field(default_factory=lambda: [1.0])  # candidates: the ORP searched at each
     recnn_sparser: str | None = None
     front_shares: list[float] = field(default_factory=lambda: list(FRONT_SHARES))
     orp_confidence: float = 0.95
@@ -115,6 +130,7 @@ class Settings:
             # only when set: evaluations made before the key existed keep their directories
             **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
+            **({"ims_sharpness": self.ims_sharpness} if self.ims_sharpness != [1.0] else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
@@ -157,7 +173,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_max_views=_int(cfg, "orp_max_views", 1, allow_none=True),
         shares=_floats(cfg, "shares", 0.0, 1.0, lo_open=True) if cfg.get("shares") is not None else [],
         timed_views=_int(cfg, "timed_views", 1, allow_none=True),
-        ims_lift=_lift(cfg), recnn_sparser=ck.get("recnn_sparser") or None,
+        ims_lift=_lift(cfg), ims_sharpness=_sharpness(cfg), recnn_sparser=ck.get("recnn_sparser") or None,
         front_shares=_floats(cfg, "front_shares", 0.0, 1.0, lo_open=True),
         orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),

@@ -34,6 +34,8 @@ from typing import Any, Callable
 
 from data_gen.errors import InputError
 
+from ..core.importance import check_sharpness
+
 __all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run"]
 
 #: appended to the checkpoint's file name
@@ -65,6 +67,9 @@ class OperatingPoint:
             the search's ``c_shares``, ``gaps_db`` and ``views``. Renderers then run each view at its
             band's mean value (:class:`~imls_lightning.models.ims.DistanceMeans`); ``mean`` stays the one
             value that met the bound in every band, for consumers that take a single one.
+        sharpness: the IMS mask's sharpness ``gamma`` the point was searched at (the evaluation's
+            ``ims_sharpness``; 1: the paper's masks; :meth:`~imls_lightning.models.ims.IMSMaskHead.with_sharpness`).
+            Records written before it read as 1.
     """
 
     mean: float | None
@@ -77,6 +82,7 @@ class OperatingPoint:
     scene: str | None = None
     report: str | None = None
     by_distance: dict | None = None
+    sharpness: float = 1.0
 
     @property
     def found(self) -> bool:
@@ -104,7 +110,8 @@ class OperatingPoint:
             if b.get("c_shares"):
                 bands += " (" + " / ".join(f"{100 * c:.0f}" for c in b["c_shares"]) + " % of C)"
             bands += " split at " + ", ".join(f"{e:.2f}" for e in b["edges"])
-        return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{share}{ipr} on the validation views "
+        sharp = "" if self.sharpness == 1.0 else f", sharpness {self.sharpness:g}"
+        return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{sharp}{share}{ipr} on the validation views "
                 f"(within {self.epsilon_db:g} dB of the RecNN alone){bands}")
 
     @property
@@ -153,7 +160,8 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
         point = OperatingPoint(mean=mean, lift=bool(record["lift"]), c_share=opt("c_share"), ipr=opt("ipr"),
                                epsilon_db=float(record["epsilon_db"]), gap_db=opt("gap_db"), views=opt("views", int),
                                scene=opt("scene", str), report=opt("report", str),
-                               by_distance=_by_distance(record.get("by_distance")))
+                               by_distance=_by_distance(record.get("by_distance")),
+                               sharpness=check_sharpness(record.get("sharpness", 1.0)))
         point.distance_means()  # the bands are checked as a renderer will read them
     except (KeyError, TypeError, ValueError, InputError) as err:
         return None, f"malformed ({type(err).__name__}: {err})"

@@ -41,7 +41,7 @@ from torch import nn
 
 from data_gen.errors import InputError
 
-from ..core.importance import lift_to_share, lifted_mask
+from ..core.importance import check_sharpness, lift_to_share, lifted_mask, sharpen_importance
 
 __all__ = ["IMSGenerator", "IMSDiscriminator", "IMSMaskHead", "MaskAt", "DistanceMeans", "TARGETS", "im_to_target", "output_to_im",
            "generator_plan"]
@@ -231,6 +231,10 @@ class IMSMaskHead(nn.Module):
       stays important when ``u >= u_train``). With ``lift``, above ``u_train``, PIM'(u) is lifted until
       the expected share is ``u`` (:func:`~imls_lightning.core.importance.lift_to_share`): the same masks
       as the rescale, reached at their share, then a blue-noise floor; ``u = 1`` takes every pixel.
+    * ``sharpness`` ``gamma > 1`` (``target="pim"``): the PIM' is sharpened first, per image, keeping its mean
+      (:func:`~imls_lightning.core.importance.sharpen_importance`): at the same mean value fewer pixels on
+      the low floor, more where the importance is high. The evaluation searches it beside the mean value
+      (``ims_sharpness``); at ``gamma = 1`` (default) every mask is the paper's, bit for bit.
 
     No state changes what a call returns: the mean value and the lift are arguments (:class:`MaskAt`
     binds them for a caller that passes views only, e.g. an export). Tensor operations only: traceable.
@@ -242,6 +246,7 @@ class IMSMaskHead(nn.Module):
         target: ``"im"`` or ``"pim"``.
         trained_mean: the IML's mean value ``u_train`` the PIM' targets were normalized to.
         lower: the IML normalization's lower bound ``l``. Default 0 (paper).
+        sharpness: ``gamma`` in ``[1, 8]``. Default 1 (paper). :meth:`with_sharpness` makes a head at another.
 
     Example:
         >>> n = 8
@@ -255,7 +260,7 @@ class IMSMaskHead(nn.Module):
     """
 
     def __init__(self, generator: nn.Module, P: torch.Tensor, valid: torch.Tensor, target: str,
-                 trained_mean: float | None = None, lower: float = 0.0):
+                 trained_mean: float | None = None, lower: float = 0.0, sharpness: float = 1.0):
         super().__init__()
         if target not in TARGETS:
             raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
@@ -268,6 +273,9 @@ class IMSMaskHead(nn.Module):
         self.target = target
         self.trained_mean = None if trained_mean is None else float(trained_mean)
         self.lower = float(lower)
+        self.sharpness = check_sharpness(sharpness)
+        if self.sharpness != 1.0 and target != "pim":
+            raise InputError(f"sharpness={sharpness}: sharpening the IMS's mask needs model.target=pim (a binary IM has no importance to sharpen)")
         # (1, 1, n, n) views of the given tensors (not copies): a head made from a task's buffers follows them
         self.register_buffer("P", P.detach().reshape(1, 1, n, n))
         self.register_buffer("valid", valid.detach().to(torch.bool).reshape(1, 1, n, n))
@@ -279,7 +287,11 @@ class IMSMaskHead(nn.Module):
     def with_generator(self, generator: nn.Module) -> "IMSMaskHead":
         """The same head around another generator module (e.g. a compiled or channels-last one); the
         buffers are shared."""
-        return IMSMaskHead(generator, self.P, self.valid, self.target, self.trained_mean, self.lower)
+        return IMSMaskHead(generator, self.P, self.valid, self.target, self.trained_mean, self.lower, self.sharpness)
+
+    def with_sharpness(self, sharpness: float) -> "IMSMaskHead":
+        """The same head (generator and buffers shared) at another ``sharpness``."""
+        return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, sharpness)
 
     def forward(self, view: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False) -> torch.Tensor:
         """IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` at the trained mean (``mean=None``) or at ``mean``
@@ -299,6 +311,8 @@ class IMSMaskHead(nn.Module):
         with torch.autocast(device_type=g.device.type, enabled=False):
             g = g.float()
             P, valid = self.P.to(g.device), self.valid.to(g.device)
+            if mean is None and self.sharpness != 1.0:
+                mean = self.trained_mean  # the sharpened PIM' at the trained mean: the rescale by 1
             if mean is None:
                 if self.target == "im":
                     im = g > 0
@@ -316,7 +330,7 @@ class IMSMaskHead(nn.Module):
         lower = self.lower
         ut = torch.as_tensor(mean, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
         scale = (ut - lower) / torch.tensor(self.trained_mean - lower, dtype=torch.float32, device=g.device)
-        pim = (g + 1.0) * 0.5
+        pim = sharpen_importance((g + 1.0) * 0.5, self.sharpness, valid)
         pim_u = pim * scale if lower == 0.0 else (pim - lower) * scale + lower
         # a pixel at g = 1 had PIM' >= 1 (the target was clamped at 1): important at any u >= u_train
         saturated = (g >= 1.0) & (scale >= 1.0)
@@ -337,7 +351,8 @@ class IMSMaskHead(nn.Module):
         return MaskAt(self, mean, lift)
 
     def extra_repr(self) -> str:
-        return f"target={self.target}, c_size={self.c_size}, trained_mean={self.trained_mean}, lower={self.lower}"
+        return (f"target={self.target}, c_size={self.c_size}, trained_mean={self.trained_mean}, lower={self.lower}"
+                + (f", sharpness={self.sharpness}" if self.sharpness != 1.0 else ""))
 
 
 class DistanceMeans(nn.Module):

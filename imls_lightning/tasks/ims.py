@@ -297,7 +297,7 @@ class IMSTask(ImlsTask):
         generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
         (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern; :attr:`mask_head`
         (:class:`~imls_lightning.models.ims.IMSMaskHead`: the generator and its thresholding, the mean
-        value and lift given to each call).
+        value and lift given to each call; at :attr:`mask_sharpness`, 1 unless an evaluation chose another).
 
     Example:
         >>> task = build_task(cfg)  # model=ims iml.checkpoint=...  # doctest: +SKIP
@@ -387,6 +387,8 @@ class IMSTask(ImlsTask):
         # set once the generator's view normalization was fitted on the training views (checkpointed)
         self.register_buffer("view_norm_fitted", torch.zeros((), dtype=torch.bool))
         self._warned_no_recnn = False
+        # the sharpness of the masks :attr:`mask_head` makes (1: the paper's); the evaluation sets the one its ORP kept
+        self.mask_sharpness = 1.0
 
     # -- accessors ----------------------------------------------------------------------------
     @property
@@ -496,9 +498,10 @@ class IMSTask(ImlsTask):
     def mask_head(self) -> IMSMaskHead:
         """The generator with its thresholding (:class:`~imls_lightning.models.ims.IMSMaskHead`): the
         task's generator and buffers (``P``, ``valid``), its target, the IML's trained mean and lower
-        bound. Made on each access (cheap, nothing copied), so it follows the task across devices."""
+        bound, at :attr:`mask_sharpness`. Made on each access (cheap, nothing copied), so it follows the task
+        across devices."""
         return IMSMaskHead(self.generator, self.P, self.valid, self.target, float(self.iml.mean),
-                           float(self.iml.normalization.lower))
+                           float(self.iml.normalization.lower), self.mask_sharpness)
 
     def output_to_im(self, g: torch.Tensor) -> torch.Tensor:
         """Generator output ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool at the trained mean, False on
