@@ -420,6 +420,11 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
     assert nets.ims_task.mask_sharpness == res.sharpness == nets.ims_task.mask_head.sharpness
     orp = orp_summary(res, s, lifted=res.lifted)
     assert orp["sharpness"] == res.sharpness and orp["sharpness_candidates"] is cands
+    from imls_lightning.report.document import _orp_lines
+
+    section = "\n".join(_orp_lines(orp, "test"))
+    assert f"the point that ray-casts the smallest share of C on the search views was kept: **γ = {res.sharpness:.2f}**" in section
+    assert "| γ | ORP found | u | C-share (search views) | lifted |" in section
     # the record travels with a copy of the checkpoint: its renderers sharpen their masks the same way
     ck = tmp_path / "ims.ckpt"
     shutil.copy(s.ims, ck)

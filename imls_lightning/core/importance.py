@@ -154,7 +154,8 @@ def check_sharpness(sharpness: float, name: str = "sharpness") -> float:
 
 def sharpen_importance(pim: torch.Tensor, sharpness: float, valid: Optional[torch.Tensor] = None,
                        delta: float = 1e-7) -> torch.Tensor:
-    """Sharpen a normalized importance per image, keeping its mean: ``S = PIM'^gamma mean(PIM') / (mean(PIM'^gamma) + delta)``.
+    """Sharpen a normalized importance per image, keeping its mean: ``S = R^gamma mean(PIM') / (mean(R^gamma) + delta)``
+    with ``R = PIM' / max(PIM')`` (the same as ``PIM'^gamma mean(PIM') / mean(PIM'^gamma)``, without its underflow).
 
     At the same mean the pixels it ranks high gain density and its low, flat floor (the background an IMS
     spreads a little density over) loses it, so a mask dithered from ``S`` spends fewer pixels where the
@@ -165,7 +166,7 @@ def sharpen_importance(pim: torch.Tensor, sharpness: float, valid: Optional[torc
         pim: ``(B, C, H, W)`` non-negative importance (negative values count as 0), any float dtype.
         sharpness: ``gamma`` in ``[1, 8]`` (:func:`check_sharpness`).
         valid: optional ``(H, W)``, ``(1, 1, H, W)`` or ``(B, 1, H, W)`` mask of the pixels in the means.
-        delta: ``> 0``, guards the division (an all-zero image stays zero).
+        delta: ``> 0``, guards the division (an all-zero image stays zero); ``mean(R^gamma) >= 1 / N`` otherwise.
 
     Returns:
         ``(B, C, H, W)`` in float32 (float64 for float64 input), computed with autocast off.
@@ -182,15 +183,19 @@ def sharpen_importance(pim: torch.Tensor, sharpness: float, valid: Optional[torc
         return pim
     with torch.autocast(device_type=pim.device.type, enabled=False):
         x = _f32(pim).clamp_min(0.0)
-        s = x**gamma
         if valid is None:
-            mean_x, mean_s = x.mean(dim=(1, 2, 3), keepdim=True), s.mean(dim=(1, 2, 3), keepdim=True)
+            v = torch.ones_like(x[:, :1])
         else:
             v = valid.to(device=x.device, dtype=x.dtype)
             while v.dim() < 4:
                 v = v.unsqueeze(0)
-            count = v.sum(dim=(1, 2, 3), keepdim=True).clamp_min(1.0) * x.shape[1]
-            mean_x, mean_s = (x * v).sum(dim=(1, 2, 3), keepdim=True) / count, (s * v).sum(dim=(1, 2, 3), keepdim=True) / count
+        count = (v.sum(dim=(1, 2, 3), keepdim=True) * x.shape[1]).clamp_min(1.0)
+        # the power of x / max(x), not of x: a faint image (all PIM' ~ 0.01) at gamma = 8 would underflow to 0
+        # and lose its mean to delta; relative to its maximum the largest term is 1 and the mean is kept
+        top = (x * v).amax(dim=(1, 2, 3), keepdim=True)
+        s = (x / top.clamp_min(torch.finfo(x.dtype).tiny)) ** gamma
+        mean_x = (x * v).sum(dim=(1, 2, 3), keepdim=True) / count
+        mean_s = (s * v).sum(dim=(1, 2, 3), keepdim=True) / count
         return s * (mean_x / (mean_s + delta))
 
 

@@ -239,6 +239,16 @@ def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
         L.append(f"No mean value in [0.01, 1] keeps IML/S + RecNN within ε = {fmt(o['epsilon_db'], 2)} dB of the RecNN "
                  f"alone on {where}, judged by {rule}; IML/S runs at its trained mean.")
     L.append("")
+    if o.get("sharpness_candidates"):
+        L.append(f"**Mask sharpness** (`ims_sharpness`): the search above ran at each sharpness γ (the IMS's PIM' raised to "
+                 "γ per image at the same mean before the rescale), and the point that ray-casts the smallest share of C "
+                 f"on the search views was kept: **γ = {fmt(o.get('sharpness', 1.0), 2)}**.")
+        L.append("")
+        L.append(md_table(["γ", "ORP found", "u", "C-share (search views)", "lifted"],
+                          [[fmt(c["sharpness"], 2), "yes" if c["found"] else "no", fmt(c["mean"], 4) if c["found"] else "–",
+                            fmt_pct(c["c_share"]) if c["found"] else "–", "yes" if c.get("lift") else "no"]
+                           for c in o["sharpness_candidates"]], "rrrrr"))
+        L.append("")
     if o["found"] and o.get("by_distance"):
         b = o["by_distance"]
         L.append(f"**By camera distance** (`orp_by_distance`): each of the {len(b['means'])} bands then searched on its own "

@@ -14,7 +14,10 @@ from imls_lightning.core.importance import (
     hard_rejection_sample,
     lift_to_share,
     lifted_mask,
+    SharpenImportance,
+    check_sharpness,
     normalize_importance,
+    sharpen_importance,
     soft_rejection_sample,
 )
 
@@ -345,3 +348,69 @@ def test_lift_equals_the_per_image_solution_bit_for_bit(valid_kind):
                  "per_image": torch.rand(b, 1, n, n, generator=g) < 0.8}[valid_kind]
         got, want = lift_to_share(x, u, valid), reference_lift_to_share(x, u, valid)
         assert torch.equal(got[0], want[0]) and torch.equal(got[1], want[1]), trial
+
+
+# ---------------------------------------------------------------- sharpening (the IMS mask's sharpness)
+
+
+@pytest.mark.parametrize("gamma", [1.5, 2.0, 8.0])
+@pytest.mark.parametrize("with_valid", [False, True])
+def test_sharpen_against_direct_formula(gamma, with_valid):
+    """S = PIM'^gamma mean(PIM') / (mean(PIM'^gamma) + delta), means per image over the valid pixels; the mean is kept,
+    the order of the pixels too, and the high ones gain at the low ones' expense."""
+    gen = torch.Generator().manual_seed(3)
+    pim = torch.rand(3, 1, 5, 6, generator=gen) * torch.tensor([1.0, 3.0, 0.05]).view(3, 1, 1, 1)
+    valid = (torch.rand(5, 6, generator=gen) > 0.3) if with_valid else None
+    got = sharpen_importance(pim, gamma, valid)
+    keep = valid.flatten() if with_valid else torch.ones(30, dtype=torch.bool)
+    for b in range(3):
+        x = [float(v) for v, k in zip(pim[b].flatten(), keep) if k]
+        mean_x = sum(x) / len(x)
+        top = max(x)
+        mean_s = sum((v / top) ** gamma for v in x) / len(x)
+        want = (pim[b] / top) ** gamma * mean_x / (mean_s + 1e-7)
+        torch.testing.assert_close(got[b], want, rtol=1e-5, atol=1e-8)
+        kept = got[b].flatten()[keep]
+        assert float(kept.mean()) == pytest.approx(mean_x, rel=1e-4)
+        order = torch.argsort(pim[b].flatten()[keep])
+        assert bool((kept[order].diff() >= -1e-7).all())
+        assert float(kept.max()) > float(pim[b].flatten()[keep].max())
+
+
+def test_sharpen_at_one_is_the_identity_and_the_module_binds_gamma():
+    pim = torch.rand(2, 1, 4, 4)
+    assert sharpen_importance(pim, 1.0) is pim
+    assert torch.equal(SharpenImportance(2.5)(pim), sharpen_importance(pim, 2.5))
+    assert "sharpness=2.5" in repr(SharpenImportance(2.5))
+
+
+@pytest.mark.parametrize("with_valid", [False, True])
+def test_gradcheck_sharpen(with_valid):
+    pim = (torch.rand(2, 1, 4, 5, dtype=torch.float64) + 0.05).requires_grad_()
+    valid = (torch.arange(20).view(4, 5) % 3 != 0) if with_valid else None
+    assert torch.autograd.gradcheck(lambda x: sharpen_importance(x, 2.5, valid), (pim,))
+
+
+def test_sharpen_extremes_stay_finite():
+    """All zero, one hot, tiny, huge, negative values (read as 0), gamma at its bound 8: finite values and gradients."""
+    x = torch.zeros(6, 1, 8, 8)
+    x[1, 0, 3, 3] = 1.0
+    x[2] = 1e-12
+    x[3] = torch.rand(8, 8) * 1e6
+    x[4] = -torch.rand(8, 8)
+    x[5] = torch.rand(8, 8)
+    x.requires_grad_()
+    for gamma in (1.5, 8.0):
+        y = sharpen_importance(x, gamma)
+        y.sum().backward()
+        assert bool(torch.isfinite(y).all()) and bool(torch.isfinite(x.grad).all())
+        assert float(y[0].abs().max()) == 0.0 and float(y[4].abs().max()) == 0.0
+        x.grad = None
+
+
+def test_sharpness_errors_are_one_line():
+    for bad in (0.5, 9, float("nan"), "soft", True):
+        with pytest.raises(InputError, match=r"^sharpness=.*: expected a number in \[1, 8\]|^sharpness=.*expected"):
+            check_sharpness(bad)
+    with pytest.raises(ValueError, match="expected a \\(B, C, H, W\\) tensor"):
+        sharpen_importance(torch.rand(4, 4), 2.0)

@@ -284,3 +284,32 @@ def test_a_point_by_camera_distance_travels_with_the_checkpoint(tiny_checkpoints
     assert load_product(str(ck)).by_distance is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: by_distance: band edges [4.0, 3.5]" in err[0]
+
+
+def test_a_sharpened_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_path, capsys):
+    """A point searched at an IMS mask sharpness records it; renderers and exports built from the checkpoint alone
+    sharpen their masks the same way; a record from before the key reads as 1 (the paper's masks); a sharpness out of
+    range is a malformed record, ignored with one line."""
+    import json
+    import shutil
+
+    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
+
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(tiny_checkpoints["ims_pim"], ck)
+    write_operating_point(ck, OperatingPoint(mean=0.4, lift=True, c_share=0.4, ipr=0.1, epsilon_db=1.0, sharpness=2.0))
+    assert read_operating_point(ck, log=None).sharpness == 2.0
+    r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
+    assert r.mask_head.sharpness == 2.0 and r.mean == 0.4 and r.lift
+    view = torch.tensor([[0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+    plain = load_ims_nets(str(ck)).head
+    assert torch.equal(r.predict_im(view), plain.with_sharpness(2.0)(view, 0.4, True))
+    rec = json.loads(sidecar_path(ck).read_text())
+    sidecar_path(ck).write_text(json.dumps({k: v for k, v in rec.items() if k != "sharpness"}))
+    assert read_operating_point(ck, log=None).sharpness == 1.0 and load_product(str(ck)).nets.head.sharpness == 1.0
+    capsys.readouterr()
+    sidecar_path(ck).write_text(json.dumps({**rec, "sharpness": 0.5}))
+    assert load_product(str(ck)).operating_point is None
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
+    assert len(err) == 1 and "ignored: malformed (InputError: sharpness=0.5: expected a number in [1, 8]" in err[0]

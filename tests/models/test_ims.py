@@ -220,3 +220,39 @@ def test_mask_at_distance_means_runs_each_view_at_its_bands_mean():
         assert torch.equal(mask(views), head(views, u, lift))
     traced = torch.jit.trace(head.at(sched, True), (views[:1],), check_trace=False)
     assert torch.equal(traced(views), head(views, u, True))
+
+
+def test_mask_head_sharpness():
+    """sharpness=1 is the paper's head bit for bit; gamma > 1 sharpens the PIM' at the same mean before the rescale
+    (the reference: sharpen_importance, then the same thresholding), with and without the lift and by distance; it
+    shares the generator, traces, and refuses a binary IM (target=im)."""
+    from imls_lightning.core.importance import sharpen_importance
+    from imls_lightning.models.ims import DistanceMeans
+
+    g = _outputs(5)
+    P, valid = torch.rand(N, N), torch.rand(N, N) > 0.15
+    head = IMSMaskHead(_Fixed(g), P, valid, "pim", trained_mean=0.2)
+    views = torch.arange(4, dtype=torch.float32)[:, None].expand(4, 9).contiguous()
+    assert head.sharpness == 1.0 and torch.equal(head.with_sharpness(1.0)(views, 0.4), head(views, 0.4))
+    sharp = head.with_sharpness(3.0)
+    assert sharp.generator is head.generator and sharp.P.data_ptr() == head.P.data_ptr() and "sharpness=3.0" in repr(sharp)
+    pim = sharpen_importance((g + 1) * 0.5, 3.0, valid.view(1, 1, N, N))
+    for u in (0.1, 0.2, 0.5):
+        scale = u / 0.2
+        want = ((pim * scale > P) | ((g >= 1) & (scale >= 1))) & valid
+        assert torch.equal(sharp(views, u), want), u
+    assert torch.equal(sharp(views), sharp(views, 0.2))  # the trained mean: the sharpened PIM' as it is
+    # at one mean value the low floor loses pixels and the high ranks gain them
+    low, high = (g + 1) * 0.5 < 0.3, (g + 1) * 0.5 > 0.7
+    plain, sharpened = head(views, 0.5), sharp(views, 0.5)
+    assert int((sharpened & low).sum()) < int((plain & low).sum())
+    assert int((sharpened & high).sum()) >= int((plain & high).sum())
+    lifted = sharp(views, 0.9, True)
+    assert float(lifted[:, :, valid].float().mean()) == pytest.approx(0.9, abs=0.06)  # the expected share: 4 x ~120 pixels
+    sched = DistanceMeans([1.0], [0.6, 0.3])
+    traced = torch.jit.trace(sharp.at(sched, True), (views[:1],), check_trace=False)
+    assert torch.equal(traced(views), sharp(views, torch.tensor([0.6, 0.3, 0.3, 0.3]), True))  # eye distances 0, 1.7, 3.5, 5.2
+    with pytest.raises(InputError, match="sharpness=2: sharpening the IMS's mask needs model.target=pim"):
+        IMSMaskHead(_Fixed(g), P, valid, "im", sharpness=2)
+    with pytest.raises(InputError, match=r"sharpness=0.5: expected a number in \[1, 8\]"):
+        head.with_sharpness(0.5)
