@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import re
 import sys
 from pathlib import Path
 
@@ -614,3 +615,28 @@ def test_ims_mask_shape_script_on_real_checkpoints(tiny_checkpoints, capsys):
     assert (d == np.maximum(abs(yy - 1), abs(xx - 1))).all()
     with pytest.raises(SystemExit, match="--views=0"):
         ims.main(["--ims", "x", "--cache", str(cache), "--views", "0"])
+
+
+def test_mask_sharpness_script_on_real_checkpoints(tiny_checkpoints, capsys):
+    """scripts/mask_sharpness.py: one row per (sharpness, mean value) on the tiny scene's real IMS (target=pim): shares
+    in (0, 1] that grow with the mean, gaps that reach 0 where the mask takes the whole pattern, finite render times;
+    bad arguments are one-line exits."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import mask_sharpness as ms
+
+    from data_gen.cache_reader import ViewImageCache
+
+    caches = [p for p in Path(tiny_checkpoints["cache_dir"]).iterdir() if p.is_dir() and p.name.startswith("tiny-")]
+    cache = next(p for p in caches if ViewImageCache.open(p).resolution == 32)
+    rows = ms.main(["--ims", str(tiny_checkpoints["ims_pim"]), "--cache", str(cache), "--views", "2", "--sharpness", "1", "3",
+                    "--means", "0.02", "1.0", "--time", "--repeats", "1", "skip_empty=false"])
+    assert [(r["sharpness"], r["mean"]) for r in rows] == [(1.0, 0.02), (1.0, 1.0), (3.0, 0.02), (3.0, 1.0)]
+    assert len(capsys.readouterr().out.strip().splitlines()) == 4
+    for r in rows:
+        assert 0 < r["share"] <= 1 and np.isfinite(r["gap_db"]) and np.isfinite(r["render_ms"]) and r["render_ms"] > 0
+    for lo, hi in ((rows[0], rows[1]), (rows[2], rows[3])):
+        assert hi["share"] == pytest.approx(1.0) and lo["share"] < 1.0 and abs(hi["gap_db"]) < 1e-9
+    for bad, msg in ((["--views", "0"], "--views=0"), (["--sharpness", "0.5"], "--sharpness=0.5: expected a number in [1, 8]"),
+                     (["--means", "2"], "--means=2.0: expected")):
+        with pytest.raises(SystemExit, match=re.escape(msg)):
+            ms.main(["--ims", str(tiny_checkpoints["ims_pim"]), "--cache", str(cache), *bad])
