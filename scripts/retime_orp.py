@@ -61,6 +61,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the two-pass sampler at the operating point searched for it: an evaluation's summary.json "
                          "(its two_pass) or scripts/orp_promise.py --two-pass's JSON (its first row); a share per band "
                          "of camera distance where it has one")
+    ap.add_argument("--blocked", action="store_true",
+                    help="per view, each method's runs back to back (as the evaluation times them: its working set stays in "
+                         "the caches, as from one frame to the next of one renderer) instead of alternated run by run (each "
+                         "run after the other method's: the caches hold the other's data)")
     ap.add_argument("--no-skip-empty", action="store_true",
                     help="ray-cast without empty-space skipping (renderer.skip_empty=false: the same pixels, the costs of "
                          "a ray caster without it)")
@@ -117,11 +121,13 @@ def main(argv: list[str] | None = None) -> int:
             view = validate_view(np.asarray(cache.views[row], np.float64))
             runs: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
             last = {}
-            for r in range(a.warmup + a.repeats):
-                for name, m in methods.items():  # alternated run by run: a disturbance hits both alike
-                    last[name] = m.run(view)
-                    if r >= a.warmup:
-                        runs[name].append(dict(last[name].timings, c_share=last[name].info["c_share"]))
+            # alternated run by run (a disturbance hits both alike), or --blocked: each method's runs back to back
+            order = ([(r, n) for n in methods for r in range(a.warmup + a.repeats)] if a.blocked else
+                     [(r, n) for r in range(a.warmup + a.repeats) for n in methods])
+            for r, name in order:
+                last[name] = methods[name].run(view)
+                if r >= a.warmup:
+                    runs[name].append(dict(last[name].timings, c_share=last[name].info["c_share"]))
             for name in methods:
                 keys = runs[name][0].keys()
                 per_view[name].append({k: float(np.median([x[k] for x in runs[name]])) for k in keys})
@@ -135,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     skip = getattr(product.renderer, "skip_empty", True)
     print(f"ray caster: {product.renderer.name}, empty-space skipping {'on' if skip else 'off'}")
     print(f"ORP: u = {product.mean:.4f} (lift {product.lift}), recorded by the evaluation; {len(rows)} test views "
-          f"(rows {', '.join(map(str, rows))}), median of {a.repeats} interleaved runs each, mean over views\n")
+          f"(rows {', '.join(map(str, rows))}), median of {a.repeats} {'back-to-back' if a.blocked else 'interleaved'} runs each, "
+          "mean over views\n")
     print("| method | C-share | first pass (ms) | importance (ms) | selective render (ms) | decoder or fill (ms) | RecNN (ms) "
           "| total (ms) | PSNR (dB) | SSIM |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")

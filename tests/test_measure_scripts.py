@@ -339,6 +339,12 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     got = rows["IML/S + RecNN (recorded ORP)"]
     assert float(got[1].rstrip("%")) == pytest.approx(share, abs=0.05)
     assert float(got[-2]) == pytest.approx(psnr, abs=0.01)
+    # --blocked: each method's runs back to back; the same pixels, so the same share and PSNR
+    assert mod.main(args + ["--blocked"]) == 0
+    out = capsys.readouterr().out
+    assert "median of 2 back-to-back runs each" in out
+    blocked = next(line.split(" | ") for line in out.splitlines() if line.startswith("| IML/S + RecNN"))
+    assert blocked[1] == got[1] and blocked[-2] == got[-2]
 
     # the classical two-pass sampler alternated with both, at its own share
     assert mod.main(args + ["--two-pass", "0.8", "--base", "0.3"]) == 0
