@@ -87,6 +87,23 @@ def _f32(x: torch.Tensor) -> torch.Tensor:
     return x if x.dtype in (torch.float32, torch.float64) else x.float()
 
 
+def _valid_4d(valid: torch.Tensor, device, dtype) -> torch.Tensor:
+    """An ``(H, W)`` / ``(1, 1, H, W)`` / ``(B, 1, H, W)`` pixel mask as a 4-D tensor of ``dtype`` on ``device``."""
+    v = valid.to(device=device, dtype=dtype)
+    while v.dim() < 4:
+        v = v.unsqueeze(0)
+    return v
+
+
+def _valid_mean(x: torch.Tensor, v: torch.Tensor | None) -> torch.Tensor:
+    """``(B, 1, 1, 1)``: each image's mean over all pixels (``v=None``) or over the pixels of the 4-D mask ``v``;
+    the count is clamped at 1, so an all-invalid image has mean 0, not NaN."""
+    if v is None:
+        return x.mean(dim=(1, 2, 3), keepdim=True)
+    count = v.expand(x.shape[0], 1, x.shape[2], x.shape[3]).sum(dim=(1, 2, 3), keepdim=True).clamp_min(1.0) * x.shape[1]
+    return (x * v).sum(dim=(1, 2, 3), keepdim=True) / count
+
+
 def normalize_importance(
     pim: torch.Tensor,
     mean: float,
@@ -123,16 +140,8 @@ def normalize_importance(
         raise ValueError(f"pim: expected a (B, C, H, W) tensor, got shape {tuple(pim.shape)}")
     with torch.autocast(device_type=pim.device.type, enabled=False):
         x = _f32(pim)
-        if valid is None:
-            mu = x.mean(dim=(1, 2, 3), keepdim=True)
-        else:
-            v = valid.to(device=x.device, dtype=x.dtype)
-            while v.dim() < 4:
-                v = v.unsqueeze(0)
-            v = v.expand(x.shape[0], 1, x.shape[2], x.shape[3])
-            # count clamped at 1: an all-invalid image has mean 0 -> PIM' = l, not NaN
-            count = v.sum(dim=(1, 2, 3), keepdim=True).clamp_min(1.0) * x.shape[1]
-            mu = (x * v).sum(dim=(1, 2, 3), keepdim=True) / count
+        # an all-invalid image has mean 0 -> PIM' = l, not NaN
+        mu = _valid_mean(x, None if valid is None else _valid_4d(valid, x.device, x.dtype))
         return lower + x * ((u - lower) / (mu + delta))
 
 
@@ -183,20 +192,12 @@ def sharpen_importance(pim: torch.Tensor, sharpness: float, valid: Optional[torc
         return pim
     with torch.autocast(device_type=pim.device.type, enabled=False):
         x = _f32(pim).clamp_min(0.0)
-        if valid is None:
-            v = torch.ones_like(x[:, :1])
-        else:
-            v = valid.to(device=x.device, dtype=x.dtype)
-            while v.dim() < 4:
-                v = v.unsqueeze(0)
-        count = (v.sum(dim=(1, 2, 3), keepdim=True) * x.shape[1]).clamp_min(1.0)
+        v = None if valid is None else _valid_4d(valid, x.device, x.dtype)
         # the power of x / max(x), not of x: a faint image (all PIM' ~ 0.01) at gamma = 8 would underflow to 0
         # and lose its mean to delta; relative to its maximum the largest term is 1 and the mean is kept
-        top = (x * v).amax(dim=(1, 2, 3), keepdim=True)
+        top = (x if v is None else x * v).amax(dim=(1, 2, 3), keepdim=True)
         s = (x / top.clamp_min(torch.finfo(x.dtype).tiny)) ** gamma
-        mean_x = (x * v).sum(dim=(1, 2, 3), keepdim=True) / count
-        mean_s = (s * v).sum(dim=(1, 2, 3), keepdim=True) / count
-        return s * (mean_x / (mean_s + delta))
+        return s * (_valid_mean(x, v) / (_valid_mean(s, v) + delta))
 
 
 class SharpenImportance(nn.Module):
@@ -280,9 +281,7 @@ def lift_to_share(
     flat = x.flatten(1)
     if valid is None:
         return _lift_rows(flat, u)
-    v = valid.to(device=x.device, dtype=torch.bool)
-    while v.dim() < 4:
-        v = v.unsqueeze(0)
+    v = _valid_4d(valid, x.device, torch.bool)
     if v.shape[0] == 1:  # one set of pixels for every image: gathered once, solved at once
         index = torch.nonzero(v.flatten()).flatten()
         return _lift_rows(flat.index_select(1, index), u)

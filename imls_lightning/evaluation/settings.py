@@ -50,8 +50,7 @@ def _sharpness(cfg) -> list[float]:
     items = v if isinstance(v, list) else [v]
     if not items:
         raise InputError("ims_sharpness=[]: expected a number or a list of numbers in [1, 8] (1: the paper's mask)")
-    out = sorted({check_sharpness(x, "ims_sharpness") for x in items})
-    return out
+    return sorted({check_sharpness(x, "ims_sharpness") for x in items})
 
 
 def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
