@@ -28,6 +28,7 @@ HOMES: dict[str, str] = {
     "Method": "imls_lightning.inference.pipeline",
     "NetOptions": "imls_lightning.inference.pipeline",
     "time_method": "imls_lightning.inference.pipeline",
+    "time_methods": "imls_lightning.inference.pipeline",
     "pick_device": "imls_lightning.inference.pipeline",
     "AdaptiveIMLSRenderer": "imls_lightning.adaptive.renderer",
     "ExportedIMLSRenderer": "imls_lightning.inference.export",

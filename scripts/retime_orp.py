@@ -72,12 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.views < 1 or a.repeats < 1 or a.warmup < 0:
         ap.error("--views and --repeats must be >= 1, --warmup >= 0")
 
-    import torch
-
     from data_gen.cache import ViewImageCache
-    from data_gen.camera import validate_view
     from imls_lightning.evaluation.measurement import image_quality, spaced
-    from imls_lightning.inference.pipeline import IMLSRenderer, RecNNAlone
+    from imls_lightning.inference.pipeline import IMLSRenderer, RecNNAlone, time_methods
 
     renderer_cfg = None
     if a.no_skip_empty:
@@ -116,24 +113,15 @@ def main(argv: list[str] | None = None) -> int:
                 + " / ".join(f"{x:.0%}" for x in method.shares) + ")"] = method
     per_view: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
     quality: dict[str, list[tuple[float, float]]] = {k: [] for k in methods}
-    with torch.inference_mode():
-        for i, row in enumerate(rows):
-            view = validate_view(np.asarray(cache.views[row], np.float64))
-            runs: dict[str, list[dict[str, float]]] = {k: [] for k in methods}
-            last = {}
-            # alternated run by run (a disturbance hits both alike), or --blocked: each method's runs back to back
-            order = ([(r, n) for n in methods for r in range(a.warmup + a.repeats)] if a.blocked else
-                     [(r, n) for r in range(a.warmup + a.repeats) for n in methods])
-            for r, name in order:
-                last[name] = methods[name].run(view)
-                if r >= a.warmup:
-                    runs[name].append(dict(last[name].timings, c_share=last[name].info["c_share"]))
-            for name in methods:
-                keys = runs[name][0].keys()
-                per_view[name].append({k: float(np.median([x[k] for x in runs[name]])) for k in keys})
-                quality[name].append(image_quality(last[name].image, np.asarray(cache.images[row])))
-            print(f"[retime] view {i + 1}/{len(rows)} (row {row}): "
-                  + ", ".join(f"{n} {1e3 * per_view[n][-1]['total']:.1f} ms" for n in methods), file=sys.stderr)
+    for i, row in enumerate(rows):
+        # alternated run by run (a disturbance hits every method alike), or --blocked: each method's runs back to back
+        timed = time_methods(methods, np.asarray(cache.views[row], np.float64), repeats=a.repeats, warmup=a.warmup,
+                             order="blocked" if a.blocked else "interleaved")
+        for name, (image, med, info) in timed.items():
+            per_view[name].append(dict(med, c_share=info["c_share"]))
+            quality[name].append(image_quality(image, np.asarray(cache.images[row])))
+        print(f"[retime] view {i + 1}/{len(rows)} (row {row}): "
+              + ", ".join(f"{n} {1e3 * per_view[n][-1]['total']:.1f} ms" for n in methods), file=sys.stderr)
 
     stages = ["low_res_render", "importance", "selective_render", "decoder", "recnn", "total"]
     mean = {n: {k: 1e3 * float(np.mean([v.get(k, 0.0) for v in per_view[n]])) for k in stages} for n in methods}

@@ -80,6 +80,28 @@ def test_skip_empty_false_reaches_every_stage_that_times_and_no_stage_that_rende
         bp.pair_config(_cfg(skip_empty="no"), "flame_whole", "enhancenet")
 
 
+def test_the_evaluations_sharpness_candidates_reach_the_estimate_and_the_row_reads_the_kept_ones_curve():
+    """ims_sharpness in the evaluation's overrides: the estimate renders a curve per candidate (sharpness=...), and a
+    row whose ORP kept gamma = 2 takes its estimated_speedup from that curve; the paper's masks alone add nothing."""
+    from imls_lightning.estimate import RenderCurve
+
+    evaluate = '["repeats=10","ims_sharpness=[1.0,1.5,2.0]"]'
+    cfg = _cfg(evaluate=evaluate)
+    enh = bp.pair_config(cfg, "flame_whole", "enhancenet")
+    assert "sharpness=[1.0,1.5,2.0]" in bp.estimate_args(cfg, enh)
+    assert not any(a.startswith("sharpness=") for a in bp.estimate_args(_cfg(), bp.pair_config(_cfg(), "flame_whole", "enhancenet")))
+    assert bp.evaluated_sharpness(_cfg(evaluate='["ims_sharpness=[1.0]"]')) == []
+    paper = RenderCurve((0.5, 1.0), (150.0, 240.0)).to_dict()
+    sharp = RenderCurve((0.5, 1.0), (180.0, 240.0)).to_dict()
+    est = {"c_render_ms": 240.0, "nets_ms": 30.0, "recnn_ms": 15.0, "background_density": 0.25, "bilinear_db": 33.0,
+           "render_curve": paper, "by_sharpness": {"2": {"render_curve": sharp}}}
+    summ = _summary("flame_whole")
+    summ["methods"]["imls"]["c_share"] = 0.5
+    kept = {**summ, "orp": {**summ["orp"], "sharpness": 2.0}}
+    assert bp.csv_row(kept, est)["estimated_speedup"] == pytest.approx(255.0 / (30.0 + 180.0 + 15.0))
+    assert bp.csv_row(summ, est)["estimated_speedup"] == pytest.approx(255.0 / (30.0 + 150.0 + 15.0))
+
+
 def test_rows_timed_without_skipping_are_marked_in_both_tables():
     rows = [bp.csv_row(_summary("ct_head")), bp.csv_row({**_summary("flame_whole"), "skip_empty": False})]
     text = bp.section_text(rows, partial=False)

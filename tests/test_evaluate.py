@@ -7,6 +7,7 @@ minimum of 10 repeats) and the tests read what it wrote.
 from __future__ import annotations
 
 import csv
+import json
 import dataclasses
 import math
 import os
@@ -127,6 +128,23 @@ def test_stage_times_are_medians_of_at_least_ten_runs(run):
     for bad in ("repeats=9", "repeats=0", "repeats=true"):
         with pytest.raises(InputError, match=r"repeats=.*expected an integer >= 10"):
             evaluate(_compose(*_args(run["ck"], bad)))
+
+
+def test_timed_views_interleave_the_methods_by_default(run):
+    """timing=interleaved (the default): each timed view's methods run in rounds, so a load that comes and goes
+    slows them alike; the report and summary.json say so, and blocked (the order before the key) keeps the
+    directories of the evaluations made before it."""
+    from imls_lightning.evaluation import evaluate, parse_settings
+
+    assert "the methods interleaved run by run" in run["report"].read_text()
+    summ = json.loads((run["out"] / "summary.json").read_text())
+    assert summ["timing"] == "interleaved" and summ["repeats"] == 10
+    s = parse_settings(_compose(*_args(run["ck"])))
+    assert s.timing == "interleaved" and s.hashed()["timing"] == "interleaved"
+    blocked = parse_settings(_compose(*_args(run["ck"], "timing=blocked")))
+    assert blocked.timing == "blocked" and "timing" not in blocked.hashed()
+    with pytest.raises(InputError, match=re.escape("timing=shuffled: expected one of ['interleaved', 'blocked']")):
+        evaluate(_compose(*_args(run["ck"], "timing=shuffled")))
 
 
 def test_sweep_csv_means_and_las_iprs(run):

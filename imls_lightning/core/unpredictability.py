@@ -30,7 +30,7 @@ from data_gen.errors import InputError
 from data_gen.validate import check_number
 
 from ..models.pull_push import fill_c_image
-from .importance import lift_to_share, lifted_mask, normalize_importance
+from .importance import lift_to_share, lifted_mask, normalize_importance, sharpen_importance
 from .patterns import SamplingPattern, plastic_rank_pattern
 from .rank_patterns import blue_noise
 
@@ -88,7 +88,7 @@ def base_unpredictability(c: torch.Tensor, pattern: SamplingPattern, base: float
 
 
 def importance_mask(score: torch.Tensor, share: float, pattern: SamplingPattern, floor: float = 0.0,
-                    among: torch.Tensor | None = None) -> torch.Tensor:
+                    among: torch.Tensor | None = None, sharpness: float = 1.0) -> torch.Tensor:
     """The product's hard mask of ``share`` of the pattern from an importance ``(B, 1, n, n)``: normalized to
     the mean ``share``, lifted where the rescale falls short, thresholded against the plastic rank pattern;
     ``(B, 1, n, n)`` bool, the pattern's pixels only.
@@ -99,6 +99,9 @@ def importance_mask(score: torch.Tensor, share: float, pattern: SamplingPattern,
     floor on the background (ct_head's at 0.24 of the object's density).
 
     ``among``: ``(n, n)`` bool, the pixels the mask may choose (default: the pattern's); ``share`` is of those.
+
+    ``sharpness``: ``gamma`` in ``[1, 8]``, the floored importance sharpened as the IMS's mask head sharpens its
+    PIM' (:func:`~imls_lightning.core.importance.sharpen_importance`) before the rescale: 1 leaves it as it is.
     """
     s = check_number(share, "share", 0.0, 1.0, lo_open=True, what="a share of the C-Image in (0, 1]")
     f = check_number(floor, "floor", 0.0, what="a number >= 0 (importance relative to the mean)")
@@ -109,6 +112,7 @@ def importance_mask(score: torch.Tensor, share: float, pattern: SamplingPattern,
     if f > 0:
         mean = (score * valid).sum(dim=(1, 2, 3), keepdim=True) / valid.sum().clamp_min(1)
         score = score + f * mean.clamp_min(1e-12)  # a flat image: the floor alone, sampled evenly
+    score = sharpen_importance(score, sharpness, valid=valid)
     pim = normalize_importance(score, max(s, 0.01), valid=valid)
     mult, lift = lift_to_share(pim, s, valid=valid)
     return lifted_mask(pim, mult, lift, P) & valid

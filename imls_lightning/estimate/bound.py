@@ -175,12 +175,14 @@ def share_for_speedup(table: Sequence[dict[str, float]], target: float) -> float
     return max(ok) if ok else None
 
 
-def speedup_from_estimate(estimate: dict[str, Any], share: float) -> float:
+def speedup_from_estimate(estimate: dict[str, Any], share: float, sharpness: float = 1.0) -> float:
     """The bound at any ``share`` from an ``estimate.json``'s content (its measured render curve, or the
     render-cost model of an estimate made before the curve, and its stage times): a benchmark row's
-    ``estimated_speedup`` at the share it measured."""
+    ``estimated_speedup`` at the share it measured. ``sharpness``: the IMS mask sharpness the row's ORP kept;
+    its own curve (``by_sharpness``) when the estimate has one, else the paper's masks' curve."""
     try:
-        curve = estimate.get("render_curve")
+        own = (estimate.get("by_sharpness") or {}).get(f"{float(sharpness):g}") if float(sharpness) != 1.0 else None
+        curve = own["render_curve"] if own else estimate.get("render_curve")
         cost = RenderCurve(**curve) if curve else RenderCost(**estimate["render_cost"])
         return speedup_at(cost, share, c_render_ms=estimate["c_render_ms"], nets_ms=estimate["nets_ms"],
                           recnn_ms=estimate["recnn_ms"], background_density=estimate["background_density"])

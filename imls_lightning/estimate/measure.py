@@ -159,11 +159,12 @@ def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
 
 
 def silhouette_mask(on_object: np.ndarray, share: float, pattern: SamplingPattern, blur: float = 4.0,
-                    floor: float = 0.25) -> np.ndarray:
+                    floor: float = 0.25, sharpness: float = 1.0) -> np.ndarray:
     """The pattern pixels ``(K',)`` (FR raster indices) of a mask of the shape a trained IMS makes, before training:
     the object's silhouette on the C grid blurred by ``blur`` C-pixels (the IMS sees only the view, so its
     importance is smooth and spills onto the background next to the object), plus the ``floor`` everywhere,
-    made into the product's mask of ``share`` of the pattern (:func:`~imls_lightning.core.unpredictability.importance_mask`).
+    made into the product's mask of ``share`` of the pattern (:func:`~imls_lightning.core.unpredictability.importance_mask`),
+    sharpened by ``sharpness`` as the IMS's mask head sharpens its own (1: the paper's masks).
 
     ``on_object``: ``(K,)`` bool, the pattern's pixels on the object (:func:`object_pixels`).
 
@@ -184,22 +185,24 @@ def silhouette_mask(on_object: np.ndarray, share: float, pattern: SamplingPatter
     grid = torch.zeros(n * n)
     grid[:k] = torch.from_numpy(obj.astype(np.float32))
     score = gaussian_blur(grid.view(1, 1, n, n), float(blur))
-    keep = importance_mask(score, share, pattern, floor).flatten()[:k].numpy()
+    keep = importance_mask(score, share, pattern, floor, sharpness=sharpness).flatten()[:k].numpy()
     return pattern.indices.numpy()[keep]
 
 
 def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
-                 floor: float, repeats: int, fixed_ms: float, progress: Callable[[str], None] | None = None) -> RenderCurve:
+                 floor: float, repeats: int, fixed_ms: float, progress: Callable[[str], None] | None = None,
+                 sharpness: float = 1.0) -> RenderCurve:
     """The render of exactly a :func:`silhouette_mask`'s pixels at each share, median over the views (the
     renderer is warm: no untimed run); ``fixed_ms``: the cost of a call with no pixel (:attr:`RenderCost.fixed_ms`)."""
     times = np.zeros((len(views), len(shares)))
     t0 = time.perf_counter()
     for v, (view, meas) in enumerate(zip(views, measured)):
         for j, s in enumerate(shares):
-            pix = silhouette_mask(meas.on_object, s, pattern, blur, floor)
+            pix = silhouette_mask(meas.on_object, s, pattern, blur, floor, sharpness)
             times[v, j] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
         if progress is not None:
-            progress(f"render curve: view {v + 1}/{len(views)}, {len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
+            progress(f"render curve{'' if sharpness == 1.0 else f' (sharpness {sharpness:g})'}: view {v + 1}/{len(views)}, "
+                     f"{len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
     return RenderCurve(tuple(float(s) for s in shares), tuple(np.median(times, 0).tolist()), float(fixed_ms))
 
 

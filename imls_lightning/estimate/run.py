@@ -90,6 +90,8 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "background_density": float(cfg.background_density), "target": cfg.target,
         "needed_share": bool(cfg.get("needed_share", True)), "epsilon_db": cfg.get("epsilon_db", 1.0),
         "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette and per-pixel model",
+        # only when set: estimates made before the key keep their directories
+        **({"sharpness": _sharpness(cfg)} if _sharpness(cfg) != [1.0] else {}),
     })
 
 
@@ -144,6 +146,24 @@ def _blur(cfg: DictConfig) -> float:
                         what="a blur radius >= 0 in C-pixels (the smoothness of a trained IMS's mask)")
 
 
+def _sharpness(cfg: DictConfig) -> list[float]:
+    """``sharpness``: the IMS mask sharpnesses (a number or a list, each in [1, 8]) whose masks get a render curve of
+    their own; sorted, 1 (the paper's masks) always among them."""
+    from ..core.importance import check_sharpness
+
+    raw = cfg.get("sharpness", [1.0])
+    raw = OmegaConf.to_container(raw, resolve=True) if OmegaConf.is_config(raw) else raw
+    values = raw if isinstance(raw, (list, tuple)) else [raw]
+    if not values:
+        raise InputError(f"sharpness={raw}: expected a number or a list of numbers in [1, 8] (1: the paper's masks)")
+    return sorted({1.0, *(check_sharpness(v, "sharpness") for v in values)})
+
+
+def sharpness_key(gamma: float) -> str:
+    """The key of a sharpness in ``estimate.json``'s ``by_sharpness`` ("2", "1.5")."""
+    return f"{float(gamma):g}"
+
+
 def _target(cfg: DictConfig, pattern) -> float:
     t = cfg.get("target")
     if t is None:
@@ -176,6 +196,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     pattern = build_pattern(cfg.pattern, int(cfg.resolution))
     target = _target(cfg, pattern)
     cands = check_candidates(cfg)  # before any render
+    sharpnesses = _sharpness(cfg)
     blur = _blur(cfg)
     nets = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)  # bad sizes fail before any render
     renderer = make_renderer(scene, cfg.renderer)
@@ -197,6 +218,9 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     silhouette = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
                               repeats=max(1, min(repeats, 3)), fixed_ms=model.fixed_ms, progress=_say)
     cost = slower_render(silhouette, model, density)
+    by_sharpness = {sharpness_key(g): sharpened_bound(g, renderer, pattern, views, measured, model, blur, density, repeats,
+                                                      c_render_ms, nets_ms, nets_t["recnn_ms"], target)
+                    for g in sharpnesses if g != 1.0}
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
     modelled = bound_table(model, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
                            background_density=density)
@@ -230,11 +254,29 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "bound_modelled": [{"share": r["share"], "speedup": r["speedup"]} for r in modelled],
         "bound_silhouette": [{"share": r["share"], "speedup": r["speedup"]} for r in silhouette_table],
         "limit": [{"share": r["share"], "speedup": r["limit"]} for r in table],
+        # a render curve per IMS mask sharpness (conf/evaluate.yaml ims_sharpness): a sharpened mask keeps the
+        # object's dear rays and drops the cheap floor, so its pixels cost more each
+        "by_sharpness": by_sharpness,
         "target": target, "share_for_target": share_for_speedup(table, target),
         "share_for_2x": share_for_speedup(table, 2.0), "share_for_1_5x": share_for_speedup(table, 1.5),
         "contact_sheet": str(sheet), "seconds": time.perf_counter() - t_start,
         "options": {"half": opts.half, "channels_last": opts.channels_last, "device": opts.device},
     }
+
+
+def sharpened_bound(gamma: float, renderer, pattern, views, measured, model, blur: float, density: float, repeats: int,
+                    c_render_ms: float, nets_ms: float, recnn_ms: float, target: float) -> dict[str, Any]:
+    """The bound of masks sharpened by ``gamma``: the silhouette mask sharpened as the IMS's head sharpens its own,
+    rendered at each share, against the per-pixel model whose background density falls to ``density ** gamma`` (the
+    floor's importance ratio to the object's, raised to ``gamma``); the slower render at each share."""
+    curve = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
+                         repeats=max(1, min(repeats, 3)), fixed_ms=model.fixed_ms, progress=_say, sharpness=gamma)
+    cost = slower_render(curve, model, density ** gamma)
+    table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=recnn_ms)
+    return {"sharpness": float(gamma), "render_curve": cost.to_dict(), "silhouette_ms": list(curve.times_ms),
+            "background_density": density ** gamma,
+            "bound": [{"share": r["share"], "speedup": r["speedup"]} for r in table],
+            "share_for_2x": share_for_speedup(table, 2.0), "share_for_target": share_for_speedup(table, target)}
 
 
 def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern, scene, eval_frames: list,
@@ -337,6 +379,9 @@ def format_report(est: Mapping[str, Any]) -> str:
                      + "  (a mask of the trained IMS's shape, rendered)")
         lines.append("  per-px model " + " ".join(f"{r['speedup']:>5.2f}" for r in est["bound_modelled"])
                      + "  (object first, mean background cost); the speed-up takes the slower render")
+    for key, b in sorted((est.get("by_sharpness") or {}).items(), key=lambda kv: float(kv[0])):
+        lines.append(f"  γ = {key:<9}" + " ".join(f"{r['speedup']:>5.2f}" for r in b["bound"])
+                     + "  (the mask sharpened: its pixels are the dearer object's)")
     lead = est.get("recnn_lead")
     if lead:
         lines.append(f"  a RecNN trained {lead['steps']} steps on {lead['train_views']} views: {lead['recnn_db']:.2f} dB, "

@@ -1,15 +1,15 @@
-"""Measuring one method on one view: its stage times (medians, :func:`~imls_lightning.inference.pipeline.time_method`)
-and its image scored against the ground truth (PSNR, SSIM); the views measured (:func:`spaced`) and the
+"""Measuring methods on one view: their stage times (medians, :func:`~imls_lightning.inference.pipeline.time_methods`)
+and their images scored against the ground truth (PSNR, SSIM); the views measured (:func:`spaced`) and the
 view as the networks' input (:func:`view_tensor`)."""
 from __future__ import annotations
 
 import sys
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import torch
 
-from ..inference.pipeline import Method, time_method, view_tensor
+from ..inference.pipeline import Method, time_method, time_methods, view_tensor
 
 
 def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -27,12 +27,25 @@ def measure(method: Method, view: np.ndarray, truth: np.ndarray, repeats: int, w
             **run_args: Any) -> tuple[dict[str, Any], np.ndarray, dict[str, Any]]:
     """Time one method on one view and score it: ``(metric row fields, image, info)``."""
     image, med, info = time_method(method, view, repeats=repeats, warmup=warmup, **run_args)
+    return _row(med, image, info, truth), image, info
+
+
+def measure_methods(methods: Mapping[str, Method], view: np.ndarray, truth: np.ndarray, repeats: int, warmup: int,
+                    order: str = "interleaved") -> dict[str, tuple[dict[str, Any], np.ndarray, dict[str, Any]]]:
+    """Time several methods on one view in one ``order`` (:func:`~imls_lightning.inference.pipeline.time_methods`)
+    and score each: ``{name: (metric row fields, image, info)}``."""
+    timed = time_methods(methods, view, repeats=repeats, warmup=warmup, order=order)
+    return {name: (_row(med, image, info, truth), image, info) for name, (image, med, info) in timed.items()}
+
+
+def _row(med: Mapping[str, float], image: np.ndarray, info: Mapping[str, Any], truth: np.ndarray) -> dict[str, Any]:
+    """A metric row's fields: the stage medians in ms, the share of the pattern rendered, PSNR and SSIM."""
     q_psnr, q_ssim = image_quality(image, truth)
     row: dict[str, Any] = {f"{k}_ms": 1e3 * v for k, v in med.items() if k != "total"}
     row["total_ms"] = 1e3 * med["total"]
     row.update(ipr=info.get("ipr"), c_share=info.get("c_share"), rendered_pixels=info.get("rendered_pixels"),
                psnr=q_psnr, ssim=q_ssim)
-    return row, image, info
+    return row
 
 
 def spaced(n: int, k: int | None) -> np.ndarray:

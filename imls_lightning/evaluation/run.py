@@ -20,7 +20,7 @@ from ..config import file_hash, settings_hash, to_plain
 from ..inference.pipeline import FullRayCast, IMLPlusRecNN, IMLSRenderer, LASMethod, Method, RecNNAlone, pick_device
 from ..models.iml import FillDecoder
 from .baselines import blue_noise_method, equal_share, sparser_method
-from .measurement import measure, progress_bar, spaced, view_tensor
+from .measurement import measure_methods, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
 from .operating_point import (camera_distance, distance_means, gap_by_distance, orp_summary, paired_gap, product_path_orp,
                               record_operating_point)
@@ -163,8 +163,11 @@ def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[
         if p in grid_pos:
             grid[p] = {"truth": truth}
         timed = p in timed_pos
+        # a timed view's methods in one schedule (s.timing: rounds, or each method's runs back to back)
+        measured = measure_methods({name: methods[name] for name in order}, view, truth, s.repeats if timed else 1,
+                                   s.warmup if timed else 0, order=s.timing)
         for name in order:
-            fields, image, info = measure(methods[name], view, truth, s.repeats if timed else 1, s.warmup if timed else 0)
+            fields, image, info = measured[name]
             if not timed:  # one untimed run: its image counts, its stage times do not
                 fields.update({k: None for k in fields if k.endswith("_ms")})
             rows.append({"view": p, "row": r, "method": name, **fields})
@@ -264,13 +267,14 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
         "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "skip_empty": rcfg.get("skip_empty", True) is not False,
         "imls_mean": res["imls_mean"], "orp": orp,
-        "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "methods": rep.summarize_rows(rows),
+        "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "timing": s.timing,
+        "repeats": s.repeats, "methods": rep.summarize_rows(rows),
         "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass},
         indent=1, default=float))
     ctx = rep.ReportContext(
         out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,
         pattern=pattern.summary(), renderer=str(rcfg.get("name")), views=s.views, positions=[int(p) for p in positions],
-        trajectory_len=len(rows_all), repeats=s.repeats, warmup=s.warmup, options=vars(s.options), device=str(device),
+        trajectory_len=len(rows_all), repeats=s.repeats, warmup=s.warmup, timing=s.timing, options=vars(s.options), device=str(device),
         checkpoints={"IMS": s.ims, "RecNN": nets.recnn_source, "IML (IML + RecNN)": nets.iml_source, "LAS": s.las or "–"},
         iml_mean=float(nets.iml.mean), rows=rows, sweep_rows=sweep_rows, option_rows=res["option_rows"], order=res["order"],
         sweep_positions=sweep_pos, grid=res["grid"], pattern_obj=pattern, notes=res["notes"], las_ipr=res["las_ipr"],

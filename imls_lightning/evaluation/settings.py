@@ -113,6 +113,7 @@ class Settings:
     orp_paths: int = 4
     two_pass_base: float | None = None   # the two-pass sampler's first pass (share of C); None: not measured
     two_pass_floor: float = 0.25
+    timing: str = "interleaved"          # the methods' runs on a timed view: in rounds, or each method's back to back
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -128,6 +129,8 @@ class Settings:
             "orp_views": self.orp_views, "orp_views_seed": self.orp_views_seed,
             # only when set: evaluations made before the key existed keep their directories
             **({"timed_views": self.timed_views} if self.timed_views is not None else {}),
+            # blocked was the only order before the key: those evaluations keep their directories
+            **({"timing": self.timing} if self.timing != "blocked" else {}),
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
             **({"ims_sharpness": self.ims_sharpness} if self.ims_sharpness != [1.0] else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
@@ -177,8 +180,19 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_confidence=_confidence(cfg), orp_views=_orp_views(cfg),
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
-        orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg),
+        orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
     )
+
+
+def _timing(cfg) -> str:
+    """``timing``: how a timed view's methods are run (:data:`~imls_lightning.inference.pipeline.TIMING_ORDERS`)."""
+    from ..inference.pipeline import TIMING_ORDERS
+
+    v = OmegaConf.select(cfg, "timing", default="interleaved")
+    if v not in TIMING_ORDERS:
+        raise InputError(f"timing={v}: expected one of {list(TIMING_ORDERS)} (interleaved: each method once per round, "
+                         "so a passing load slows them alike)")
+    return str(v)
 
 
 def _two_pass(cfg) -> dict[str, Any]:

@@ -565,18 +565,55 @@ def time_method(method: Method, view, repeats: int = 10, warmup: int = 1,
     Raises:
         InputError: ``repeats`` < 1, ``warmup`` < 0, or a bad view.
     """
+    return time_methods({"method": method}, view, repeats, warmup, run_args={"method": run_args})["method"]
+
+
+#: how :func:`time_methods` orders the runs of several methods on one view
+TIMING_ORDERS = ("interleaved", "blocked")
+
+
+def time_methods(methods: Mapping[str, Method], view, repeats: int = 10, warmup: int = 1, order: str = "interleaved",
+                 run_args: Mapping[str, Mapping[str, Any]] | None = None
+                 ) -> dict[str, tuple[np.ndarray, dict[str, float], dict[str, Any]]]:
+    """Time several methods on one view, ``warmup + repeats`` runs each: ``{name: (image, medians, info)}`` as
+    :func:`time_method` returns them.
+
+    ``order="interleaved"`` runs them in rounds, each method once per round (a load that comes and goes
+    for a few seconds then slows every method alike, so their ratio holds); ``"blocked"`` runs each method's
+    runs back to back (its working set stays in the CPU's caches, as from one frame to the next of one
+    renderer). ``run_args``: per method name, the keyword arguments of each of its runs.
+
+    Example:
+        >>> from imls_lightning.inference.pipeline import FullRayCast, time_methods
+        >>> # timed = time_methods({"full": FullRayCast(renderer, 512), "alone": RecNNAlone(...)}, view)
+        >>> # timed["full"][1]["total"] / timed["alone"][1]["total"]   # the ratio of one run's medians
+
+    Raises:
+        InputError: ``repeats`` < 1, ``warmup`` < 0, an unknown ``order``, no method, or a bad view.
+    """
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats={repeats}: expected an integer >= 1")
     if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
         raise InputError(f"warmup={warmup}: expected an integer >= 0")
+    if order not in TIMING_ORDERS:
+        raise InputError(f"timing={order!r}: expected one of {list(TIMING_ORDERS)}")
+    if not methods:
+        raise InputError("methods: expected at least one method to time")
     v = validate_view(view)
-    runs: list[dict[str, float]] = []
-    last = None
+    args = {name: dict((run_args or {}).get(name) or {}) for name in methods}
+    n = warmup + repeats
+    schedule = ([(i, name) for i in range(n) for name in methods] if order == "interleaved" else
+                [(i, name) for name in methods for i in range(n)])
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name in methods}
+    last: dict[str, RenderResult] = {}
     with torch.inference_mode():
-        for i in range(warmup + repeats):
-            last = method.run(v, **run_args)
+        for i, name in schedule:
+            last[name] = methods[name].run(v, **args[name])
             if i >= warmup:
-                runs.append(last.timings)
-    keys = runs[0].keys()
-    med = {k: float(np.median([r[k] for r in runs])) for k in keys}
-    return last.image, med, last.info
+                runs[name].append(last[name].timings)
+    out = {}
+    for name in methods:
+        keys = runs[name][0].keys()
+        med = {k: float(np.median([r[k] for r in runs[name]])) for k in keys}
+        out[name] = (last[name].image, med, last[name].info)
+    return out

@@ -98,13 +98,14 @@ def _total(methods: Mapping[str, Any], name: str) -> float:
     return float(methods.get(name, {}).get("latency_ms", {}).get("total", math.nan))
 
 
-def estimate_cells(estimate: Mapping[str, Any] | None, c_share: Any) -> dict[str, Any]:
+def estimate_cells(estimate: Mapping[str, Any] | None, c_share: Any, sharpness: Any = 1.0) -> dict[str, Any]:
     """The :data:`ESTIMATE_COLUMNS` of a row from its pair's ``estimate.json`` content (empty without one);
-    ``estimated_speedup`` is the estimate's bound at the share the row measured."""
+    ``estimated_speedup`` is the estimate's bound at the share the row measured, on the render curve of the mask
+    sharpness its ORP kept (where the estimate has one)."""
     if not estimate:
         return {k: "" for k in ESTIMATE_COLUMNS}
     try:
-        est_speedup = speedup_from_estimate(estimate, float(c_share))
+        est_speedup = speedup_from_estimate(estimate, float(c_share), float(sharpness))
     except (TypeError, ValueError):
         est_speedup = math.nan
     return {"volume_dims": estimate.get("volume_dims", ""), "c_render_ms": estimate["c_render_ms"],
@@ -126,7 +127,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "gap_db": psnr_r - psnr_i, "recnn_ms": recnn_ms, "imls_ms": imls_ms,
         "speedup": recnn_ms / imls_ms if imls_ms > 0 else math.nan,
         "las_ms": _total(m, "las"), "las_psnr_db": las.get("psnr", math.nan), "full_ms": _total(m, "full"),
-        **estimate_cells(estimate, imls.get("c_share")),
+        **estimate_cells(estimate, imls.get("c_share"), orp.get("sharpness", 1.0)),
         "skip_empty": summary.get("skip_empty", True),
     }
 
@@ -489,7 +490,19 @@ def estimate_args(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence
                 sizes.append(f"{keys[key]}={str(o).split('=', 1)[1]}")
     return ["-m", "imls_lightning.estimate", f"scene={stages.scene}", *scene_overrides, f"recnn={stages.recnn}",
             f"renderer={stages.renderer}", f"runs_dir={stages.runs_dir}", *[str(o) for o in net], *sizes,
-            *timing_overrides(cfg), *override_list(cfg, "estimate")]
+            *timing_overrides(cfg), *evaluated_sharpness(cfg), *override_list(cfg, "estimate")]
+
+
+def evaluated_sharpness(cfg: DictConfig) -> list[str]:
+    """The estimate's ``sharpness`` override from the evaluation's ``ims_sharpness`` (its candidates get a render curve
+    each, so a row's estimate follows the sharpness its ORP keeps); ``[]`` for the paper's masks alone.
+
+    Example:
+        >>> evaluated_sharpness(OmegaConf.create({"evaluate": ["repeats=10", "ims_sharpness=[1.0,2.0]"]}))
+        ['sharpness=[1.0,2.0]']
+    """
+    found = [str(o).split("=", 1)[1] for o in override_list(cfg, "evaluate") if override_key(str(o)) == "ims_sharpness"]
+    return [] if not found or found[-1].strip() in ("[1.0]", "[1]", "1", "1.0") else [f"sharpness={found[-1]}"]
 
 
 def pair_estimate(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence[str] = ()) -> dict[str, Any] | None:

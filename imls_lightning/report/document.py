@@ -58,6 +58,7 @@ class ReportContext:
     grid: dict[int, dict[str, Any]] = field(default_factory=dict)
     pattern_obj: Any = None
     notes: list[str] = field(default_factory=list)
+    timing: str = "blocked"   # the order of a timed view's runs (inference.pipeline.time_methods)
     las_ipr: float | None = None
     machine: dict[str, str] = field(default_factory=dict)
     command: str = ""
@@ -192,7 +193,9 @@ def _header_lines(ctx: ReportContext) -> list[str]:
         ("renderer", ctx.renderer),
         ("views", f"{n_views} of the {ctx.trajectory_len} '{ctx.views}' views"
                   + (" (the test trajectory)" if ctx.views == "test" else "")),
-        ("timing", f"per view and stage: median of {ctx.repeats} runs after {ctx.warmup} warm-up run(s); tables: mean over views"),
+        ("timing", f"per view and stage: median of {ctx.repeats} runs after {ctx.warmup} warm-up run(s), "
+                   + ("the methods interleaved run by run" if ctx.timing == "interleaved" else "each method's runs back to back")
+                   + "; tables: mean over views"),
         ("device (networks)", mach.get("device", ctx.device)),
         ("inference options", opts),
         ("machine", machine or "–"),

@@ -105,6 +105,27 @@ def test_importance_mask_extremes_stay_finite_and_the_floor_samples_flat_regions
     assert m[0, 0, 0, 0] and abs(m.float().mean().item() - 0.1) < 0.02
 
 
+def test_importance_mask_sharpness_is_the_heads_formula_on_the_floored_importance():
+    """sharpness = gamma: the floored importance sharpened (core.importance.sharpen_importance, the IMS head's
+    formula) before the rescale, the same pixels as sharpening it by hand; gamma = 1 is the unsharpened mask; the
+    extremes stay a mask of the asked share."""
+    from imls_lightning.core.importance import sharpen_importance
+
+    p = downsample_pattern(64, 2)
+    g = torch.Generator().manual_seed(0)
+    score = torch.rand(2, 1, 32, 32, generator=g) ** 3
+    valid = p.valid
+    mean = (score * valid).sum(dim=(1, 2, 3), keepdim=True) / valid.sum()
+    by_hand = sharpen_importance(score + 0.25 * mean, 2.0, valid=valid)
+    assert torch.equal(importance_mask(score, 0.3, p, 0.25, sharpness=2.0), importance_mask(by_hand, 0.3, p, 0.0))
+    assert torch.equal(importance_mask(score, 0.3, p, 0.25, sharpness=1.0), importance_mask(score, 0.3, p, 0.25))
+    for extreme in (torch.zeros(1, 1, 32, 32), torch.full((1, 1, 32, 32), 1e-12), torch.full((1, 1, 32, 32), 1e6)):
+        m = importance_mask(extreme, 0.2, p, 0.25, sharpness=8.0)
+        assert abs(m.float().sum().item() / p.count - 0.2) < 0.02
+    with pytest.raises(InputError, match="sharpness=0.5"):
+        importance_mask(score, 0.3, p, 0.25, sharpness=0.5)
+
+
 def test_module_doctest():
     import doctest
 

@@ -109,6 +109,21 @@ def test_speedup_from_estimate_prefers_the_measured_curve():
     assert speedup_from_estimate({**est, "render_curve": None}, 0.37) == pytest.approx(direct_speedup(0.37, 240.0, 30.0, 15.0, 0.25))
 
 
+def test_speedup_from_estimate_reads_the_curve_of_the_kept_sharpness():
+    """A row whose ORP kept gamma = 2 reads the estimate's curve for gamma 2; a sharpness the estimate has no curve
+    for (an estimate made before by_sharpness) reads the paper's masks' curve."""
+    from imls_lightning.estimate import RenderCurve
+
+    paper = RenderCurve(shares=(0.5, 1.0), times_ms=(150.0, 240.0), fixed_ms=0.0)
+    sharp = RenderCurve(shares=(0.5, 1.0), times_ms=(180.0, 240.0), fixed_ms=0.0)
+    est = {"render_cost": COST.to_dict(), "render_curve": paper.to_dict(), "c_render_ms": 240.0, "nets_ms": 30.0,
+           "recnn_ms": 15.0, "background_density": 0.25, "by_sharpness": {"2": {"render_curve": sharp.to_dict()}}}
+    assert speedup_from_estimate(est, 0.5, 2.0) == pytest.approx(255.0 / (30.0 + 180.0 + 15.0), rel=1e-12)
+    assert speedup_from_estimate(est, 0.5, 1.0) == pytest.approx(255.0 / (30.0 + 150.0 + 15.0), rel=1e-12)
+    assert speedup_from_estimate(est, 0.5, 1.5) == speedup_from_estimate(est, 0.5)
+    assert speedup_from_estimate({k: v for k, v in est.items() if k != "by_sharpness"}, 0.5, 2.0) == speedup_from_estimate(est, 0.5)
+
+
 @pytest.mark.parametrize("shares,times", [((), ()), ((0.5, 0.2), (1.0, 2.0)), ((0.0, 1.0), (1.0, 2.0)), ((0.5,), (1.0, 2.0))])
 def test_exception_bad_render_curve(shares, times):
     from imls_lightning.estimate import RenderCurve

@@ -110,6 +110,26 @@ def test_silhouette_mask_keeps_the_object_then_its_surroundings_then_the_floor()
     assert "\n" not in str(e.value)
 
 
+def test_a_sharpened_silhouette_mask_moves_the_floor_onto_the_object():
+    """sharpness = gamma: the mask a sharpened IMS makes (the head's formula on the floored importance); at the
+    same share the far background keeps fewer pixels and the object more (all of it here) than at gamma = 1;
+    gamma = 1 is the paper's mask, pixel for pixel."""
+    p = downsample_pattern(128, 2)                      # 64^2 C
+    yy, xx = np.divmod(np.arange(p.count), 64)
+    on_object = (abs(yy - 32) < 12) & (abs(xx - 32) < 12)   # 14% of C, as flame_whole's object
+    dist = np.maximum(abs(yy - 32) - 12, abs(xx - 32) - 12)
+    idx = p.indices.numpy()
+    masks = {g: np.isin(idx, silhouette_mask(on_object, 0.25, p, blur=4.0, floor=0.25, sharpness=g)) for g in (1.0, 2.0, 3.0)}
+    assert np.array_equal(masks[1.0], np.isin(idx, silhouette_mask(on_object, 0.25, p, blur=4.0, floor=0.25)))
+    far = dist >= 12
+    for g in (1.0, 2.0, 3.0):
+        assert abs(masks[g].mean() - 0.25) < 0.01
+    assert masks[1.0][far].mean() > masks[2.0][far].mean() > masks[3.0][far].mean()
+    assert masks[1.0][on_object].mean() <= masks[2.0][on_object].mean() <= masks[3.0][on_object].mean()
+    with pytest.raises(InputError, match=r"sharpness=0.5: expected a number in \[1, 8\]"):
+        silhouette_mask(on_object, 0.25, p, sharpness=0.5)
+
+
 def _cli(tmp_path, *extra):
     env = dict(os.environ, IMLS_RUNS_DIR=str(tmp_path))
     # the needed share (20 masks rendered and rebuilt per view) only where a test asks for it: the suite's time
@@ -174,6 +194,36 @@ def test_cli_exception_bad_settings(tmp_path, override, match):
     assert r.returncode != 0
     last = r.stderr.strip().splitlines()[-1]
     assert match in last and "Traceback" not in r.stderr
+
+
+def test_cli_a_render_curve_per_mask_sharpness(tmp_path):
+    """sharpness=[2]: a second render curve, of the silhouette sharpened (by_sharpness["2"]), its bound the formula
+    on that curve, reported on stdout; the paper's curve and bound are the same as without it, and the default
+    ([1.0]) hashes to the directory of the estimates made before the key."""
+    plain = _cli(tmp_path)
+    assert plain.returncode == 0, plain.stderr
+    base = json.loads(Path(plain.stdout.strip().splitlines()[-1]).read_text())
+    assert base["by_sharpness"] == {} and "γ = " not in plain.stdout
+    r = _cli(tmp_path, "sharpness=[2]")
+    assert r.returncode == 0, r.stderr
+    path = Path(r.stdout.strip().splitlines()[-1])
+    assert path != Path(plain.stdout.strip().splitlines()[-1])
+    est = json.loads(path.read_text())
+    two = est["by_sharpness"]["2"]
+    assert two["sharpness"] == 2.0 and two["background_density"] == pytest.approx(0.25 ** 2)
+    from imls_lightning.estimate import RenderCost, speedup_from_estimate
+
+    model = RenderCost(**est["render_cost"])
+    alone = est["c_render_ms"] + est["recnn_ms"]
+    for b, t, sil, s in zip(two["bound"], two["render_curve"]["times_ms"], two["silhouette_ms"], two["render_curve"]["shares"]):
+        assert t == pytest.approx(max(sil, model.render_ms(s, 0.25 ** 2)), rel=1e-12)
+        assert b["speedup"] == pytest.approx(alone / (est["nets_ms"] + t + est["recnn_ms"]), rel=1e-9)
+    assert speedup_from_estimate(est, 0.3, 2.0) == pytest.approx(
+        alone / (est["nets_ms"] + np.interp(0.3, [0, *two["render_curve"]["shares"]],
+                                            [two["render_curve"]["fixed_ms"], *two["render_curve"]["times_ms"]]) + est["recnn_ms"]))
+    assert "γ = 2" in r.stdout and "render curve (sharpness 2): view 2/2" in r.stderr
+    bad = _cli(tmp_path, "sharpness=[1,9]")
+    assert bad.returncode != 0 and "sharpness=9: expected a number in [1, 8]" in bad.stderr.strip().splitlines()[-1]
 
 
 def test_cli_a_recnn_net_override_wins_over_the_default_sizes(tmp_path):

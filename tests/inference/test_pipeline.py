@@ -26,6 +26,7 @@ from imls_lightning.inference.pipeline import (
     las_mean_for_ipr,
     pick_device,
     time_method,
+    time_methods,
     to_uint8_image,
 )
 from imls_lightning.inference.checkpoints import load_task
@@ -272,6 +273,63 @@ def test_time_method_on_a_real_method(env):
     image, med, info = time_method(FullRayCast(env["renderer"], m, CPU), env["views"][0], repeats=10, warmup=1)
     assert set(med) == {"render", "total"} and all(v > 0 for v in med.values())
     assert image.shape == (m, m, 3) and info["rendered_pixels"] == m * m
+
+
+class Logged(Scripted):
+    """A :class:`Scripted` method that writes its name into a shared log at every run (tests the schedule)."""
+
+    def __init__(self, name, log):
+        super().__init__()
+        self.name, self.log = name, log
+
+    def run(self, view) -> RenderResult:
+        self.log.append(self.name)
+        return super().run(view)
+
+
+@pytest.mark.parametrize("order,expected", [
+    ("interleaved", ["a", "b"] * 4),
+    ("blocked", ["a"] * 4 + ["b"] * 4),
+])
+def test_time_methods_schedule(order, expected):
+    log = []
+    methods = {"a": Logged("a", log), "b": Logged("b", log)}
+    timed = time_methods(methods, [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=3, warmup=1, order=order)
+    assert log == expected
+    # each method's own runs 1..3 are timed, whatever the order: the same medians as time_method's
+    for name in "ab":
+        image, med, info = timed[name]
+        assert med == {"render": 2.0, "recnn": 98.0, "total": 100.0} and info == {"run": 3} and int(image[0, 0, 0]) == 3
+    alone = time_method(Scripted(), [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=3, warmup=1)
+    assert alone[1] == timed["a"][1]
+
+
+def test_time_methods_on_real_methods(env):
+    """Two real methods in one interleaved schedule: each image is that method's own (the full ray cast is
+    the renderer's image, whatever ran between its runs)."""
+    m = env["ims"].pattern.fr_size
+    full = FullRayCast(env["renderer"], m, CPU)
+    alone = RecNNAlone(env["renderer"], env["ims"].pattern, env["ims"].recnn, CPU)
+    timed = time_methods({"full": full, "alone": alone}, env["views"][0], repeats=10, warmup=1)
+    assert set(timed) == {"full", "alone"}
+    assert all(v > 0 for v in timed["full"][1].values()) and timed["alone"][1]["total"] > 0
+    assert np.array_equal(timed["full"][0], full.render(env["views"][0])[0])
+    assert timed["alone"][2]["c_share"] == 1.0
+
+
+@pytest.mark.parametrize("kw,needle", [
+    ({"order": "shuffled"}, "timing='shuffled'"),
+    ({"repeats": 0}, "repeats"),
+    ({"warmup": -1}, "warmup"),
+])
+def test_exception_time_methods_bad_arguments(kw, needle):
+    with pytest.raises(InputError, match=needle):
+        time_methods({"a": Scripted()}, [0, 0, 3, 0, 0, 0, 0, 1, 0], **kw)
+
+
+def test_exception_time_methods_none():
+    with pytest.raises(InputError, match="at least one method"):
+        time_methods({}, [0, 0, 3, 0, 0, 0, 0, 1, 0])
 
 
 # ---- errors ---------------------------------------------------------------------------------------
