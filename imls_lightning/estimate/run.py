@@ -89,8 +89,8 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
         "background_density": float(cfg.background_density), "target": cfg.target,
         "needed_share": bool(cfg.get("needed_share", True)), "epsilon_db": cfg.get("epsilon_db", 1.0),
-        "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette and per-pixel model",
-        # only when set: estimates made before the key keep their directories
+        "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette (each view a fraction of its pattern) and per-pixel model",
+        # only when set: the paper's masks alone hash as they did before the key
         **({"sharpness": _sharpness(cfg)} if _sharpness(cfg) != [1.0] else {}),
     })
 

@@ -130,6 +130,41 @@ def test_a_sharpened_silhouette_mask_moves_the_floor_onto_the_object():
         silhouette_mask(on_object, 0.25, p, sharpness=0.5)
 
 
+def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatch):
+    """Views of unequal cost (the close one 3x the far one): each view's times as fractions of its own whole
+    pattern, averaged, on the median view's whole pattern; a median per share jumped between views. A renderer
+    whose cost is known (per pixel, per view) stands for the timing."""
+    import imls_lightning.estimate.measure as measure
+
+    p = downsample_pattern(64, 2)
+    on_object = np.zeros(p.count, bool)
+    on_object[: p.count // 4] = True
+    per_px = {0: 1.0, 1: 3.0, 2: 2.0}   # ms per pixel of views 0, 1, 2
+
+    class Costed:
+        cost = 0.0
+
+        def render_pixels(self, view, m, pix):
+            self.cost = per_px[int(view)] * len(pix)
+
+    renderer = Costed()
+
+    def known(fn, repeats, warmup=0):
+        fn()
+        return renderer.cost
+
+    monkeypatch.setattr(measure, "median_ms", known)
+    z = np.zeros((2, 2, 3), np.uint8)
+    views = [ViewMeasurement(0.0, per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4, 30.0, z, z,
+                             on_object) for v in (0, 1, 2)]
+    shares = (0.25, 0.5, 1.0)
+    curve = measure.render_curve(renderer, p, [0, 1, 2], views, shares, blur=0.0, floor=0.25, repeats=1, fixed_ms=0.0)
+    kept = [len(silhouette_mask(on_object, s, p, 0.0, 0.25)) for s in shares]
+    # every view's fraction of its pattern is kept / count; on the median view's pattern (2 ms per pixel)
+    assert curve.times_ms == pytest.approx(tuple(2.0 * k for k in kept), rel=1e-12)
+    assert list(curve.times_ms) == sorted(curve.times_ms)
+
+
 def _cli(tmp_path, *extra):
     env = dict(os.environ, IMLS_RUNS_DIR=str(tmp_path))
     # the needed share (20 masks rendered and rebuilt per view) only where a test asks for it: the suite's time
