@@ -442,7 +442,7 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
 
     section = "\n".join(_orp_lines(orp, "test"))
     assert f"the point that ray-casts the smallest share of C on the search views was kept: **γ = {res.sharpness:.2f}**" in section
-    assert "| γ | ORP found | u | C-share (search views) | lifted |" in section
+    assert "| γ | ORP found | u | C-share (search views) | lifted | product (ms, search views) |" in section
     # the record travels with a copy of the checkpoint: its renderers sharpen their masks the same way
     ck = tmp_path / "ims.ckpt"
     shutil.copy(s.ims, ck)
@@ -455,6 +455,43 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
                      ("ims_sharpness=[1,nan]", "ims_sharpness=nan")):
         with pytest.raises(InputError, match=re.escape(msg)):
             parse_settings(_compose(*_args(run["ck"], bad)))
+
+
+def test_mask_sharpness_candidates_timed_on_the_search_views_the_fastest_kept(run):
+    """With the evaluation's renderer, the found candidates' products (mask at each point, its pixels ray-cast,
+    decoder, RecNN) are timed interleaved on ims_sharpness_views search views and the fastest is kept; the report
+    says so. ims_sharpness_views=0 keeps the smallest share (the rule without a renderer)."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp
+    from imls_lightning.report.document import _orp_lines
+
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    # a loose bound: both sharpnesses find a point, so there is a choice to time
+    cfg = _compose(*_args(run["ck"], "ims_sharpness=[1,3]", "orp_confidence=0.5", "epsilon_db=30", "ims_sharpness_views=2"))
+    s = parse_settings(cfg)
+    assert s.ims_sharpness_views == 2 and s.hashed()["ims_sharpness_views"] == 2
+    scene = build_scene(cfg.scene)
+    nets = load_networks(s, int(cfg.data.resolution))
+    res = product_path_orp(s, cfg, main, scene, nets, nets.ims_task.pattern, "cpu", future_views=2,
+                           renderer=make_renderer(scene, {"name": "numba"}))
+    cands = res.sharpness_candidates
+    assert all(c["found"] for c in cands) and all(c["ms"] > 0 for c in cands)
+    assert res.sharpness == min(cands, key=lambda c: (c["ms"], c["sharpness"]))["sharpness"]
+    section = "\n".join(_orp_lines(orp_summary(res, s, lifted=res.lifted), "test"))
+    assert "whose product ran fastest on the search views" in section and f"**γ = {res.sharpness:.2f}**" in section
+    by_share = parse_settings(_compose(*_args(run["ck"], "ims_sharpness=[1,3]", "orp_confidence=0.5", "epsilon_db=30",
+                                              "ims_sharpness_views=0")))
+    res0 = product_path_orp(by_share, cfg, main, scene, nets, nets.ims_task.pattern, "cpu", future_views=2,
+                            renderer=make_renderer(scene, {"name": "numba"}))
+    assert all(c["ms"] is None for c in res0.sharpness_candidates)
+    assert res0.sharpness == min(res0.sharpness_candidates, key=lambda c: (c["c_share"], c["sharpness"]))["sharpness"]
+    assert "ims_sharpness_views" not in parse_settings(_compose(*_args(run["ck"]))).hashed()
+    with pytest.raises(InputError, match="ims_sharpness_views"):
+        parse_settings(_compose(*_args(run["ck"], "ims_sharpness_views=-1")))
 
 
 @pytest.mark.slow  # a benchmark script (three ORP searches); the by-distance search itself is tested above

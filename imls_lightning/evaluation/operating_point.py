@@ -150,13 +150,18 @@ def judged(v: SearchViews, future_views: int | None) -> str:
     return "one new trajectory's passes" if v.passes is not None else f"{future_views or 'all'} new views"
 
 
-def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None):
+def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None,
+                     renderer=None):
     """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
     its bound is for the mean gap of ``future_views`` new views (the evaluated ones).
 
-    With several ``ims_sharpness`` candidates the whole search (and the bands' own values) runs at each, and the
-    point that ray-casts the smallest share of C is kept (the smaller sharpness on a tie); ``result.sharpness``
-    is its sharpness, ``result.sharpness_candidates`` what each reached. The IMS task's masks then stay at it
+    With several ``ims_sharpness`` candidates the whole search (and the bands' own values) runs at each. The point
+    kept is the one whose product (IMS mask, exactly its pixels ray-cast by ``renderer``, decoder, RecNN) runs
+    fastest on ``ims_sharpness_views`` of the search views, the candidates interleaved run by run
+    (:func:`candidate_times`): a sharper mask keeps the object's rays, which march further, so its share of C
+    understates its cost. Without a renderer, or with ``ims_sharpness_views=0``, the one that ray-casts the
+    smallest share of C (the smaller sharpness on a tie). ``result.sharpness`` is its sharpness,
+    ``result.sharpness_candidates`` what each reached. The IMS task's masks then stay at it
     (:attr:`~imls_lightning.tasks.ims.IMSTask.mask_sharpness`) for every method the evaluation builds."""
     v = search_views(s, cfg, cache, scene)
     print(f"[evaluate] ORP: searched on {v.where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
@@ -170,15 +175,42 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
         results.append(_orp_at_sharpness(s, v, nets, pattern, device, future_views))
         results[-1].sharpness = gamma
     found = [r for r in results if r.found]
-    best = min(found, key=lambda r: (operating_share(r), r.sharpness)) if found else results[0]
+    times = (candidate_times(found, v, nets, pattern, renderer, s.options, s.ims_sharpness_views)
+             if len(found) > 1 and renderer is not None and s.ims_sharpness_views > 0 else {})
+    if times:
+        best = min(found, key=lambda r: (times[r.sharpness], r.sharpness))
+    else:
+        best = min(found, key=lambda r: (operating_share(r), r.sharpness)) if found else results[0]
     best.sharpness_candidates = [{"sharpness": r.sharpness, "found": r.found, "mean": r.mean, "c_share": operating_share(r),
-                                  "lift": r.lifted} for r in results] if len(results) > 1 else None
+                                  "lift": r.lifted, "ms": times.get(r.sharpness)} for r in results] if len(results) > 1 else None
     if len(results) > 1:
         print("[evaluate] ORP by mask sharpness: " + "; ".join(
-            f"{c['sharpness']:g}: " + (f"{c['c_share']:.1%} of C" if c["found"] else "none") for c in best.sharpness_candidates)
-            + f"; kept {best.sharpness:g}", file=sys.stderr, flush=True)
+            f"{c['sharpness']:g}: " + (f"{c['c_share']:.1%} of C" + (f", {c['ms']:.0f} ms" if c["ms"] is not None else "")
+                                       if c["found"] else "none") for c in best.sharpness_candidates)
+            + f"; kept {best.sharpness:g}" + (f" (the fastest on {s.ims_sharpness_views} search views)" if times else
+                                             " (the smallest share of C)"), file=sys.stderr, flush=True)
     ims.mask_sharpness = best.sharpness
     return best
+
+
+def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, pattern, renderer, opts, views: int,
+                    repeats: int = 3) -> dict[float, float]:
+    """Each found candidate's product at its operating point (its sharpness, mean value or bands, lift), timed on
+    ``views`` of the search views spaced along them, the candidates interleaved run by run
+    (:func:`~imls_lightning.inference.pipeline.time_methods`): ``{sharpness: mean over the views of the median total ms}``."""
+    from ..inference.pipeline import IMLSRenderer, time_methods
+
+    ims = nets.ims_task
+    products = {r.sharpness: IMLSRenderer(renderer, pattern, ims.mask_head.with_sharpness(r.sharpness), ims.decoder, nets.recnn,
+                                          opts, mean=float(r.mean), lift=bool(r.lifted), by_distance=distance_means(r))
+                for r in found}
+    rows = [int(v.rows[i]) for i in spaced(len(v.rows), views)]
+    per_view: dict[float, list[float]] = {g: [] for g in products}
+    for row in rows:
+        timed = time_methods(products, np.asarray(v.cache.views[row], np.float64), repeats=repeats, warmup=1)
+        for g, (_, med, _) in timed.items():
+            per_view[g].append(1e3 * med["total"])
+    return {g: float(np.mean(t)) for g, t in per_view.items()}
 
 
 def operating_share(result) -> float | None:

@@ -85,12 +85,14 @@ def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
     return cache, rows_all, spaced(len(rows_all), s.max_views)
 
 
-def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str]):
-    """The ORP on the product path (validation views): ``(result | None, mean IML/S runs at | None, lift)``."""
+def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer=None):
+    """The ORP on the product path (validation views): ``(result | None, mean IML/S runs at | None, lift)``;
+    ``renderer`` times the mask sharpnesses' operating points when there are several."""
     ims = nets.ims_task
     orp_result, imls_mean, lift = None, None, s.ims_lift is True  # lift: IML/S's masks lifted to their share
     if s.orp and ims.target == "pim":
-        orp_result = product_path_orp(s, cfg, cache, scene, nets, ims.pattern, device, future_views=len(positions))
+        orp_result = product_path_orp(s, cfg, cache, scene, nets, ims.pattern, device, future_views=len(positions),
+                                      renderer=renderer)
         lift = orp_result.lifted
         if orp_result.found:
             imls_mean = float(orp_result.mean)
@@ -207,7 +209,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     renderer = make_renderer(scene, rcfg)
     device = pick_device(s.options.device)
     notes: list[str] = []
-    orp_result, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes)
+    orp_result, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
     two_pass = None if s.two_pass_base is None else two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device,
                                                                    future_views=len(positions))
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,

@@ -43,7 +43,8 @@ def _lift(cfg) -> bool | str:
 
 def _sharpness(cfg) -> list[float]:
     """``ims_sharpness``: the IMS mask sharpnesses the ORP is searched at (a number or a list, each in [1, 8];
-    the one whose operating point ray-casts the smallest share of C is kept). Needs the IMS's ``target=pim``."""
+    the one whose operating point runs fastest on ``ims_sharpness_views`` search views is kept, or with 0 the one
+    that ray-casts the smallest share of C). Needs the IMS's ``target=pim``."""
     v = to_plain(OmegaConf.select(cfg, "ims_sharpness", default=None))
     if v is None:
         return [1.0]
@@ -114,6 +115,7 @@ class Settings:
     two_pass_base: float | None = None   # the two-pass sampler's first pass (share of C); None: not measured
     two_pass_floor: float = 0.25
     timing: str = "interleaved"          # the methods' runs on a timed view: in rounds, or each method's back to back
+    ims_sharpness_views: int = 6         # search views the candidates' operating points are timed on (0: by share of C)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -133,6 +135,7 @@ class Settings:
             **({"timing": self.timing} if self.timing != "blocked" else {}),
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
             **({"ims_sharpness": self.ims_sharpness} if self.ims_sharpness != [1.0] else {}),
+            **({"ims_sharpness_views": self.ims_sharpness_views} if len(self.ims_sharpness) > 1 else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
@@ -181,6 +184,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_views_seed=_int(cfg, "orp_views_seed", 0, allow_none=True),
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
         orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
+        ims_sharpness_views=_int(cfg, "ims_sharpness_views", 0) if OmegaConf.select(cfg, "ims_sharpness_views") is not None else 6,
     )
 
 

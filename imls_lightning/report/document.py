@@ -243,14 +243,20 @@ def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
                  f"alone on {where}, judged by {rule}; IML/S runs at its trained mean.")
     L.append("")
     if o.get("sharpness_candidates"):
+        cands = o["sharpness_candidates"]
+        timed = any(c.get("ms") is not None for c in cands)
+        rule = ("whose product ran fastest on the search views (each found point's IMS mask, exactly its pixels "
+                "ray-cast, decoder, RecNN; the candidates interleaved run by run)" if timed else
+                "that ray-casts the smallest share of C on the search views")
         L.append(f"**Mask sharpness** (`ims_sharpness`): the search above ran at each sharpness γ (the IMS's PIM' raised to "
-                 "γ per image at the same mean before the rescale), and the point that ray-casts the smallest share of C "
-                 f"on the search views was kept: **γ = {fmt(o.get('sharpness', 1.0), 2)}**.")
+                 f"γ per image at the same mean before the rescale), and the point {rule} was kept: "
+                 f"**γ = {fmt(o.get('sharpness', 1.0), 2)}**.")
         L.append("")
-        L.append(md_table(["γ", "ORP found", "u", "C-share (search views)", "lifted"],
+        L.append(md_table(["γ", "ORP found", "u", "C-share (search views)", "lifted", "product (ms, search views)"],
                           [[fmt(c["sharpness"], 2), "yes" if c["found"] else "no", fmt(c["mean"], 4) if c["found"] else "–",
-                            fmt_pct(c["c_share"]) if c["found"] else "–", "yes" if c.get("lift") else "no"]
-                           for c in o["sharpness_candidates"]], "rrrrr"))
+                            fmt_pct(c["c_share"]) if c["found"] else "–", "yes" if c.get("lift") else "no",
+                            fmt(c["ms"], 1) if c.get("ms") is not None else "–"]
+                           for c in cands], "rrrrrr"))
         L.append("")
     if o["found"] and o.get("by_distance"):
         b = o["by_distance"]
