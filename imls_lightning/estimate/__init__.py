@@ -6,7 +6,8 @@ Before any cache or training, on a few random views of a scene at paper scale, i
 * the cost per C-pixel on the object and on the background (an importance mask keeps the object),
 * the render of exactly the pixels of a mask of the shape a trained IMS makes (the object's silhouette,
   blurred, with a floor) at each share of C (:func:`.measure.render_curve`); the bound takes the slower
-  of it and the per-pixel model at each share (:func:`.bound.slower_render`),
+  of it and the per-pixel model at each share (:func:`.bound.slower_render`); with ``sharpness``, the same
+  for each IMS mask sharpness (``by_sharpness``),
 * the latency of untrained networks of the chosen sizes (IMS, IML decoder, RecNN),
 * the classical C -> FR upsampling's PSNR (bilinear; pull-push for the foveal pattern): how much
   detail lives at the pixel scale, i.e. whether a RecNN leaves error an importance mask can hide,
@@ -22,8 +23,10 @@ Example:
     >>> share_for_speedup(bound_table(cost, c_render_ms=336.0, nets_ms=32.0, recnn_ms=16.0), 2.0)
     0.2
 """
-from .bound import SHARES, RenderCost, RenderCurve, slower_render, bound_table, share_for_speedup, speedup_at, speedup_from_estimate
+from .bound import (SHARES, RenderCost, RenderCurve, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at,
+                    speedup_from_estimate)
 from .run import DEFAULT_TARGETS, RESULT, format_report, read_estimate, run_estimate
 
-__all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "bound_table", "share_for_speedup", "speedup_at", "speedup_from_estimate",
+__all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "bound_table", "share_for_speedup", "sharpness_key", "speedup_at",
+           "speedup_from_estimate",
            "DEFAULT_TARGETS", "RESULT", "format_report", "read_estimate", "run_estimate"]

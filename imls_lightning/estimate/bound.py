@@ -175,13 +175,23 @@ def share_for_speedup(table: Sequence[dict[str, float]], target: float) -> float
     return max(ok) if ok else None
 
 
+def sharpness_key(gamma: float) -> str:
+    """The key of an IMS mask sharpness in ``estimate.json``'s ``by_sharpness``.
+
+    Example:
+        >>> sharpness_key(2.0), sharpness_key(1.5)
+        ('2', '1.5')
+    """
+    return f"{float(gamma):g}"
+
+
 def speedup_from_estimate(estimate: dict[str, Any], share: float, sharpness: float = 1.0) -> float:
     """The bound at any ``share`` from an ``estimate.json``'s content (its measured render curve, or the
     render-cost model of an estimate made before the curve, and its stage times): a benchmark row's
     ``estimated_speedup`` at the share it measured. ``sharpness``: the IMS mask sharpness the row's ORP kept;
     its own curve (``by_sharpness``) when the estimate has one, else the paper's masks' curve."""
     try:
-        own = (estimate.get("by_sharpness") or {}).get(f"{float(sharpness):g}") if float(sharpness) != 1.0 else None
+        own = (estimate.get("by_sharpness") or {}).get(sharpness_key(sharpness)) if float(sharpness) != 1.0 else None
         curve = own["render_curve"] if own else estimate.get("render_curve")
         cost = RenderCurve(**curve) if curve else RenderCost(**estimate["render_cost"])
         return speedup_at(cost, share, c_render_ms=estimate["c_render_ms"], nets_ms=estimate["nets_ms"],
@@ -191,4 +201,5 @@ def speedup_from_estimate(estimate: dict[str, Any], share: float, sharpness: flo
                          "imls_lightning.estimate)") from None
 
 
-__all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "speedup_at", "bound_table", "share_for_speedup", "speedup_from_estimate"]
+__all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "speedup_at", "bound_table", "share_for_speedup", "sharpness_key",
+           "speedup_from_estimate"]

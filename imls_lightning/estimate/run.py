@@ -23,7 +23,7 @@ from data_gen.validate import check_integer, check_number
 
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
-from .bound import SHARES, bound_table, share_for_speedup, slower_render, speedup_at
+from .bound import SHARES, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
 from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, render_curve,
                       upsample_c_image, upsampler_name)
 from .needed_share import NeededShare, needed_share
@@ -157,11 +157,6 @@ def _sharpness(cfg: DictConfig) -> list[float]:
     if not values:
         raise InputError(f"sharpness={raw}: expected a number or a list of numbers in [1, 8] (1: the paper's masks)")
     return sorted({1.0, *(check_sharpness(v, "sharpness") for v in values)})
-
-
-def sharpness_key(gamma: float) -> str:
-    """The key of a sharpness in ``estimate.json``'s ``by_sharpness`` ("2", "1.5")."""
-    return f"{float(gamma):g}"
 
 
 def _target(cfg: DictConfig, pattern) -> float:
