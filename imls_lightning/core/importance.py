@@ -24,7 +24,7 @@ smoothly, for any PIM whose mean is comparable to or below ``delta`` (1e-7): suc
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Any, Optional
 
 import torch
 from torch import nn
@@ -39,6 +39,7 @@ __all__ = [
     "delegated",
     "normalize_importance",
     "check_sharpness",
+    "check_sharpnesses",
     "sharpen_importance",
     "SharpenImportance",
     "lift_to_share",
@@ -159,6 +160,19 @@ def check_sharpness(sharpness: float, name: str = "sharpness") -> float:
         2.0
     """
     return check_number(sharpness, name, SHARPNESS_RANGE[0], SHARPNESS_RANGE[1], what="a number in [1, 8] (1: the paper's mask)")
+
+
+def check_sharpnesses(values: Any, name: str = "sharpness") -> list[float]:
+    """Validate a number or a list of mask sharpnesses (:func:`check_sharpness` each): sorted, without repeats.
+
+    Example:
+        >>> check_sharpnesses([2, 1, 2.0]), check_sharpnesses(3)
+        ([1.0, 2.0], [3.0])
+    """
+    items = list(values) if isinstance(values, (list, tuple)) else [values]
+    if not items:
+        raise InputError(f"{name}={values}: expected a number or a list of numbers in [1, 8] (1: the paper's mask)")
+    return sorted({check_sharpness(x, name) for x in items})
 
 
 def sharpen_importance(pim: torch.Tensor, sharpness: float, valid: Optional[torch.Tensor] = None,

@@ -149,14 +149,11 @@ def _blur(cfg: DictConfig) -> float:
 def _sharpness(cfg: DictConfig) -> list[float]:
     """``sharpness``: the IMS mask sharpnesses (a number or a list, each in [1, 8]) whose masks get a render curve of
     their own; sorted, 1 (the paper's masks) always among them."""
-    from ..core.importance import check_sharpness
+    from ..core.importance import check_sharpnesses
 
     raw = cfg.get("sharpness", [1.0])
     raw = OmegaConf.to_container(raw, resolve=True) if OmegaConf.is_config(raw) else raw
-    values = raw if isinstance(raw, (list, tuple)) else [raw]
-    if not values:
-        raise InputError(f"sharpness={raw}: expected a number or a list of numbers in [1, 8] (1: the paper's masks)")
-    return sorted({1.0, *(check_sharpness(v, "sharpness") for v in values)})
+    return sorted({1.0, *check_sharpnesses(raw, "sharpness")})
 
 
 def _target(cfg: DictConfig, pattern) -> float:

@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.errors import InputError
 
 from ..config import to_plain
-from ..core.importance import check_sharpness
+from ..core.importance import check_sharpnesses
 from ..inference.pipeline import NetOptions
 
 MIN_REPEATS = 10
@@ -46,12 +46,7 @@ def _sharpness(cfg) -> list[float]:
     the one whose operating point runs fastest on ``ims_sharpness_views`` search views is kept, or with 0 the one
     that ray-casts the smallest share of C). Needs the IMS's ``target=pim``."""
     v = to_plain(OmegaConf.select(cfg, "ims_sharpness", default=None))
-    if v is None:
-        return [1.0]
-    items = v if isinstance(v, list) else [v]
-    if not items:
-        raise InputError("ims_sharpness=[]: expected a number or a list of numbers in [1, 8] (1: the paper's mask)")
-    return sorted({check_sharpness(x, "ims_sharpness") for x in items})
+    return [1.0] if v is None else check_sharpnesses(v, "ims_sharpness")
 
 
 def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
