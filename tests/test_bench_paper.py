@@ -66,6 +66,16 @@ def test_pair_config_smoke_crop_net_and_las_per_recnn():
     assert bp.pairs(_cfg(scene="flame", recnns="[enhancenet]")) == [("flame", "enhancenet")]
 
 
+def test_the_decoder_stage_trains_on_the_evaluations_mask_sharpness():
+    """stages.ims_decoder: the IMS's decoder trained further on the masks the evaluation searches (its ims_sharpness);
+    without an ims_sharpness the stage's own (or the default, 1); null skips the stage."""
+    enh = bp.pair_config(_cfg(evaluate='["repeats=10","ims_sharpness=[2.0,3.0]"]'), "flame_whole", "enhancenet")
+    assert "model.decoder_sharpness=[2.0,3.0]" in enh.stages.ims_decoder and "model.decoder_lift=true" in enh.stages.ims_decoder
+    plain = bp.pair_config(_cfg(), "flame_whole", "enhancenet")
+    assert plain.stages.ims_decoder is not None and not any("decoder_sharpness" in a for a in plain.stages.ims_decoder)
+    assert bp.pair_config(_cfg(**{"stages.ims_decoder": "null"}), "flame_whole", "enhancenet").stages.ims_decoder is None
+
+
 def test_skip_empty_false_reaches_every_stage_that_times_and_no_stage_that_renders_pixels():
     """skip_empty=false: the estimate, the evaluation and the adaptive mean time a ray caster without empty-space
     skipping; the cache and the training render as before (the same pixels, so the same caches and runs)."""
@@ -189,9 +199,16 @@ def test_cli_dry_run_prints_every_stage_command():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
-    assert len(lines) == 10 and lines[1].startswith("python -m data_gen scene=ct_head data=paper_cpu")
+    assert len(lines) == 11 and lines[1].startswith("python -m data_gen scene=ct_head data=paper_cpu")
     assert lines[3] == lines[2] + " pattern.factor=4"  # the RecNN on a sparser pattern, trained the same way
     assert "checkpoints.recnn_sparser=" in lines[-2]
+    # the IMS's decoder stage right after the IMS, from its checkpoint, and the evaluation runs its checkpoint
+    ims, decoder = lines[5], lines[6]
+    assert "model=ims" in ims and "init_checkpoint" not in ims and "model.decoder_every=4" in ims
+    assert decoder.startswith(ims.split(" model.decoder_lr=")[0]) and "'model.init_checkpoint=<IMS>'" in decoder
+    assert all(k in decoder for k in ("model.train_generator=false", "model.decoder_lift=true", "model.decoder_lr=3.0e-4",
+                                      "'model.decoder_mean_range=[0.1,0.5]'", "model.monitor=val/decoder_fr_psnr"))
+    assert "'checkpoints.ims=<IMS-decoder>'" in lines[-2]
     # the before-training estimate first, with the sizes the stages train
     assert lines[0].startswith("python -m imls_lightning.estimate scene=ct_head recnn=enhancenet renderer=numba")
     assert all(k in lines[0] for k in ("recnn.net.channels=16", "recnn.net.blocks=4", "iml.depth=4", "iml.base_channels=8",
@@ -208,7 +225,7 @@ def test_cli_gpu_schedule_train_only_prints_the_training_stages():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.strip().splitlines()
-    assert len(lines) == 7 and not any("imls_lightning.evaluate" in ln for ln in lines)
+    assert len(lines) == 8 and not any("imls_lightning.evaluate" in ln for ln in lines)  # the IMS decoder stage included
     iml = next(ln for ln in lines if "model=iml" in ln and "importance=uniform" not in ln)
     assert "data.crop=128" in iml and "trainer.max_epochs=40" in iml and "test=false" in iml
 

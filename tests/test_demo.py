@@ -246,6 +246,20 @@ def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
         sparser_overrides(cfg)
 
 
+def test_ims_decoder_overrides_are_the_ims_stages_with_the_generator_frozen():
+    from omegaconf import OmegaConf
+
+    from imls_lightning.pipelines import ims_decoder_overrides
+
+    cfg = OmegaConf.create({"scene": "ct_head", "stages": {"ims": ["model.decoder_lr=1e-3", "trainer.max_epochs=5", "seed=1"],
+                                                           "ims_decoder": ["trainer.max_epochs=2"]},
+                            "scene_stages": {"ct_head": {"ims": ["seed=4"], "ims_decoder": ["model.decoder_lr=3e-4"]}}})
+    # the IMS stage's (its scene entries included), the generator frozen, then the decoder stage's replacing the same keys
+    assert ims_decoder_overrides(cfg) == ["model.decoder_lr=3e-4", "trainer.max_epochs=2", "seed=4", "model.train_generator=false"]
+    cfg.stages.ims_decoder = ["model.train_generator=true"]  # the stage's own keys come last
+    assert ims_decoder_overrides(cfg)[-1] == "model.train_generator=true"
+
+
 @pytest.mark.parametrize("kind", ["enhancenet", "fovolnet"])
 @pytest.mark.parametrize("resolution", [128, 512])
 def test_every_kinds_sparser_pattern_builds_with_a_quarter_or_half_of_c(kind, resolution):

@@ -83,30 +83,34 @@ _HALF_IS_FASTER: dict[str, bool] = {}
 def half_is_faster(device: torch.device) -> bool:
     """Whether reduced-precision autocast (bfloat16 on the CPU, float16 on CUDA) beats float32 here.
 
-    Measured once per process and device on a small convolution stack, median of 5 runs each. A CPU
-    with AVX-512 BF16 or AMX runs bfloat16 about 2x faster; an AVX2-only CPU emulates it, 40-90x
-    slower (measured on this project's machines): ``options.half: auto`` asks this instead of assuming.
+    Measured once per process and device on a small convolution stack (32 channels at 128², the width and size of
+    this project's decoders), the two precisions interleaved run by run over 9 rounds after a warm-up of each, by
+    their medians: a load that comes and goes slows both alike. A CPU with AVX-512 BF16 or AMX runs bfloat16 about
+    1.5-2x faster; an AVX2-only CPU emulates it, 40-90x slower (measured on this project's machines):
+    ``options.half: auto`` asks this instead of assuming. (Timed back to back on a 16-channel 96² stack, the answer
+    flipped between runs on the AMX machine: an evaluation ran float32 where its estimate had run bfloat16.)
     """
     key = str(device)
     if key not in _HALF_IS_FASTER:
-        net = torch.nn.Sequential(*[torch.nn.Conv2d(16, 16, 3, padding=1) for _ in range(3)]).to(device).eval()
-        x = torch.rand(1, 16, 96, 96, device=device)
+        net = torch.nn.Sequential(*[torch.nn.Conv2d(32, 32, 3, padding=1) for _ in range(3)]).to(device).eval()
+        x = torch.rand(1, 32, 128, 128, device=device)
         opts = NetOptions(device=key, half=True)
 
-        def median(half: bool) -> float:
-            times = []
+        def once(half: bool) -> float:
             with torch.inference_mode():
-                for i in range(6):
-                    t0 = time.perf_counter()
-                    with opts.autocast(device) if half else contextlib.nullcontext():
-                        net(x)
-                    if device.type == "cuda":
-                        torch.cuda.synchronize(device)
-                    if i:
-                        times.append(time.perf_counter() - t0)
-            return float(np.median(times))
+                t0 = time.perf_counter()
+                with opts.autocast(device) if half else contextlib.nullcontext():
+                    net(x)
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                return time.perf_counter() - t0
 
-        _HALF_IS_FASTER[key] = median(True) < median(False)
+        once(True), once(False)  # warm-up: the first call of each precision builds its kernels
+        times: dict[bool, list[float]] = {True: [], False: []}
+        for _ in range(9):
+            for half in (True, False):
+                times[half].append(once(half))
+        _HALF_IS_FASTER[key] = float(np.median(times[True])) < float(np.median(times[False]))
     return _HALF_IS_FASTER[key]
 
 

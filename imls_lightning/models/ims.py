@@ -337,10 +337,12 @@ class IMSMaskHead(nn.Module):
         im = (pim_u > P) | saturated
         if lift:
             # above the trained mean only (below it nothing saturates and the IM stays the paper's): m = 1,
-            # f = 0 add nothing, so where the rescale reaches u the IM is bit-for-bit the rescaled one
+            # f = 0 add nothing, so where the rescale reaches u the IM is bit-for-bit the rescaled one. A sharpened
+            # PIM' saturates at any u (gamma = 3 on flame_whole: 14% of C at u = 0.2, then 20% at u = 0.201), so
+            # its masks are lifted at every u: the share then follows u without a jump
             x = torch.where(saturated, pim_u.clamp_min(1.0), pim_u)
             m, f = lift_to_share(x, ut.flatten(), valid)
-            above = (scale > 1.0).to(m.device)
+            above = (scale > 1.0).to(m.device) if self.sharpness == 1.0 else torch.ones_like(scale, dtype=torch.bool, device=m.device)
             m = torch.where(above, m, torch.ones_like(m))
             f = torch.where(above, f, torch.zeros_like(f))
             im = im | lifted_mask(x, m, f, P)

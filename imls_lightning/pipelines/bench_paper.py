@@ -58,14 +58,16 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
     crop = OmegaConf.select(cfg, f"crop.{recnn}")
     crop_args = [f"data.crop={int(crop)}"] if crop else []
     stages: dict[str, Any] = {}
-    for name in ("recnn", "iml", "blue_noise", "ims", "las"):
+    for name in ("recnn", "iml", "blue_noise", "ims", "ims_decoder", "las"):
         skip = name == "las" and recnn not in [str(r) for r in (cfg.get("las_with") or [])]
-        if skip or (OmegaConf.select(cfg, f"stages.{name}") is None and name in ("blue_noise", "las")):
+        if skip or (OmegaConf.select(cfg, f"stages.{name}") is None and name in ("blue_noise", "ims_decoder", "las")):
             stages[name] = None  # skipped, as in the demo
             continue
         extra = crop_args if name in ("recnn", "iml", "blue_noise") else []
         chunk = [f"chunk_minutes={cfg.chunk_minutes}"] if cfg.get("chunk_minutes") is not None else []
-        stages[name] = [*net, *extra, *override_list(cfg, f"stages.{name}"), *chunk]
+        # the decoder stage is fine-tuned on the masks the evaluation will run: its candidate sharpnesses
+        masks = [f"model.decoder_sharpness={v}" for v in _ims_sharpness(cfg)] if name == "ims_decoder" else []
+        stages[name] = [*net, *extra, *masks, *override_list(cfg, f"stages.{name}"), *chunk]
     # the RecNN on a sparser pattern: the demo trains it as the recnn stage above plus the sparser pattern
     # (demo.sparser_overrides) and stages.recnn_sparser's overrides; only `stages.recnn_sparser: null` skips it
     explicit = cfg.get("stages") is not None and "recnn_sparser" in cfg.stages
@@ -493,6 +495,12 @@ def estimate_args(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence
             *timing_overrides(cfg), *evaluated_sharpness(cfg), *override_list(cfg, "estimate")]
 
 
+def _ims_sharpness(cfg: DictConfig) -> list[str]:
+    """The value of the evaluation's ``ims_sharpness`` override, as written (``[]``: not set)."""
+    found = [str(o).split("=", 1)[1] for o in override_list(cfg, "evaluate") if override_key(str(o)) == "ims_sharpness"]
+    return found[-1:]
+
+
 def evaluated_sharpness(cfg: DictConfig) -> list[str]:
     """The estimate's ``sharpness`` override from the evaluation's ``ims_sharpness`` (its candidates get a render curve
     each, so a row's estimate follows the sharpness its ORP keeps); ``[]`` for the paper's masks alone.
@@ -501,7 +509,7 @@ def evaluated_sharpness(cfg: DictConfig) -> list[str]:
         >>> evaluated_sharpness(OmegaConf.create({"evaluate": ["repeats=10", "ims_sharpness=[1.0,2.0]"]}))
         ['sharpness=[1.0,2.0]']
     """
-    found = [str(o).split("=", 1)[1] for o in override_list(cfg, "evaluate") if override_key(str(o)) == "ims_sharpness"]
+    found = _ims_sharpness(cfg)
     return [] if not found or found[-1].strip() in ("[1.0]", "[1]", "1", "1.0") else [f"sharpness={found[-1]}"]
 
 

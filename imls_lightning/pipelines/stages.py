@@ -159,6 +159,21 @@ def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
     return list(merged.values())
 
 
+def ims_decoder_overrides(cfg: DictConfig) -> list[str]:
+    """The training overrides of the IMS's decoder stage: the IMS stage's own (the same networks and views), the
+    decoder alone trained (``model.train_generator=false``), then ``stages.ims_decoder``'s (whose keys replace the same
+    keys before them); the caller adds ``model.init_checkpoint``, the IMS it starts from.
+
+    Example:
+        >>> cfg = OmegaConf.create({"stages": {"ims": ["model.decoder_lr=1e-3", "trainer.max_epochs=5"],
+        ...                                    "ims_decoder": ["trainer.max_epochs=2"]}})
+        >>> ims_decoder_overrides(cfg)
+        ['model.decoder_lr=1e-3', 'trainer.max_epochs=2', 'model.train_generator=false']
+    """
+    ordered = [*stage_overrides(cfg, "ims"), "model.train_generator=false", *stage_overrides(cfg, "ims_decoder")]
+    return list({override_key(o): o for o in ordered}.values())
+
+
 #: the sparser pattern of each RecNN kind, as overrides of its training. EnhanceNet 4x instead of 2x: a quarter of
 #: the C-pixels (one pixel of every 4x4 block). FoVolNet: half of them (a C-Image 1/sqrt(2) of the side). A quarter
 #: (half the side) cannot hold the foveal pattern: its base level alone is 7% of the FR pixels, a quarter of C 6.25%.

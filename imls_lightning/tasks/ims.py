@@ -84,6 +84,7 @@ from ..config import to_plain
 from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import TARGETS, IMSDiscriminator, IMSGenerator, IMSMaskHead, generator_plan, im_to_target
+from ..core.importance import check_sharpnesses
 from ..core.patterns import build_pattern
 from ..core.metrics import psnr_per_image
 from .base import ImlsTask
@@ -273,6 +274,31 @@ def _input_recnn(cfg, iml_task: IMLTask, pattern) -> tuple[Optional[dict], Optio
     return dict(rt.hparams), rt.net.state_dict(), "recnn.checkpoint"
 
 
+#: the generator's and discriminator's shape: an ``init_checkpoint`` checkpoint must have the configured ones
+_NET_KEYS = ("target", "layers", "base_channels", "max_channels", "disc_base_channels", "disc_max_channels")
+
+
+def _init_checkpoint(cfg, iml_sha256: str) -> dict[str, dict]:
+    """The weights ``model.init_checkpoint`` (a trained IMS checkpoint) starts this run with: its generator,
+    discriminator and IML (with its fine-tuned decoder), checked against the configured networks' shape and
+    the IML its labels came from.
+
+    Raises:
+        InputError: not an intact IMS checkpoint, or of another shape or IML.
+    """
+    path = str(cfg.model.init_checkpoint)
+    src = IMSTask.from_checkpoint(path, what="model.init_checkpoint")
+    for key in _NET_KEYS:
+        if src.hparams.get(key) != to_plain(cfg.model.get(key)):
+            raise InputError(f"model.init_checkpoint={path}: its model.{key} is {src.hparams.get(key)}, this run's "
+                             f"{to_plain(cfg.model.get(key))}; start from an IMS of the same networks")
+    if src.hparams.get("iml_checkpoint_sha256") != iml_sha256:
+        raise InputError(f"model.init_checkpoint={path}: trained on the labels of another IML than iml.checkpoint="
+                         f"{cfg.iml.checkpoint}; start from an IMS of the same IML")
+    return {"generator": src.generator.state_dict(), "discriminator": src.discriminator.state_dict(),
+            "iml": src.iml.state_dict()}
+
+
 class IMSTask(ImlsTask):
     """LightningModule of the IMS GAN (generator + discriminator) with the frozen IML decoder and
     RecNN for the final-image metrics.
@@ -329,6 +355,10 @@ class IMSTask(ImlsTask):
         decoder_lr: float = 0.0,
         decoder_every: int = 1,
         decoder_mean_range: Any = None,
+        decoder_sharpness: Any = 1.0,
+        decoder_lift: bool = False,
+        train_generator: bool = True,
+        init_checkpoint: Optional[str] = None,
         pretrained: Optional[Mapping[str, Mapping[str, torch.Tensor]]] = None,
         criterion: Optional[IMLoss] = None,
         **_: Any,  # run keys of the model node (name, patience, labels_*, ...) and stale hyperparameters: see ImlsTask
@@ -344,6 +374,13 @@ class IMSTask(ImlsTask):
             raise InputError(f"model.decoder_every={decoder_every}: expected an integer >= 1 (a decoder step every that many batches)")
         if decoder_lr > 0 and target != "pim":
             raise InputError(f"model.decoder_lr={decoder_lr}: fine-tuning the decoder on the IMS's masks needs model.target=pim")
+        if not isinstance(decoder_lift, bool):
+            raise InputError(f"model.decoder_lift={decoder_lift}: expected true or false")
+        if not isinstance(train_generator, bool):
+            raise InputError(f"model.train_generator={train_generator}: expected true or false")
+        if not train_generator and not (decoder_lr > 0 and init_checkpoint):
+            raise InputError("model.train_generator=false: trains the decoder alone, so it needs model.decoder_lr > 0 and "
+                             "model.init_checkpoint=<a trained IMS .ckpt> (whose generator makes the masks)")
         betas = tuple(float(b) for b in to_plain(betas))
         if len(betas) != 2 or not all(0.0 <= b < 1.0 for b in betas):
             raise InputError(f"model.betas={list(betas)}: expected two numbers in [0, 1)")
@@ -363,6 +400,9 @@ class IMSTask(ImlsTask):
             "scene": _plain_json(scene) if scene else None, "renderer": _plain_json(renderer) if renderer else None,
             "decoder_lr": float(decoder_lr), "decoder_every": int(decoder_every),
             "decoder_mean_range": check_mean_range(to_plain(decoder_mean_range), "model.decoder_mean_range"),
+            "decoder_sharpness": check_sharpnesses(to_plain(decoder_sharpness), "model.decoder_sharpness"),
+            "decoder_lift": bool(decoder_lift), "train_generator": bool(train_generator),
+            "init_checkpoint": None if init_checkpoint is None else str(init_checkpoint),
         })
         self.pattern = build_pattern(to_plain(pattern), int(fr_size))
         n = self.pattern.c_size
@@ -380,12 +420,16 @@ class IMSTask(ImlsTask):
             check_same_pattern(recnn_hparams, self.pattern, key="recnn.checkpoint", network="RecNN", against="the IML",
                                hint="use a RecNN trained on the IML's pattern and resolution")
             self.recnn = RecNNTask(**dict(recnn_hparams)).net.requires_grad_(False)
+        if not train_generator:  # the decoder alone trains, on the masks of a trained generator (init_checkpoint)
+            self.generator.requires_grad_(False)
+            self.discriminator.requires_grad_(False)
         self.load_pretrained(pretrained)
         if criterion is not None:
             self.add_module("_im_loss", criterion)
         self.register_buffer("valid", self.pattern.valid.view(1, 1, n, n).clone(), persistent=False)
-        # set once the generator's view normalization was fitted on the training views (checkpointed)
-        self.register_buffer("view_norm_fitted", torch.zeros((), dtype=torch.bool))
+        # set once the generator's view normalization was fitted on the training views (checkpointed); a generator
+        # taken over from init_checkpoint keeps the normalization it was trained with
+        self.register_buffer("view_norm_fitted", torch.tensor("generator" in (pretrained or {})))
         self._warned_no_recnn = False
         # the sharpness of the masks :attr:`mask_head` makes (1: the paper's); the evaluation sets the one its ORP kept
         self.mask_sharpness = 1.0
@@ -399,6 +443,11 @@ class IMSTask(ImlsTask):
     @property
     def finetunes_decoder(self) -> bool:
         return float(self.hparams.get("decoder_lr", 0.0)) > 0
+
+    @property
+    def trains_generator(self) -> bool:
+        """False: the generator (and discriminator) of ``init_checkpoint`` stay as trained; only the decoder trains."""
+        return bool(self.hparams.get("train_generator", True))
 
     @property
     def P(self) -> torch.Tensor:
@@ -452,6 +501,8 @@ class IMSTask(ImlsTask):
         pretrained = {"iml": iml_task.iml.state_dict()}
         if recnn_state is not None:
             pretrained["recnn"] = recnn_state
+        if cfg.model.get("init_checkpoint"):
+            pretrained.update(_init_checkpoint(cfg, labels.name[len("iml-"):]))
         return {
             "pattern": cfg.pattern, "fr_size": res, "iml_hparams": dict(iml_task.hparams), "pretrained": pretrained,
             "recnn_hparams": recnn_hparams, "recnn_source": source,
@@ -532,11 +583,22 @@ class IMSTask(ImlsTask):
     # -- training ------------------------------------------------------------------------------
     def train(self, mode: bool = True):
         super().train(mode)
-        # frozen passengers: keep their normalization layers in inference mode
+        self._passengers_in_eval_mode()
+        return self
+
+    def _passengers_in_eval_mode(self) -> None:
+        # frozen passengers: keep their normalization layers in inference mode (a frozen generator's BatchNorm would
+        # otherwise make the decoder's masks from batch statistics and move its running statistics)
         self.iml.eval()
         if self.recnn is not None:
             self.recnn.eval()
-        return self
+        if not self.trains_generator:
+            self.generator.eval()
+            self.discriminator.eval()
+
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        # Lightning may restore each submodule's own mode past train() (after validation): set them again
+        self._passengers_in_eval_mode()
 
     def _fit_view_normalization(self, views: torch.Tensor) -> None:
         self.generator.fit_view_normalization(views.to(self.generator.view_mean.device))
@@ -573,6 +635,8 @@ class IMSTask(ImlsTask):
             self._fit_view_normalization(torch.cat(views).float())
 
     def configure_optimizers(self):
+        if not self.trains_generator:
+            return torch.optim.Adam(self.iml.decoder.parameters(), lr=float(self.hparams.decoder_lr))
         lr, betas = self.hparams.lr, tuple(self.hparams.betas)
         opt_g = torch.optim.Adam(self.generator.parameters(), lr=lr, betas=betas)
         opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=lr, betas=betas)
@@ -588,12 +652,22 @@ class IMSTask(ImlsTask):
                   or (float(self.iml.mean), float(self.iml.mean)))
         return float(lo) + (float(hi) - float(lo)) * torch.rand(n, device=device)
 
+    def decoder_masks(self, g: torch.Tensor, means: torch.Tensor | float, sharpness: float) -> torch.Tensor:
+        """The hard masks ``(B, 1, n, n)`` bool the decoder is fine-tuned and validated on: the generator's
+        output ``g`` at ``means``, sharpened to ``sharpness``, lifted to the share ``means`` where
+        ``decoder_lift`` (as the evaluation's ORP runs them)."""
+        head = self.mask_head.with_sharpness(float(sharpness))
+        return head.threshold(g.detach(), means, bool(self.hparams.get("decoder_lift", False)))
+
     def decoder_loss(self, g: torch.Tensor, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
         """The IML's end-to-end loss of the decoder on the generator's hard masks ``g`` (detached) at
-        random mean values: what :attr:`decoder` is fine-tuned on."""
+        random mean values and one of ``decoder_sharpness`` (drawn per batch): what :attr:`decoder` is
+        fine-tuned on."""
         c = batch["c"]
+        gammas = self.hparams.get("decoder_sharpness") or [1.0]
+        gamma = gammas[int(torch.randint(len(gammas), ()))]
         with torch.no_grad():
-            im = self.output_to_im_at(g.detach(), self._random_means(c.shape[0], c.device)).to(c.dtype)
+            im = self.decoder_masks(g, self._random_means(c.shape[0], c.device), gamma).to(c.dtype)
         c_rec = self.iml.decoder(im * c, im)
         end_to_end = self.recnn is not None and "fr" in batch
         fr_pred, fr = (self.recnn(c_rec).float(), batch["fr"].float()) if end_to_end else (None, None)
@@ -601,6 +675,8 @@ class IMSTask(ImlsTask):
         return end_to_end_loss(c_rec.float(), c.float(), fr_pred, fr, **weights)[0]
 
     def training_step(self, batch, batch_idx):
+        if not self.trains_generator:
+            return self._decoder_step(batch)
         opts = self.optimizers()
         opt_g, opt_d = opts[0], opts[1]
         view = batch["view"]
@@ -648,6 +724,18 @@ class IMSTask(ImlsTask):
             self.log("train/decoder_loss", loss_dec.detach(), **log)
         return loss_g.detach()
 
+    def _decoder_step(self, batch) -> torch.Tensor:
+        """``train_generator=false``: one step of the decoder alone, on the masks of the frozen generator."""
+        opt = self.optimizers()
+        with torch.no_grad():
+            g = self.generator(batch["view"])
+        loss = self.decoder_loss(g, batch)
+        opt.zero_grad(set_to_none=True)
+        self.manual_backward(loss)
+        opt.step()
+        self.log("train/decoder_loss", loss.detach(), prog_bar=True, batch_size=g.shape[0], on_step=True, on_epoch=True)
+        return loss.detach()
+
     # -- evaluation ----------------------------------------------------------------------------
     def _eval_step(self, batch: Mapping[str, torch.Tensor], prefix: str) -> None:
         view = batch["view"]
@@ -691,6 +779,21 @@ class IMSTask(ImlsTask):
         self.log_image_metrics(f"{prefix}/fr", fr_pred, fr, on_step=False, on_epoch=True)
         _, fr_label = self.reconstruct(label, c)
         self.log_image_metrics(f"{prefix}/label_fr", fr_label, fr, on_step=False, on_epoch=True)
+        if self.finetunes_decoder:
+            self.log(f"{prefix}/decoder_fr_psnr", self.decoder_fr_psnr(g, c, fr).mean(), **log)
+
+    def decoder_fr_psnr(self, g: torch.Tensor, c: torch.Tensor, fr: torch.Tensor) -> torch.Tensor:
+        """``(B,)`` IML/S + RecNN PSNR on the masks the decoder is fine-tuned on (:meth:`decoder_masks`), averaged
+        over each ``decoder_sharpness`` and the low end, middle and high end of the mean values it draws from: the
+        decoder's own validation (``model.monitor=val/decoder_fr_psnr`` keeps its best epoch)."""
+        lo, hi = (self.hparams.get("decoder_mean_range") or self.hparams.iml_hparams.get("mean_range")
+                  or (float(self.iml.mean), float(self.iml.mean)))
+        scores = []
+        for gamma in self.hparams.get("decoder_sharpness") or [1.0]:
+            for u in sorted({float(lo), (float(lo) + float(hi)) / 2, float(hi)}):
+                _, fr_pred = self.reconstruct(self.decoder_masks(g, u, gamma), c)
+                scores.append(psnr_per_image(fr_pred, fr))
+        return torch.stack(scores).mean(0)
 
     def validation_step(self, batch, batch_idx):
         self._eval_step(batch, "val")

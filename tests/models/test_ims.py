@@ -9,7 +9,7 @@ from torch import nn
 from data_gen.errors import InputError
 from imls_lightning.models.ims import (IMSDiscriminator, IMSGenerator, IMSMaskHead, MaskAt, generator_plan, im_to_target,
                                       output_to_im)
-from tests.models.helpers import reference_ims_mask
+from tests.models.helpers import reference_ims_mask, reference_lift_to_share, reference_lifted_mask
 
 
 def views(b: int, seed: int = 0) -> torch.Tensor:
@@ -256,3 +256,32 @@ def test_mask_head_sharpness():
         IMSMaskHead(_Fixed(g), P, valid, "im", sharpness=2)
     with pytest.raises(InputError, match=r"sharpness=0.5: expected a number in \[1, 8\]"):
         head.with_sharpness(0.5)
+
+
+def test_sharpened_masks_are_lifted_below_the_trained_mean_too():
+    """A sharpened PIM' saturates at any mean value, so its lifted masks are lifted at every u: the share follows u
+    below the trained mean too (before, gamma = 3 on flame_whole gave 14% of C at u = 0.2 and 20% at u = 0.201).
+    The reference: the lift of tests/models/helpers.py applied at every u; gamma = 1 keeps the lift above it only."""
+    from imls_lightning.core.importance import sharpen_importance
+
+    g = _outputs(6)
+    P, valid = torch.rand(N, N), torch.rand(N, N) > 0.15
+    head = IMSMaskHead(_Fixed(g), P, valid, "pim", trained_mean=0.2)
+    views = torch.arange(4, dtype=torch.float32)[:, None].expand(4, 9).contiguous()
+    sharp = head.with_sharpness(3.0)
+    pim = sharpen_importance((g + 1) * 0.5, 3.0, valid.view(1, 1, N, N))
+    shares = []
+    for u in (0.1, 0.15, 0.19):
+        scale = u / 0.2
+        x = pim * scale
+        m, f = reference_lift_to_share(x, torch.full((4,), u), valid)
+        want = ((x > P) | reference_lifted_mask(x, m, f, P)) & valid
+        got = sharp(views, u, True)
+        assert torch.equal(got, want), u
+        shares.append(float(got[:, :, valid].float().mean()))
+        assert not bool((sharp(views, u) & ~got).any())   # the lift only adds pixels
+    assert shares == sorted(shares)
+    assert float(sharp(views, 0.19)[:, :, valid].float().mean()) < shares[-1] - 0.01  # the plain rescale fell short
+    # the paper's masks (gamma = 1) stay the reference's below the trained mean: no lift there
+    for u in (0.1, 0.19):
+        assert torch.equal(head(views, u, True), reference_ims_mask(g, P, valid, "pim", mean=u, trained_mean=0.2, lift=True))

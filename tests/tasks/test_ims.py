@@ -602,3 +602,108 @@ def test_smoke_ims_trains_on_c_image_only_views(tiny_checkpoints, tmp_path):
     fine, before = task.iml.decoder.state_dict(), iml.iml.decoder.state_dict()
     assert all(torch.isfinite(v).all() for v in fine.values())
     assert any(not torch.equal(fine[k], before[k]) for k in fine if fine[k].is_floating_point())  # the decoder was fine-tuned
+
+
+def test_decoder_stage_trains_the_decoder_alone_on_the_evaluations_masks():
+    """``train_generator=false``: a real Trainer run moves the decoder only (the generator and discriminator taken
+    over from another IMS stay bit for bit, in eval mode), on masks sharpened to one of ``decoder_sharpness`` and
+    lifted (``decoder_lift``), the masks the evaluation's ORP runs; its loss falls, and ``val/decoder_fr_psnr`` is the
+    IML/S + RecNN PSNR on those masks (direct computation)."""
+    torch.manual_seed(0)
+    loss = {"mse": 1.0, "perceptual": 0.0, "adversarial": 0.0}
+    src = tiny_task(target="pim", loss=loss)
+    pretrained = {"generator": src.generator.state_dict(), "discriminator": src.discriminator.state_dict()}
+    task = tiny_task(target="pim", loss=loss, decoder_lr=1e-2, train_generator=False, init_checkpoint="ims.ckpt",
+                     decoder_sharpness=[3, 2], decoder_lift=True, decoder_mean_range=[0.05, 0.3], pretrained=pretrained)
+    assert task.hparams.decoder_sharpness == [2.0, 3.0] and not task.trains_generator and bool(task.view_norm_fitted)
+    assert not bool(src.view_norm_fitted)  # a generator of its own fits the normalization at fit start
+    opt = task.configure_optimizers()
+    assert isinstance(opt, torch.optim.Adam) and {id(p) for g in opt.param_groups for p in g["params"]} == {
+        id(p) for p in task.iml.decoder.parameters()}
+    assert not any(p.requires_grad for p in [*task.generator.parameters(), *task.discriminator.parameters()])
+    before = {k: v.clone() for k, v in task.state_dict().items()}
+    rec, modes = StepRecorder(), []
+
+    class Modes(L.Callback):
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):  # the modes the step ran in
+            modes.append((pl_module.generator.training, pl_module.discriminator.training, pl_module.iml.decoder.training))
+
+    tr = quiet_trainer(max_steps=60, check_val_every_n_epoch=100, callbacks=[rec, Modes()])
+    tr.fit(task, loader(16, batch_size=8, shuffle=True), loader(8, seed=1))
+    assert set(modes) == {(False, False, False)}  # the frozen passengers' normalization layers in inference mode
+    after = task.state_dict()
+    moved = {k for k, v in before.items() if not torch.equal(v, after[k])}
+    assert moved and all(k.startswith("iml.decoder.") for k in moved), sorted(moved)[:5]
+    assert all(torch.equal(after[f"generator.{k}"], v) for k, v in src.generator.state_dict().items())
+    dec = np.array([s["train/decoder_loss_step"] for s in rec.steps])
+    assert len(dec) == 60 and np.isfinite(dec).all() and dec[-10:].mean() < dec[:10].mean()
+    # the masks: the head at the drawn sharpness, lifted; the loss on them (the RNG drawn as decoder_loss draws it)
+    batch = next(iter(loader(4, seed=2)))
+    task.eval()
+    with torch.no_grad():
+        g = torch.rand(4, 1, 16, 16, generator=torch.Generator().manual_seed(3)) * 2 - 1  # a generator output with structure
+        for gamma in (2.0, 3.0):
+            want = task.mask_head.with_sharpness(gamma).threshold(g, 0.25, True)
+            assert torch.equal(task.decoder_masks(g, 0.25, gamma), want)
+        assert not torch.equal(task.decoder_masks(g, 0.25, 3.0), task.mask_head.threshold(g, 0.25))
+        torch.manual_seed(5)
+        got = task.decoder_loss(g, batch)
+        torch.manual_seed(5)
+        gamma = [2.0, 3.0][int(torch.randint(2, ()))]
+        im = task.decoder_masks(g, task._random_means(4, "cpu"), gamma).float()
+        c_rec = task.iml.decoder(im * batch["c"], im)
+        want = 0.5 * F.mse_loss(c_rec, batch["c"]) + 0.5 * F.mse_loss(task.recnn(c_rec), batch["fr"])
+        assert torch.allclose(got, want, rtol=1e-5)
+        scores = []
+        for gamma in (2.0, 3.0):
+            for u in (0.05, 0.175, 0.3):
+                im = task.decoder_masks(g, u, gamma).float()
+                scores.append(psnr_per_image(task.recnn(task.iml.decoder(im * batch["c"], im)), batch["fr"]))
+        assert torch.allclose(task.decoder_fr_psnr(g, batch["c"], batch["fr"]), torch.stack(scores).mean(0))
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"train_generator": False, "decoder_lr": 1e-3}, "model.train_generator=false: trains the decoder alone"),
+    ({"train_generator": False, "init_checkpoint": "ims.ckpt"}, "model.train_generator=false"),
+    ({"train_generator": "no", "decoder_lr": 1e-3}, "model.train_generator=no: expected true or false"),
+    ({"decoder_lift": "yes", "decoder_lr": 1e-3}, "model.decoder_lift=yes: expected true or false"),
+    ({"decoder_sharpness": 0.5, "decoder_lr": 1e-3}, r"model.decoder_sharpness=0.5: expected a number in \[1, 8\]"),
+    ({"decoder_sharpness": [], "decoder_lr": 1e-3}, r"model.decoder_sharpness=\[\]"),
+])
+def test_exception_bad_decoder_stage_settings(kw, match):
+    with pytest.raises(InputError, match=f"^{match}"):
+        tiny_task(target="pim", **kw)
+
+
+def test_cli_decoder_stage_starts_from_a_trained_ims(tiny_checkpoints, tmp_path):
+    """The decoder stage through the train CLI's body: ``model.init_checkpoint`` (the product's tiny IMS) gives the
+    generator, kept bit for bit, and the decoder, trained further; the run's hash holds the init checkpoint's content.
+    An IMS of other networks is refused in one line naming the key."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from imls_lightning.train import train
+
+    def cfg_for(name: str, extra: list[str]):
+        GlobalHydra.instance().clear()
+        with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="decoder_stage"):
+            return compose("train", overrides=[
+                "scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={tiny_checkpoints['cache_dir']}",
+                f"paths.runs_dir={tmp_path / 'runs'}", f"paths.output_dir={tmp_path / 'runs' / name}", "logger=none",
+                "test=false", "trainer.fast_dev_run=true", "trainer.enable_progress_bar=false", "recnn=enhancenet",
+                "recnn.net.channels=4", "recnn.net.blocks=1", "model=ims", f"iml.checkpoint={tiny_checkpoints['iml']}",
+                "model.layers=5", "model.base_channels=8", "model.target=pim", "model.loss.mse=1.0",
+                "model.loss.perceptual.weight=0", "model.loss.adversarial=0", "model.decoder_lr=1e-2",
+                "model.train_generator=false", f"model.init_checkpoint={tiny_checkpoints['ims_pim']}",
+                "model.decoder_sharpness=[3.0]", "model.decoder_lift=true", *extra])
+
+    path = train(cfg_for("decoder", []))["best_checkpoint"]
+    task = load_task(path, expect="IMSTask")
+    src = load_task(tiny_checkpoints["ims_pim"], expect="IMSTask")
+    assert task.hparams.init_checkpoint == str(tiny_checkpoints["ims_pim"]) and not task.trains_generator
+    assert all(torch.equal(v, src.generator.state_dict()[k]) for k, v in task.generator.state_dict().items())
+    fine, start = task.iml.decoder.state_dict(), src.iml.decoder.state_dict()
+    assert all(torch.isfinite(v).all() for v in fine.values())
+    assert any(not torch.equal(fine[k], start[k]) for k in fine if fine[k].is_floating_point())
+    with pytest.raises(InputError, match=f"^model.init_checkpoint={tiny_checkpoints['ims_pim']}: its model.layers is 5, this run's 6"):
+        train(cfg_for("decoder_other", ["model.layers=6"]))
