@@ -22,7 +22,7 @@ NON_RESULT_KEYS = frozenset({"cache_dir", "cache_path", "fsync", "workers", "loa
 # renderer.skip_empty (true: empty-space skipping; it never changes a pixel, but an estimate's times depend on it).
 KEYS_NEUTRAL_AT = {"train_pixels": "all", "fill": "c", "skip_empty": True,
                    # the IMS's decoder-only stage (model.train_generator=false) and its masks; off, runs keep their hashes
-                   "decoder_sharpness": 1.0, "decoder_lift": False, "train_generator": True, "init_checkpoint": None}
+                   "decoder_sharpness": [1.0], "decoder_lift": False, "train_generator": True, "init_checkpoint": None}
 
 
 def to_plain(obj: Any) -> Any:

@@ -86,6 +86,20 @@ def test_run_hash_of_the_demos_recnn_stage_is_pinned():
     assert _run_hash([*demo_recnn, "renderer.skip_empty=false"]) != "898ec7f5"
 
 
+def test_the_decoder_stages_keys_leave_earlier_ims_runs_their_hashes():
+    """model=ims's decoder-stage keys at their defaults (model.decoder_sharpness, decoder_lift, train_generator,
+    init_checkpoint) leave the hash of every IMS run made before them; set, they make a run of their own."""
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+        ims = compose(config_name="train", overrides=["model=ims"])
+    node = OmegaConf.to_container(ims.model, resolve=True)
+    new = ("decoder_sharpness", "decoder_lift", "train_generator", "init_checkpoint")
+    assert [node[k] for k in new] == [[1.0], False, True, None]
+    before = {k: v for k, v in node.items() if k not in new}
+    assert settings_hash({"model": node}) == settings_hash({"model": before})
+    for key, value in (("decoder_sharpness", [3.0]), ("decoder_lift", True), ("train_generator", False), ("init_checkpoint", "a.ckpt")):
+        assert settings_hash({"model": {**node, key: value}}) != settings_hash({"model": before}), key
+
+
 def test_model_fill_defaults_by_pattern_kind_and_only_a_foveal_run_changes_its_hash():
     """The IML decoder fills at a foveal C-Image's FR positions (model.fill=fr); on a grid both fills are the same,
     and model.fill=c leaves out of the hash, so every grid-pattern IML run keeps its directory."""

@@ -7,4 +7,4 @@
 cd /work/main && source .venv/bin/activate
 python -m imls_lightning.bench_paper scene=flame_whole recnns=[enhancenet] adaptive=null skip_empty=false "$@" \
   'evaluate=["max_views=null","timed_views=12","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","ims_sharpness=[3.0]"]'
-echo "[row] rc=$? at $(date)"
+rc=$?; echo "[row] rc=$rc at $(date)"; exit $rc

@@ -355,7 +355,7 @@ class IMSTask(ImlsTask):
         decoder_lr: float = 0.0,
         decoder_every: int = 1,
         decoder_mean_range: Any = None,
-        decoder_sharpness: Any = 1.0,
+        decoder_sharpness: Any = (1.0,),
         decoder_lift: bool = False,
         train_generator: bool = True,
         init_checkpoint: Optional[str] = None,
