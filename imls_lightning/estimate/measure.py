@@ -22,7 +22,7 @@ from ..core.compaction import compact, decompact
 from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern, crop_pattern, plastic_rank_pattern
 from ..inference.pipeline import NetOptions, pick_device, prepare_net
-from ..models.ims import IMSGenerator
+from ..models.ims import IMSGenerator, IMSMaskHead
 from ..models.iml import IMLNet
 from ..models.pull_push import pull_push_inpaint
 from .bound import RenderCost, RenderCurve
@@ -321,24 +321,26 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
 
 @torch.inference_mode()
 def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
-               warmup: int, share: float = 0.3) -> dict[str, float]:
+               warmup: int, share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2) -> dict[str, float]:
     """Median ms of each stage IML/S adds and of the RecNN, as the product path runs them
-    (autocast and channels-last input as ``opts`` asks; the mask's threshold included in the IMS)."""
+    (autocast and channels-last input as ``opts`` asks). The IMS's stage is the product's mask head
+    (:class:`~imls_lightning.models.ims.IMSMaskHead`): the generator, then its PIM' sharpened to ``sharpness``, rescaled
+    from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's lifted ORP runs it."""
     device = pick_device(opts.device)
     n = pattern.c_size
     recnn = prepare_net(nets["recnn"], device, opts)
     iml = prepare_net(nets["iml"], device, opts)
     gen = prepare_net(nets["ims"], device, opts)
-    P = plastic_rank_pattern(n).to(device)
-    valid = pattern.valid.to(device)
+    head = IMSMaskHead(gen, plastic_rank_pattern(n), pattern.valid, "pim", trained_mean=float(trained_mean),
+                       sharpness=float(sharpness)).to(device)
     view = torch.tensor([[0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]], device=device)
     c = torch.rand(1, n, n, 3, device=device).permute(0, 3, 1, 2)  # channels-last memory, as the renderer hands it over
-    im = ((torch.rand(1, 1, n, n, device=device) < share) & valid).to(c.dtype)
+    im = ((torch.rand(1, 1, n, n, device=device) < share) & pattern.valid.to(device)).to(c.dtype)
 
     def run_ims():
         with opts.autocast(device):
             g = gen(view)
-        return ((g.float() + 1.0) * 0.5 > P) & valid
+        return head.threshold(g, float(share), True)
 
     def run_decoder():
         with opts.autocast(device):

@@ -414,3 +414,27 @@ def test_cli_an_estimate_is_measured_again_when_the_volume_changed(tmp_path):
     again = _cli(tmp_path, *args)
     assert again.returncode == 0 and "reusing" not in again.stderr
     assert again.stdout.strip().splitlines()[-1] != first.stdout.strip().splitlines()[-1]
+
+
+def test_network_ms_times_the_products_mask_head(monkeypatch):
+    """The IMS's stage is timed as the product runs it at a lifted ORP: the generator, then the mask head's sharpen,
+    rescale and lift (at the share and the sharpness asked), not a plain threshold; every time is finite."""
+    from imls_lightning.estimate.measure import build_networks, network_ms
+    from imls_lightning.inference.pipeline import NetOptions
+    from imls_lightning.models.ims import IMSMaskHead
+
+    pattern = downsample_pattern(64, 2)
+    nets = build_networks(pattern, {"_target_": "imls_lightning.models.enhancenet.EnhanceNet", "channels": 4, "blocks": 1},
+                          {"depth": 2, "base_channels": 4}, {"layers": 5, "base_channels": 8, "max_channels": 32})
+    calls = []
+    real = IMSMaskHead.threshold
+
+    def spy(self, g, mean=None, lift=False):
+        im = real(self, g, mean, lift)
+        calls.append((self.sharpness, self.trained_mean, mean, lift, float(im.float().mean())))
+        return im
+
+    monkeypatch.setattr(IMSMaskHead, "threshold", spy)
+    out = network_ms(nets, pattern, NetOptions(device="cpu"), repeats=3, warmup=1, share=0.25, sharpness=3.0)
+    assert set(out) == {"ims_ms", "decoder_ms", "recnn_ms"} and all(np.isfinite(v) and v > 0 for v in out.values())
+    assert len(calls) == 4 and {c[:4] for c in calls} == {(3.0, 0.2, 0.25, True)}  # 1 warm-up + 3 timed runs
