@@ -342,7 +342,8 @@ class IMSMaskHead(nn.Module):
             # its masks are lifted at every u: the share then follows u without a jump
             x = torch.where(saturated, pim_u.clamp_min(1.0), pim_u)
             m, f = lift_to_share(x, ut.flatten(), valid)
-            above = (scale > 1.0).to(m.device) if self.sharpness == 1.0 else torch.ones_like(scale, dtype=torch.bool, device=m.device)
+            above = (scale > 1.0) if self.sharpness == 1.0 else torch.ones_like(scale, dtype=torch.bool)
+            above = above.to(m.device)
             m = torch.where(above, m, torch.ones_like(m))
             f = torch.where(above, f, torch.zeros_like(f))
             im = im | lifted_mask(x, m, f, P)

@@ -49,6 +49,13 @@ object pixels saturate, so the same share of C needs a larger u on the IMS (on t
 needs u = 0.70 for 40% of C, where u = 0.4 gives the IML 33%), and the IML's range would leave the
 ORP's masks untrained.
 
+The decoder stage (``train_generator=false``, ``init_checkpoint=<a trained IMS>``; ``make bench-paper``'s
+``stages.ims_decoder``): the decoder alone trains further, every batch, on the masks of that IMS's generator,
+which stays bit for bit; ``decoder_sharpness`` and ``decoder_lift`` make them the masks the evaluation runs
+(sharpened, lifted), and ``val/decoder_fr_psnr`` scores IML/S + RecNN on them. Beside the generator, the decoder
+had only seen unsharpened masks, for the epochs the generator kept: on flame_whole it then beat the untrained fill
+of the same pixels by 0.1 dB; trained for its masks, by 2.15 dB at 10% of C (BENCHMARKS.md).
+
 Logged under ``{prefix}`` = ``train`` | ``val`` | ``test``:
 
 * train: ``loss_g`` (weighted generator loss), the active unweighted terms ``bce``, ``mse``,
@@ -60,7 +67,9 @@ Logged under ``{prefix}`` = ``train`` | ``val`` | ``test``:
   of a loss ablation are selected the same way); ``ipr`` (predicted), ``label_ipr``,
   ``ipr_error = |ipr - label_ipr|``; ``c_psnr`` (IML decoder's C-Image from the IMS mask vs the
   C-Image); with a RecNN ``fr_psnr``/``fr_ssim`` of the IML/S path and ``label_fr_psnr``/
-  ``label_fr_ssim`` of the same path driven by the label IM (the IML + RecNN upper bound).
+  ``label_fr_ssim`` of the same path driven by the label IM (the IML + RecNN upper bound); with
+  ``decoder_lr > 0`` ``decoder_fr_psnr`` (:meth:`IMSTask.decoder_fr_psnr`). train, decoder fine-tuning:
+  ``decoder_loss``.
 
 The C-Image of the cache is exactly what selective rendering of the pattern's pixels returns, so
 ``IM * C-Image`` is the selectively rendered PR-C-Image.
@@ -314,8 +323,14 @@ class IMSTask(ImlsTask):
         recnn_hparams: the RecNN task's hyperparameters (plain), or None (no FR metrics).
         recnn_source: ``"iml.checkpoint"``, ``"recnn.checkpoint"`` or None (provenance).
         iml_checkpoint, iml_checkpoint_sha256, labels: provenance only.
-        pretrained: ``{"iml": state dict, "recnn": state dict}``: the input networks' weights (not
-            hyperparameters).
+        decoder_lr, decoder_every, decoder_mean_range: the decoder's fine-tuning (the module doc).
+        decoder_sharpness: the mask sharpness(es) the decoder is fine-tuned on (one drawn per batch);
+            ``decoder_lift``: its masks lifted to the share ``u`` (:meth:`decoder_masks`).
+        train_generator: False: the decoder alone trains, on the masks of ``init_checkpoint``'s generator,
+            which stays as trained (the decoder stage); ``init_checkpoint``: that IMS (provenance here: training
+            loads its weights through ``pretrained``).
+        pretrained: ``{"iml": state dict, "recnn": state dict}`` (and, from ``init_checkpoint``, ``"generator"``
+            and ``"discriminator"``): the input networks' weights (not hyperparameters).
         criterion: the generator's loss, already built from ``loss`` (training builds it before any
             labelling); None: built on first use (:attr:`im_loss`).
 
