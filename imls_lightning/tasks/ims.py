@@ -659,13 +659,17 @@ class IMSTask(ImlsTask):
             return [opt_g, opt_d]
         return [opt_g, opt_d, torch.optim.Adam(self.iml.decoder.parameters(), lr=float(self.hparams.decoder_lr))]
 
-    def _random_means(self, n: int, device) -> torch.Tensor:
-        """``(n,)`` mean values for decoder fine-tuning: uniform in ``decoder_mean_range``, else in the
-        IML's ``mean_range``, else its mean."""
-        h = self.hparams.iml_hparams
-        lo, hi = (self.hparams.get("decoder_mean_range") or h.get("mean_range")
+    def decoder_mean_range(self) -> tuple[float, float]:
+        """``(lo, hi)`` of the mean values the decoder is fine-tuned at: ``decoder_mean_range``, else the IML's
+        ``mean_range``, else its mean (one home for the fine-tuning and its validation)."""
+        lo, hi = (self.hparams.get("decoder_mean_range") or self.hparams.iml_hparams.get("mean_range")
                   or (float(self.iml.mean), float(self.iml.mean)))
-        return float(lo) + (float(hi) - float(lo)) * torch.rand(n, device=device)
+        return float(lo), float(hi)
+
+    def _random_means(self, n: int, device) -> torch.Tensor:
+        """``(n,)`` mean values for decoder fine-tuning, uniform in :meth:`decoder_mean_range`."""
+        lo, hi = self.decoder_mean_range()
+        return lo + (hi - lo) * torch.rand(n, device=device)
 
     def decoder_masks(self, g: torch.Tensor, means: torch.Tensor | float, sharpness: float) -> torch.Tensor:
         """The hard masks ``(B, 1, n, n)`` bool the decoder is fine-tuned and validated on: the generator's
@@ -801,11 +805,10 @@ class IMSTask(ImlsTask):
         """``(B,)`` IML/S + RecNN PSNR on the masks the decoder is fine-tuned on (:meth:`decoder_masks`), averaged
         over each ``decoder_sharpness`` and the low end, middle and high end of the mean values it draws from: the
         decoder's own validation (``model.monitor=val/decoder_fr_psnr`` keeps its best epoch)."""
-        lo, hi = (self.hparams.get("decoder_mean_range") or self.hparams.iml_hparams.get("mean_range")
-                  or (float(self.iml.mean), float(self.iml.mean)))
+        lo, hi = self.decoder_mean_range()
         scores = []
         for gamma in self.hparams.get("decoder_sharpness") or [1.0]:
-            for u in sorted({float(lo), (float(lo) + float(hi)) / 2, float(hi)}):
+            for u in sorted({lo, (lo + hi) / 2, hi}):
                 _, fr_pred = self.reconstruct(self.decoder_masks(g, u, gamma), c)
                 scores.append(psnr_per_image(fr_pred, fr))
         return torch.stack(scores).mean(0)
