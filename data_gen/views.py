@@ -52,7 +52,7 @@ def orthogonal_up(direction: np.ndarray, up: np.ndarray) -> np.ndarray:
 
 
 def sample_training_views(
-    num_views: int, camera_distance, *, seed: int = 0, lookat_jitter: float = 0.1
+    num_views: int, camera_distance, *, seed: int = 0, lookat_jitter: float = 0.1, stratify_distance: bool = False
 ) -> np.ndarray:
     """Random views around the volume.
 
@@ -62,6 +62,10 @@ def sample_training_views(
         seed: random seed.
         lookat_jitter: radius of the ball around the origin the look-at point is drawn from
             (uniformly, normalized units).
+        stratify_distance: draw the eyes' distances stratified (one in each of ``N`` equal slices of
+            ``[r_min, r_max]``, the slice given by the draw's rank) instead of independently: a few views then cover the
+            range of distances, which a view's cost and object size follow (the before-training estimate's
+            few views). The directions and look-at points are drawn as without it.
 
     Returns:
         ``(N, 9)`` float64 views; each passes :func:`data_gen.camera.validate_view`, and the up
@@ -78,6 +82,9 @@ def sample_training_views(
     rng = _rng(seed, _STREAM_TRAIN)
     direction = unit_vectors(rng.normal(size=(n, 3)))
     radius = rng.uniform(lo, hi, size=(n, 1))
+    if stratify_distance and hi > lo:  # the same draws, each moved into its own slice of the range
+        frac = (radius[:, 0] - lo) / (hi - lo)
+        radius = lo + (hi - lo) * (np.argsort(np.argsort(frac)) + frac)[:, None] / n  # slice = the draw's rank
     eye = direction * radius
     # uniform in the ball: direction uniform, radius ~ r^(1/3)
     look = unit_vectors(rng.normal(size=(n, 3))) * (jitter * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3))

@@ -68,13 +68,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-skip-empty", action="store_true",
                     help="ray-cast without empty-space skipping (renderer.skip_empty=false: the same pixels, the costs of "
                          "a ray caster without it)")
+    ap.add_argument("--half", choices=("auto", "true", "false"), default="auto",
+                    help="the networks' precision, as the evaluation's options.half (default auto: bfloat16 autocast on the "
+                         "CPU, float16 on CUDA, where it is faster here; the evaluation's default too)")
     a = ap.parse_args(argv)
     if a.views < 1 or a.repeats < 1 or a.warmup < 0:
         ap.error("--views and --repeats must be >= 1, --warmup >= 0")
 
     from data_gen.cache import ViewImageCache
     from imls_lightning.evaluation.measurement import image_quality, spaced
-    from imls_lightning.inference.pipeline import IMLSRenderer, RecNNAlone, time_methods
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions, RecNNAlone, time_methods
 
     renderer_cfg = None
     if a.no_skip_empty:
@@ -87,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
                   "empty space", file=sys.stderr)
             return 2
         renderer_cfg = {**trained, "skip_empty": False}
-    product = IMLSRenderer.from_checkpoints(a.ims_checkpoint, recnn_checkpoint=a.recnn, renderer_cfg=renderer_cfg)
+    opts = NetOptions.from_config({"half": a.half if a.half == "auto" else a.half == "true"})
+    product = IMLSRenderer.from_checkpoints(a.ims_checkpoint, recnn_checkpoint=a.recnn, renderer_cfg=renderer_cfg, opts=opts)
     if product.operating_point is None or not product.operating_point.found:
         print(f"error: {a.ims_checkpoint}: no recorded operating point (the evaluation writes it beside the checkpoint)",
               file=sys.stderr)
@@ -127,7 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     mean = {n: {k: 1e3 * float(np.mean([v.get(k, 0.0) for v in per_view[n]])) for k in stages} for n in methods}
     share = {n: float(np.mean([v["c_share"] for v in per_view[n]])) for n in methods}
     skip = getattr(product.renderer, "skip_empty", True)
-    print(f"ray caster: {product.renderer.name}, empty-space skipping {'on' if skip else 'off'}")
+    precision = ("float16" if product.device.type == "cuda" else "bfloat16") + " autocast" if opts.half else "float32"
+    print(f"ray caster: {product.renderer.name}, empty-space skipping {'on' if skip else 'off'}; networks: {precision}"
+          f"{' (--half auto)' if a.half == 'auto' else ''}")
     print(f"ORP: u = {product.mean:.4f} (lift {product.lift}), recorded by the evaluation; {len(rows)} test views "
           f"(rows {', '.join(map(str, rows))}), median of {a.repeats} {'back-to-back' if a.blocked else 'interleaved'} runs each, "
           "mean over views\n")

@@ -318,7 +318,8 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     fr_size = int(load_task(str(ckpt), expect="IMSTask", what="ims").hparams["fr_size"])
     cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
                      if ViewImageCache.open(p.parent).images.shape[1] == fr_size)
-    args = [str(ckpt), str(cache_dir), "--views", "2", "--repeats", "2", "--warmup", "0"]
+    # float32 networks, as the direct run below (--half auto measures which precision is faster here)
+    args = [str(ckpt), str(cache_dir), "--views", "2", "--repeats", "2", "--warmup", "0", "--half", "false"]
     assert mod.main(args) == 2
     assert "no recorded operating point" in capsys.readouterr().err
 
@@ -329,6 +330,7 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
             if line.startswith("| ") and "---" not in line and not line.startswith("| method")}
     assert set(rows) == {"RecNN alone", "IML/S + RecNN (recorded ORP)"}, out
     assert "u = 0.5000 (lift True)" in out and "speed-up of IML/S + RecNN over the RecNN alone" in out
+    assert "networks: float32\n" in out
 
     direct = IMLSRenderer.from_checkpoints(str(ckpt))
     cache = ViewImageCache.open(cache_dir)
@@ -343,6 +345,9 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     assert mod.main(args + ["--blocked"]) == 0
     out = capsys.readouterr().out
     assert "median of 2 back-to-back runs each" in out
+    # --half true: the networks under bfloat16 autocast (the evaluation's precision where auto picks it)
+    assert mod.main(args[:-1] + ["true"]) == 0
+    assert "networks: bfloat16 autocast\n" in capsys.readouterr().out
     blocked = next(line.split(" | ") for line in out.splitlines() if line.startswith("| IML/S + RecNN"))
     assert blocked[1] == got[1] and blocked[-2] == got[-2]
 

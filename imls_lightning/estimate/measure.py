@@ -31,12 +31,17 @@ from .bound import RenderCost, RenderCurve
 BACKGROUND_TOLERANCE = 2
 
 
-def median_ms(fn: Callable[[], Any], repeats: int, warmup: int = 1) -> float:
-    """Median wall time of ``fn()`` in ms over ``repeats`` runs after ``warmup`` untimed ones."""
+def median_ms(fn: Callable[[], Any], repeats: int, warmup: int = 1, before: Callable[[], Any] | None = None) -> float:
+    """Median wall time of ``fn()`` in ms over ``repeats`` runs after ``warmup`` untimed ones; ``before()``, when
+    given, runs untimed before each run (what the product does between two calls of ``fn``)."""
     for _ in range(warmup):
+        if before is not None:
+            before()
         fn()
     times = []
     for _ in range(repeats):
+        if before is not None:
+            before()
         t0 = time.perf_counter()
         fn()
         times.append((time.perf_counter() - t0) * 1e3)
@@ -321,11 +326,16 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
 
 @torch.inference_mode()
 def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
-               warmup: int, share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2) -> dict[str, float]:
+               warmup: int, share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2,
+               before: Callable[[], Any] | None = None) -> dict[str, float]:
     """Median ms of each stage IML/S adds and of the RecNN, as the product path runs them
     (autocast and channels-last input as ``opts`` asks). The IMS's stage is the product's mask head
     (:class:`~imls_lightning.models.ims.IMSMaskHead`): the generator, then its PIM' sharpened to ``sharpness``, rescaled
-    from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's lifted ORP runs it."""
+    from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's lifted ORP runs it.
+
+    ``before``: run untimed before each timed call, e.g. a ray cast. In the product every stage follows a ray cast,
+    which leaves the caches holding the volume and the network threads asleep; back to back, each network's
+    weights stay cached and its threads spinning (flame_whole: 13 / 27 / 18 ms in the product, 10 / 20 / 13 alone)."""
     device = pick_device(opts.device)
     n = pattern.c_size
     recnn = prepare_net(nets["recnn"], device, opts)
@@ -353,7 +363,7 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     out = {}
     for name, fn in (("ims_ms", run_ims), ("decoder_ms", run_decoder), ("recnn_ms", run_recnn)):
-        out[name] = median_ms(lambda fn=fn: (fn(), sync()), repeats, warmup)
+        out[name] = median_ms(lambda fn=fn: (fn(), sync()), repeats, warmup, before=before)
     return out
 
 

@@ -46,6 +46,23 @@ def test_training_views_deterministic_per_seed():
     assert np.all(z[:, 3:6] == 0)
 
 
+def test_training_views_stratified_distance_one_per_slice():
+    n = 6
+    a = sample_training_views(n, SHELL, seed=4, stratify_distance=True)
+    b = sample_training_views(n, SHELL, seed=4)
+    r = np.linalg.norm(a[:, :3], axis=1)
+    # one eye in each sixth of the shell's thickness, the directions and look-at points as without it
+    slices = np.floor((r - SHELL[0]) / (SHELL[1] - SHELL[0]) * n).astype(int)
+    assert sorted(slices.tolist()) == list(range(n))
+    np.testing.assert_allclose(_unit(a[:, :3]), _unit(b[:, :3]), atol=1e-12)
+    np.testing.assert_array_equal(a[:, 3:6], b[:, 3:6])
+    for row in a:
+        validate_view(row)
+    # a degenerate shell (r_min = r_max) puts every eye on it
+    c = sample_training_views(3, (3.0, 3.0), seed=0, stratify_distance=True)
+    np.testing.assert_allclose(np.linalg.norm(c[:, :3], axis=1), 3.0)
+
+
 @pytest.mark.parametrize("kw", [{"num_views": 0}, {"num_views": 2.5}, {"camera_distance": (0.0, 1.0)},
                                 {"camera_distance": (4.0, 2.0)}, {"lookat_jitter": -1.0}])
 def test_exception_training_views_bad_input(kw):

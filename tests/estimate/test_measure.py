@@ -438,3 +438,42 @@ def test_network_ms_times_the_products_mask_head(monkeypatch):
     out = network_ms(nets, pattern, NetOptions(device="cpu"), repeats=3, warmup=1, share=0.25, sharpness=3.0)
     assert set(out) == {"ims_ms", "decoder_ms", "recnn_ms"} and all(np.isfinite(v) and v > 0 for v in out.values())
     assert len(calls) == 4 and {c[:4] for c in calls} == {(3.0, 0.2, 0.25, True)}  # 1 warm-up + 3 timed runs
+
+
+def test_median_ms_runs_before_untimed_before_every_run():
+    """``before`` (the product's ray cast between two network calls) runs ahead of each warm-up and timed run, and its
+    time is not counted."""
+    import time as _time
+
+    from imls_lightning.estimate.measure import median_ms
+
+    log = []
+    ms = median_ms(lambda: log.append("fn"), 3, 2, before=lambda: (_time.sleep(0.03), log.append("before")))
+    assert log == ["before", "fn"] * 5
+    assert 0.0 <= ms < 10.0  # 30 ms of sleep before each run, none of it timed
+
+
+def test_network_ms_runs_each_stage_after_before(monkeypatch):
+    """Every stage's every call (warm-up and timed) follows a call of ``before``, as in the product each stage follows
+    a ray cast; without it nothing runs in between."""
+    from imls_lightning.estimate.measure import build_networks, network_ms
+    from imls_lightning.inference.pipeline import NetOptions
+    from imls_lightning.models.ims import IMSMaskHead
+
+    pattern = downsample_pattern(64, 2)
+    nets = build_networks(pattern, {"_target_": "imls_lightning.models.enhancenet.EnhanceNet", "channels": 4, "blocks": 1},
+                          {"depth": 2, "base_channels": 4}, {"layers": 5, "base_channels": 8, "max_channels": 32})
+    log = []
+    real = IMSMaskHead.threshold
+
+    def spy(self, g, mean=None, lift=False):
+        log.append("ims")
+        return real(self, g, mean, lift)
+
+    monkeypatch.setattr(IMSMaskHead, "threshold", spy)
+    out = network_ms(nets, pattern, NetOptions(device="cpu"), repeats=3, warmup=1, before=lambda: log.append("cast"))
+    assert all(np.isfinite(v) and v > 0 for v in out.values())
+    assert log[:8] == ["cast", "ims"] * 4 and log[8:] == ["cast"] * 8  # the IMS's 4 calls, then 4 each of the others
+    log.clear()
+    network_ms(nets, pattern, NetOptions(device="cpu"), repeats=3, warmup=1)
+    assert log == ["ims"] * 4
