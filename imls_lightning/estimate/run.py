@@ -92,6 +92,7 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette (each view a fraction of its pattern) and per-pixel model",
         "ims_timing": "the product's mask head: sharpened, rescaled, lifted",
         "network_timing": "each call after a ray cast", "view_distances": "stratified",
+        "mask_repeats": check_integer(cfg.get("mask_repeats", 1), "mask_repeats", 1),
         # only when set: the paper's masks alone hash as they did before the key
         **({"sharpness": _sharpness(cfg)} if _sharpness(cfg) != [1.0] else {}),
     })
@@ -184,6 +185,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     check_number(cfg.get("epsilon_db", 1.0), "epsilon_db", 0.0, lo_open=True, what="a positive PSNR tolerance in dB")
     repeats = check_integer(cfg.repeats, "repeats", 1)
     warmup = check_integer(cfg.warmup, "warmup", 0)
+    mask_repeats = check_integer(cfg.get("mask_repeats", 1), "mask_repeats", 1)
     opts = NetOptions.from_config(OmegaConf.to_container(cfg.options, resolve=True))  # half: auto measured here
     t_start = time.perf_counter()
     scene = scene if scene is not None else build_scene(cfg.scene)
@@ -216,9 +218,9 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
     # the bound takes the slower at each share (each misses a cost the other sees; bound.slower_render)
     silhouette = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                              repeats=max(1, min(repeats, 3)), fixed_ms=model.fixed_ms, progress=_say)
+                              repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say)
     cost = slower_render(silhouette, model, density)
-    by_sharpness = {sharpness_key(g): sharpened_bound(g, renderer, pattern, views, measured, model, blur, density, repeats,
+    by_sharpness = {sharpness_key(g): sharpened_bound(g, renderer, pattern, views, measured, model, blur, density, mask_repeats,
                                                       c_render_ms, nets_ms, nets_t["recnn_ms"], target)
                     for g in sharpnesses if g != 1.0}
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
@@ -276,13 +278,13 @@ def ray_cast_between(renderer, pattern, view, stride: int = 8):
     return cast
 
 
-def sharpened_bound(gamma: float, renderer, pattern, views, measured, model, blur: float, density: float, repeats: int,
+def sharpened_bound(gamma: float, renderer, pattern, views, measured, model, blur: float, density: float, mask_repeats: int,
                     c_render_ms: float, nets_ms: float, recnn_ms: float, target: float) -> dict[str, Any]:
     """The bound of masks sharpened by ``gamma``: the silhouette mask sharpened as the IMS's head sharpens its own,
     rendered at each share, against the per-pixel model whose background density falls to ``density ** gamma`` (the
     floor's importance ratio to the object's, raised to ``gamma``); the slower render at each share."""
     curve = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                         repeats=max(1, min(repeats, 3)), fixed_ms=model.fixed_ms, progress=_say, sharpness=gamma)
+                         repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say, sharpness=gamma)
     cost = slower_render(curve, model, density ** gamma)
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=recnn_ms)
     return {"sharpness": float(gamma), "render_curve": cost.to_dict(), "silhouette_ms": list(curve.times_ms),
@@ -335,7 +337,8 @@ def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, patt
     # at most 3 timed renders per mask: 20 shares on every view
     ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
                       epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density),
-                      repeats=max(1, min(repeats, 3)), warmup=min(warmup, 1), seed=int(cfg.seed), progress=_say)
+                      repeats=check_integer(cfg.get("mask_repeats", 1), "mask_repeats", 1), warmup=0,
+                      seed=int(cfg.seed), progress=_say)
     where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
     _say(f"needed share: an untrained importance mask and fill, rebuilt by the {name}, stay within "
          f"{ns.epsilon_db:g} dB at {where} ({ns.seconds:.0f} s)")

@@ -68,6 +68,18 @@ def test_flame_whole_is_flame_sheets_framed_from_twice_as_far():
     assert preset_config("flame_whole", ["scene.camera_distance=[5,6]"]).camera_distance == [5, 6]
 
 
+def test_seed_whole_is_seed_shell_framed_from_farther():
+    """seed_whole extends seed_shell through Hydra's defaults list: the same volume, transfer function and shading, only
+    the name and the camera's distance (about 1.5x as far) differ (BENCHMARKS.md, "seed_whole: the seed framed whole")."""
+    from data_gen.scene import preset_config
+
+    whole = OmegaConf.to_container(preset_config("seed_whole"))
+    shell = OmegaConf.to_container(preset_config("seed_shell"))
+    assert whole.pop("name") == "seed_whole" and shell.pop("name") == "seed_shell"
+    assert whole.pop("camera_distance") == [3.6, 5.0] and shell.pop("camera_distance") == [2.4, 3.4]
+    assert whole == shell and "defaults" not in whole
+
+
 def test_exception_preset_config_names_the_preset():
     from data_gen.scene import preset_config
 

@@ -477,3 +477,10 @@ def test_network_ms_runs_each_stage_after_before(monkeypatch):
     log.clear()
     network_ms(nets, pattern, NetOptions(device="cpu"), repeats=3, warmup=1)
     assert log == ["ims"] * 4
+
+
+def test_exception_cli_mask_repeats_must_be_positive(tmp_path):
+    """``mask_repeats`` (timed runs of each mask's render) below 1: one line naming it, exit 2, nothing written."""
+    r = _cli(tmp_path, "mask_repeats=0")
+    assert r.returncode == 2 and "mask_repeats" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "estimate").exists()

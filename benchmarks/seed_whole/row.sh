@@ -1,0 +1,16 @@
+#!/bin/bash
+# seed_whole's EnhanceNet row of paper_scale.csv by flame_whole's protocol (benchmarks/flame_whole/row_decoder.sh): the
+# before-training estimate, the cache, every training stage in 30-minute chunks (the IMS's decoder stage included), then
+# the evaluation without empty-space skipping, the methods timed interleaved on 12 views, gamma = 3 masks.
+# A stage that stops after its chunk exits with status 3: the loop runs the same command again, which resumes it.
+# TRAIN_ONLY=1 stops after the training stages (the evaluation needs the cores to itself: run it alone later).
+# Log: logs/seed_whole_row.log
+cd /work/main && source .venv/bin/activate
+extra=()
+[ "${TRAIN_ONLY:-0}" = 1 ] && extra+=(train_only=true)
+for i in $(seq 1 20); do
+  python -m imls_lightning.bench_paper scene=seed_whole recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
+    'evaluate=["max_views=null","timed_views=12","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","ims_sharpness=[3.0]"]'
+  rc=$?; echo "[row] pass $i rc=$rc at $(date)"
+  [ $rc -eq 3 ] || exit $rc
+done
