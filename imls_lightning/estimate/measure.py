@@ -333,9 +333,9 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
     (:class:`~imls_lightning.models.ims.IMSMaskHead`): the generator, then its PIM' sharpened to ``sharpness``, rescaled
     from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's lifted ORP runs it.
 
-    ``before``: run untimed before each timed call, e.g. a ray cast. In the product every stage follows a ray cast,
-    which leaves the caches holding the volume and the network threads asleep; back to back, each network's
-    weights stay cached and its threads spinning (flame_whole: 13 / 27 / 18 ms in the product, 10 / 20 / 13 alone)."""
+    ``before``: run untimed before each timed call, e.g. a ray cast. In the product the networks follow a ray cast,
+    which leaves the caches holding the volume's data; back to back, each network's weights and activations stay
+    cached (flame_whole: 13 / 27 / 18 ms in the product's run, 10 / 20 / 13 back to back)."""
     device = pick_device(opts.device)
     n = pattern.c_size
     recnn = prepare_net(nets["recnn"], device, opts)

@@ -231,7 +231,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup,
                                 sharpness=max(sharpnesses), before=cast)
     lead = measure_lead(cfg, lead_cfg, renderer, pattern, scene, [v.fr for v in measured], opts)
-    needed = measure_needed_share(cfg, lead, renderer, pattern, views, measured, repeats, warmup)
+    needed = measure_needed_share(cfg, lead, renderer, pattern, views, measured, mask_repeats)
     alone = c_render_ms + nets_t["recnn_ms"]
     return {
         "candidates": candidates, "recnn_lead": lead.to_dict() if lead else None,
@@ -268,9 +268,9 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
 
 
 def ray_cast_between(renderer, pattern, view, stride: int = 8):
-    """What the product runs between two network calls, for :func:`~.measure.network_ms`'s ``before``: a ray cast
-    (of every ``stride``-th pixel of the pattern of ``view``: the volume's data pass through the caches, and the
-    networks' threads fall asleep, as in the product, at an eighth of the pattern's time)."""
+    """What the product runs between two network calls, for :func:`~.measure.network_ms`'s ``before``: a ray cast, of
+    every ``stride``-th pixel of the pattern of ``view`` (the volume's data pass through the caches, as in the
+    product, at an eighth of the pattern's time)."""
     pix = pattern.indices.numpy()[::stride].copy()
 
     def cast() -> None:
@@ -317,7 +317,7 @@ def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern
 
 
 def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, pattern, views, measured,
-                         repeats: int, warmup: int) -> NeededShare | None:
+                         mask_repeats: int = 1) -> NeededShare | None:
     """The share of C the scene needs within ``epsilon_db``, from an untrained importance and fill
     (:mod:`.needed_share`), rebuilt by the quick RecNN when ``recnn_lead`` trained one, else by the classical
     upsampling; None when ``needed_share=false``."""
@@ -334,11 +334,10 @@ def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, patt
         def rebuild(c):
             return upsample_c_image(c, pattern)[0]
         name = upsampler_name(pattern)
-    # at most 3 timed renders per mask: 20 shares on every view
+    # 20 masks on every view, each rendered mask_repeats times (no warm-up: the renderer is warm)
     ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
                       epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density),
-                      repeats=check_integer(cfg.get("mask_repeats", 1), "mask_repeats", 1), warmup=0,
-                      seed=int(cfg.seed), progress=_say)
+                      repeats=mask_repeats, warmup=0, seed=int(cfg.seed), progress=_say)
     where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
     _say(f"needed share: an untrained importance mask and fill, rebuilt by the {name}, stay within "
          f"{ns.epsilon_db:g} dB at {where} ({ns.seconds:.0f} s)")
