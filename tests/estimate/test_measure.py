@@ -416,16 +416,24 @@ def test_cli_an_estimate_is_measured_again_when_the_volume_changed(tmp_path):
     assert again.stdout.strip().splitlines()[-1] != first.stdout.strip().splitlines()[-1]
 
 
+def _tiny_networks():
+    """A 64^2 FR / 32^2 C downsampling pattern and untrained networks of small sizes for it (:func:`build_networks`)."""
+    from imls_lightning.estimate.measure import build_networks
+
+    pattern = downsample_pattern(64, 2)
+    return pattern, build_networks(pattern, {"_target_": "imls_lightning.models.enhancenet.EnhanceNet", "channels": 4,
+                                             "blocks": 1},
+                                   {"depth": 2, "base_channels": 4}, {"layers": 5, "base_channels": 8, "max_channels": 32})
+
+
 def test_network_ms_times_the_products_mask_head(monkeypatch):
     """The IMS's stage is timed as the product runs it at a lifted ORP: the generator, then the mask head's sharpen,
     rescale and lift (at the share and the sharpness asked), not a plain threshold; every time is finite."""
-    from imls_lightning.estimate.measure import build_networks, network_ms
+    from imls_lightning.estimate.measure import network_ms
     from imls_lightning.inference.pipeline import NetOptions
     from imls_lightning.models.ims import IMSMaskHead
 
-    pattern = downsample_pattern(64, 2)
-    nets = build_networks(pattern, {"_target_": "imls_lightning.models.enhancenet.EnhanceNet", "channels": 4, "blocks": 1},
-                          {"depth": 2, "base_channels": 4}, {"layers": 5, "base_channels": 8, "max_channels": 32})
+    pattern, nets = _tiny_networks()
     calls = []
     real = IMSMaskHead.threshold
 
@@ -456,13 +464,11 @@ def test_median_ms_runs_before_untimed_before_every_run():
 def test_network_ms_runs_each_stage_after_before(monkeypatch):
     """Every stage's every call (warm-up and timed) follows a call of ``before``, as in the product each stage follows
     a ray cast; without it nothing runs in between."""
-    from imls_lightning.estimate.measure import build_networks, network_ms
+    from imls_lightning.estimate.measure import network_ms
     from imls_lightning.inference.pipeline import NetOptions
     from imls_lightning.models.ims import IMSMaskHead
 
-    pattern = downsample_pattern(64, 2)
-    nets = build_networks(pattern, {"_target_": "imls_lightning.models.enhancenet.EnhanceNet", "channels": 4, "blocks": 1},
-                          {"depth": 2, "base_channels": 4}, {"layers": 5, "base_channels": 8, "max_channels": 32})
+    pattern, nets = _tiny_networks()
     log = []
     real = IMSMaskHead.threshold
 
