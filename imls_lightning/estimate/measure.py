@@ -196,14 +196,17 @@ def silhouette_mask(on_object: np.ndarray, share: float, pattern: SamplingPatter
 
 def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
                  floor: float, repeats: int, fixed_ms: float, progress: Callable[[str], None] | None = None,
-                 sharpness: float = 1.0) -> RenderCurve:
+                 sharpness: float = 1.0, per_view: list | None = None) -> RenderCurve:
     """The render of exactly a :func:`silhouette_mask`'s pixels at each share (the renderer is warm: no untimed
     run); ``fixed_ms``: the cost of a call with no pixel (:attr:`RenderCost.fixed_ms`).
 
     Each view's times are taken as fractions of its own whole pattern's render, averaged over the views and put on
     the median view's (``c_render_ms``, as the bound's RecNN alone): a median over views per share picked another
     view at each share when their costs differ (flame_whole's three views: 0.59-1.11 s), and the curve went down
-    and up (0.70 s at 90% of C after 0.71 s at 80%), where a larger share's mask holds the smaller's pixels."""
+    and up (0.70 s at 90% of C after 0.71 s at 80%), where a larger share's mask holds the smaller's pixels.
+
+    ``per_view``: a list that gets each view's fractions of its own pattern, one list per view (the spread the mean
+    hides: a mask of one share costs 0.23-0.51 of its view's pattern on seed_whole)."""
     times = np.zeros((len(views), len(shares)))
     t0 = time.perf_counter()
     for v, (view, meas) in enumerate(zip(views, measured)):
@@ -214,6 +217,8 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
             progress(f"render curve{'' if sharpness == 1.0 else f' (sharpness {sharpness:g})'}: view {v + 1}/{len(views)}, "
                      f"{len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
     whole = np.array([max(float(meas.c_render_ms), 1e-9) for meas in measured])[:, None]
+    if per_view is not None:
+        per_view.extend((times / whole).tolist())
     curve = np.mean(times / whole, axis=0) * float(np.median(whole))
     return RenderCurve(tuple(float(s) for s in shares), tuple(curve.tolist()), float(fixed_ms))
 

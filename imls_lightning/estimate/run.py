@@ -217,8 +217,9 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     density = float(cfg.background_density)
     # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
     # the bound takes the slower at each share (each misses a cost the other sees; bound.slower_render)
+    fractions: list[list[float]] = []
     silhouette = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                              repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say)
+                              repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say, per_view=fractions)
     cost = slower_render(silhouette, model, density)
     by_sharpness = {sharpness_key(g): sharpened_bound(g, renderer, pattern, views, measured, model, blur, density, mask_repeats,
                                                       c_render_ms, nets_ms, nets_t["recnn_ms"], target)
@@ -249,6 +250,11 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "nets_ms": nets_ms, "ims_ms": nets_t["ims_ms"], "decoder_ms": nets_t["decoder_ms"], "recnn_ms": nets_t["recnn_ms"],
         "render_to_nets": c_render_ms / nets_ms, "bilinear_db": float(np.mean([v.bilinear_db for v in measured])),
         "bilinear_db_per_view": [v.bilinear_db for v in measured],
+        # each view's own: what the medians and means above are taken over (a mask's cost at one share differs by
+        # up to 2x between views); silhouette_fractions: each share's silhouette render over that view's pattern
+        "per_view": [{"camera_distance": float(np.linalg.norm(np.asarray(view, float).reshape(-1)[:3])), "c_render_ms": v.c_render_ms,
+                      "full_ms": v.full_ms, "object_fraction": v.object_px / max(v.object_px + v.background_px, 1),
+                      "silhouette_fractions": f} for view, v, f in zip(views, measured, fractions)],
         "upsampler": upsampler_name(pattern),
         "object_fraction": model.object_fraction, "render_cost": model.to_dict(),
         "modelled_c_render_ms": model.render_ms(1.0, density), "background_density": density,
@@ -283,11 +289,13 @@ def sharpened_bound(gamma: float, renderer, pattern, views, measured, model, blu
     """The bound of masks sharpened by ``gamma``: the silhouette mask sharpened as the IMS's head sharpens its own,
     rendered at each share, against the per-pixel model whose background density falls to ``density ** gamma`` (the
     floor's importance ratio to the object's, raised to ``gamma``); the slower render at each share."""
+    fractions: list[list[float]] = []
     curve = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                         repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say, sharpness=gamma)
+                         repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say, sharpness=gamma, per_view=fractions)
     cost = slower_render(curve, model, density ** gamma)
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=recnn_ms)
     return {"sharpness": float(gamma), "render_curve": cost.to_dict(), "silhouette_ms": list(curve.times_ms),
+            "silhouette_fractions_per_view": fractions,
             "background_density": density ** gamma,
             "bound": [{"share": r["share"], "speedup": r["speedup"]} for r in table],
             "share_for_2x": share_for_speedup(table, 2.0), "share_for_target": share_for_speedup(table, target)}

@@ -158,8 +158,11 @@ def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatc
     views = [ViewMeasurement(0.0, per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4, 30.0, z, z,
                              on_object) for v in (0, 1, 2)]
     shares = (0.25, 0.5, 1.0)
-    curve = measure.render_curve(renderer, p, [0, 1, 2], views, shares, blur=0.0, floor=0.25, repeats=1, fixed_ms=0.0)
+    per_view: list = []
+    curve = measure.render_curve(renderer, p, [0, 1, 2], views, shares, blur=0.0, floor=0.25, repeats=1, fixed_ms=0.0,
+                                 per_view=per_view)
     kept = [len(silhouette_mask(on_object, s, p, 0.0, 0.25)) for s in shares]
+    np.testing.assert_allclose(per_view, [[k / p.count for k in kept]] * 3, rtol=1e-12)   # each view's own fractions
     # every view's fraction of its pattern is kept / count; on the median view's pattern (2 ms per pixel)
     assert curve.times_ms == pytest.approx(tuple(2.0 * k for k in kept), rel=1e-12)
     assert list(curve.times_ms) == sorted(curve.times_ms)
@@ -257,6 +260,14 @@ def test_cli_a_render_curve_per_mask_sharpness(tmp_path):
         alone / (est["nets_ms"] + np.interp(0.3, [0, *two["render_curve"]["shares"]],
                                             [two["render_curve"]["fixed_ms"], *two["render_curve"]["times_ms"]]) + est["recnn_ms"]))
     assert "γ = 2" in r.stdout and "render curve (sharpness 2): view 2/2" in r.stderr
+    # each view's own numbers, which the curves average: fractions of that view's pattern, per share
+    assert len(est["per_view"]) == 2 and len(two["silhouette_fractions_per_view"]) == 2
+    for v in est["per_view"]:
+        assert len(v["silhouette_fractions"]) == len(est["render_curve"]["shares"]) and 0 <= v["object_fraction"] <= 1
+        assert v["camera_distance"] > 0 and v["c_render_ms"] > 0
+    sil_mean = np.mean([v["silhouette_fractions"] for v in est["per_view"]], axis=0)
+    median_c = float(np.median([v["c_render_ms"] for v in est["per_view"]]))
+    assert est["silhouette_ms"] == pytest.approx((sil_mean * median_c).tolist(), rel=1e-9)
     bad = _cli(tmp_path, "sharpness=[1,9]")
     assert bad.returncode != 0 and "sharpness=9: expected a number in [1, 8]" in bad.stderr.strip().splitlines()[-1]
 
