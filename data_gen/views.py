@@ -44,6 +44,16 @@ def unit_vectors(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def camera_distance(view) -> float:
+    """A view's camera distance from the volume's centre: the norm of its eye (the first 3 of its 9 floats).
+
+    Example:
+        >>> camera_distance([3.0, 4.0, 0.0, 0, 0, 0, 0, 0, 1])
+        5.0
+    """
+    return float(np.linalg.norm(np.asarray(view, float).reshape(-1)[:3]))
+
+
 def orthogonal_up(direction: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Gram-Schmidt: remove from ``up`` its component along ``direction`` (both ``(N, 3)``)."""
     d = unit_vectors(direction)

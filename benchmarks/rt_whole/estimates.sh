@@ -1,6 +1,6 @@
 #!/bin/bash
 # rayleigh_taylor framed whole: the before-training estimate at two framings, the cores to itself.
-cd /work/main && source .venv/bin/activate
+cd "$(dirname "$0")/../.." && source .venv/bin/activate
 for d in "4.5,6.3" "6.0,8.4"; do
   tag=${d/,/-}
   echo "[rt] estimate at $d, $(date)"

@@ -217,9 +217,10 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
             progress(f"render curve{'' if sharpness == 1.0 else f' (sharpness {sharpness:g})'}: view {v + 1}/{len(views)}, "
                      f"{len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
     whole = np.array([max(float(meas.c_render_ms), 1e-9) for meas in measured])[:, None]
+    fractions = times / whole
     if per_view is not None:
-        per_view.extend((times / whole).tolist())
-    curve = np.mean(times / whole, axis=0) * float(np.median(whole))
+        per_view.extend(fractions.tolist())
+    curve = fractions.mean(axis=0) * float(np.median(whole))
     return RenderCurve(tuple(float(s) for s in shares), tuple(curve.tolist()), float(fixed_ms))
 
 

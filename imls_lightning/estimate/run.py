@@ -20,6 +20,7 @@ from data_gen.atomic import atomic_json, atomic_write
 from data_gen.cache_keys import jsonable, settings_hash
 from data_gen.errors import InputError
 from data_gen.validate import check_integer, check_number
+from data_gen.views import camera_distance
 
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
@@ -252,7 +253,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "bilinear_db_per_view": [v.bilinear_db for v in measured],
         # each view's own: what the medians and means above are taken over (a mask's cost at one share differs by
         # up to 2x between views); silhouette_fractions: each share's silhouette render over that view's pattern
-        "per_view": [{"camera_distance": float(np.linalg.norm(np.asarray(view, float).reshape(-1)[:3])), "c_render_ms": v.c_render_ms,
+        "per_view": [{"camera_distance": camera_distance(view), "c_render_ms": v.c_render_ms,
                       "full_ms": v.full_ms, "object_fraction": v.object_px / max(v.object_px + v.background_px, 1),
                       "silhouette_fractions": f} for view, v, f in zip(views, measured, fractions)],
         "upsampler": upsampler_name(pattern),

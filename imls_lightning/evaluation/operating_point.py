@@ -14,6 +14,7 @@ import torch
 from omegaconf import OmegaConf
 
 from data_gen.errors import InputError
+from data_gen.views import camera_distance as view_distance
 
 from ..inference.baselines import product_orp
 from .measurement import spaced, view_loader
@@ -339,7 +340,7 @@ def distance_means(result):
 
 def camera_distance(cache, row: int) -> float:
     """The camera's distance from the volume's centre in view ``row`` of ``cache`` (its eye position's norm)."""
-    return float(np.linalg.norm(np.asarray(cache.views[int(row)])[:3]))
+    return view_distance(cache.views[int(row)])
 
 
 def orp_with_lift(search: Callable[[bool], Any], lift: bool | str) -> Any:
