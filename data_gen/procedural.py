@@ -11,7 +11,7 @@ Generators of distinct character (:data:`PROCEDURAL_GENERATORS`):
 * ``flame`` (64 x 64 x 96): a compact candle-like plume along +z with turbulent wrinkles that
   grow with height, a bright reaction front around a hot core, and empty space around it.
 
-Three more of the paper's regime (512^3 by default, detail at the scale of a voxel, so that at 512^2
+Four more of the paper's regime (512^3 by default, detail at the scale of a voxel, so that at 512^2
 a bilinear upsampling of a 256^2 render loses clearly; stream them with ``scene.volume.stream_to``),
 with widths of thin structures given in voxels of the volume generated:
 
@@ -19,6 +19,8 @@ with widths of thin structures given in voxels of the volume generated:
   to ~13 voxels.
 * ``flame_sheets``: a flame whose two reaction sheets are ~2.5 voxels thick, folded at several scales.
 * ``seed_shell``: a CT-like seed (beechnut-like): pitted, wrinkled shell, septa, fibres, porous tissue.
+* ``rt_plumes``: a Rayleigh-Taylor layer late in its growth, for a whole-box framing: capped spikes of heavy fluid
+  and round-headed bubbles of light fluid, down to ~5 voxels thick, leaning with a smooth flow.
 
 Their detail is coherent: folds at several scales of one surface, never a random-phase band finer than
 the folds, which no network could infer from a half-resolution render.
@@ -395,6 +397,92 @@ def seed_shell(dims, seed: int, z0: int, z1: int, *, edge_voxels: float = 2.5, s
     return _by_slabs(body, dims, z0, z1)
 
 
+def plume_lattice(X: np.ndarray, Y: np.ndarray, depth: np.ndarray, lean, *, cell: float, salt: int, radius: tuple,
+                  length: tuple, cap: tuple, presence: float) -> np.ndarray:
+    """Signed distance (normalized units, < 0 inside) to a lattice of plumes rooted at ``depth`` 0: one per square
+    cell ``cell`` wide in (x, y), jittered, present with probability ``presence``, reaching a depth drawn in
+    ``length`` = (lo, hi), tapering from ``radius`` = (root, tip) and ending in an ellipsoidal cap ``cap`` =
+    (radius, half height). ``lean`` = (lx, ly, cx, cy), fields broadcastable to ``depth``: at depth d a plume's
+    axis has moved by ``l d + c d^2``, so the point's root position picks its cell (as :func:`seed_shell`'s spines).
+    A cap wider than ``cell / 2`` less the jitter would be cut at its cell's edge.
+
+    Example:
+        >>> z = np.linspace(-0.5, 0.5, 5, dtype=F32)[:, None, None]
+        >>> X, Y = np.zeros((1, 1, 1), F32), np.zeros((1, 1, 1), F32)
+        >>> d = plume_lattice(X, Y, z, (F32(0),) * 4, cell=0.5, salt=1, radius=(0.05, 0.05), length=(0.3, 0.3),
+        ...                   cap=(0.08, 0.04), presence=1.0)
+        >>> d.shape, bool(d[0, 0, 0] > 0)   # above the roots (depth < 0) the stem ends nowhere: not inside
+        ((5, 1, 1), False)
+    """
+    lx, ly, cx, cy = lean
+    dd = np.maximum(depth, F32(0.0))
+    xp = X - dd * (lx + cx * dd)
+    yp = Y - dd * (ly + cy * dd)
+    cell = F32(cell)
+    i = np.floor((xp + F32(1.0)) / cell)
+    j = np.floor((yp + F32(1.0)) / cell)
+    xc = F32(-1.0) + (i + F32(0.5) + F32(0.3) * (_cell_hash(i, j, salt) - F32(0.5))) * cell
+    yc = F32(-1.0) + (j + F32(0.5) + F32(0.3) * (_cell_hash(i, j, salt + 1) - F32(0.5))) * cell
+    reach = F32(length[0]) + F32(length[1] - length[0]) * _cell_hash(i, j, salt + 2)
+    lateral = np.sqrt((xp - xc) ** 2 + (yp - yc) ** 2)
+    t = np.clip(depth / reach, 0.0, 1.0)
+    stem = np.maximum(lateral - (F32(radius[0]) + F32(radius[1] - radius[0]) * t), np.maximum(depth - reach, -depth))
+    cr, ch = F32(cap[0]), F32(cap[1])
+    head = (np.sqrt((lateral / cr) ** 2 + ((depth - reach) / ch) ** 2) - F32(1.0)) * min(cr, ch)
+    return np.where(_cell_hash(i, j, salt + 3) < F32(presence), np.minimum(stem, head), F32(1.0)).astype(F32, copy=False)
+
+
+RT_PLUMES = {
+    # (cell, (root, tip) radius, (lo, hi) length, (radius, half height) cap, presence), in voxels
+    "spikes": (40, (5.0, 2.5), (40, 150), (6.0, 3.0), 0.8),
+    "fine_spikes": (18, (3.2, 2.4), (12, 60), (4.2, 2.4), 0.35),
+    "bubbles": (40, (7.0, 10.0), (30, 120), (13.0, 11.0), 0.8),
+    "lean": 0.12, "curl": 0.3,
+}
+
+
+def rt_plumes(dims, seed: int, z0: int, z1: int, *, edge_voxels: float = 1.5) -> np.ndarray:
+    """Paper-regime Rayleigh-Taylor mixing layer late in its growth, for a whole-box framing: heavy fluid (3) on top
+    of light (1), the interface ``z = h(x, y)`` (32 2D modes, RMS 0.05) folded by 24 3D modes (k = 6 pi .. 30 pi,
+    0.03 deep near it), from which hang two lattices of spikes of heavy fluid (32 voxels apart, 5 -> 2.5 voxels thick,
+    40-150 deep; 13 apart, 2.6 -> 1.8 thick, 12-60 deep) with mushroom caps, and into which rise bubbles of light
+    fluid (40 apart, 7 -> 10 thick, round heads). Every plume leans and curls with the flow (smooth 2D fields).
+
+    The detail at the pixel scale is the spikes: lines across many pixels, a few voxels thick, that a C-Image shows
+    in part and a RecNN can complete (:func:`seed_shell`'s spines are the same kind of structure). The edges are a
+    sigmoid ``edge_voxels`` wide.
+    """
+    rng = _rng("rt_plumes", seed)
+    v = _voxel(dims)
+    interface = fourier_modes(rng, 32, 1.0 * np.pi, 10 * np.pi, 1.6, ndim=2)
+    folds = fourier_modes(rng, 24, 6 * np.pi, 30 * np.pi, 1.0)
+    flow = [fourier_modes(rng, 8, 1.0 * np.pi, 2.5 * np.pi, 1.0, ndim=2) for _ in range(4)]
+    x, y, _, _ = grid_axes(dims)
+    X, Y = x[None, None, :], y[None, :, None]
+    h = F32(0.05) * eval_modes(interface, x, y)[None]
+    scale = (RT_PLUMES["lean"],) * 2 + (RT_PLUMES["curl"],) * 2
+    lean = tuple(F32(s) * eval_modes(m, x, y)[None] for s, m in zip(scale, flow))
+    rising = tuple(-f for f in lean)
+    w = F32(edge_voxels * v)
+
+    def lattice(depth, flow_, name, salt):
+        cell, radius, length, cap, presence = RT_PLUMES[name]
+        return plume_lattice(X, Y, depth, flow_, cell=cell * v, salt=salt, radius=tuple(r * v for r in radius),
+                             length=tuple(s * v for s in length), cap=tuple(c * v for c in cap), presence=presence)
+
+    def body(a: int, b: int) -> np.ndarray:
+        z = grid_axes(dims, a, b)[2]
+        depth = h - z[:, None, None]  # below the interface: < 0 is heavy fluid
+        near = np.exp(-((depth / F32(0.3)) ** 2)).astype(F32)
+        phi = depth + F32(0.03) * near * eval_modes(folds, x, y, z)
+        phi = np.minimum(phi, lattice(depth, lean, "spikes", 10))
+        phi = np.minimum(phi, lattice(depth, lean, "fine_spikes", 20))
+        phi = np.maximum(phi, -lattice(-depth, rising, "bubbles", 30))
+        return F32(1.0) + F32(2.0) * _sigmoid(-phi / w)
+
+    return _by_slabs(body, dims, z0, z1)
+
+
 @dataclass(frozen=True)
 class ProceduralGenerator:
     """A registered generator: ``fn(dims_xyz, seed, z0, z1) -> float32 (z1 - z0, Y, X)``."""
@@ -419,6 +507,8 @@ PROCEDURAL_GENERATORS: dict[str, ProceduralGenerator] = {
                             "paper-size flame: thin reaction sheets wrinkled at several scales, empty around"),
         ProceduralGenerator("seed_shell", seed_shell, (512, 512, 512),
                             "paper-size CT-like specimen: a beechnut's wrinkled husk covered in ~1000 curled spines"),
+        ProceduralGenerator("rt_plumes", rt_plumes, (512, 512, 512),
+                            "paper-size Rayleigh-Taylor layer late in its growth: capped spikes and bubbles, thin to a few voxels"),
     ]
 }
 

@@ -13,6 +13,10 @@ For one IMS checkpoint (``model.target=pim``) and a rendered cache, on evenly sp
 
     python scripts/ims_gap.py runs/demo/ims-.../checkpoints/epoch008.ckpt cache/flame-... [--split test] [--views 24]
 
+``--views-at 22 23`` scores those positions of the split instead (a trajectory's failing views); ``--sharpness 3
+--lift`` makes the IMS's masks the ones the product runs at an ORP that kept that sharpness (the IML's and the
+oracle's masks do not change).
+
 Prints a markdown table (and ``--json`` writes the rows).
 """
 from __future__ import annotations
@@ -38,12 +42,19 @@ SPLITS = ("train", "val", "test")
 BLOCKS = (1, 4, 32)
 
 
-def load_views(cache: ViewImageCache, pattern, split: str, count: int) -> dict[str, torch.Tensor]:
-    """``count`` evenly spaced views of ``split``: ``{"view" (B, 9), "c" (B, 3, n, n), "fr" (B, 3, m, m)}``."""
+def load_views(cache: ViewImageCache, pattern, split: str, count: int, picks=None) -> dict[str, torch.Tensor]:
+    """``count`` evenly spaced views of ``split`` (or the views at positions ``picks`` of the split, e.g. a
+    trajectory's failing views): ``{"view" (B, 9), "c" (B, 3, n, n), "fr" (B, 3, m, m)}``."""
     rows = np.asarray(cache.splits[split])
     if len(rows) == 0:
         raise SystemExit(f"error: the cache has no {split} views")
-    rows = rows[np.unique(np.linspace(0, len(rows) - 1, min(count, len(rows))).astype(int))]
+    if picks:
+        bad = [p for p in picks if not 0 <= p < len(rows)]
+        if bad:
+            raise SystemExit(f"error: --views-at {bad[0]}: the {split} split has views 0-{len(rows) - 1}")
+        rows = rows[list(picks)]
+    else:
+        rows = rows[np.unique(np.linspace(0, len(rows) - 1, min(count, len(rows))).astype(int))]
     ds = ViewImageDataset(cache.path, rows, pattern, fields=("view", "c", "fr"))
     return {k: torch.stack([ds[i][k] for i in range(len(ds))]).float() for k in ("view", "c", "fr")}
 
@@ -97,8 +108,9 @@ def object_oracle(obj: torch.Tensor, bg: torch.Tensor, P: torch.Tensor, valid: t
     return (obj | (bg & (P < frac.view(-1, 1, 1, 1)))).float()
 
 
-def gap_rows(ims, batch: dict[str, torch.Tensor], shares) -> list[dict]:
-    """Per share and mask (``iml``, ``ims``, ``oracle``): densities and PSNRs, means over the views."""
+def gap_rows(ims, batch: dict[str, torch.Tensor], shares, lift: bool = False) -> list[dict]:
+    """Per share and mask (``iml``, ``ims``, ``oracle``): densities and PSNRs, means over the views. ``lift``: the
+    IMS's masks lifted to their mean value's share, as the product runs them with ``decoder_lift``."""
     iml, recnn = ims.iml, ims.recnn
     c, fr, views = batch["c"], batch["fr"], batch["view"]
     B, n = c.shape[0], c.shape[-1]
@@ -115,7 +127,7 @@ def gap_rows(ims, batch: dict[str, torch.Tensor], shares) -> list[dict]:
     rows = []
     for share in shares:
         masks = {"iml": mask_at_share(iml_mask, share, valid, B),
-                 "ims": mask_at_share(lambda u: ims.output_to_im_at(g, u), share, valid, B),
+                 "ims": mask_at_share(lambda u: ims.output_to_im_at(g, u, lift), share, valid, B),
                  "oracle": object_oracle(obj, bg, P, valid, share)}
         for name, m in masks.items():
             rec = iml.decoder(m * c, m)
@@ -141,6 +153,12 @@ def main(argv=None) -> int:
     ap.add_argument("cache", help="the rendered cache folder (the evaluation's data)")
     ap.add_argument("--split", default="test", choices=SPLITS)
     ap.add_argument("--views", type=int, default=24)
+    ap.add_argument("--views-at", type=int, nargs="+", default=None, metavar="I",
+                    help="these positions of the split instead of --views evenly spaced ones (e.g. a trajectory's failing views)")
+    ap.add_argument("--lift", action="store_true",
+                    help="lift the IMS's masks to their mean value's share, as the product does (model.decoder_lift)")
+    ap.add_argument("--sharpness", type=float, default=1.0,
+                    help="the IMS mask's sharpness (the evaluation's ims_sharpness its ORP kept; 1: the paper's masks)")
     ap.add_argument("--shares", type=float, nargs="+", default=[0.1, 0.2, 0.4, 0.6])
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--decoder-from", default=None, metavar="IML_CKPT",
@@ -149,6 +167,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.views < 1 or not all(0 < s <= 1 for s in a.shares):
         ap.error("--views must be >= 1 and every --shares value in (0, 1]")
+    if not 1.0 <= a.sharpness <= 8.0:
+        ap.error(f"--sharpness {a.sharpness}: expected a mask sharpness in [1, 8]")
     with torch.no_grad():  # not set_grad_enabled(False): main() is also called in-process (tests)
         return _report(a, ap)
 
@@ -162,11 +182,12 @@ def _report(a: argparse.Namespace, ap: argparse.ArgumentParser) -> int:
         if other.pattern.fingerprint() != ims.pattern.fingerprint():
             ap.error("--decoder-from: an IML trained on another sampling pattern than the IMS")
         ims.iml.decoder = other.iml.decoder
+    ims.mask_sharpness = a.sharpness
     cache = ViewImageCache.open(a.cache)
     agreement = {s: pim_agreement(ims, load_views(cache, ims.pattern, s, a.views)) for s in SPLITS if len(cache.splits[s])}
-    batch = load_views(cache, ims.pattern, a.split, a.views)
+    batch = load_views(cache, ims.pattern, a.split, a.views, a.views_at)
     alone = float(psnr_per_image(ims.recnn(batch["c"]), batch["fr"]).mean())
-    rows = gap_rows(ims, batch, a.shares)
+    rows = gap_rows(ims, batch, a.shares, a.lift)
     print("| split | PIM' correlation IMS vs IML | MSE | " + " | ".join(f"per view, {k} x {k} blocks" for k in BLOCKS)
           + " |\n|---|---:|---:|" + "---:|" * len(BLOCKS))
     for s, r in agreement.items():

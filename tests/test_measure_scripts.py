@@ -184,6 +184,48 @@ def test_ims_gap_script_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     assert got["density_object"] == pytest.approx(want["density_object"], abs=1e-6)
 
 
+def test_ims_gap_picks_views_and_the_products_masks(tiny_checkpoints, tmp_path, capsys, monkeypatch):
+    """``--views-at`` scores exactly those positions of the split; ``--sharpness`` and ``--lift`` reach the IMS's
+    masks only (the IML's and the oracle's rows stay); a position outside the split or a sharpness outside [1, 8] is
+    a one-line error."""
+    import torch
+
+    from data_gen.cache import ViewImageCache
+    from imls_lightning.inference.checkpoints import load_task
+
+    mod = _script_module("ims_gap")
+    fr_size = int(load_task(str(tiny_checkpoints["ims_pim"]), expect="IMSTask", what="ims").hparams["fr_size"])
+    cache_dir = next(p.parent for p in Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")
+                     if ViewImageCache.open(p.parent).images.shape[1] == fr_size)
+    ckpt = str(tiny_checkpoints["ims_pim"])
+    runs, seen = {}, []
+    real_rows = mod.gap_rows
+
+    def spy(ims, batch, shares, lift=False):
+        seen.append((ims.mask_sharpness, lift, batch["view"].shape[0]))
+        return real_rows(ims, batch, shares, lift)
+
+    monkeypatch.setattr(mod, "gap_rows", spy)
+    for tag, extra in {"plain": [], "sharp": ["--sharpness", "3", "--lift"]}.items():
+        out = tmp_path / f"{tag}.json"
+        assert mod.main([ckpt, str(cache_dir), "--views-at", "2", "0", "--shares", "0.3", "--json", str(out), *extra]) == 0
+        runs[tag] = {r["mask"]: r for r in json.loads(out.read_text())["rows"]}
+    assert seen == [(1.0, False, 2), (3.0, True, 2)]
+    assert runs["plain"]["iml"] == runs["sharp"]["iml"] and runs["plain"]["oracle"] == runs["sharp"]["oracle"]
+    cache = ViewImageCache.open(cache_dir)
+    ims = load_task(ckpt, expect="IMSTask", what="ims")
+    picked = mod.load_views(cache, ims.pattern, "test", 99, [2, 0])
+    test_rows = np.asarray(cache.splits["test"])
+    assert picked["view"].shape[0] == 2
+    assert torch.equal(picked["view"][0], torch.as_tensor(np.asarray(cache.views[test_rows[2]]), dtype=torch.float32))
+    with pytest.raises(SystemExit, match=r"--views-at 999: the test split has views 0-"):
+        mod.main([ckpt, str(cache_dir), "--views-at", "999"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        mod.main([ckpt, str(cache_dir), "--sharpness", "9"])
+    assert "--sharpness 9.0: expected a mask sharpness in [1, 8]" in capsys.readouterr().err
+
+
 def test_smoke_measure_backends_on_real_checkpoints(tiny_checkpoints, tmp_path, capsys):
     """Every backend runs the same IMS, views and mask: float32 PyTorch and its TorchScript / ONNX
     exports give the same image (PSNR within 0.01 dB), bfloat16 close to it; a missing ONNX Runtime is a row

@@ -230,9 +230,13 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
                            background_density=density)
     silhouette_table = bound_table(silhouette, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
     sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
+    train_frames = lead_frames(cfg, lead_cfg, renderer, pattern, scene)
+    eval_frames = [v.fr for v in measured]
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup,
-                                sharpness=max(sharpnesses), before=cast)
-    lead = measure_lead(cfg, lead_cfg, renderer, pattern, scene, [v.fr for v in measured], opts)
+                                sharpness=max(sharpnesses), before=cast,
+                                lead=lambda net, label: measure_lead(cfg, lead_cfg, net, pattern, train_frames,
+                                                                     eval_frames, opts, label))
+    lead = measure_lead(cfg, lead_cfg, recnn_net(cfg), pattern, train_frames, eval_frames, opts)
     needed = measure_needed_share(cfg, lead, renderer, pattern, views, measured, mask_repeats)
     alone = c_render_ms + nets_t["recnn_ms"]
     return {
@@ -302,25 +306,34 @@ def sharpened_bound(gamma: float, renderer, pattern, views, measured, model, blu
             "share_for_2x": share_for_speedup(table, 2.0), "share_for_target": share_for_speedup(table, target)}
 
 
-def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern, scene, eval_frames: list,
-                 opts: NetOptions) -> RecNNLead | None:
-    """Issue 31's third bar, before any cache: the RecNN of the chosen size trained ``recnn_lead.steps`` steps on
-    ``recnn_lead.train_views`` more random views (another seed), scored on the estimate's views; None when off."""
+def lead_frames(cfg: DictConfig, lead_cfg: Mapping[str, Any], renderer, pattern, scene) -> list[np.ndarray] | None:
+    """The quick RecNN's training frames: ``recnn_lead.train_views`` more random views (another seed than the
+    estimate's), rendered once for every size trained on them; None when ``recnn_lead`` is off."""
     from data_gen.views import sample_training_views
 
     if not lead_cfg["steps"]:
         return None
-    seed = int(cfg.seed)
-    views = sample_training_views(lead_cfg["train_views"], scene.camera_distance, seed=seed + 1, lookat_jitter=0.1)
+    views = sample_training_views(lead_cfg["train_views"], scene.camera_distance, seed=int(cfg.seed) + 1, lookat_jitter=0.1)
     frames = []
     for i, view in enumerate(views):
         frames.append(renderer.render(view, pattern.fr_size))
         _say(f"RecNN lead: training view {i + 1}/{len(views)} rendered")
+    return frames
+
+
+def measure_lead(cfg: DictConfig, lead_cfg: Mapping[str, Any], net: Mapping[str, Any], pattern, frames: list | None,
+                 eval_frames: list, opts: NetOptions, label: str = "RecNN lead") -> RecNNLead | None:
+    """Issue 31's third bar, before any cache: a RecNN of the sizes ``net`` (the ``recnn.net`` node) trained
+    ``recnn_lead.steps`` steps on ``frames`` (:func:`lead_frames`), scored on the estimate's views; None when off.
+    Every size starts from the same seed, so a candidate of the chosen sizes gets the chosen lead."""
+    if frames is None:
+        return None
+    seed = int(cfg.seed)
     torch.manual_seed(seed)  # the RecNN's initial weights
-    recnn = build_networks(pattern, recnn_net(cfg), cfg.iml, cfg.ims)["recnn"]
+    recnn = build_networks(pattern, net, cfg.iml, cfg.ims)["recnn"]
     lead = recnn_lead(recnn, pattern, frames, eval_frames, lead_cfg["steps"], crop=lead_cfg["crop"],
                       batch=lead_cfg["batch"], lr=lead_cfg["lr"], seed=seed, device=opts.device)
-    _say(f"RecNN lead: {lead.steps} steps on {lead.train_views} views in {lead.seconds:.0f} s: {lead.recnn_db:.2f} dB, "
+    _say(f"{label}: {lead.steps} steps on {lead.train_views} views in {lead.seconds:.0f} s: {lead.recnn_db:.2f} dB, "
          f"{lead.lead_db:+.2f} dB over {lead.upsampled_db:.2f} dB")
     return lead
 
@@ -366,11 +379,12 @@ def check_candidates(cfg: DictConfig) -> list[dict[str, Any]]:
 
 def candidate_rows(cfg: DictConfig, cands: list[dict[str, Any]], pattern, opts: NetOptions, cost, c_render_ms: float,
                    target: float, density: float, repeats: int, warmup: int, sharpness: float = 1.0,
-                   before=None) -> list[dict[str, Any]]:
-    """The latency half of the size table ("model only what a scene requires"): for each entry of
-    ``candidates`` (a mapping of sizes put over the RecNN's ``net``; ``iml.*`` / ``ims.*`` keys size those
-    networks), the networks' times and the bound, on the render costs measured once; timed as the chosen sizes are
-    (``sharpness`` and ``before``: :func:`~.measure.network_ms`)."""
+                   before=None, lead=None) -> list[dict[str, Any]]:
+    """The size table ("model only what a scene requires"): for each entry of ``candidates`` (a mapping of sizes put
+    over the RecNN's ``net``; ``iml.*`` / ``ims.*`` keys size those networks), the networks' times and the bound, on
+    the render costs measured once; timed as the chosen sizes are (``sharpness`` and ``before``:
+    :func:`~.measure.network_ms`). Its quality half: ``lead(net, label)``, when given, trains that size's quick RecNN
+    (:func:`measure_lead`; ``recnn_lead`` None when off) on the same frames as the chosen size's."""
     rows = []
     for cand in cands:
         iml = {**OmegaConf.to_container(cfg.iml, resolve=True), **{k[4:]: v for k, v in cand.items() if k.startswith("iml.")}}
@@ -380,8 +394,10 @@ def candidate_rows(cfg: DictConfig, cands: list[dict[str, Any]], pattern, opts: 
                        sharpness=sharpness, before=before)
         nets_ms = t["ims_ms"] + t["decoder_ms"]
         table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=t["recnn_ms"], background_density=density)
+        quick = lead(net, f"candidate {cand}: RecNN lead") if lead is not None else None
         rows.append({"sizes": cand, **t, "nets_ms": nets_ms, "bound_20": table[1]["speedup"],
-                     "share_for_target": share_for_speedup(table, target)})
+                     "share_for_target": share_for_speedup(table, target),
+                     "recnn_lead": quick.to_dict() if quick else None})
         _say(f"candidate {cand}: RecNN {t['recnn_ms']:.1f} ms, networks IML/S adds {nets_ms:.1f} ms, "
              f"bound at 20% of C {table[1]['speedup']:.2f}x")
     return rows
@@ -427,8 +443,11 @@ def format_report(est: Mapping[str, Any]) -> str:
             lines.append(f"  no share keeps {need['epsilon_db']:g} dB")
     for c in est.get("candidates") or []:
         reach = f"up to {c['share_for_target']:.0%} of C" if c["share_for_target"] is not None else "nowhere"
+        quick = c.get("recnn_lead")
         lines.append(f"  sizes {c['sizes']}: RecNN {c['recnn_ms']:.1f} ms, IML/S adds {c['nets_ms']:.1f} ms, "
-                     f"{c['bound_20']:.2f}x at 20% of C, {est['target']:g}x {reach}")
+                     f"{c['bound_20']:.2f}x at 20% of C, {est['target']:g}x {reach}"
+                     + (f"; its quick RecNN {quick['recnn_db']:.2f} dB, {quick['lead_db']:+.2f} dB over "
+                        f"{est['upsampler']}" if quick else ""))
     s = est["share_for_target"]
     lines.append(f"  {est['target']:g}x is reachable up to {s:.0%} of C" if s is not None else
                  f"  {est['target']:g}x is out of reach at any share of C (best {est['bound'][0]['speedup']:.2f}x at 10%)")

@@ -10,10 +10,14 @@ import pytest
 from data_gen.errors import InputError
 from data_gen.procedural import (
     PROCEDURAL_GENERATORS,
+    RT_PLUMES,
+    _cell_hash,
+    _voxel,
     from_source,
     grid_axes,
     make_procedural,
     parse_procedural_source,
+    plume_lattice,
     write_procedural_raw,
 )
 from data_gen.volumes import load_volume
@@ -77,10 +81,10 @@ def test_slabs_match_whole_volume(gen):
 
 
 def test_paper_generators_are_registered():
-    assert {"rayleigh_taylor", "flame_sheets", "seed_shell"} <= set(PAPER)
+    assert {"rayleigh_taylor", "flame_sheets", "seed_shell", "rt_plumes"} <= set(PAPER)
 
 
-@pytest.mark.parametrize("gen", ["rayleigh_taylor", "flame_sheets", "seed_shell"])
+@pytest.mark.parametrize("gen", ["rayleigh_taylor", "flame_sheets", "seed_shell", "rt_plumes"])
 def test_paper_generator_slab_seed_determinism(gen):
     """At 40^3: a middle slab is bit-identical to the same rows of the whole volume; the same
     seed gives the same bits, another seed another volume; all values finite."""
@@ -147,6 +151,72 @@ def test_seed_shell_husk_with_separate_spines_and_air_around():
     assert 4 <= np.median(shell) <= 8 and max(shell) <= 12
     # spines: some rays meet one beyond the shell, most pass between them (separate lines, not a coat)
     assert 8 <= spines <= 48
+
+
+def _one_plume(lean=(0.0, 0.0, 0.0, 0.0), cell=0.5, salt=7):
+    """The plume of cell (2, 2) of ``plume_lattice``'s lattice: its axis at the root, its reach (the direct formulas)."""
+    i = j = np.array([2.0], np.float32)
+    xc = -1.0 + (2 + 0.5 + 0.3 * (float(_cell_hash(i, j, salt)[0]) - 0.5)) * cell
+    yc = -1.0 + (2 + 0.5 + 0.3 * (float(_cell_hash(i, j, salt + 1)[0]) - 0.5)) * cell
+    reach = 0.2 + 0.2 * float(_cell_hash(i, j, salt + 2)[0])
+
+    def sdf(x, y, depth):
+        a = np.float32
+        return float(plume_lattice(np.full((1, 1, 1), x, a), np.full((1, 1, 1), y, a), np.full((1, 1, 1), depth, a),
+                                   tuple(np.float32(v) for v in lean), cell=cell, salt=salt, radius=(0.06, 0.03),
+                                   length=(0.2, 0.4), cap=(0.09, 0.04), presence=1.0)[0, 0, 0])
+    return xc, yc, reach, sdf
+
+
+def test_plume_lattice_signed_distance_against_direct_geometry():
+    """A plume tapers linearly from its root radius to its tip radius, ends in an ellipsoidal cap, and leans as
+    ``l d + c d^2``: the signed distance at points whose distance follows from that geometry directly."""
+    xc, yc, reach, sdf = _one_plume()
+    for t in (0.1, 0.5, 0.9):
+        r, d = 0.06 + (0.03 - 0.06) * t, t * reach
+        # on the axis: the nearest of the stem's wall, its root plane, its end, and the cap's pole
+        stem = max(-r, -d, d - reach)
+        assert sdf(xc, yc, d) == pytest.approx(min(stem, abs(d - reach) - 0.04), abs=1e-5)
+    for t in (0.3, 0.5):
+        r = 0.06 + (0.03 - 0.06) * t
+        # beside the stem, outside it: the lateral gap (the cap lies deeper, farther off)
+        assert sdf(xc + r + 0.02, yc, t * reach) == pytest.approx(0.02, abs=1e-5)
+    assert sdf(xc, yc, reach) == pytest.approx(-0.04, abs=1e-5)         # the cap's centre: minus its half height
+    assert sdf(xc + 0.08, yc, reach) < 0 < sdf(xc + 0.10, yc, reach)    # the cap is 0.09 wide, wider than the stem
+    assert sdf(xc, yc, reach + 0.05) > 0 and sdf(xc, yc, -0.01) > 0    # nothing beyond the cap or above the root
+    # a lean: at depth d the axis has moved by l d + c d^2
+    lx, cx, d = 0.3, 0.5, 0.7 * reach
+    xl, yl, reach_l, lean = _one_plume((lx, 0.0, cx, 0.0))
+    assert reach_l == reach
+    assert lean(xl + lx * d + cx * d * d, yl, d) == pytest.approx(sdf(xc, yc, d), abs=1e-5)
+    # absent plumes (presence 0) are far outside everywhere
+    none = plume_lattice(*(np.zeros((1, 1, 1), np.float32),) * 3, (np.float32(0),) * 4, cell=0.5, salt=7,
+                         radius=(0.06, 0.03), length=(0.2, 0.4), cap=(0.09, 0.04), presence=0.0)
+    assert float(none[0, 0, 0]) == 1.0
+
+
+def test_rt_plumes_caps_fit_their_cells():
+    """A plume's widest part plus its cell's jitter stays inside its cell, or a neighbour's lookup would cut it."""
+    for name in ("spikes", "fine_spikes", "bubbles"):
+        cell, radius, _, cap, _ = RT_PLUMES[name]
+        assert max(radius + (cap[0],)) + 0.15 * cell < 0.5 * cell, name
+
+
+def test_rt_plumes_heavy_over_light_with_separate_spikes_below():
+    """At its real size (single z-slices of the 512^3 volume: a slab is bit-identical to the whole volume's rows):
+    heavy fluid (3) on top, light (1) below, and under the interface spikes of heavy fluid that stand apart,
+    a few voxels thick, with light fluid between them."""
+    dims = (512, 512, 512)
+    g = PROCEDURAL_GENERATORS["rt_plumes"].fn
+    top, bottom = g(dims, 0, 511, 512)[0], g(dims, 0, 0, 1)[0]
+    assert top.min() > 2.9 and bottom.max() < 1.1
+    below = g(dims, 0, 200, 201)[0]  # about 0.2 under the interface's mean height
+    heavy = below > 2.0
+    assert 0.01 < heavy.mean() < 0.25  # mostly light fluid, crossed by spikes
+    runs = [r for row in heavy[::4] for r in _runs(row)]
+    assert len(runs) >= 150  # many separate spikes along the rows
+    assert 3 <= np.median(runs) <= 8 and np.percentile(runs, 90) <= 14  # a few voxels thick (caps up to 12 across)
+    assert 1.0 <= below.min() and below.max() <= 3.0 and np.isfinite(below).all()
 
 
 def test_marschner_lobb_against_direct_formula():

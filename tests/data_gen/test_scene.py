@@ -14,9 +14,9 @@ from data_gen.scene import (Scene, auto_transfer_function, build_scene, default_
 from data_gen.volume import Volume
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "scene"
-PROCEDURAL = ["tiny", "marschner_lobb", "mixing_layer", "flame", "rayleigh_taylor", "flame_sheets", "seed_shell"]
+PROCEDURAL = ["tiny", "marschner_lobb", "mixing_layer", "flame", "rayleigh_taylor", "flame_sheets", "seed_shell", "rt_plumes"]
 #: presets of paper-size (512^3) volumes: built at a small size in CI, streamed to a temporary directory
-PAPER_SIZE = {"rayleigh_taylor", "flame_sheets", "seed_shell"}
+PAPER_SIZE = {"rayleigh_taylor", "flame_sheets", "seed_shell", "rt_plumes"}
 REAL = {
     "ct_head": "ct_head_256x256x108_int16.raw",
     "mri_head": "mri_head_128x128x84_uint8.raw",

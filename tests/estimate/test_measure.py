@@ -359,6 +359,20 @@ def test_exception_recnn_lead_needs_a_regular_grid():
     assert "\n" not in str(e.value)
 
 
+def test_cli_candidates_get_their_own_quick_recnn_lead(tmp_path):
+    """The size table's quality half: each candidate's quick RecNN trains on the chosen size's frames from the same
+    seed, so a candidate of the chosen sizes reproduces the chosen lead, and another size gets its own."""
+    r = _cli(tmp_path, "recnn_lead.steps=3", "recnn_lead.train_views=1", "recnn_lead.crop=16", "recnn_lead.batch=2",
+             "candidates=[{channels: 4, blocks: 1}, {channels: 8, blocks: 2}]")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
+    same, other = (c["recnn_lead"] for c in est["candidates"])
+    assert same == pytest.approx({**est["recnn_lead"], "seconds": same["seconds"]})
+    assert np.isfinite(other["lead_db"]) and other["recnn_db"] != same["recnn_db"]
+    assert other["upsampled_db"] == pytest.approx(est["bilinear_db"], abs=1e-4)  # scored on the estimate's views
+    assert "its quick RecNN" in r.stdout and "candidate {'channels': 8, 'blocks': 2}: RecNN lead" in r.stderr + r.stdout
+
+
 def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     table = tmp_path / "estimates.csv"
     table.write_text("scene,recnn,volume_dims\nold,enhancenet,8x8x8\n")  # an older table with fewer columns is extended
