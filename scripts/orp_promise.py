@@ -49,7 +49,8 @@ def parse_variant(text: str) -> dict:
 
 def test_gap(nets, cache, rows, pattern, u, lift: bool) -> dict:
     """IML/S at ``(u, lift)`` against the RecNN alone on ``rows``: per-view gaps, the paired mean, by distance.
-    ``u``: a mean value, or a :class:`~imls_lightning.models.ims.DistanceMeans` (each view at its band's)."""
+    ``u``: a mean value, or a module view ``(B, 9)`` -> ``u`` ``(B,)`` (a
+    :class:`~imls_lightning.models.ims.DistanceMeans`: each view at its band's)."""
     from imls_lightning.core.metrics import psnr_per_image
     from imls_lightning.evaluation.measurement import view_loader
     from imls_lightning.evaluation.operating_point import camera_distance
@@ -68,7 +69,7 @@ def test_gap(nets, cache, rows, pattern, u, lift: bool) -> dict:
     g = np.array(gaps)
     quarters = [float(g[part].mean()) for part in np.array_split(np.argsort(d, kind="stable"), 4)]
     return {"test_gap_db": float(g.mean()), "test_gap_std_db": float(g.std(ddof=1)), "test_c_share": float(np.mean(shares)),
-            "test_gap_by_distance_quarter_db": quarters, "test_views": len(gaps)}
+            "test_gap_by_distance_quarter_db": quarters, "test_views": len(gaps), "test_gaps_db": g.tolist()}
 
 
 def two_pass_test(s, cfg, cache, scene, nets, pattern, rows) -> dict:

@@ -693,3 +693,53 @@ def test_mask_sharpness_script_on_real_checkpoints(tiny_checkpoints, capsys):
                      (["--means", "2"], "--means=2.0: expected")):
         with pytest.raises(SystemExit, match=re.escape(msg)):
             ms.main(["--ims", str(tiny_checkpoints["ims_pim"]), "--cache", str(cache), *bad])
+
+
+def test_object_floor_raises_a_bands_u_to_the_predicted_object_plus_its_margin():
+    """``u = max(u_band, object + margin)``, the object being the share of the pattern's pixels whose PIM' exceeds tau
+    (a direct count), at most 1; margin None leaves the bands' u."""
+    import torch
+
+    mod = _script_module("object_floor")
+
+    class Gen(torch.nn.Module):  # PIM' = (g + 1) / 2 of view k: the first 4k of 16 pixels at 0.9, the rest at 0.05
+        def forward(self, v):
+            g = torch.full((v.shape[0], 1, 4, 4), -0.9)
+            for k in range(v.shape[0]):
+                g[k, 0].view(-1)[: 4 * int(v[k, 0])] = 0.8
+            return g
+
+    valid = torch.ones(4, 4, dtype=torch.bool)
+    valid[0, 0] = False  # a padded C-pixel does not count
+    views = torch.zeros(3, 9)
+    views[:, 0] = torch.tensor([0.0, 2.0, 4.0])
+    band = lambda v: torch.full((v.shape[0],), 0.3)  # noqa: E731
+    pim = (Gen()(views)[:, 0] + 1) / 2
+    direct = torch.stack([(pim[k][valid] > 0.2).float().mean() for k in range(3)])
+    floor = mod.ObjectFloor(band, Gen(), valid, 0.1, 0.2)
+    assert torch.allclose(floor.object_fraction(views), direct)
+    assert torch.allclose(floor(views), torch.maximum(torch.full((3,), 0.3), (direct + 0.1).clamp(max=1.0)))
+    assert float(floor(views)[2]) == 1.0  # the whole pattern is object: at most 1
+    assert torch.equal(mod.ObjectFloor(band, Gen(), valid, None, 0.2)(views), torch.full((3,), 0.3))
+
+
+def test_object_floor_chooses_the_smallest_margin_whose_quarters_stay_bounded():
+    """The margin is chosen as the ORP search chooses: every quarter's one-sided 95% bound on the mean gap (a direct
+    formula) within epsilon, the smallest margin first."""
+    mod = _script_module("object_floor")
+    rng = np.random.default_rng(0)
+    gaps, dist = rng.normal(0.5, 0.4, 40), rng.uniform(3, 5, 40)
+    got = mod.quarter_bounds(gaps, dist, 0.95, 30)
+    q = np.array_split(np.argsort(dist, kind="stable"), 4)
+    # mean + z s sqrt(1/n + 1/m): 10 views of a quarter bound the mean of 30 new ones
+    want = [gaps[p].mean() + 1.6448536269514722 * gaps[p].std(ddof=1) * np.sqrt(1 / 10 + 1 / 30) for p in q]
+    assert got == pytest.approx(want, rel=1e-9)
+
+    def row(m, bounds):
+        return {"margin": m, "quarter_bounds_db": bounds}
+
+    rows = [row(None, [1.3, 0.5, 0.4, 0.1]), row(0.0, [1.1, 0.5, 0.4, 0.1]), row(0.05, [0.9, 0.5, 0.4, 0.1]),
+            row(0.1, [0.5, 0.4, 0.3, 0.1])]
+    assert mod.choose(rows, 1.0) == 2
+    assert mod.choose(rows[:2], 1.0) is None
+    assert mod.choose([row(None, [0.5, 0.4, 0.3, 0.1])], 1.0) == 0  # the bands alone already keep it
