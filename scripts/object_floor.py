@@ -12,8 +12,9 @@ the mean share of C, and the gap by distance quarter. IML/S runs on the cached p
     .venv/bin/python scripts/object_floor.py runs/paper/eval/seed_whole-enhancenet-5c0076b2 \\
         --margins 0 0.05 0.1 --json benchmarks/seed_whole/object_floor.json
 
-The chosen margin: the smallest whose validation views keep the promise in every quarter of camera distance, judged
-as the ORP search judges a band: by the 95% upper bound on its mean gap, for a quarter of the test views.
+The chosen point: of those whose validation views keep the promise in every quarter of camera distance, judged as the
+ORP search judges a band (by the 95% upper bound on its mean gap, for a quarter of the test views), the one with the
+smallest mean share of C. ``--band-scales 0.8 0.9 1`` also lets the bands' u fall under the floor (a joint search).
 """
 from __future__ import annotations
 
@@ -79,43 +80,49 @@ def quarter_bounds(gaps: np.ndarray, distances: np.ndarray, confidence: float, f
 
 
 def floor_rows(test_gap, nets, cache, rows, pattern, bands, margins, tau: float, epsilon: float,
-               confidence: float, future_views: int | None = None) -> list[dict]:
-    """For each margin (None first: the bands alone), IML/S at the floored u on ``rows``."""
+               confidence: float, future_views: int | None = None, scales=(1.0,)) -> list[dict]:
+    """For each scale of the bands' u and each margin (None first: the bands alone), IML/S at the floored u on
+    ``rows``."""
     from imls_lightning.evaluation.operating_point import camera_distance
 
     n = pattern.c_size
     valid = nets.ims_task.valid.bool().view(n, n)
     distances = np.array([camera_distance(cache, r) for r in rows])
     out = []
-    for m in [None, *margins]:
-        floor = ObjectFloor(bands, nets.ims_task.generator, valid, m, tau)
-        r = test_gap(nets, cache, rows, pattern, floor, True)
-        gaps = np.asarray(r.pop("test_gaps_db"))
-        out.append({"margin": m, **r, "views_over_epsilon": int((gaps > epsilon).sum()), "worst_gap_db": float(gaps.max()),
-                    "quarter_bounds_db": quarter_bounds(gaps, distances, confidence, future_views)})
+    for scale in scales:
+        scaled = (lambda v, k=float(scale): (bands(v) * k).clamp(0.01, 1.0)) if scale != 1.0 else bands
+        for m in [None, *margins]:
+            floor = ObjectFloor(scaled, nets.ims_task.generator, valid, m, tau)
+            r = test_gap(nets, cache, rows, pattern, floor, True)
+            gaps = np.asarray(r.pop("test_gaps_db"))
+            out.append({"band_scale": float(scale), "margin": m, **r, "views_over_epsilon": int((gaps > epsilon).sum()),
+                        "worst_gap_db": float(gaps.max()), "quarter_bounds_db": quarter_bounds(gaps, distances, confidence,
+                                                                                                future_views)})
     return out
 
 
 def choose(rows: list[dict], epsilon: float) -> int | None:
-    """The first of ``rows`` (the bands alone, then the margins from the smallest) whose bound on the mean gap stays
-    within ``epsilon`` in every distance quarter (the ORP search's criterion, per quarter): its index; None when none
-    does."""
-    for i, r in enumerate(rows):
-        if max(r["quarter_bounds_db"]) <= epsilon:
-            return i
-    return None
+    """Of ``rows`` whose bound on the mean gap stays within ``epsilon`` in every distance quarter (the ORP search's
+    criterion, per quarter), the one with the smallest mean share of C (the fastest): its index; None when none
+    holds. Ties go to the earlier row."""
+    held = [i for i, r in enumerate(rows) if max(r["quarter_bounds_db"]) <= epsilon]
+    return min(held, key=lambda i: (rows[i]["test_c_share"], i)) if held else None
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("evaluation", type=Path, help="a finished evaluation's folder (config.yaml, summary.json) with a by-distance ORP")
     ap.add_argument("--margins", type=float, nargs="+", default=[0.0, 0.05, 0.1])
+    ap.add_argument("--band-scales", type=float, nargs="+", default=[1.0],
+                    help="also scale the bands' u by these (a floor may let the bands fall: a joint search)")
     ap.add_argument("--tau", type=float, default=0.2, help="PIM' above this counts as the object (its background sits near 0.02)")
     ap.add_argument("--confidence", type=float, default=0.95, help="the bound on each quarter's mean gap (the ORP search's)")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
     if not all(0 <= m <= 1 for m in a.margins) or not 0 < a.tau < 1 or not 0 < a.confidence < 1:
         ap.error("--margins must lie in [0, 1], --tau and --confidence in (0, 1)")
+    if not all(0 < k <= 2 for k in a.band_scales):
+        ap.error("--band-scales must lie in (0, 2]")
     op = _orp_promise()
     from data_gen.scene import build_scene
     from data_gen.scene import register_resolvers as register_scene_resolvers
@@ -147,25 +154,29 @@ def main(argv: list[str] | None = None) -> int:
         for name, rows in splits.items():
             # the bound a quarter of validation views puts on a quarter of the test trajectory's views
             result[name] = floor_rows(op.test_gap, nets, cache, rows, pattern, bands, a.margins, a.tau, eps, a.confidence,
-                                      future_views=max(1, len(splits["test"]) // 4))
+                                      future_views=max(1, len(splits["test"]) // 4), scales=a.band_scales)
             print(f"[object-floor] {name}: {len(rows)} views done", file=sys.stderr, flush=True)
     pick = choose(result["val"], eps)
-    chosen = None if pick is None else result["val"][pick]["margin"]
+    chosen = None if pick is None else (result["val"][pick]["band_scale"], result["val"][pick]["margin"])
     print(f"\n{summary.get('scene')} / {summary.get('recnn')}: u = max(band's u, the IMS's object (PIM' > {a.tau:g}) + margin)\n")
-    print("| margin | views | mean gap | gap by distance quarter (near → far) | its 95% bound | views over 1 dB | worst | mean share of C |")
-    print("| --- | --- | ---: | --- | --- | ---: | ---: | ---: |")
+    print("| bands' u x | margin | views | mean gap | gap by distance quarter (near → far) | its 95% bound | views over 1 dB | "
+          "worst | mean share of C |")
+    print("| ---: | --- | --- | ---: | --- | --- | ---: | ---: | ---: |")
     for name in ("val", "test"):
         for r in result[name]:
             m = "bands alone" if r["margin"] is None else f"{r['margin']:.2f}"
+            mark = " (chosen)" if chosen == (r["band_scale"], r["margin"]) else ""
             q = " / ".join(f"{x:.2f}" for x in r["test_gap_by_distance_quarter_db"])
-            print(f"| {m}{' (chosen)' if pick is not None and r['margin'] == chosen else ''} | {name} ({r['test_views']}) | "
+            print(f"| {r['band_scale']:.2f} | {m}{mark} | {name} ({r['test_views']}) | "
                   f"{r['test_gap_db']:.2f} dB | {q} | {' / '.join(f'{x:.2f}' for x in r['quarter_bounds_db'])} | "
                   f"{r['views_over_epsilon']} | {r['worst_gap_db']:.2f} dB | {r['test_c_share']:.1%} |")
-    print("\nchosen on the validation views: " + ("nothing keeps the promise" if pick is None else
-                                                  "the bands alone" if chosen is None else f"margin {chosen:.2f}"))
+    print("\nchosen on the validation views: " + ("nothing keeps the promise" if chosen is None else
+                                                  f"the bands' u x {chosen[0]:.2f}, " +
+                                                  ("no floor" if chosen[1] is None else f"margin {chosen[1]:.2f}")))
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps({"tau": a.tau, "confidence": a.confidence, "chosen": None if pick is None else {"margin": chosen},
+        a.json.write_text(json.dumps({"tau": a.tau, "confidence": a.confidence,
+                                      "chosen": None if chosen is None else {"band_scale": chosen[0], "margin": chosen[1]},
                                       **result}, indent=1, default=float))
     return 0
 

@@ -724,8 +724,8 @@ def test_object_floor_raises_a_bands_u_to_the_predicted_object_plus_its_margin()
 
 
 def test_object_floor_chooses_the_smallest_margin_whose_quarters_stay_bounded():
-    """The margin is chosen as the ORP search chooses: every quarter's one-sided 95% bound on the mean gap (a direct
-    formula) within epsilon, the smallest margin first."""
+    """The point is chosen as the ORP search chooses: every quarter's one-sided 95% bound on the mean gap (a direct
+    formula) within epsilon; of those, the smallest share of C."""
     mod = _script_module("object_floor")
     rng = np.random.default_rng(0)
     gaps, dist = rng.normal(0.5, 0.4, 40), rng.uniform(3, 5, 40)
@@ -735,11 +735,13 @@ def test_object_floor_chooses_the_smallest_margin_whose_quarters_stay_bounded():
     want = [gaps[p].mean() + 1.6448536269514722 * gaps[p].std(ddof=1) * np.sqrt(1 / 10 + 1 / 30) for p in q]
     assert got == pytest.approx(want, rel=1e-9)
 
-    def row(m, bounds):
-        return {"margin": m, "quarter_bounds_db": bounds}
+    def row(m, bounds, share):
+        return {"margin": m, "quarter_bounds_db": bounds, "test_c_share": share}
 
-    rows = [row(None, [1.3, 0.5, 0.4, 0.1]), row(0.0, [1.1, 0.5, 0.4, 0.1]), row(0.05, [0.9, 0.5, 0.4, 0.1]),
-            row(0.1, [0.5, 0.4, 0.3, 0.1])]
-    assert mod.choose(rows, 1.0) == 2
+    rows = [row(None, [1.3, 0.5, 0.4, 0.1], 0.30), row(0.0, [1.1, 0.5, 0.4, 0.1], 0.31), row(0.05, [0.9, 0.5, 0.4, 0.1], 0.34),
+            row(0.1, [0.5, 0.4, 0.3, 0.1], 0.38)]
+    assert mod.choose(rows, 1.0) == 2  # the cheapest that holds
     assert mod.choose(rows[:2], 1.0) is None
-    assert mod.choose([row(None, [0.5, 0.4, 0.3, 0.1])], 1.0) == 0  # the bands alone already keep it
+    assert mod.choose([row(None, [0.5, 0.4, 0.3, 0.1], 0.3)], 1.0) == 0  # the bands alone already keep it
+    # a joint search: lower bands under a floor may hold at a smaller share than the bands with a floor
+    assert mod.choose(rows + [row(0.1, [0.9, 0.6, 0.2, 0.1], 0.33)], 1.0) == 4
