@@ -1,19 +1,4 @@
 #!/bin/bash
-# rt_plumes's EnhanceNet row of paper_scale.csv by seed_whole's protocol (benchmarks/seed_whole/row.sh): the
-# before-training estimate, the cache, every training stage in 30-minute chunks (the IMS's decoder stage included), then
-# the evaluation without empty-space skipping, the methods timed interleaved on 12 views, gamma = 3 masks.
-# A stage that stops after its chunk exits with status 3: the loop runs the same command again, which resumes it.
-# TRAIN_ONLY=1 stops after the training stages (the evaluation needs the cores to itself: run it alone later).
-# The IML trains 15 epochs and the IMS 10, as on seed_whole, whose curves still rose at the schedule's 5.
-# Log: logs/rt_plumes_row.log (run it as `bash benchmarks/rt_plumes/row.sh > logs/rt_plumes_row.log 2>&1`).
-cd "$(dirname "$0")/../.." && source .venv/bin/activate
-extra=()
-[ "${TRAIN_ONLY:-0}" = 1 ] && extra+=(train_only=true)
-for i in $(seq 1 20); do
-  python -m imls_lightning.bench_paper scene=rt_plumes recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
-    'stages.iml=["model.mode=end_to_end","model.mean=0.2","model.mean_range=[0.05,0.6]","model.depth=4","model.base_channels=8","trainer.max_epochs=15"]' \
-    'stages.ims=["data.num_views=1500","data.train_pixels=pattern","data.val_fraction=0.02","model.target=pim","model.loss.mse=1.0","model.loss.perceptual.weight=0.0","model.loss.adversarial=0.0","model.layers=7","model.base_channels=16","model.max_channels=256","model.betas=[0.9,0.999]","model.decoder_lr=1.0e-3","model.decoder_every=4","model.decoder_mean_range=[0.1,1.0]","trainer.max_epochs=10","model.monitor=val/fr_psnr"]' \
-    'evaluate=["max_views=null","timed_views=12","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","ims_sharpness=[3.0]"]'
-  rc=$?; echo "[row] pass $i rc=$rc at $(date)"
-  [ $rc -eq 3 ] || exit $rc
-done
+# rt_plumes's EnhanceNet row of paper_scale.csv by seed_whole's protocol (benchmarks/whole_scene_row.sh; TRAIN_ONLY=1
+# stops before the evaluation). Run it as `bash benchmarks/rt_plumes/row.sh > logs/rt_plumes_row.log 2>&1`.
+exec bash "$(dirname "$0")/../whole_scene_row.sh" rt_plumes "$@"

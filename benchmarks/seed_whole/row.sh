@@ -1,21 +1,8 @@
 #!/bin/bash
-# seed_whole's EnhanceNet row of paper_scale.csv by flame_whole's protocol (benchmarks/flame_whole/row_decoder.sh): the
-# before-training estimate, the cache, every training stage in 30-minute chunks (the IMS's decoder stage included), then
-# the evaluation without empty-space skipping, the methods timed interleaved on 12 views, gamma = 3 masks.
-# A stage that stops after its chunk exits with status 3: the loop runs the same command again, which resumes it.
-# TRAIN_ONLY=1 stops after the training stages (the evaluation needs the cores to itself: run it alone later).
+# seed_whole's EnhanceNet row of paper_scale.csv (benchmarks/whole_scene_row.sh: flame_whole's protocol, the stages in
+# 30-minute chunks, TRAIN_ONLY=1 to stop before the evaluation). Log: logs/seed_whole_row.log.
 # The IML trains 15 epochs instead of the schedule's 5: on seed_whole its validation PSNR was still rising by 0.2-0.3 dB
 # an epoch at epoch 5 (29.91, 30.62, 30.84, 31.04, 31.31 dB; flame_whole's had kept epoch 3 of 5); the epoch count is
 # outside a run's identity, so the finished 5-epoch run continues. The IMS trains 10 instead of 5 for the same reason
-# (validation IML/S + RecNN 29.00, 29.69, 29.92, 29.97, 30.62 dB: +0.65 dB at its fifth). Log: logs/seed_whole_row.log
-cd /work/main && source .venv/bin/activate
-extra=()
-[ "${TRAIN_ONLY:-0}" = 1 ] && extra+=(train_only=true)
-for i in $(seq 1 20); do
-  python -m imls_lightning.bench_paper scene=seed_whole recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
-    'stages.iml=["model.mode=end_to_end","model.mean=0.2","model.mean_range=[0.05,0.6]","model.depth=4","model.base_channels=8","trainer.max_epochs=15"]' \
-    'stages.ims=["data.num_views=1500","data.train_pixels=pattern","data.val_fraction=0.02","model.target=pim","model.loss.mse=1.0","model.loss.perceptual.weight=0.0","model.loss.adversarial=0.0","model.layers=7","model.base_channels=16","model.max_channels=256","model.betas=[0.9,0.999]","model.decoder_lr=1.0e-3","model.decoder_every=4","model.decoder_mean_range=[0.1,1.0]","trainer.max_epochs=10","model.monitor=val/fr_psnr"]' \
-    'evaluate=["max_views=null","timed_views=12","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","ims_sharpness=[3.0]"]'
-  rc=$?; echo "[row] pass $i rc=$rc at $(date)"
-  [ $rc -eq 3 ] || exit $rc
-done
+# (validation IML/S + RecNN 29.00, 29.69, 29.92, 29.97, 30.62 dB: +0.65 dB at its fifth).
+exec bash "$(dirname "$0")/../whole_scene_row.sh" seed_whole "$@"
