@@ -60,14 +60,18 @@ class ObjectFloor(torch.nn.Module):
         self.register_buffer("valid", valid.bool())
 
     def object_fraction(self, views: torch.Tensor) -> torch.Tensor:
-        pim = (self.generator(views).float() + 1) / 2
-        return (pim[:, 0] > self.tau)[:, self.valid].float().mean(1)
+        from imls_lightning.core.importance import object_fraction
+
+        return object_fraction((self.generator(views).float() + 1) / 2, self.valid, self.tau)
 
     def forward(self, views: torch.Tensor) -> torch.Tensor:
+        # the product's formula (IMSMaskHead's object_floor; the evaluation's orp_object_floor), on the bands' u
+        from imls_lightning.core.importance import floored_mean
+
         u = self.bands(views).float()
         if self.margin is None:
             return u
-        return torch.maximum(u, (self.object_fraction(views) + self.margin).clamp(max=1.0))
+        return floored_mean(u, self.object_fraction(views), self.margin)
 
 
 def quarter_bounds(gaps: np.ndarray, distances: np.ndarray, confidence: float, future_views: int | None) -> list[float]:
@@ -105,8 +109,10 @@ def choose(rows: list[dict], epsilon: float) -> int | None:
     """Of ``rows`` whose bound on the mean gap stays within ``epsilon`` in every distance quarter (the ORP search's
     criterion, per quarter), the one with the smallest mean share of C (the fastest): its index; None when none
     holds. Ties go to the earlier row."""
-    held = [i for i, r in enumerate(rows) if max(r["quarter_bounds_db"]) <= epsilon]
-    return min(held, key=lambda i: (rows[i]["test_c_share"], i)) if held else None
+    from imls_lightning.evaluation.operating_point import choose_object_floor
+
+    return choose_object_floor([{"gap_bound_db": max(r["quarter_bounds_db"]), "c_share": r["test_c_share"]} for r in rows],
+                               epsilon)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -147,6 +147,24 @@ def test_csv_roundtrip_and_merge_keeps_other_pairs(tmp_path):
     assert merged[1]["imls_ms"] == pytest.approx(250.0)
 
 
+def test_the_object_floor_margin_column_and_tables_from_before_it(tmp_path):
+    """A row whose evaluation chose an object floor carries its margin; none chosen, or no ORP, leaves it empty; a
+    table written before the column is read with it empty, and written back with every column."""
+    s = _summary()
+    floored = {**s, "orp": {**s["orp"], "object_floor": {"chosen": {"margin": 0.12, "tau": 0.2}}}}
+    assert bp.csv_row(floored)["object_floor_margin"] == 0.12
+    assert bp.csv_row({**s, "orp": {**s["orp"], "object_floor": {"chosen": None}}})["object_floor_margin"] == ""
+    assert bp.csv_row(s)["object_floor_margin"] == ""
+    path = tmp_path / "paper_scale.csv"
+    before = bp.LEGACY_COLUMNS + bp.ESTIMATE_COLUMNS + bp.RENDERER_COLUMNS
+    bp.write_csv([{k: v for k, v in bp.csv_row(s).items() if k in before}], path, columns=before)
+    old = bp.read_rows(path)
+    assert old[0]["object_floor_margin"] == "" and old[0]["scene"] == s["scene"]
+    bp.write_csv(bp.merge_rows(old, [bp.csv_row({**floored, "scene": "seed_whole"})]), path)
+    again = bp.read_rows(path)
+    assert [r["object_floor_margin"] for r in again] == ["", "0.12"]
+
+
 def test_read_rows_exception_foreign_table(tmp_path):
     path = tmp_path / "paper_scale.csv"
     path.write_text("a,b\n1,2\n")

@@ -494,6 +494,72 @@ def test_mask_sharpness_candidates_timed_on_the_search_views_the_fastest_kept(ru
         parse_settings(_compose(*_args(run["ck"], "ims_sharpness_views=-1")))
 
 
+def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run, tmp_path):
+    """orp_object_floor=[...]: after the search each candidate margin (no floor first) is judged on the cache's
+    validation views at the found point; the cheapest whose bound holds is kept (a direct re-check of the rule), the
+    task's masks carry it, and the summary, the report and the record beside the checkpoint say so (a renderer built
+    from the checkpoint alone floors its masks the same way). Bad values are one-line errors."""
+    import shutil
+
+    from data_gen.cache import ViewImageCache
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp, record_operating_point
+    from imls_lightning.inference.checkpoints import load_product
+    from imls_lightning.report.document import _orp_lines
+
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    assert len(main.splits["val"]) == 2
+    # a loose bound: a point is found, and more than one candidate holds, so the cheapest is a choice
+    cfg = _compose(*_args(run["ck"], "orp_object_floor=[0.5,0.0]", "orp_confidence=0.5", "epsilon_db=30", "ims_lift=true"))
+    s = parse_settings(cfg)
+    assert s.orp_object_floor == [0.0, 0.5] and s.hashed()["orp_object_floor"] == {"margins": [0.0, 0.5], "tau": 0.2}
+    assert "orp_object_floor" not in parse_settings(_compose(*_args(run["ck"]))).hashed()  # earlier folders kept
+    nets = load_networks(s, int(cfg.data.resolution))
+    res = product_path_orp(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
+    assert res.found
+    f = res.object_floor
+    assert [c["margin"] for c in f["candidates"]] == [None, 0.0, 0.5] and f["views"] == 2 and f["tau"] == 0.2
+    shares = [c["c_share"] for c in f["candidates"]]
+    assert shares[0] <= shares[1] + 1e-9 <= shares[2] + 2e-9  # a floor only adds pixels
+    held = [c for c in f["candidates"] if c["gap_bound_db"] <= 30]
+    best = min(held, key=lambda c: c["c_share"])
+    assert (f["chosen"] is None) == (best["margin"] is None)
+    if f["chosen"] is not None:
+        assert f["chosen"]["margin"] == best["margin"] and nets.ims_task.mask_object_floor == (best["margin"], 0.2)
+        assert nets.ims_task.mask_head.object_floor == (best["margin"], 0.2)
+    else:
+        assert nets.ims_task.mask_object_floor is None
+    orp = orp_summary(res, s, lifted=res.lifted)
+    assert orp["object_floor"] is f
+    section = "\n".join(_orp_lines(orp, "test"))
+    assert "**Object floor** (`orp_object_floor`)" in section and "| no floor |" in section
+    # the record travels with a copy of the checkpoint: a floor chosen there floors its renderers' masks
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(s.ims, ck)
+    chosen = {"margin": 0.5, "tau": 0.2, "c_share": shares[2], "gap_db": 0.1, "gap_bound_db": 0.2, "views": 2}
+    record_operating_point(dataclasses.replace(s, ims=str(ck)), {**orp, "object_floor": {**f, "chosen": chosen}}, "tiny",
+                           tmp_path / "report.md", 2)
+    product = load_product(ck)
+    assert product.operating_point.object_floor == chosen and product.nets.head.object_floor == (0.5, 0.2)
+    for bad, msg in (("orp_object_floor=1.5", "orp_object_floor=1.5: expected a margin or a list of margins in [0, 1]"),
+                     ("orp_object_floor=[0.1,nan]", "orp_object_floor=nan"),
+                     ("orp_object_floor_tau=1", "orp_object_floor_tau=1: expected an importance in (0, 1)")):
+        with pytest.raises(InputError, match=re.escape(msg)):
+            parse_settings(_compose(*_args(run["ck"], bad)))
+
+
+def test_object_floor_without_validation_views_is_a_one_line_error():
+    from types import SimpleNamespace
+
+    from imls_lightning.evaluation.operating_point import object_floor_point
+
+    cache = SimpleNamespace(splits={"val": np.array([], dtype=np.int64)}, path="cache/x")
+    with pytest.raises(InputError, match=re.escape("orp_object_floor: the cache cache/x has no validation views")):
+        object_floor_point(SimpleNamespace(orp_object_floor=[0.1]), cache, None, None, "cpu", None, 2)
+
+
 @pytest.mark.slow  # a benchmark script (three ORP searches); the by-distance search itself is tested above
 def test_orp_promise_script_tests_each_searched_point_on_the_evaluated_views(run, tmp_path, capsys):
     """scripts/orp_promise.py re-searches a finished evaluation's ORP (its own settings first, then each variant,

@@ -249,6 +249,26 @@ def test_export_runs_a_point_recorded_by_camera_distance(renderer, tmp_path):
     assert near.min() > 0.8 and far.max() < 0.4, share  # lifted: each view's share reaches its band's u
 
 
+def test_export_runs_a_point_recorded_with_an_object_floor(renderer, tmp_path):
+    """A point recorded with an object floor is exported as it runs: the im network raises each view's u to its object
+    plus the margin (the same IMs as IMLSRenderer.from_checkpoints, whose head carries the floor), and export.json
+    says so."""
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+
+    ims = _low_pim_ims("enhancenet", 3.0)
+    ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
+    floor = {"margin": 0.3, "tau": 0.01, "c_share": 0.5, "gap_db": 0.4, "gap_bound_db": 0.9, "views": 8}
+    write_operating_point(ckpt, OperatingPoint(mean=0.05, lift=True, c_share=0.05, ipr=0.01, epsilon_db=1.0, object_floor=floor))
+    out = export_renderer(ckpt, tmp_path / "ts")
+    meta = json.loads((out / "export.json").read_text())
+    assert meta["object_floor"] == {"margin": 0.3, "tau": 0.01} and meta["operating_point"]["object_floor"] == floor
+    ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
+    assert ref.mask_head.object_floor == (0.3, 0.01)
+    views = _views(4, 12)
+    share = np.array(_compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), views, tol=1)) / ref.pattern.count
+    assert share.min() > 0.25, share  # the floor, not u = 0.05, sets the share
+
+
 def test_standalone_ims_needs_recnn_checkpoint(ckpts, renderer, tmp_path):
     with pytest.raises(InputError, match="recnn_checkpoint=<RecNN .ckpt>"):
         export_renderer(ckpts["standalone"], tmp_path / "a")

@@ -293,12 +293,13 @@ def measure_trajectory(s, cache, ev: MeanLabels, run: SimpleNamespace) -> tuple[
 
 def recorded_bands(ims_checkpoint: str, lift: bool):
     """The evaluation's by-distance operating point for this IMS (``orp_by_distance``): ``(DistanceMeans, its record)``,
-    or ``None`` without one, or when it was searched with other masks than this run makes (another ``lift``, or a
-    mask sharpness other than 1: this module's labels and masks are the paper's)."""
+    or ``None`` without one, or when it was searched with other masks than this run makes (another ``lift``, a
+    mask sharpness other than 1 or an object floor: this module's labels and masks are the paper's)."""
     from ..inference.operating_point import read_operating_point
 
     point = read_operating_point(ims_checkpoint, log=None)
-    if point is None or not point.by_distance or point.lifted != bool(lift) or point.sharpness != 1.0:
+    if point is None or not point.by_distance or point.lifted != bool(lift) or point.sharpness != 1.0 \
+            or point.floor is not None:
         return None
     return point.distance_means(), point.by_distance
 

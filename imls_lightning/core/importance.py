@@ -45,6 +45,9 @@ __all__ = [
     "lift_to_share",
     "lifted_mask",
     "LiftToShare",
+    "check_object_floor",
+    "object_fraction",
+    "floored_mean",
     "soft_rejection_sample",
     "hard_rejection_sample",
     "ImportanceNormalization",
@@ -231,6 +234,56 @@ class SharpenImportance(nn.Module):
 
     def extra_repr(self) -> str:
         return f"sharpness={self.sharpness}"
+
+
+def check_object_floor(margin: Any, tau: Any = 0.2, name: str = "object_floor") -> tuple[float, float]:
+    """Validate an object floor: ``(margin, tau)`` with ``margin`` in ``[0, 1]`` and ``tau`` in ``(0, 1)``.
+
+    Example:
+        >>> check_object_floor("0.1", 0.2)
+        (0.1, 0.2)
+    """
+    m = check_number(margin, f"{name}.margin", 0.0, 1.0, what="a share of the C-Image in [0, 1]")
+    t = check_number(tau, f"{name}.tau", 0.0, 1.0, lo_open=True, hi_open=True,
+                     what="an importance in (0, 1) above which a pixel counts as the object")
+    return m, t
+
+
+def object_fraction(pim: torch.Tensor, valid: torch.Tensor, tau: float = 0.2) -> torch.Tensor:
+    """The share of each image's ``valid`` pixels whose importance exceeds ``tau``: ``(B,)`` float32.
+
+    What an IMS's PIM' (from the view alone) says of the object a view shows: on the paper-regime scenes its
+    background sits near 0.02 and its object well above 0.2. A mask whose share falls near this fraction leaves
+    holes in the object (seed_whole's failing views, BENCHMARKS.md), so :func:`floored_mean` keeps a margin above it.
+
+    Args:
+        pim: ``(B, 1, H, W)`` importance in ``[0, 1]``.
+        valid: ``(H, W)`` (or broadcastable 4-D) bool, the pattern's C-pixels; an image with none gets 0.
+        tau: the importance above which a pixel counts as the object.
+
+    Example:
+        >>> pim = torch.tensor([[[[0.9, 0.0], [0.5, 0.1]]]])
+        >>> object_fraction(pim, torch.ones(2, 2, dtype=torch.bool)).tolist()
+        [0.5]
+        >>> object_fraction(pim, torch.tensor([[True, False], [False, False]])).tolist()
+        [1.0]
+    """
+    with torch.autocast(device_type=pim.device.type, enabled=False):
+        v = _valid_4d(valid, pim.device, torch.float32)
+        hit = (pim.float() > float(tau)).float() * v
+        count = v.expand_as(hit).sum(dim=(1, 2, 3)).clamp_min(1.0)
+        return hit.sum(dim=(1, 2, 3)) / count
+
+
+def floored_mean(mean: torch.Tensor, fraction: torch.Tensor, margin: float) -> torch.Tensor:
+    """Each view's mean value raised to its object's fraction plus ``margin`` where that is larger, at most 1:
+    ``max(u, min(1, f + margin))``, ``(B,)``.
+
+    Example:
+        >>> floored_mean(torch.tensor([0.3, 0.6]), torch.tensor([0.35, 0.35]), 0.1).tolist()
+        [0.44999998807907104, 0.6000000238418579]
+    """
+    return torch.maximum(mean.float(), (fraction.float() + float(margin)).clamp(max=1.0))
 
 
 def lift_to_share(

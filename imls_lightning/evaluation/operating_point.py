@@ -34,7 +34,8 @@ def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report:
                            ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
                            scene=scene, report=str(Path(report).resolve()),
                            by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
-                           sharpness=float(orp.get("sharpness", 1.0)))
+                           sharpness=float(orp.get("sharpness", 1.0)),
+                           object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None)
     try:
         path = write_operating_point(s.ims, point)
     except OSError as err:
@@ -191,7 +192,86 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
             + f"; kept {best.sharpness:g}" + (f" (the fastest on {s.ims_sharpness_views} search views)" if times else
                                              " (the smallest share of C)"), file=sys.stderr, flush=True)
     ims.mask_sharpness = best.sharpness
+    best.object_floor = None
+    if s.orp_object_floor and best.found:
+        best.object_floor = object_floor_point(s, cache, nets, pattern, device, best, future_views)
+        chosen = best.object_floor["chosen"]
+        ims.mask_object_floor = None if chosen is None else (chosen["margin"], chosen["tau"])
     return best
+
+
+def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, result, future_views: int | None) -> dict[str, Any]:
+    """The object floor's margin (``orp_object_floor``) for a found operating point: IML/S + RecNN at the point's mean
+    value (or its bands'), each view raised to its object's share plus each candidate margin
+    (:meth:`~imls_lightning.models.ims.IMSMaskHead.with_object_floor`), on the evaluated cache's validation views.
+
+    Not on the search views: the bands were chosen to hold there, so no floor would ever look needed. The
+    validation views are drawn like the training views (every distance, every direction) and no network was trained
+    on them; the test trajectory is never looked at. Each candidate is judged as the search judges a band: the
+    bound for ``future_views`` new views (with ``orp_strata``, in each band of camera distance) within
+    ``epsilon_db``. Of those that hold (no floor among them), the one that ray-casts the smallest share of C is
+    chosen (:func:`choose_object_floor`).
+
+    Returns:
+        ``{"tau", "views", "candidates": [{"margin" (None: no floor), "gap_db", "gap_bound_db", "c_share",
+        "strata_gap_db", "views_over_epsilon"}], "chosen": {"margin", "tau", "c_share", "gap_db", "gap_bound_db",
+        "views"} or None (no floor: the bands alone held, or were the cheapest that did)}``.
+
+    Raises:
+        InputError: the cache has no validation views.
+    """
+    from ..inference.baselines import product_point
+    from ..orp import strata_by_rank
+
+    rows = cache.splits["val"]
+    if len(rows) == 0:
+        raise InputError(f"orp_object_floor: the cache {cache.path} has no validation views to choose the floor's margin on "
+                         "(data.val_fraction > 0), or pass orp_object_floor=null")
+    ims, tau = nets.ims_task, s.orp_object_floor_tau
+    bands = distance_means(result)
+    u = bands.to(device) if bands is not None else float(result.mean)
+    distances = [camera_distance(cache, r) for r in rows]
+    strata = strata_by_rank(distances, s.orp_strata) if s.orp_strata > 1 else None
+    recnn = nets.recnn.to(device).eval()
+    candidates = []
+    with torch.inference_mode():
+        batches = list(view_loader(cache, rows, pattern))
+        for margin in [None, *s.orp_object_floor]:
+            rec = product_point(ims.mask_head.with_object_floor(margin, tau), ims.decoder, recnn, batches, u, device=device,
+                                confidence=s.orp_confidence, lift=result.lifted, future_views=future_views, strata=strata,
+                                per_view=True)
+            candidates.append({"margin": margin, "gap_db": rec["gap_db"], "gap_bound_db": rec["gap_bound_db"],
+                               "c_share": rec["c_share"], "strata_gap_db": rec.get("strata_gap_db"),
+                               "views_over_epsilon": int(sum(g > s.epsilon_db for g in rec["gaps_db"]))})
+            c = candidates[-1]
+            print(f"[evaluate] object floor on {len(rows)} validation views: " + ("no floor" if margin is None else
+                  f"object + {margin:g}") + f": {c['c_share']:.1%} of C, gap {c['gap_db']:.2f} dB (bound {c['gap_bound_db']:.2f}), "
+                  f"{c['views_over_epsilon']} views over {s.epsilon_db:g} dB", file=sys.stderr, flush=True)
+    pick = choose_object_floor(candidates, s.epsilon_db)
+    if pick is None:
+        pick = min(range(len(candidates)), key=lambda i: (candidates[i]["gap_bound_db"], i))
+        print(f"[evaluate] warning: object floor: no margin keeps the bound within {s.epsilon_db:g} dB on the validation "
+              "views; keeping the one with the smallest bound", file=sys.stderr, flush=True)
+    c = candidates[pick]
+    chosen = None if c["margin"] is None else {"margin": float(c["margin"]), "tau": float(tau), "c_share": c["c_share"],
+                                               "gap_db": c["gap_db"], "gap_bound_db": c["gap_bound_db"], "views": len(rows)}
+    print("[evaluate] object floor: " + ("none (the operating point alone is the cheapest that holds)" if chosen is None else
+          f"each view at least its object (PIM' > {tau:g}) + {chosen['margin']:g} of C"), file=sys.stderr, flush=True)
+    return {"tau": float(tau), "views": len(rows), "candidates": candidates, "chosen": chosen}
+
+
+def choose_object_floor(candidates: Sequence[dict[str, Any]], epsilon_db: float) -> int | None:
+    """Of ``candidates`` (each with ``gap_bound_db`` and ``c_share``) whose bound stays within ``epsilon_db``, the index of
+    the one with the smallest share of C (the fastest; the earlier on a tie); ``None`` where none holds.
+
+    Example:
+        >>> cands = [{"gap_bound_db": 1.4, "c_share": 0.30}, {"gap_bound_db": 0.9, "c_share": 0.41},
+        ...          {"gap_bound_db": 0.6, "c_share": 0.45}]
+        >>> choose_object_floor(cands, 1.0), choose_object_floor(cands, 0.5)
+        (1, None)
+    """
+    held = [i for i, c in enumerate(candidates) if float(c["gap_bound_db"]) <= epsilon_db]
+    return min(held, key=lambda i: (float(candidates[i]["c_share"]), i)) if held else None
 
 
 def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, pattern, renderer, opts, views: int,
@@ -442,4 +522,5 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
             "points": _points(result), "rescale_points": getattr(result, "rescale_points", None),
             "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db"), "by_distance": getattr(result, "by_distance", None),
             "sharpness": float(getattr(result, "sharpness", 1.0)),
-            "sharpness_candidates": getattr(result, "sharpness_candidates", None)}
+            "sharpness_candidates": getattr(result, "sharpness_candidates", None),
+            "object_floor": getattr(result, "object_floor", None)}

@@ -111,6 +111,8 @@ class Settings:
     two_pass_floor: float = 0.25
     timing: str = "interleaved"          # the methods' runs on a timed view: in rounds, or each method's back to back
     ims_sharpness_views: int = 6         # search views the candidates' operating points are timed on (0: by share of C)
+    orp_object_floor: list[float] = field(default_factory=list)  # the object floor's candidate margins ([]: no floor)
+    orp_object_floor_tau: float = 0.2    # PIM' above this counts as the object
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -132,6 +134,8 @@ class Settings:
             **({"ims_sharpness": self.ims_sharpness} if self.ims_sharpness != [1.0] else {}),
             **({"ims_sharpness_views": self.ims_sharpness_views} if len(self.ims_sharpness) > 1 else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
+            **({"orp_object_floor": {"margins": self.orp_object_floor, "tau": self.orp_object_floor_tau}}
+               if self.orp_object_floor else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
                              # its share per band of camera distance, as the ORP's mean value (results changed with it)
@@ -180,7 +184,25 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
         orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
         ims_sharpness_views=_int(cfg, "ims_sharpness_views", 0) if OmegaConf.select(cfg, "ims_sharpness_views") is not None else 6,
+        **_object_floor(cfg),
     )
+
+
+def _object_floor(cfg) -> dict[str, Any]:
+    """``orp_object_floor``: candidate margins in [0, 1] of a floor on each view's mean value, its object's share of C
+    (PIM' above ``orp_object_floor_tau``, in (0, 1)) plus the margin, chosen after the search on the cache's
+    validation views (null or []: no floor). Needs the IMS's ``target=pim`` and lifted masks (a share to floor)."""
+    from data_gen.validate import check_number
+
+    v = to_plain(OmegaConf.select(cfg, "orp_object_floor", default=None))
+    tau = check_number(OmegaConf.select(cfg, "orp_object_floor_tau", default=0.2), "orp_object_floor_tau", 0.0, 1.0,
+                       lo_open=True, hi_open=True, what="an importance in (0, 1) above which a pixel counts as the object")
+    items = [] if v is None else list(v) if isinstance(v, (list, tuple)) else [v]
+    margins = set()
+    for m in items:
+        margins.add(check_number(m, "orp_object_floor", 0.0, 1.0,
+                                 what="a margin or a list of margins in [0, 1] (shares of C above the object's own)"))
+    return {"orp_object_floor": sorted(margins), "orp_object_floor_tau": tau}
 
 
 def _timing(cfg) -> str:

@@ -194,24 +194,27 @@ def summarize_equal_share(batches: Sequence[Sequence[Mapping[str, Any]]]) -> lis
 
 @torch.no_grad()
 def _prepare_product_views(mask_head: Any, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]], device):
-    """Per batch: the C-Image, the FR truth, the IMS generator's output and the RecNN alone's per-view PSNR."""
+    """Per batch: the C-Image, the FR truth, the IMS generator's output, the RecNN alone's per-view PSNR and the views."""
     prepared = []
     for b in batches:
         c, fr, v = b["c"].to(device), b["fr"].to(device), b["view"].to(device).float()
-        prepared.append((c, fr, mask_head.generator(v).float(), psnr_per_image(recnn(c), fr)))
+        prepared.append((c, fr, mask_head.generator(v).float(), psnr_per_image(recnn(c), fr), v))
     return prepared
 
 
-def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, prepared, u: float, lift: bool,
+def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, prepared, u, lift: bool,
                     confidence: float, future_views: int | None, strata: Sequence[int] | None,
-                    passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any]:
-    """IML/S + RecNN at mean value ``u`` against the RecNN alone on the prepared views: the record of
-    :func:`product_orp` (one home for both the search and :func:`product_point`)."""
+                    passes: Sequence[int] | None = None, paths: int = 1, per_view: bool = False) -> dict[str, Any]:
+    """IML/S + RecNN at mean value ``u`` (a number, or a module of the views ``(B, 9) -> (B,)``, e.g. a
+    :class:`~imls_lightning.models.ims.DistanceMeans`) against the RecNN alone on the prepared views: the record of
+    :func:`product_orp` (one home for both the search and :func:`product_point`); ``per_view`` adds each view's
+    ``gaps_db`` and ``c_shares``."""
     from ..orp import protocol_gap_record
 
     ps, pr, shares = [], [], []
-    for c, fr, g, p_rec in prepared:
-        im = mask_head.threshold(g, torch.full((c.shape[0],), float(u)), lift).float()
+    for c, fr, g, p_rec, v in prepared:
+        means = u(v).float() if callable(u) else torch.full((c.shape[0],), float(u))
+        im = mask_head.threshold(g, means, lift).float()
         ps.append(psnr_per_image(recnn(decoder(im * c, im)), fr))
         pr.append(p_rec)
         shares.append(im.flatten(1).sum(1))
@@ -222,20 +225,26 @@ def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Mo
     rec = protocol_gap_record(gaps, confidence, future_views, strata, passes, paths)
     rec.update({"psnr_imls": float(p_imls.mean()), "psnr_recnn": float(p_rec.mean()), "c_share": float(cnt) / k,
                 "ipr": float(cnt) / m2})
+    if per_view:
+        rec.update(gaps_db=gaps, c_shares=(torch.cat(shares).float() / k).cpu().tolist())
     return rec
 
 
 def product_point(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
-                  mean: float, device: torch.device | str = "cpu", confidence: float = 0.5, lift: bool = False,
-                  future_views: int | None = None, passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any]:
-    """IML/S + RecNN at one mean value on the given views: the record one :func:`product_orp` evaluation makes."""
+                  mean, device: torch.device | str = "cpu", confidence: float = 0.5, lift: bool = False,
+                  future_views: int | None = None, passes: Sequence[int] | None = None, paths: int = 1,
+                  strata: Sequence[int] | None = None, per_view: bool = False) -> dict[str, Any]:
+    """IML/S + RecNN at one mean value (or a module of the views giving each its own, e.g. the bands of camera
+    distance) on the given views: the record one :func:`product_orp` evaluation makes (``per_view``: with each
+    view's ``gaps_db`` and ``c_shares``)."""
     from ..orp import gap_upper_bound
 
     gap_upper_bound([0.0], confidence, future_views)
     prepared = _prepare_product_views(mask_head, recnn, batches, device)
     if not prepared:
         raise InputError("product_point: no views")
-    return _product_record(mask_head, decoder, recnn, prepared, mean, lift, confidence, future_views, None, passes, paths)
+    return _product_record(mask_head, decoder, recnn, prepared, mean, lift, confidence, future_views, strata, passes, paths,
+                           per_view)
 
 
 def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],

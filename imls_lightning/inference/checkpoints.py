@@ -238,7 +238,7 @@ def load_product(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | None
                  mean: float | str | None = None,
                  keys: tuple[str, str] = ("ims_checkpoint", "recnn_checkpoint")) -> Product:
     """:func:`load_ims_nets` and the mean value to run at: by default the operating point the
-    evaluation recorded for this checkpoint (its masks lifted and sharpened as it did), else the trained
+    evaluation recorded for this checkpoint (its masks lifted, sharpened and floored as it did), else the trained
     mean (one line on stderr says which); ``mean`` (a number in ``[0.01, 1]``, or ``"trained"``)
     overrides it (:func:`~imls_lightning.inference.operating_point.mean_to_run`).
 
@@ -253,6 +253,8 @@ def load_product(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | None
     u, lift, point = mean_to_run(ims_checkpoint, mean, target=nets.target, trained_mean=nets.trained_mean)
     if point is not None and point.sharpness != 1.0:  # the masks the point was searched with, for every consumer
         nets = dataclasses.replace(nets, head=nets.head.with_sharpness(point.sharpness))
+    if point is not None and point.floor is not None:  # each view at least its object plus the recorded margin
+        nets = dataclasses.replace(nets, head=nets.head.with_object_floor(*point.floor))
     return Product(nets, u, lift, point)
 
 

@@ -34,7 +34,7 @@ from typing import Any, Callable
 
 from data_gen.errors import InputError
 
-from ..core.importance import check_sharpness
+from ..core.importance import check_object_floor, check_sharpness
 
 __all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run"]
 
@@ -70,6 +70,10 @@ class OperatingPoint:
         sharpness: the IMS mask's sharpness ``gamma`` the point was searched at (the evaluation's
             ``ims_sharpness``; 1: the paper's masks; :meth:`~imls_lightning.models.ims.IMSMaskHead.with_sharpness`).
             Records written before it read as 1.
+        object_floor: the floor on each view's mean value from the object its IMS sees (the evaluation's
+            ``orp_object_floor``, chosen on the cache's validation views after the search): ``{"margin", "tau"}`` and
+            what chose it (``c_share``, ``gap_db`` and ``gap_bound_db`` there, ``views``), or ``None``: no floor
+            (:meth:`~imls_lightning.models.ims.IMSMaskHead.with_object_floor`). Records written before it read as ``None``.
     """
 
     mean: float | None
@@ -83,6 +87,7 @@ class OperatingPoint:
     report: str | None = None
     by_distance: dict | None = None
     sharpness: float = 1.0
+    object_floor: dict | None = None
 
     @property
     def found(self) -> bool:
@@ -111,8 +116,18 @@ class OperatingPoint:
                 bands += " (" + " / ".join(f"{100 * c:.0f}" for c in b["c_shares"]) + " % of C)"
             bands += " split at " + ", ".join(f"{e:.2f}" for e in b["edges"])
         sharp = "" if self.sharpness == 1.0 else f", sharpness {self.sharpness:g}"
+        floor = "" if not self.object_floor else (f"; each view at least its object (PIM' > {self.object_floor['tau']:g}) "
+                                                  f"+ {self.object_floor['margin']:g} of C")
         return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{sharp}{share}{ipr} on the validation views "
-                f"(within {self.epsilon_db:g} dB of the RecNN alone){bands}")
+                f"(within {self.epsilon_db:g} dB of the RecNN alone){bands}{floor}")
+
+    @property
+    def floor(self) -> tuple[float, float] | None:
+        """``(margin, tau)`` of the recorded object floor, for :meth:`~imls_lightning.models.ims.IMSMaskHead.with_object_floor`;
+        ``None``: none."""
+        if not self.found or not self.object_floor:
+            return None
+        return float(self.object_floor["margin"]), float(self.object_floor["tau"])
 
     @property
     def lifted(self) -> bool:
@@ -161,11 +176,29 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
                                epsilon_db=float(record["epsilon_db"]), gap_db=opt("gap_db"), views=opt("views", int),
                                scene=opt("scene", str), report=opt("report", str),
                                by_distance=_by_distance(record.get("by_distance")),
-                               sharpness=check_sharpness(record.get("sharpness", 1.0)))
+                               sharpness=check_sharpness(record.get("sharpness", 1.0)),
+                               object_floor=_object_floor(record.get("object_floor")))
         point.distance_means()  # the bands are checked as a renderer will read them
     except (KeyError, TypeError, ValueError, InputError) as err:
         return None, f"malformed ({type(err).__name__}: {err})"
     return point, None
+
+
+def _object_floor(value: Any) -> dict | None:
+    """A record's ``object_floor`` checked (``margin`` in [0, 1], ``tau`` in (0, 1)), its other numbers as floats;
+    ``None`` stays ``None``."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise TypeError(f"object_floor is a {type(value).__name__}, expected a mapping")
+    margin, tau = check_object_floor(value["margin"], value["tau"])
+    out: dict[str, Any] = {"margin": margin, "tau": tau}
+    for key in ("c_share", "gap_db", "gap_bound_db"):
+        if value.get(key) is not None:
+            out[key] = float(value[key])
+    if value.get("views") is not None:
+        out["views"] = int(value["views"])
+    return out
 
 
 def _by_distance(value: Any) -> dict | None:

@@ -41,7 +41,8 @@ from torch import nn
 
 from data_gen.errors import InputError
 
-from ..core.importance import check_sharpness, lift_to_share, lifted_mask, sharpen_importance
+from ..core.importance import (check_object_floor, check_sharpness, floored_mean, lift_to_share, lifted_mask, object_fraction,
+                               sharpen_importance)
 
 __all__ = ["IMSGenerator", "IMSDiscriminator", "IMSMaskHead", "MaskAt", "DistanceMeans", "TARGETS", "im_to_target", "output_to_im",
            "generator_plan"]
@@ -235,6 +236,11 @@ class IMSMaskHead(nn.Module):
       (:func:`~imls_lightning.core.importance.sharpen_importance`): at the same mean value fewer pixels on
       the low floor, more where the importance is high. The evaluation searches it beside the mean value
       (``ims_sharpness``); at ``gamma = 1`` (default) every mask is the paper's, bit for bit.
+    * ``object_floor`` ``(margin, tau)`` (``target="pim"``): each view's mean value is first raised to the share of
+      its C-pixels whose unsharpened PIM' exceeds ``tau`` plus ``margin``,
+      ``u' = max(u, min(1, object + margin))`` (:func:`~imls_lightning.core.importance.floored_mean`): a mask
+      whose share falls near its own object's fraction leaves holes in the object (seed_whole's failing views).
+      The evaluation chooses the margin on validation views (``orp_object_floor``); ``None`` (default): no floor.
 
     No state changes what a call returns: the mean value and the lift are arguments (:class:`MaskAt`
     binds them for a caller that passes views only, e.g. an export). Tensor operations only: traceable.
@@ -247,6 +253,8 @@ class IMSMaskHead(nn.Module):
         trained_mean: the IML's mean value ``u_train`` the PIM' targets were normalized to.
         lower: the IML normalization's lower bound ``l``. Default 0 (paper).
         sharpness: ``gamma`` in ``[1, 8]``. Default 1 (paper). :meth:`with_sharpness` makes a head at another.
+        object_floor: ``(margin, tau)``, ``margin`` in ``[0, 1]``, ``tau`` in ``(0, 1)``, or ``None`` (default).
+            :meth:`with_object_floor` makes a head with another.
 
     Example:
         >>> n = 8
@@ -260,7 +268,8 @@ class IMSMaskHead(nn.Module):
     """
 
     def __init__(self, generator: nn.Module, P: torch.Tensor, valid: torch.Tensor, target: str,
-                 trained_mean: float | None = None, lower: float = 0.0, sharpness: float = 1.0):
+                 trained_mean: float | None = None, lower: float = 0.0, sharpness: float = 1.0,
+                 object_floor: "tuple[float, float] | None" = None):
         super().__init__()
         if target not in TARGETS:
             raise InputError(f"model.target={target!r}: expected one of {list(TARGETS)}")
@@ -276,6 +285,10 @@ class IMSMaskHead(nn.Module):
         self.sharpness = check_sharpness(sharpness)
         if self.sharpness != 1.0 and target != "pim":
             raise InputError(f"sharpness={sharpness}: sharpening the IMS's mask needs model.target=pim (a binary IM has no importance to sharpen)")
+        self.object_floor = None if object_floor is None else check_object_floor(*object_floor)
+        if self.object_floor is not None and target != "pim":
+            raise InputError(f"object_floor={object_floor}: a floor on the IMS's mean value needs model.target=pim "
+                             "(a binary IM has no mean value to raise)")
         # (1, 1, n, n) views of the given tensors (not copies): a head made from a task's buffers follows them
         self.register_buffer("P", P.detach().reshape(1, 1, n, n))
         self.register_buffer("valid", valid.detach().to(torch.bool).reshape(1, 1, n, n))
@@ -287,11 +300,19 @@ class IMSMaskHead(nn.Module):
     def with_generator(self, generator: nn.Module) -> "IMSMaskHead":
         """The same head around another generator module (e.g. a compiled or channels-last one); the
         buffers are shared."""
-        return IMSMaskHead(generator, self.P, self.valid, self.target, self.trained_mean, self.lower, self.sharpness)
+        return IMSMaskHead(generator, self.P, self.valid, self.target, self.trained_mean, self.lower, self.sharpness,
+                           self.object_floor)
 
     def with_sharpness(self, sharpness: float) -> "IMSMaskHead":
         """The same head (generator and buffers shared) at another ``sharpness``."""
-        return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, sharpness)
+        return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, sharpness,
+                           self.object_floor)
+
+    def with_object_floor(self, margin: float | None, tau: float = 0.2) -> "IMSMaskHead":
+        """The same head (generator and buffers shared) with the object floor ``(margin, tau)``; ``margin=None``:
+        without one."""
+        return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, self.sharpness,
+                           None if margin is None else (margin, tau))
 
     def forward(self, view: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False) -> torch.Tensor:
         """IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` at the trained mean (``mean=None``) or at ``mean``
@@ -311,8 +332,8 @@ class IMSMaskHead(nn.Module):
         with torch.autocast(device_type=g.device.type, enabled=False):
             g = g.float()
             P, valid = self.P.to(g.device), self.valid.to(g.device)
-            if mean is None and self.sharpness != 1.0:
-                mean = self.trained_mean  # the sharpened PIM' at the trained mean: the rescale by 1
+            if mean is None and (self.sharpness != 1.0 or self.object_floor is not None):
+                mean = self.trained_mean  # the sharpened (or floored) PIM' at the trained mean: the rescale by 1
             if mean is None:
                 if self.target == "im":
                     im = g > 0
@@ -329,6 +350,10 @@ class IMSMaskHead(nn.Module):
     def _rescaled(self, g: torch.Tensor, mean, lift: bool, P: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         lower = self.lower
         ut = torch.as_tensor(mean, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
+        if self.object_floor is not None:  # the object's own fraction, from the unsharpened PIM', plus the margin
+            margin, tau = self.object_floor
+            frac = object_fraction((g + 1.0) * 0.5, valid, tau)
+            ut = floored_mean(ut.flatten().expand(g.shape[0]), frac, margin).reshape(-1, 1, 1, 1)
         scale = (ut - lower) / torch.tensor(self.trained_mean - lower, dtype=torch.float32, device=g.device)
         pim = sharpen_importance((g + 1.0) * 0.5, self.sharpness, valid)
         pim_u = pim * scale if lower == 0.0 else (pim - lower) * scale + lower
@@ -355,7 +380,8 @@ class IMSMaskHead(nn.Module):
 
     def extra_repr(self) -> str:
         return (f"target={self.target}, c_size={self.c_size}, trained_mean={self.trained_mean}, lower={self.lower}"
-                + (f", sharpness={self.sharpness}" if self.sharpness != 1.0 else ""))
+                + (f", sharpness={self.sharpness}" if self.sharpness != 1.0 else "")
+                + (f", object_floor={self.object_floor}" if self.object_floor is not None else ""))
 
 
 class DistanceMeans(nn.Module):

@@ -33,7 +33,11 @@ LEGACY_COLUMNS = ("scene", "recnn", "fr_size", "c_size", "sample_distance_voxels
 ESTIMATE_COLUMNS = ("volume_dims", "c_render_ms", "nets_ms", "bilinear_db", "estimated_speedup")
 #: whether the ray caster skipped empty space where the row was timed (bench_paper's ``skip_empty``; rows before it: true)
 RENDERER_COLUMNS = ("skip_empty",)
-CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS
+#: the margin of the object floor the evaluation chose on validation views (``orp_object_floor``; empty: no floor)
+FLOOR_COLUMNS = ("object_floor_margin",)
+CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS
+#: the tables written before each group of columns was appended, still read
+EARLIER_COLUMNS = (LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS)
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
@@ -131,6 +135,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "las_ms": _total(m, "las"), "las_psnr_db": las.get("psnr", math.nan), "full_ms": _total(m, "full"),
         **estimate_cells(estimate, imls.get("c_share"), orp.get("sharpness", 1.0)),
         "skip_empty": summary.get("skip_empty", True),
+        "object_floor_margin": ((orp.get("object_floor") or {}).get("chosen") or {}).get("margin", "") if orp.get("found") else "",
     }
 
 
@@ -186,11 +191,11 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         return []
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) not in (CSV_COLUMNS, LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS):
+        if tuple(reader.fieldnames or ()) not in (CSV_COLUMNS, *EARLIER_COLUMNS):
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
         # a table from before the estimate's columns: they stay empty until the pair is estimated; every row timed
-        # before skip_empty existed was timed with empty-space skipping
-        return [{**{k: "" for k in ESTIMATE_COLUMNS}, "skip_empty": True, **dict(r)} for r in reader]
+        # before skip_empty existed was timed with empty-space skipping, and every row before the floor ran without one
+        return [{**{k: "" for k in ESTIMATE_COLUMNS}, "skip_empty": True, "object_floor_margin": "", **dict(r)} for r in reader]
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:

@@ -271,6 +271,8 @@ def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
                            for lo, hi, e, n, u, c, g, bd in zip(b["lo"], b["hi"], [*b["edges"], None], b["views"], b["means"],
                                                                  b["c_shares"], b["gaps_db"], b["bounds_db"])], "lrrrrrr"))
         L.append("")
+    if o["found"] and o.get("object_floor"):
+        L.extend(_object_floor_lines(o["object_floor"], o["epsilon_db"]))
     L.extend(_gap_lines(o, views))
     L.append(md_table(["u", "gap (dB)", "gap bound (dB)", "C-share"],
                       [[fmt(u, 4), fmt(g, 2), fmt(b[0] if b else None, 2), fmt_pct(c)] for u, g, c, *b in o["points"]], "rrrr"))
@@ -343,6 +345,24 @@ def _notes_lines(ctx: ReportContext, figures: Sequence[tuple[str, str]]) -> list
         L.append("")
         L.append(_md_image(name, alt))
         L.append("")
+    return L
+
+
+def _object_floor_lines(f: dict, epsilon_db: float) -> list[str]:
+    """The object floor's choice (``orp_object_floor``): each candidate margin on the validation views, and the one kept."""
+    c = f.get("chosen")
+    kept = ("no floor (the operating point alone was the cheapest that held)" if c is None else
+            f"**each view at least its object + {fmt(c['margin'], 2)} of C**")
+    L = [f"**Object floor** (`orp_object_floor`): each view's u raised to its object's share of C (the pixels whose IMS "
+         f"PIM', from the view alone, exceeds {fmt(f['tau'], 2)}) plus a margin, judged on the cache's {f['views']} validation "
+         f"views (not the search's, where the operating point holds by construction; never the test trajectory) by the "
+         f"same bound within ε = {fmt(epsilon_db, 2)} dB; the cheapest that held was kept: {kept}. IML/S + RecNN below "
+         "runs with it.", ""]
+    L.append(md_table(["margin", "C-share", "gap (dB)", "gap bound (dB)", "gap by band (dB)", f"views over {fmt(epsilon_db, 2)} dB"],
+                      [["no floor" if x["margin"] is None else fmt(x["margin"], 2), fmt_pct(x["c_share"]), fmt(x["gap_db"], 2),
+                        fmt(x["gap_bound_db"], 2), " / ".join(fmt(g, 2) for g in (x.get("strata_gap_db") or [])) or "–",
+                        str(x["views_over_epsilon"])] for x in f["candidates"]], "lrrrlr"))
+    L.append("")
     return L
 
 

@@ -448,6 +448,8 @@ class IMSTask(ImlsTask):
         self._warned_no_recnn = False
         # the sharpness of the masks :attr:`mask_head` makes (1: the paper's); the evaluation sets the one its ORP kept
         self.mask_sharpness = 1.0
+        # the floor on each view's mean value from its object ((margin, tau), None: none); the evaluation sets the one it chose
+        self.mask_object_floor = None
 
     # -- accessors ----------------------------------------------------------------------------
     @property
@@ -564,10 +566,10 @@ class IMSTask(ImlsTask):
     def mask_head(self) -> IMSMaskHead:
         """The generator with its thresholding (:class:`~imls_lightning.models.ims.IMSMaskHead`): the
         task's generator and buffers (``P``, ``valid``), its target, the IML's trained mean and lower
-        bound, at :attr:`mask_sharpness`. Made on each access (cheap, nothing copied), so it follows the task
+        bound, at :attr:`mask_sharpness`, with :attr:`mask_object_floor`. Made on each access (cheap, nothing copied), so it follows the task
         across devices."""
         return IMSMaskHead(self.generator, self.P, self.valid, self.target, float(self.iml.mean),
-                           float(self.iml.normalization.lower), self.mask_sharpness)
+                           float(self.iml.normalization.lower), self.mask_sharpness, self.mask_object_floor)
 
     def output_to_im(self, g: torch.Tensor) -> torch.Tensor:
         """Generator output ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool at the trained mean, False on

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 import torch
@@ -414,3 +415,43 @@ def test_sharpness_errors_are_one_line():
             check_sharpness(bad)
     with pytest.raises(ValueError, match="expected a \\(B, C, H, W\\) tensor"):
         sharpen_importance(torch.rand(4, 4), 2.0)
+
+
+# ---- the object floor: a view's mean value raised to its object's share plus a margin ---------------------------------
+def test_object_fraction_against_a_direct_count():
+    """The share of each image's valid pixels whose importance exceeds tau, counted pixel by pixel; padding does not
+    count, an image with no valid pixel gets 0 (not NaN), and bfloat16 input is counted in float32."""
+    from imls_lightning.core.importance import object_fraction
+
+    g = torch.Generator().manual_seed(3)
+    pim = torch.rand(3, 1, 7, 9, generator=g)
+    valid = torch.rand(7, 9, generator=g) > 0.3
+    for tau in (0.05, 0.2, 0.9):
+        want = [sum(float(pim[b, 0, i, j]) > tau for i in range(7) for j in range(9) if valid[i, j]) / int(valid.sum())
+                for b in range(3)]
+        assert object_fraction(pim, valid, tau).tolist() == pytest.approx(want, abs=1e-7)
+    assert object_fraction(pim.bfloat16(), valid, 0.2).dtype == torch.float32
+    none = object_fraction(pim, torch.zeros(7, 9, dtype=torch.bool))
+    assert torch.equal(none, torch.zeros(3))
+
+
+def test_floored_mean_is_the_larger_of_u_and_the_object_plus_margin_at_most_one():
+    from imls_lightning.core.importance import floored_mean
+
+    u, f = torch.tensor([0.3, 0.6, 0.2, 0.01]), torch.tensor([0.35, 0.35, 0.95, 0.0])
+    want = [max(a, min(1.0, b + 0.1)) for a, b in zip(u.tolist(), f.tolist())]
+    assert floored_mean(u, f, 0.1).tolist() == pytest.approx(want)
+    assert torch.equal(floored_mean(u, f, 0.0), torch.maximum(u, f))
+    assert floored_mean(u, f, 1.0).tolist() == [1.0] * 4
+
+
+def test_object_floor_errors_are_one_line():
+    from imls_lightning.core.importance import check_object_floor
+
+    for margin, tau, msg in ((-0.1, 0.2, "object_floor.margin=-0.1: expected a share of the C-Image in [0, 1]"),
+                             (1.5, 0.2, "object_floor.margin=1.5"), (float("nan"), 0.2, "object_floor.margin=nan"),
+                             (0.1, 0.0, "object_floor.tau=0.0: expected an importance in (0, 1)"),
+                             (0.1, 1.0, "object_floor.tau=1.0"), (True, 0.2, "object_floor.margin=True")):
+        with pytest.raises(InputError, match=re.escape(msg)) as e:
+            check_object_floor(margin, tau)
+        assert "\n" not in str(e.value)

@@ -313,3 +313,37 @@ def test_a_sharpened_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_pat
     assert load_product(str(ck)).operating_point is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: sharpness=0.5: expected a number in [1, 8]" in err[0]
+
+
+def test_a_floored_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_path, capsys):
+    """A point with an object floor records it; renderers built from the checkpoint alone raise each view's u the
+    same way and describe it; a record from before the key reads as no floor; a bad margin is a malformed record,
+    ignored with one line."""
+    import json
+    import shutil
+
+    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
+
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(tiny_checkpoints["ims_pim"], ck)
+    floor = {"margin": 0.12, "tau": 0.2, "c_share": 0.43, "gap_db": 0.1, "gap_bound_db": 0.6, "views": 40}
+    write_operating_point(ck, OperatingPoint(mean=0.3, lift=True, c_share=0.3, ipr=0.1, epsilon_db=1.0, object_floor=floor))
+    point = read_operating_point(ck, log=None)
+    assert point.object_floor == floor and point.floor == (0.12, 0.2)
+    assert "each view at least its object (PIM' > 0.2) + 0.12 of C" in point.describe()
+    r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
+    assert r.mask_head.object_floor == (0.12, 0.2) and r.mean == 0.3 and r.lift
+    view = torch.tensor([[0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+    plain = load_ims_nets(str(ck)).head
+    assert plain.object_floor is None
+    assert torch.equal(r.predict_im(view), plain.with_object_floor(0.12, 0.2)(view, 0.3, True))
+    assert load_product(str(ck), mean=0.5).nets.head.object_floor is None  # an explicit mean: nothing is read
+    rec = json.loads(sidecar_path(ck).read_text())
+    sidecar_path(ck).write_text(json.dumps({k: v for k, v in rec.items() if k != "object_floor"}))
+    assert read_operating_point(ck, log=None).object_floor is None and load_product(str(ck)).nets.head.object_floor is None
+    capsys.readouterr()
+    sidecar_path(ck).write_text(json.dumps({**rec, "object_floor": {"margin": 1.5, "tau": 0.2}}))
+    assert load_product(str(ck)).operating_point is None
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
+    assert len(err) == 1 and "ignored: malformed (InputError: object_floor.margin=1.5: expected a share of the C-Image" in err[0]

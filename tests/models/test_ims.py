@@ -2,6 +2,8 @@
 normalization, target conventions, stability, user errors."""
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 from torch import nn
@@ -285,3 +287,60 @@ def test_sharpened_masks_are_lifted_below_the_trained_mean_too():
     # the paper's masks (gamma = 1) stay the reference's below the trained mean: no lift there
     for u in (0.1, 0.19):
         assert torch.equal(head(views, u, True), reference_ims_mask(g, P, valid, "pim", mean=u, trained_mean=0.2, lift=True))
+
+
+def test_mask_head_object_floor():
+    """object_floor=(margin, tau) raises each view's u to its object's share (unsharpened PIM' > tau over the valid
+    pixels, counted directly) plus the margin before the same thresholding: the reference is the plain head at that
+    per-view u, with and without the lift, sharpened too, by distance and traced. No floor leaves the head bit for
+    bit; a u already above the floor is unchanged; the trained mean is floored too; margin 1 lifted takes every pixel.
+    A binary IM is refused, and so is a bad margin, each in one line."""
+    from imls_lightning.models.ims import DistanceMeans
+
+    g = _outputs(7)
+    P, valid = torch.rand(N, N), torch.rand(N, N) > 0.15
+    head = IMSMaskHead(_Fixed(g), P, valid, "pim", trained_mean=0.2)
+    views = torch.arange(4, dtype=torch.float32)[:, None].expand(4, 9).contiguous()
+    pim = (g + 1) * 0.5
+    obj = torch.tensor([float((pim[b, 0][valid] > 0.3).float().mean()) for b in range(4)])
+    assert head.with_object_floor(None).object_floor is None
+    assert torch.equal(head.with_object_floor(None)(views, 0.4, True), head(views, 0.4, True))
+    for margin in (0.0, 0.1, 0.25):
+        floored = head.with_object_floor(margin, 0.3)
+        assert floored.generator is head.generator and floored.object_floor == (margin, 0.3)
+        assert f"object_floor=({margin}, 0.3)" in repr(floored)
+        for u in (0.05, 0.3, 0.9):
+            want_u = torch.maximum(torch.full((4,), u), (obj + margin).clamp(max=1.0))
+            for lift in (False, True):
+                assert torch.equal(floored(views, u, lift), head(views, want_u, lift)), (margin, u, lift)
+        assert torch.equal(floored(views), head(views, torch.maximum(torch.full((4,), 0.2), (obj + margin).clamp(max=1.0))))
+    high = head.with_object_floor(0.0, 0.3)
+    assert float(obj.max()) < 0.95 and torch.equal(high(views, 0.95, True), head(views, 0.95, True))  # above the floor
+    assert bool(head.with_object_floor(1.0, 0.3)(views, 0.05, True)[:, :, valid].all())
+    # sharpened and floored: the floor reads the unsharpened PIM', the mask is the sharpened head's at the floored u
+    both = head.with_sharpness(3.0).with_object_floor(0.1, 0.3)
+    assert both.sharpness == 3.0 and both.with_sharpness(2.0).object_floor == (0.1, 0.3)
+    want_u = torch.maximum(torch.full((4,), 0.2), (obj + 0.1).clamp(max=1.0))
+    assert torch.equal(both(views, 0.2, True), head.with_sharpness(3.0)(views, want_u, True))
+    sched = DistanceMeans([1.0], [0.6, 0.1])
+    traced = torch.jit.trace(both.at(sched, True), (views[:1],), check_trace=False)
+    bands = torch.tensor([0.6, 0.1, 0.1, 0.1])
+    assert torch.equal(traced(views), head.with_sharpness(3.0)(views, torch.maximum(bands, (obj + 0.1).clamp(max=1.0)), True))
+    with pytest.raises(InputError, match="object_floor=.*needs model.target=pim"):
+        IMSMaskHead(_Fixed(g), P, valid, "im", object_floor=(0.1, 0.2))
+    with pytest.raises(InputError, match=re.escape("object_floor.margin=-0.5: expected a share of the C-Image in [0, 1]")):
+        head.with_object_floor(-0.5)
+
+
+def test_mask_head_object_floor_extremes_stay_finite_and_boolean():
+    """Saturated and empty generator outputs, no valid pixel, tau near its ends: masks stay boolean, shares in [0, 1]."""
+    P = torch.rand(N, N)
+    views = torch.arange(3, dtype=torch.float32)[:, None].expand(3, 9).contiguous()
+    g = torch.stack([torch.ones(1, N, N), -torch.ones(1, N, N), torch.zeros(1, N, N)])
+    for valid in (torch.ones(N, N, dtype=torch.bool), torch.zeros(N, N, dtype=torch.bool)):
+        for tau in (1e-6, 0.5, 1 - 1e-6):
+            head = IMSMaskHead(_Fixed(g), P, valid, "pim", trained_mean=0.2, object_floor=(0.1, tau))
+            for u in (0.01, 1.0):
+                im = head(views, u, True)
+                assert im.dtype == torch.bool and im.shape == (3, 1, N, N)
+                assert not bool((im & ~valid).any())
