@@ -191,7 +191,8 @@ def parse_settings(cfg: DictConfig) -> Settings:
 def _object_floor(cfg) -> dict[str, Any]:
     """``orp_object_floor``: candidate margins in [0, 1] of a floor on each view's mean value, its object's share of C
     (PIM' above ``orp_object_floor_tau``, in (0, 1)) plus the margin, chosen after the search on the cache's
-    validation views (null or []: no floor). Needs the IMS's ``target=pim`` and lifted masks (a share to floor)."""
+    validation views (null or []: no floor). Needs the IMS's ``target=pim``; meant for lifted masks (``ims_lift``), whose u
+    is their share of C."""
     from data_gen.validate import check_number
 
     v = to_plain(OmegaConf.select(cfg, "orp_object_floor", default=None))

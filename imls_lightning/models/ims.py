@@ -350,12 +350,12 @@ class IMSMaskHead(nn.Module):
     def _rescaled(self, g: torch.Tensor, mean, lift: bool, P: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         lower = self.lower
         ut = torch.as_tensor(mean, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
+        pim = (g + 1.0) * 0.5
         if self.object_floor is not None:  # the object's own fraction, from the unsharpened PIM', plus the margin
             margin, tau = self.object_floor
-            frac = object_fraction((g + 1.0) * 0.5, valid, tau)
-            ut = floored_mean(ut.flatten().expand(g.shape[0]), frac, margin).reshape(-1, 1, 1, 1)
+            ut = floored_mean(ut.flatten().expand(g.shape[0]), object_fraction(pim, valid, tau), margin).reshape(-1, 1, 1, 1)
         scale = (ut - lower) / torch.tensor(self.trained_mean - lower, dtype=torch.float32, device=g.device)
-        pim = sharpen_importance((g + 1.0) * 0.5, self.sharpness, valid)
+        pim = sharpen_importance(pim, self.sharpness, valid)
         pim_u = pim * scale if lower == 0.0 else (pim - lower) * scale + lower
         # a pixel at g = 1 had PIM' >= 1 (the target was clamped at 1): important at any u >= u_train
         saturated = (g >= 1.0) & (scale >= 1.0)
