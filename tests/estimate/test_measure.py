@@ -234,6 +234,7 @@ def test_cli_exception_bad_settings(tmp_path, override, match):
     assert match in last and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow  # 20-25 s of estimate CLI on 2 cores; keeps the default suite under 15 minutes
 def test_cli_a_render_curve_per_mask_sharpness(tmp_path):
     """sharpness=[2]: a second render curve, of the silhouette sharpened (by_sharpness["2"]), its bound the formula
     on that curve, reported on stdout; the paper's curve and bound are the same as without it, and the default
@@ -359,6 +360,7 @@ def test_exception_recnn_lead_needs_a_regular_grid():
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.slow  # 20-25 s of estimate CLI on 2 cores; keeps the default suite under 15 minutes
 def test_cli_candidates_get_their_own_quick_recnn_lead(tmp_path):
     """The size table's quality half: each candidate's quick RecNN trains on the chosen size's frames from the same
     seed, so a candidate of the chosen sizes reproduces the chosen lead, and another size gets its own."""
@@ -398,6 +400,7 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     assert float(rows["tiny"]["needed_share"]) == pytest.approx(est["needed_share"], rel=1e-3) and rows["old"]["needed_share"] == ""
 
 
+@pytest.mark.slow  # 20-25 s of estimate CLI on 2 cores; keeps the default suite under 15 minutes
 def test_cli_needed_share_off_or_without_a_quick_recnn(tmp_path):
     """Without recnn_lead the masks are rebuilt by the classical upsampling; needed_share=false measures nothing."""
     r = _cli(tmp_path, "needed_share=true")
