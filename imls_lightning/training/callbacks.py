@@ -8,6 +8,7 @@ from pathlib import Path
 import lightning as L
 import torch
 from lightning.fabric.loggers.logger import rank_zero_experiment
+from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 
@@ -45,6 +46,38 @@ class ChunkTimer(L.Callback):
         if not last and (now - self._t0) + (now - self._epoch_t0) > self.budget_s:
             trainer.should_stop = True
             self.stopped = True
+
+
+class LastEveryEpochCheckpoint(ModelCheckpoint):
+    """Lightning's :class:`~lightning.pytorch.callbacks.ModelCheckpoint` whose ``last.ckpt`` follows every
+    epoch, improving or not.
+
+    Lightning 2.6 writes ``last.ckpt`` only at a step where a top-k checkpoint was written, so with
+    ``save_top_k=1`` an epoch that did not beat the best left ``last.ckpt`` at the best one. A chunked run
+    (``chunk_minutes``) resumed from there and trained every epoch since the best again: rt_plumes's IMS
+    ran its third epoch twice that way, about 20 minutes each on 2 cores. Here ``last.ckpt`` is written at
+    the end of every epoch the parent's hooks did not already save, with the same ``save_last`` setting.
+
+    Example:
+        >>> cb = LastEveryEpochCheckpoint(monitor="val/loss", save_top_k=1, save_last=True)
+        >>> cb.save_last
+        True
+    """
+
+    def on_train_epoch_end(self, trainer, pl_module) -> None:
+        super().on_train_epoch_end(trainer, pl_module)
+        if self._should_save_on_train_epoch_end(trainer):
+            self._save_last_if_not_saved(trainer)
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        super().on_validation_end(trainer, pl_module)
+        if not self._should_save_on_train_epoch_end(trainer):
+            self._save_last_if_not_saved(trainer)
+
+    def _save_last_if_not_saved(self, trainer) -> None:
+        # _should_skip_saving_checkpoint is also true when this step was saved already (the top-k and last pair)
+        if self.save_last and not self._should_skip_saving_checkpoint(trainer):
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
 
 
 class ImageGridCallback(L.Callback):

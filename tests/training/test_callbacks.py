@@ -1,8 +1,11 @@
 """imls_lightning.training.callbacks: the image-grid callback in a real Trainer run, and the CSV
-logger that keeps a resumed run's earlier rows."""
+logger that keeps a resumed run's earlier rows, the checkpoint whose last.ckpt follows every epoch."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import lightning as L
+import pytest
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
@@ -68,3 +71,49 @@ def test_resumable_csv_logger_appends_under_the_old_header(tmp_path):
     again.save()
     rows = list(csv.DictReader((tmp_path / "csv" / "metrics.csv").open(newline="")))
     assert [(r["step"], r["a"], r["b"], r["c"]) for r in rows] == [("0", "1.0", "2.0", ""), ("1", "", "3.0", ""), ("2", "", "", "4.0")]
+
+
+class _Worsening(_Tiny):
+    """Its monitored score gets worse every validation: only the first is ever the best."""
+
+    def validation_step(self, batch, _):
+        self.log("val/score", -float(self.global_step))
+
+
+@pytest.mark.parametrize("val_check_interval", [1.0, 0.5])  # saved at the epoch's end / after a validation
+def test_last_checkpoint_follows_every_epoch_when_the_best_does_not_improve(tmp_path, val_check_interval):
+    """Lightning 2.6's ModelCheckpoint left last.ckpt at the best epoch, so a resumed chunk trained the epochs
+    since the best again. A rerun with more epochs continues from the last one, not from the best."""
+    from imls_lightning.training.callbacks import LastEveryEpochCheckpoint
+
+    data = DataLoader(TensorDataset(torch.rand(4, 3, 8, 8)), batch_size=2)  # 2 steps an epoch
+    checkpoint_class = LastEveryEpochCheckpoint
+
+    def fit(max_epochs, ckpt_path=None):
+        cb = checkpoint_class(dirpath=tmp_path, filename="epoch{epoch:03d}", auto_insert_metric_name=False,
+                                      monitor="val/score", mode="max", save_top_k=1, save_last=True)
+        trainer = L.Trainer(max_epochs=max_epochs, default_root_dir=tmp_path, logger=False, enable_progress_bar=False,
+                            enable_model_summary=False, num_sanity_val_steps=0, val_check_interval=val_check_interval,
+                            callbacks=[cb])
+        trainer.fit(_Worsening(), data, data, ckpt_path=ckpt_path, weights_only=True)
+        return trainer, cb
+
+    trainer, cb = fit(3)
+    last = torch.load(tmp_path / "last.ckpt", weights_only=True)
+    assert (last["epoch"], last["global_step"]) == (2, 6)
+    assert Path(cb.best_model_path).name == "epoch000.ckpt"  # the top-k checkpoint is still the best one
+    assert sorted(p.name for p in tmp_path.glob("*.ckpt")) == ["epoch000.ckpt", "last.ckpt"]
+    trainer, _ = fit(4, ckpt_path=tmp_path / "last.ckpt")
+    assert trainer.global_step == 8  # one more epoch of 2 steps, not three
+
+
+def test_default_callbacks_use_the_every_epoch_last_checkpoint():
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import get_class
+
+    from imls_lightning.training.callbacks import LastEveryEpochCheckpoint
+
+    with initialize_config_dir(str(Path(__file__).resolve().parents[2] / "conf"), version_base=None):
+        cfg = compose("train")
+    assert get_class(cfg.callbacks.model_checkpoint._target_) is LastEveryEpochCheckpoint
+    assert cfg.callbacks.model_checkpoint.save_last
