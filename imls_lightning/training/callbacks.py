@@ -56,13 +56,21 @@ class LastEveryEpochCheckpoint(ModelCheckpoint):
     ``save_top_k=1`` an epoch that did not beat the best left ``last.ckpt`` at the best one. A chunked run
     (``chunk_minutes``) resumed from there and trained every epoch since the best again: rt_plumes's IMS
     ran its third epoch twice that way, about 20 minutes each on 2 cores. Here ``last.ckpt`` is written at
-    the end of every epoch the parent's hooks did not already save, with the same ``save_last`` setting.
+    the end of every epoch the parent's hooks did not already save, with the same ``save_last`` setting, and
+    its state (the best score and paths) under the parent's key, so runs checkpointed before resume alike.
 
     Example:
         >>> cb = LastEveryEpochCheckpoint(monitor="val/loss", save_top_k=1, save_last=True)
         >>> cb.save_last
         True
     """
+
+    @property
+    def state_key(self) -> str:
+        # the parent's key: a run checkpointed by Lightning's class resumes with its best score and paths (with the
+        # subclass's own name they were dropped, the old best was never removed and last.ckpt went stale beside a
+        # new last-v1.ckpt)
+        return super().state_key.replace(type(self).__qualname__, ModelCheckpoint.__qualname__, 1)
 
     def on_train_epoch_end(self, trainer, pl_module) -> None:
         super().on_train_epoch_end(trainer, pl_module)

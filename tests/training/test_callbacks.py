@@ -117,3 +117,34 @@ def test_default_callbacks_use_the_every_epoch_last_checkpoint():
         cfg = compose("train")
     assert get_class(cfg.callbacks.model_checkpoint._target_) is LastEveryEpochCheckpoint
     assert cfg.callbacks.model_checkpoint.save_last
+
+
+class _Improving(_Tiny):
+    """Its monitored score improves at every validation but the third."""
+
+    def validation_step(self, batch, _):
+        self.log("val/score", -1.0 if self.global_step == 6 else float(self.global_step))
+
+
+def test_a_run_checkpointed_by_lightnings_class_resumes_with_its_best_and_one_last_file(tmp_path):
+    """The state sits under ModelCheckpoint's key: a run started before the switch keeps its best score and its
+    paths, the superseded best is removed, and last.ckpt is the one file resume reads (no last-v1.ckpt beside it)."""
+    from imls_lightning.training.callbacks import LastEveryEpochCheckpoint
+
+    data = DataLoader(TensorDataset(torch.rand(4, 3, 8, 8)), batch_size=2)
+
+    def fit(cls, max_epochs, ckpt_path=None):
+        cb = cls(dirpath=tmp_path, filename="epoch{epoch:03d}", auto_insert_metric_name=False, monitor="val/score",
+                 mode="max", save_top_k=1, save_last=True, enable_version_counter=False)
+        L.Trainer(max_epochs=max_epochs, default_root_dir=tmp_path, logger=False, enable_progress_bar=False,
+                  enable_model_summary=False, num_sanity_val_steps=0, callbacks=[cb]).fit(
+            _Improving(), data, data, ckpt_path=ckpt_path, weights_only=True)
+        return cb
+
+    fit(L.pytorch.callbacks.ModelCheckpoint, 2)  # epochs 0-1: epoch001 is the best (score 4)
+    cb = fit(LastEveryEpochCheckpoint, 3, tmp_path / "last.ckpt")  # epoch 2 scores -1: not the best
+    assert float(cb.best_model_score) == 4.0 and Path(cb.best_model_path).name == "epoch001.ckpt"
+    assert torch.load(tmp_path / "last.ckpt", weights_only=True)["epoch"] == 2
+    cb = fit(LastEveryEpochCheckpoint, 4, tmp_path / "last.ckpt")  # epoch 3 scores 8: the new best
+    assert sorted(p.name for p in tmp_path.glob("*.ckpt")) == ["epoch003.ckpt", "last.ckpt"]
+    assert cb.state_key == L.pytorch.callbacks.ModelCheckpoint(monitor="val/score", mode="max").state_key
