@@ -73,6 +73,17 @@ def test_resumable_csv_logger_appends_under_the_old_header(tmp_path):
     assert [(r["step"], r["a"], r["b"], r["c"]) for r in rows] == [("0", "1.0", "2.0", ""), ("1", "", "3.0", ""), ("2", "", "", "4.0")]
 
 
+def _fit(tmp_path, module, checkpoint_class, max_epochs, ckpt_path=None, **trainer_kw):
+    """A real fit of ``module`` on 2 steps an epoch, checkpointed into ``tmp_path`` the way the default config does."""
+    data = DataLoader(TensorDataset(torch.rand(4, 3, 8, 8)), batch_size=2)
+    cb = checkpoint_class(dirpath=tmp_path, filename="epoch{epoch:03d}", auto_insert_metric_name=False, monitor="val/score",
+                          mode="max", save_top_k=1, save_last=True, enable_version_counter=False)
+    trainer = L.Trainer(max_epochs=max_epochs, default_root_dir=tmp_path, logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, num_sanity_val_steps=0, callbacks=[cb], **trainer_kw)
+    trainer.fit(module, data, data, ckpt_path=ckpt_path, weights_only=True)
+    return trainer, cb
+
+
 class _Worsening(_Tiny):
     """Its monitored score gets worse every validation: only the first is ever the best."""
 
@@ -86,24 +97,13 @@ def test_last_checkpoint_follows_every_epoch_when_the_best_does_not_improve(tmp_
     since the best again. A rerun with more epochs continues from the last one, not from the best."""
     from imls_lightning.training.callbacks import LastEveryEpochCheckpoint
 
-    data = DataLoader(TensorDataset(torch.rand(4, 3, 8, 8)), batch_size=2)  # 2 steps an epoch
-    checkpoint_class = LastEveryEpochCheckpoint
-
-    def fit(max_epochs, ckpt_path=None):
-        cb = checkpoint_class(dirpath=tmp_path, filename="epoch{epoch:03d}", auto_insert_metric_name=False,
-                                      monitor="val/score", mode="max", save_top_k=1, save_last=True)
-        trainer = L.Trainer(max_epochs=max_epochs, default_root_dir=tmp_path, logger=False, enable_progress_bar=False,
-                            enable_model_summary=False, num_sanity_val_steps=0, val_check_interval=val_check_interval,
-                            callbacks=[cb])
-        trainer.fit(_Worsening(), data, data, ckpt_path=ckpt_path, weights_only=True)
-        return trainer, cb
-
-    trainer, cb = fit(3)
+    trainer, cb = _fit(tmp_path, _Worsening(), LastEveryEpochCheckpoint, 3, val_check_interval=val_check_interval)
     last = torch.load(tmp_path / "last.ckpt", weights_only=True)
     assert (last["epoch"], last["global_step"]) == (2, 6)
     assert Path(cb.best_model_path).name == "epoch000.ckpt"  # the top-k checkpoint is still the best one
     assert sorted(p.name for p in tmp_path.glob("*.ckpt")) == ["epoch000.ckpt", "last.ckpt"]
-    trainer, _ = fit(4, ckpt_path=tmp_path / "last.ckpt")
+    trainer, _ = _fit(tmp_path, _Worsening(), LastEveryEpochCheckpoint, 4, tmp_path / "last.ckpt",
+                      val_check_interval=val_check_interval)
     assert trainer.global_step == 8  # one more epoch of 2 steps, not three
 
 
@@ -131,20 +131,10 @@ def test_a_run_checkpointed_by_lightnings_class_resumes_with_its_best_and_one_la
     paths, the superseded best is removed, and last.ckpt is the one file resume reads (no last-v1.ckpt beside it)."""
     from imls_lightning.training.callbacks import LastEveryEpochCheckpoint
 
-    data = DataLoader(TensorDataset(torch.rand(4, 3, 8, 8)), batch_size=2)
-
-    def fit(cls, max_epochs, ckpt_path=None):
-        cb = cls(dirpath=tmp_path, filename="epoch{epoch:03d}", auto_insert_metric_name=False, monitor="val/score",
-                 mode="max", save_top_k=1, save_last=True, enable_version_counter=False)
-        L.Trainer(max_epochs=max_epochs, default_root_dir=tmp_path, logger=False, enable_progress_bar=False,
-                  enable_model_summary=False, num_sanity_val_steps=0, callbacks=[cb]).fit(
-            _Improving(), data, data, ckpt_path=ckpt_path, weights_only=True)
-        return cb
-
-    fit(L.pytorch.callbacks.ModelCheckpoint, 2)  # epochs 0-1: epoch001 is the best (score 4)
-    cb = fit(LastEveryEpochCheckpoint, 3, tmp_path / "last.ckpt")  # epoch 2 scores -1: not the best
+    _fit(tmp_path, _Improving(), L.pytorch.callbacks.ModelCheckpoint, 2)  # epochs 0-1: epoch001 is the best (score 4)
+    _, cb = _fit(tmp_path, _Improving(), LastEveryEpochCheckpoint, 3, tmp_path / "last.ckpt")  # epoch 2 scores -1
     assert float(cb.best_model_score) == 4.0 and Path(cb.best_model_path).name == "epoch001.ckpt"
     assert torch.load(tmp_path / "last.ckpt", weights_only=True)["epoch"] == 2
-    cb = fit(LastEveryEpochCheckpoint, 4, tmp_path / "last.ckpt")  # epoch 3 scores 8: the new best
+    _, cb = _fit(tmp_path, _Improving(), LastEveryEpochCheckpoint, 4, tmp_path / "last.ckpt")  # epoch 3 scores 8: the new best
     assert sorted(p.name for p in tmp_path.glob("*.ckpt")) == ["epoch003.ckpt", "last.ckpt"]
     assert cb.state_key == L.pytorch.callbacks.ModelCheckpoint(monitor="val/score", mode="max").state_key
