@@ -7,6 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
+ROOT = Path(__file__).resolve().parents[2]
+
 from imls_lightning.inference.checkpoints import load_task
 
 
@@ -24,13 +26,22 @@ def pim_ckpt(tiny_checkpoints, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def tiny_cache(tiny_checkpoints):
-    from data_gen.cache import ViewImageCache
+    """The cache the tiny networks trained on and the adaptive CLI opens (``data=tiny``), found by its settings:
+    other tests add caches of their own to the fixture's ``cache_dir``, so the first one in sorted order is not it."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
 
-    for manifest in sorted(Path(tiny_checkpoints["cache_dir"]).rglob("manifest.json")):
-        c = ViewImageCache.open(manifest.parent, require_complete=False)
-        if c.resolution == 32 and c.complete:
-            return c
-    pytest.fail("no complete 32^2 tiny cache in the fixture's cache_dir")
+    from data_gen.cache import ViewImageCache, ensure_cache
+    from data_gen.scene import build_scene
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="tiny_cache"):
+        cfg = compose("train", overrides=["scene=tiny", "data=tiny", "renderer=numba",
+                                          f"data.cache_dir={tiny_checkpoints['cache_dir']}"])
+    GlobalHydra.instance().clear()
+    cache = ViewImageCache.open(ensure_cache(build_scene(cfg.scene), cfg.data, cfg.renderer, progress=False))
+    assert cache.resolution == 32 and cache.complete, cache.path
+    return cache
 
 
 @pytest.fixture(scope="module")
