@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
-
 from imls_lightning.inference.checkpoints import load_task
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # ---- fixtures ----------------------------------------------------------------------------------
