@@ -345,6 +345,51 @@ def test_smoke_chunked_training_continues_where_the_last_chunk_stopped(tmp_path)
     assert "already finished" in _run(args, tmp_path).stdout
 
 
+def test_smoke_a_chunk_whose_best_checkpoint_gave_way_continues_from_last_ckpt(tmp_path):
+    """A chunk's record names its best checkpoint; the next chunk's better epoch replaces it (the top-k keeps one).
+    Interrupted then, the run was trained again from the start, losing every chunk, because that file was gone."""
+    args = ["model=recnn", "recnn=enhancenet", "recnn.net.channels=4", "recnn.net.blocks=1", "trainer.max_epochs=2",
+            "chunk_minutes=0.0001"]
+    assert _run(args, tmp_path, check=False).returncode == 3
+    run_dir = next((tmp_path / "runs").glob("recnn-*"))
+    record = json.loads((run_dir / "result.json").read_text())
+    Path(record["best_checkpoint"]).unlink()  # what the interrupted next chunk's top-k did
+    again = _run(args, tmp_path)
+    assert "training it again" not in again.stderr, again.stderr[-2000:]
+    assert f"resuming from {run_dir / 'checkpoints' / 'last.ckpt'}" in again.stdout
+    r = json.loads((run_dir / "result.json").read_text())
+    assert (r["unfinished"], r["epochs"]) == (False, 2) and Path(_last_line(again)).is_file()
+
+
+def test_smoke_an_interrupted_continuation_of_a_finished_run_goes_on_from_last_ckpt(work, recnn_ckpt, tmp_path):
+    """rt_plumes's IMS, 3 epochs finished, was continued to 10 and stopped after epoch 5; its record still said
+    "finished 3 epochs, best epoch002" and that file had given way to epoch004's, so the next call trained the IMS
+    again from the start. A continuation now marks the record as a run in progress before it trains."""
+    import signal
+    import time
+
+    run_dir = _copy_runs(work, tmp_path, recnn_ckpt)
+    args = ["model=recnn", "recnn=enhancenet", "recnn.net.channels=8", "recnn.net.blocks=2"]
+    last = run_dir / "checkpoints" / "last.ckpt"
+    before = last.stat().st_mtime_ns
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
+    cmd = [PY, "-m", "imls_lightning.train", *args, "trainer.max_epochs=6", "scene=tiny", "data=tiny", "renderer=numba",
+           f"paths.runs_dir={tmp_path}/runs", f"data.cache_dir={tmp_path}/cache", "trainer.enable_progress_bar=false"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    while last.stat().st_mtime_ns == before and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)  # after the continuation's first epoch: no handler runs, as at a session's end
+    proc.wait()
+    record = json.loads((run_dir / "result.json").read_text())
+    assert (record["unfinished"], record["stopped_by"], record["epochs"]) == (True, "continuing", 2), record
+    again = _run(args + ["trainer.max_epochs=6"], tmp_path)
+    assert "training it again" not in again.stderr and "was continuing after 2 epochs" in again.stdout, again.stdout[-2000:]
+    assert f"resuming from {last}" in again.stdout
+    r = json.loads((run_dir / "result.json").read_text())
+    assert (r["unfinished"], r["stopped_by"], r["epochs"], r["max_epochs"]) == (False, None, 6, 6)
+
+
 def test_chunk_timer_stops_only_when_the_next_epoch_would_overrun(monkeypatch):
     from types import SimpleNamespace
 

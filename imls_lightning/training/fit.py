@@ -34,6 +34,7 @@ from ..config import checkpoint_problem, load_checkpoint, register_resolvers, to
 register_resolvers()
 
 RESULT_FILE = "result.json"
+_UNSET = object()  # train(): the checkpoint to resume from is not chosen yet
 
 
 class TrainingUnfinished(RuntimeError):
@@ -228,14 +229,20 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     result_file = run_dir / RESULT_FILE
     chunk = chunk_minutes(cfg)
     fast = bool(cfg.trainer.get("fast_dev_run", False))
-    restart = False
+    restart, resume_from = False, _UNSET
     if str(cfg.get("resume", "auto")) == "auto" and result_file.is_file() and not fast:
         try:
             result = json.loads(result_file.read_text())
             best = str(result.get("best_checkpoint", ""))
         except (OSError, ValueError, AttributeError):
             result, best = None, ""
-        problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
+        if isinstance(result, dict) and result.get("unfinished"):
+            # a chunk's record, or a continuation's (interrupted or not): the run goes on from its last.ckpt, and
+            # the best checkpoint it names may since have given way to a better epoch's (the top-k keeps one)
+            resume_from = _resume_path(cfg, run_dir)
+            problem = None if resume_from else f"no intact checkpoint to continue from in {run_dir / 'checkpoints'}"
+        else:
+            problem = checkpoint_problem(best) if best else f"{RESULT_FILE} is damaged"
         if problem is None and result.get("caches") is not None:
             problem = cache_problem(result["caches"], cfg)
         more = epochs_to_extend(result, cfg) if result is not None and problem is None else None
@@ -247,17 +254,26 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         if more is not None:
             # trainer limits are not part of the run's identity, so a longer schedule continues the
             # finished run from its last.ckpt instead of returning the shorter one as if it were asked for
-            done = f"trained a chunk ({result.get('epochs')} epochs)" if result.get("unfinished") else f"finished {trained_epochs(result)} epochs"
+            done = (f"was continuing after {result.get('epochs')} epochs" if result.get("stopped_by") == "continuing" else
+                    f"trained a chunk ({result.get('epochs')} epochs)" if result.get("unfinished") else f"finished {trained_epochs(result)} epochs")
             print(f"[train] {run_dir} {done}; continuing to trainer.max_epochs={more}", flush=True)
+            if not result.get("unfinished"):
+                # from here the record is a run in progress: interrupted, it must continue from last.ckpt, not be
+                # judged by a best checkpoint the continuation may replace (it was trained again from the start)
+                from data_gen.atomic import atomic_json
+
+                atomic_json(result_file, {**result, "unfinished": True, "stopped_by": "continuing"}, indent=2, sort_keys=False)
         else:
             # never trust a finished run whose best checkpoint is gone or damaged, or that trained on other pixels
-            _warn(f"{run_dir} had finished, but {best or RESULT_FILE}: {problem}; training it again from the start")
+            state = "had trained part of its schedule" if isinstance(result, dict) and result.get("unfinished") else "had finished"
+            culprit = "" if isinstance(result, dict) and result.get("unfinished") else f"{best or RESULT_FILE}: "
+            _warn(f"{run_dir} {state}, but {culprit}{problem}; training it again from the start")
             result_file.unlink(missing_ok=True)
             restart = True
 
     # resume=<not a checkpoint> is refused before Lightning's first line (the seed, the devices);
     # whether it fits the model needs the task, built after seeding, still before the Trainer
-    ckpt_path = None if fast or restart else _resume_path(cfg, run_dir)
+    ckpt_path = None if fast or restart else (_resume_path(cfg, run_dir) if resume_from is _UNSET else resume_from)
     L.seed_everything(int(cfg.seed), workers=True)
     task = build_task(cfg)
     resume = str(cfg.get("resume", "auto"))
