@@ -165,6 +165,22 @@ def test_the_object_floor_margin_column_and_tables_from_before_it(tmp_path):
     assert [r["object_floor_margin"] for r in again] == ["", "0.12"]
 
 
+def test_the_timing_busy_cores_column_and_tables_from_before_it(tmp_path):
+    """rt_plumes's row was timed beside a niced test suite: its IML/S decoder read 193 ms, 50 ms with the cores free,
+    and nothing in the table said so. The row now carries the most cores other jobs kept busy during its timing."""
+    s = _summary()
+    assert bp.csv_row({**s, "timing_load": {"views": 8, "mean": 0.4, "max": 1.1, "over": 3, "limit": 0.25}})["timing_busy_cores"] == 1.1
+    assert bp.csv_row(s)["timing_busy_cores"] == ""  # an evaluation from before it: unknown, not 0
+    path = tmp_path / "paper_scale.csv"
+    before = bp.LEGACY_COLUMNS + bp.ESTIMATE_COLUMNS + bp.RENDERER_COLUMNS + bp.FLOOR_COLUMNS
+    bp.write_csv([{k: v for k, v in bp.csv_row(s).items() if k in before}], path, columns=before)
+    old = bp.read_rows(path)
+    assert old[0]["timing_busy_cores"] == ""
+    bp.write_csv(bp.merge_rows(old, [bp.csv_row({**s, "scene": "rt_plumes", "timing_load": {"max": 0.03}})]), path)
+    assert [r["timing_busy_cores"] for r in bp.read_rows(path)] == ["", "0.03"]
+    assert open(path).readline().strip().split(",") == list(bp.CSV_COLUMNS)
+
+
 def test_read_rows_exception_foreign_table(tmp_path):
     path = tmp_path / "paper_scale.csv"
     path.write_text("a,b\n1,2\n")

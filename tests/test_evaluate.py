@@ -721,6 +721,12 @@ def test_summary_json_has_what_the_benchmarks_collect(run):
 
     row = csv_row(read_summary(run["report"]))
     assert tuple(row) == CSV_COLUMNS and all(math.isfinite(float(row[k])) for k in ("psnr_imls_db", "imls_ms", "speedup", "las_ms"))
+    # the other jobs while its views were timed: the row's timing_busy_cores, a line in the report
+    load = s["timing_load"]
+    assert load is None or (load["views"] == 2 and 0.0 <= load["mean"] <= load["max"] <= os.cpu_count())
+    if load is not None:
+        assert row["timing_busy_cores"] == load["max"]
+        assert f"while the {load['views']} timed views ran" in run["report"].read_text()
 
 
 def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):

@@ -24,6 +24,7 @@ from data_gen.views import camera_distance
 
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
+from ..report.machine import BUSY_LIMIT, shared_cores_warning
 from .bound import SHARES, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
 from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, render_curve,
                       upsample_c_image, upsampler_name)
@@ -32,26 +33,6 @@ from .needed_share import NeededShare, needed_share
 RESULT = "estimate.json"
 #: the goal of issue 31 per pattern kind: 2x for super-resolution, 1.5x for foveated rendering
 DEFAULT_TARGETS = {"downsample": 2.0, "foveal": 1.5}
-#: cores other jobs may keep busy while the estimate times (more: its times read high; seed_shell's C pattern
-#: measured 383 ms beside another job and 258 ms alone, and its bound 1.04x against a measured 0.88x)
-BUSY_LIMIT = 0.25
-
-
-def shared_cores_warning(busy: float | None, what: str) -> str | None:
-    """One line when ``busy`` cores (:func:`~imls_lightning.report.machine.busy_cores`, read before the timing)
-    exceed :data:`BUSY_LIMIT`, else ``None``.
-
-    Example:
-        >>> shared_cores_warning(0.02, "this estimate") is None
-        True
-        >>> shared_cores_warning(1.5, "this estimate")
-        'warning: this estimate was timed while other jobs kept 1.50 cores busy: its times read high; measure it with the cores free'
-    """
-    if busy is None or busy <= BUSY_LIMIT:
-        return None
-    return f"warning: {what} was timed while other jobs kept {busy:.2f} cores busy: its times read high; measure it with the cores free"
-
-
 def _say(msg: str) -> None:
     print(f"[estimate] {msg}", file=sys.stderr, flush=True)
 

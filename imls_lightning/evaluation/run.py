@@ -154,10 +154,12 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
 def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[str, Method], order: list[str],
                   sweeps: Sweeps | None, grid_pos: set[int], timed_pos: set[int], sweep_pos: list[int]):
     """Every method on every evaluated view, the sweeps right after a sweep view's methods:
-    ``(metric rows, sweep rows, image grid)``."""
+    ``(metric rows, sweep rows, image grid, load)``, ``load`` a ``{"view", "cores", "seconds"}`` per timed view: the
+    cores other processes kept busy while it was timed (:class:`~imls_lightning.report.machine.OtherLoad`)."""
     rows: list[dict[str, Any]] = []
     grid: dict[int, dict[str, Any]] = {}
     sweep_rows: list[dict[str, Any]] = []
+    load: list[dict[str, Any]] = []
     for p in progress_bar(positions, len(positions), f"evaluate {scene.name}", s.progress):
         p = int(p)
         r = int(rows_all[p])
@@ -165,21 +167,51 @@ def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[
         if p in grid_pos:
             grid[p] = {"truth": truth}
         timed = p in timed_pos
-        # a timed view's methods in one schedule (s.timing: rounds, or each method's runs back to back)
-        measured = measure_methods({name: methods[name] for name in order}, view, truth, s.repeats if timed else 1,
-                                   s.warmup if timed else 0, order=s.timing)
-        for name in order:
-            fields, image, info = measured[name]
-            if not timed:  # one untimed run: its image counts, its stage times do not
-                fields.update({k: None for k in fields if k.endswith("_ms")})
-            rows.append({"view": p, "row": r, "method": name, **fields})
-            if p in grid_pos:
-                grid[p][name] = image
-                if name == "imls":
-                    grid[p]["imls_im"] = info.get("im")
-        if sweeps is not None and p in sweep_pos:
-            sweep_rows += sweeps.run_view(p, r, view, truth)
-    return rows, sweep_rows, grid
+        with rep.OtherLoad() as other:  # the cores other jobs keep busy while this view is timed
+            # a timed view's methods in one schedule (s.timing: rounds, or each method's runs back to back)
+            measured = measure_methods({name: methods[name] for name in order}, view, truth, s.repeats if timed else 1,
+                                       s.warmup if timed else 0, order=s.timing)
+            for name in order:
+                fields, image, info = measured[name]
+                if not timed:  # one untimed run: its image counts, its stage times do not
+                    fields.update({k: None for k in fields if k.endswith("_ms")})
+                rows.append({"view": p, "row": r, "method": name, **fields})
+                if p in grid_pos:
+                    grid[p][name] = image
+                    if name == "imls":
+                        grid[p]["imls_im"] = info.get("im")
+            if sweeps is not None and p in sweep_pos:
+                sweep_rows += sweeps.run_view(p, r, view, truth)
+        if timed:
+            load.append({"view": p, "cores": other.cores, "seconds": other.seconds})
+    return rows, sweep_rows, grid, load
+
+
+def timing_load(load: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """``summary.json``'s ``timing_load``: the cores other processes kept busy over the timed views (mean, max, how
+    many views over :data:`~imls_lightning.report.machine.BUSY_LIMIT`); None where it cannot be read.
+
+    Example:
+        >>> timing_load([{"view": 0, "cores": 0.02, "seconds": 30.0}, {"view": 9, "cores": 0.9, "seconds": 31.0}])
+        {'views': 2, 'mean': 0.46, 'max': 0.9, 'over': 1, 'limit': 0.25}
+    """
+    cores = [float(x["cores"]) for x in load if x.get("cores") is not None]
+    if not cores:
+        return None
+    return {"views": len(cores), "mean": round(float(np.mean(cores)), 3), "max": round(max(cores), 3),
+            "over": sum(c > rep.BUSY_LIMIT for c in cores), "limit": rep.BUSY_LIMIT}
+
+
+def load_note(tl: dict[str, Any] | None) -> str | None:
+    """The report's line on the other jobs during the timing (a warning when they kept more than the limit busy)."""
+    if tl is None:
+        return None
+    line = (f"Other processes kept {tl['mean']:.2f} cores busy on average (at most {tl['max']:.2f}) while the "
+            f"{tl['views']} timed views ran.")
+    if tl["over"]:
+        line += (f" **Warning: on {tl['over']} of them more than {tl['limit']:.2f}; the stage times read high there "
+                 "(time it again with the cores free).**")
+    return line
 
 
 def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
@@ -226,7 +258,14 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
                      f"median of {s.repeats} runs each); PSNR and SSIM on all {len(positions)}.")
     # the sweeps of the latency / PSNR plot and the speed-quality front: on the sweep's views, right after their methods
     sweeps = Sweeps(s, methods, nets, renderer, s.options, resolution) if sweep_pos else None
-    rows, sweep_rows, grid = measure_views(s, scene, cache, rows_all, positions, methods, order, sweeps, grid_pos, timed_pos, sweep_pos)
+    rows, sweep_rows, grid, load = measure_views(s, scene, cache, rows_all, positions, methods, order, sweeps, grid_pos, timed_pos,
+                                                 sweep_pos)
+    load_summary = timing_load(load)
+    if (note := load_note(load_summary)) is not None:
+        notes.append(note)
+        warning = rep.shared_cores_warning(load_summary["max"], f"this evaluation ({out})")
+        if warning:
+            print(f"[evaluate] {warning}", file=sys.stderr, flush=True)
     rep.write_metrics_csv(rows, out / "metrics.csv")
     rep.write_metrics_csv(sweep_rows, out / "sweep.csv", rep.SWEEP_COLUMNS)
 
@@ -240,7 +279,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
 
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
                    methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp_result=orp_result,
-                   equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass)
+                   equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass,
+                   timing_load=load_summary)
     return write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
 
 
@@ -271,7 +311,8 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "imls_mean": res["imls_mean"], "orp": orp,
         "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "timing": s.timing,
         "repeats": s.repeats, "methods": rep.summarize_rows(rows),
-        "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass},
+        "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass,
+        "timing_load": res.get("timing_load")},
         indent=1, default=float))
     ctx = rep.ReportContext(
         out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,

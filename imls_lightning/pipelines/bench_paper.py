@@ -18,7 +18,7 @@ from data_gen.errors import InputError
 
 from ..estimate import read_estimate, speedup_from_estimate
 from ..orp.overrides import override_key
-from ..report import atomic_write_text, md_table
+from ..report import atomic_write_text, md_table, shared_cores_warning
 from ..report.tables import equal_share_markdown, fmt, fmt_pct, speedup
 from .demo import demo
 from .paths import log
@@ -35,9 +35,13 @@ ESTIMATE_COLUMNS = ("volume_dims", "c_render_ms", "nets_ms", "bilinear_db", "est
 RENDERER_COLUMNS = ("skip_empty",)
 #: the margin of the object floor the evaluation chose on validation views (``orp_object_floor``; empty: no floor)
 FLOOR_COLUMNS = ("object_floor_margin",)
-CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS
+#: the most cores other processes kept busy while one of the row's views was timed (the evaluation's ``timing_load``;
+#: above :data:`~imls_lightning.report.machine.BUSY_LIMIT` its times read high; empty: not measured, rows before it)
+LOAD_COLUMNS = ("timing_busy_cores",)
+CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS
 #: the tables written before each group of columns was appended, still read
-EARLIER_COLUMNS = (LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS)
+EARLIER_COLUMNS = (LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS,
+                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS)
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
@@ -136,6 +140,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         **estimate_cells(estimate, imls.get("c_share"), orp.get("sharpness", 1.0)),
         "skip_empty": summary.get("skip_empty", True),
         "object_floor_margin": ((orp.get("object_floor") or {}).get("chosen") or {}).get("margin", "") if orp.get("found") else "",
+        "timing_busy_cores": (summary.get("timing_load") or {}).get("max", ""),
     }
 
 
@@ -195,7 +200,8 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
         # a table from before the estimate's columns: they stay empty until the pair is estimated; every row timed
         # before skip_empty existed was timed with empty-space skipping, and every row before the floor ran without one
-        return [{**{k: "" for k in ESTIMATE_COLUMNS}, "skip_empty": True, "object_floor_margin": "", **dict(r)} for r in reader]
+        return [{**{k: "" for k in ESTIMATE_COLUMNS}, "skip_empty": True, "object_floor_margin": "", "timing_busy_cores": "",
+                 **dict(r)} for r in reader]
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:
@@ -607,4 +613,6 @@ def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: s
                          "settings": {st: (list(v) if v is not None else None) for st, v in stages.stages.items()}}
         write_results(cfg, records, old_rows, partial=k + 1 < len(todo), command=command, machine=machine)
         log(f"[bench-paper] {name} done in {records[name]['minutes']:.1f} min -> {csv_path}")
+        if warning := shared_cores_warning((summary.get("timing_load") or {}).get("max"), f"the row of {name}"):
+            log(f"[bench-paper] {warning} (its timing_busy_cores column)")
     return None if cfg.dry_run or cfg.get("train_only", False) else md_path

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from .document import ReportContext, render_markdown, write_report
 from .front import front_markdown, front_point, front_points, front_verdict, pareto_front
-from .machine import busy_cores, hydra_command, machine_info
+from .machine import BUSY_LIMIT, OtherLoad, busy_cores, hydra_command, machine_info, shared_cores_warning
 from .metrics_csv import atomic_write_text, number, read_csv, summarize_rows, summary, write_metrics_csv
 from .names import (
     MASK_LABELS,
@@ -55,7 +55,7 @@ from .tables import (equal_share_markdown, fmt, fmt_pct, latency_table, md_table
 
 __all__ = [
     "METHOD_LABELS", "METHOD_ORDER", "METRIC_COLUMNS", "SWEEP_COLUMNS", "OPTION_COLUMNS", "STAGE_LABELS",
-    "atomic_write_text", "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "busy_cores", "md_table",
+    "atomic_write_text", "write_metrics_csv", "read_csv", "summarize_rows", "summary", "machine_info", "busy_cores", "OtherLoad", "BUSY_LIMIT", "shared_cores_warning", "md_table",
     "fmt", "fmt_pct", "speedup", "latency_table", "speedup_table", "quality_table", "sweep_table", "options_table",
     "sweep_points", "error_map", "im_to_fr_mask", "plot_stage_breakdown", "plot_psnr_per_view",
     "plot_latency_vs_psnr", "plot_options", "plot_image_grid", "new_figure", "save_figure", "ReportContext", "write_report",
