@@ -33,6 +33,13 @@ from .needed_share import NeededShare, needed_share
 RESULT = "estimate.json"
 #: the goal of issue 31 per pattern kind: 2x for super-resolution, 1.5x for foveated rendering
 DEFAULT_TARGETS = {"downsample": 2.0, "foveal": 1.5}
+def _busiest(est: Mapping[str, Any]) -> float | None:
+    """The most cores other jobs kept busy around an estimate's timing: before it (``busy_cores``) or during it
+    (``timing_busy_cores``, the other processes only; estimates before it have just the first)."""
+    known = [float(v) for v in (est.get("busy_cores"), est.get("timing_busy_cores")) if v is not None]
+    return max(known) if known else None
+
+
 def _say(msg: str) -> None:
     print(f"[estimate] {msg}", file=sys.stderr, flush=True)
 
@@ -497,18 +504,22 @@ def run_estimate(cfg: DictConfig) -> Path:
     est = read_estimate(path, settings)
     if est is not None:
         _say(f"reusing {path} (same settings)")
-        warning = shared_cores_warning(est.get("busy_cores"), f"{path}")
+        warning = shared_cores_warning(_busiest(est), f"{path}")
         if warning:
             _say(f"{warning} (delete {out_dir} to measure it again)")
     else:
-        from ..report.machine import busy_cores
+        from ..report.machine import OtherLoad, busy_cores
 
         busy = busy_cores()
         warning = shared_cores_warning(busy, "this estimate")
         if warning:
             _say(warning)
         out_dir.mkdir(parents=True, exist_ok=True)
-        est = dict(measure(cfg, out_dir, scene=scene), settings=settings, busy_cores=busy)
+        with OtherLoad() as during:  # a job that starts during the timing: the reading before it misses that one
+            measured = measure(cfg, out_dir, scene=scene)
+        est = dict(measured, settings=settings, busy_cores=busy, timing_busy_cores=during.cores)
+        if not warning and (late := shared_cores_warning(during.cores, "this estimate")):
+            _say(late)
         atomic_json(path, est)
     if cfg.get("table"):
         update_table(Path(str(cfg.table)), table_row(est, path))

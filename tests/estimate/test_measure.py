@@ -427,6 +427,20 @@ def test_cli_an_estimate_timed_beside_other_jobs_says_so_when_reused(tmp_path):
     assert again.returncode == 0 and "reusing" in again.stderr
     warning = [line for line in again.stderr.splitlines() if "cores busy" in line]
     assert len(warning) == 1 and "1.50 cores busy" in warning[0] and f"delete {path.parent}" in warning[0]
+    # a job that started during the timing: the reading before it was quiet, the one around it was not
+    assert est["timing_busy_cores"] is None or 0.0 <= est["timing_busy_cores"] <= os.cpu_count()
+    path.write_text(json.dumps({**est, "busy_cores": 0.0, "timing_busy_cores": 1.2}))
+    late = [line for line in _cli(tmp_path).stderr.splitlines() if "cores busy" in line]
+    assert len(late) == 1 and "1.20 cores busy" in late[0]
+
+
+def test_the_busiest_reading_around_an_estimate_is_the_one_judged():
+    from imls_lightning.estimate.run import _busiest
+
+    assert _busiest({"busy_cores": 0.02, "timing_busy_cores": 0.9}) == 0.9  # a job started during the timing
+    assert _busiest({"busy_cores": 1.1, "timing_busy_cores": 0.1}) == 1.1
+    assert _busiest({"busy_cores": 0.3}) == 0.3  # an estimate from before the reading during it
+    assert _busiest({"busy_cores": None, "timing_busy_cores": None}) is None
 
 
 def test_cli_an_estimate_is_measured_again_when_the_volume_changed(tmp_path):
