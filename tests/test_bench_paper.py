@@ -252,6 +252,21 @@ def test_cli_dry_run_prints_every_stage_command():
     assert lines[-1].startswith("python -m imls_lightning.adaptive scene=ct_head") and "ims_lift=" in lines[-1]
 
 
+def test_cli_dry_run_the_ims_finetune_stage_sits_between_the_ims_and_its_decoder():
+    """stages.ims_finetune: a step decay of the IMS's learning rate as a stage of its own, from the IMS stage's best;
+    the decoder stage then starts from the fine-tuned IMS (null, the default: no such stage)."""
+    p = subprocess.run([sys.executable, "-m", "imls_lightning.bench_paper", "dry_run=true", "train_only=true", "scenes=[ct_head]",
+                        "recnns=[enhancenet]", 'stages.ims_finetune=["model.lr=1.0e-4","trainer.max_epochs=3"]'],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    lines = p.stdout.strip().splitlines()
+    ims = next(i for i, ln in enumerate(lines) if "model=ims" in ln and "init_checkpoint" not in ln)
+    finetune, decoder = lines[ims + 1], lines[ims + 2]
+    assert "'model.init_checkpoint=<IMS>'" in finetune and "model.lr=1.0e-4" in finetune and "trainer.max_epochs=3" in finetune
+    assert "train_generator" not in finetune and "model.decoder_every=4" in finetune
+    assert "'model.init_checkpoint=<IMS-fine-tune>'" in decoder and "model.train_generator=false" in decoder
+
+
 def test_cli_gpu_schedule_train_only_prints_the_training_stages():
     """bench_paper_gpu.yaml: bench_paper.yaml with the longer schedules; train_only drops the evaluation."""
     p = subprocess.run([sys.executable, "-m", "imls_lightning.bench_paper", "--config-name", "bench_paper_gpu", "dry_run=true",

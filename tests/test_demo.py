@@ -246,6 +246,19 @@ def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
         sparser_overrides(cfg)
 
 
+def test_ims_finetune_overrides_are_the_ims_stages_with_their_own_keys_last():
+    from omegaconf import OmegaConf
+
+    from imls_lightning.pipelines import ims_finetune_overrides
+
+    cfg = OmegaConf.create({"scene": "ct_head",
+                            "stages": {"ims": ["model.lr=1e-3", "model.layers=7", "trainer.max_epochs=24", "chunk_minutes=30"],
+                                       "ims_finetune": ["model.lr=1e-4", "trainer.max_epochs=3"]},
+                            "scene_stages": {"ct_head": {"ims_finetune": ["trainer.max_epochs=2"]}}})
+    # the generator trains on (no train_generator=false), the IMS stage's networks and chunks, its own rate and epochs
+    assert ims_finetune_overrides(cfg) == ["model.lr=1e-4", "model.layers=7", "trainer.max_epochs=2", "chunk_minutes=30"]
+
+
 def test_ims_decoder_overrides_are_the_ims_stages_with_the_generator_frozen():
     from omegaconf import OmegaConf
 

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 from .paths import CONF_DIR, ROOT, log
 from .stages import (SPARSER_PATTERN, StageFailed, StageUnfinished, check_scene_overrides, dry_stage, evaluation_lift,
-                     ims_decoder_overrides, override_list, read_summary, run_pipeline, run_stage, sparser_overrides,
+                     ims_decoder_overrides, ims_finetune_overrides, override_list, read_summary, run_pipeline, run_stage, sparser_overrides,
                      split_scene_overrides, stage_args, stage_overrides)
 
 __all__ = [
     "ROOT", "CONF_DIR", "log", "SPARSER_PATTERN", "StageFailed", "StageUnfinished", "check_scene_overrides", "dry_stage",
-    "evaluation_lift", "ims_decoder_overrides", "override_list", "read_summary", "run_pipeline", "run_stage",
+    "evaluation_lift", "ims_decoder_overrides", "ims_finetune_overrides", "override_list", "read_summary", "run_pipeline", "run_stage",
     "sparser_overrides", "split_scene_overrides", "stage_args", "stage_overrides",
 ]

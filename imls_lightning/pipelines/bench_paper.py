@@ -66,9 +66,9 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
     crop = OmegaConf.select(cfg, f"crop.{recnn}")
     crop_args = [f"data.crop={int(crop)}"] if crop else []
     stages: dict[str, Any] = {}
-    for name in ("recnn", "iml", "blue_noise", "ims", "ims_decoder", "las"):
+    for name in ("recnn", "iml", "blue_noise", "ims", "ims_finetune", "ims_decoder", "las"):
         skip = name == "las" and recnn not in [str(r) for r in (cfg.get("las_with") or [])]
-        if skip or (OmegaConf.select(cfg, f"stages.{name}") is None and name in ("blue_noise", "ims_decoder", "las")):
+        if skip or (OmegaConf.select(cfg, f"stages.{name}") is None and name in ("blue_noise", "ims_finetune", "ims_decoder", "las")):
             stages[name] = None  # skipped, as in the demo
             continue
         extra = crop_args if name in ("recnn", "iml", "blue_noise") else []

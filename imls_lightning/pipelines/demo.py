@@ -9,8 +9,8 @@ from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from .stages import (check_scene_overrides, dry_stage, evaluation_lift, ims_decoder_overrides, override_list, run_stage,
-                     sparser_overrides, stage_args, stage_overrides)
+from .stages import (check_scene_overrides, dry_stage, evaluation_lift, ims_decoder_overrides, ims_finetune_overrides,
+                     override_list, run_stage, sparser_overrides, stage_args, stage_overrides)
 
 
 def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | None = None) -> Path | None:
@@ -40,6 +40,11 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
     iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *stage_overrides(cfg, "iml")])
     ims = stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
                         *stage_overrides(cfg, "ims")])
+    if OmegaConf.select(cfg, "stages.ims_finetune") is not None:
+        # the generator trained on from the IMS stage's best, at a lower learning rate (a step decay): the stage before
+        # it keeps its constant rate, so more epochs there still continue the same run
+        ims = stage("IMS fine-tune", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
+                                      *ims_finetune_overrides(cfg), f"model.init_checkpoint={ims}"])
     if OmegaConf.select(cfg, "stages.ims_decoder") is not None:
         # the IMS's decoder alone, trained further on the masks the evaluation runs (its sharpness, lifted); the
         # generator stays as trained, and the product is this checkpoint

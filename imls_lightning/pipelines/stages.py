@@ -174,6 +174,22 @@ def ims_decoder_overrides(cfg: DictConfig) -> list[str]:
     return list({override_key(o): o for o in ordered}.values())
 
 
+def ims_finetune_overrides(cfg: DictConfig) -> list[str]:
+    """The training overrides of the IMS's fine-tuning stage: the IMS stage's own (the same networks, views and
+    losses), then ``stages.ims_finetune``'s (whose keys replace the same keys before them: a lower ``model.lr``, its
+    epochs); the caller adds ``model.init_checkpoint``, the IMS it starts from. The generator trains on (a step decay
+    of the learning rate as a stage of its own, so the constant-rate stage before it can still be extended).
+
+    Example:
+        >>> cfg = OmegaConf.create({"stages": {"ims": ["model.lr=1e-3", "trainer.max_epochs=24"],
+        ...                                    "ims_finetune": ["model.lr=1e-4", "trainer.max_epochs=3"]}})
+        >>> ims_finetune_overrides(cfg)
+        ['model.lr=1e-4', 'trainer.max_epochs=3']
+    """
+    ordered = [*stage_overrides(cfg, "ims"), *stage_overrides(cfg, "ims_finetune")]
+    return list({override_key(o): o for o in ordered}.values())
+
+
 #: the sparser pattern of each RecNN kind, as overrides of its training. EnhanceNet 4x instead of 2x: a quarter of
 #: the C-pixels (one pixel of every 4x4 block). FoVolNet: half of them (a C-Image 1/sqrt(2) of the side). A quarter
 #: (half the side) cannot hold the foveal pattern: its base level alone is 7% of the FR pixels, a quarter of C 6.25%.
