@@ -35,7 +35,12 @@ RESULT = "estimate.json"
 DEFAULT_TARGETS = {"downsample": 2.0, "foveal": 1.5}
 def _busiest(est: Mapping[str, Any]) -> float | None:
     """The most cores other jobs kept busy around an estimate's timing: before it (``busy_cores``) or during it
-    (``timing_busy_cores``, the other processes only; estimates before it have just the first)."""
+    (``timing_busy_cores``, the other processes only; estimates before it have just the first).
+
+    Example:
+        >>> _busiest({"busy_cores": 0.02, "timing_busy_cores": 0.9}), _busiest({"busy_cores": 0.3}), _busiest({})
+        (0.9, 0.3, None)
+    """
     known = [float(v) for v in (est.get("busy_cores"), est.get("timing_busy_cores")) if v is not None]
     return max(known) if known else None
 
