@@ -24,7 +24,7 @@ from data_gen.views import camera_distance
 
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
-from ..report.machine import BUSY_LIMIT, shared_cores_warning
+from ..report.machine import BUSY_LIMIT, OtherLoad, busy_cores, shared_cores_warning
 from .bound import SHARES, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
 from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, render_curve,
                       upsample_c_image, upsampler_name)
@@ -513,8 +513,6 @@ def run_estimate(cfg: DictConfig) -> Path:
         if warning:
             _say(f"{warning} (delete {out_dir} to measure it again)")
     else:
-        from ..report.machine import OtherLoad, busy_cores
-
         busy = busy_cores()
         warning = shared_cores_warning(busy, "this estimate")
         if warning:

@@ -71,17 +71,12 @@ def busy_cores(seconds: float = 0.5) -> float | None:
         >>> b is None or 0.0 <= b <= os.cpu_count()
         True
     """
-    def ticks() -> tuple[int, int]:
-        with open("/proc/stat") as f:
-            fields = [int(x) for x in f.readline().split()[1:]]
-        return sum(fields), fields[3] + (fields[4] if len(fields) > 4 else 0)
-
-    try:
-        total0, idle0 = ticks()
-        time.sleep(seconds)
-        total1, idle1 = ticks()
-    except (OSError, ValueError, IndexError):
+    first = _cpu_ticks()
+    time.sleep(seconds)
+    second = _cpu_ticks()
+    if first is None or second is None:
         return None
+    (total0, idle0), (total1, idle1) = first, second
     total = total1 - total0
     if total <= 0:
         return 0.0
@@ -109,17 +104,21 @@ def shared_cores_warning(busy: float | None, what: str) -> str | None:
     return f"warning: {what} was timed while other jobs kept {busy:.2f} cores busy: its times read high; measure it with the cores free"
 
 
-def _busy_seconds() -> float | None:
-    """CPU seconds every core of the machine has been busy since boot (``/proc/stat``: all but idle and I/O
-    wait; guest time is inside user time), or None where there is no ``/proc/stat``."""
+def _cpu_ticks() -> tuple[int, int] | None:
+    """``(all, idle + I/O wait)`` clock ticks of every core since boot, from ``/proc/stat``'s first line (user ..
+    steal: guest time is inside user time), or None where there is no ``/proc/stat``."""
     try:
         with open("/proc/stat") as f:
             fields = [int(x) for x in f.readline().split()[1:]]
-        hz = os.sysconf("SC_CLK_TCK")
+        return sum(fields[:8]), fields[3] + (fields[4] if len(fields) > 4 else 0)
     except (OSError, ValueError, IndexError):
         return None
-    busy = sum(fields[:8]) - fields[3] - (fields[4] if len(fields) > 4 else 0)  # user .. steal, less idle and iowait
-    return busy / hz
+
+
+def _busy_seconds() -> float | None:
+    """CPU seconds every core of the machine has been busy since boot (all but idle and I/O wait), or None."""
+    ticks = _cpu_ticks()
+    return None if ticks is None else (ticks[0] - ticks[1]) / os.sysconf("SC_CLK_TCK")
 
 
 def others_cores(busy_s: float, own_s: float, wall_s: float, cores: int) -> float:
