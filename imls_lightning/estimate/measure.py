@@ -205,22 +205,33 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
     view at each share when their costs differ (flame_whole's three views: 0.59-1.11 s), and the curve went down
     and up (0.70 s at 90% of C after 0.71 s at 80%), where a larger share's mask holds the smaller's pixels.
 
+    The whole pattern a fraction divides by is timed in this pass (share 1.0's mask, or the pattern itself when the
+    shares stop short of 1), not taken from ``measured``: the same pixels timed minutes apart differed by up to 30%
+    (rt_plumes: share 1.0 read 0.70-1.04 of ``c_render_ms``, 0.90 on average), so the curve sat 10% under the
+    RecNN alone it is compared with, and the bound at share 1 read 1.04x, more than the RecNN alone with networks
+    added can be.
+
     ``per_view``: a list that gets each view's fractions of its own pattern, one list per view (the spread the mean
     hides: a mask of one share costs 0.23-0.51 of its view's pattern on seed_whole)."""
     times = np.zeros((len(views), len(shares)))
+    own_whole = np.zeros(len(views))
     t0 = time.perf_counter()
     for v, (view, meas) in enumerate(zip(views, measured)):
         for j, s in enumerate(shares):
             pix = silhouette_mask(meas.on_object, s, pattern, blur, floor, sharpness)
             times[v, j] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
+        if float(shares[-1]) == 1.0:
+            own_whole[v] = times[v, -1]
+        else:
+            all_pix = pattern.indices.numpy()
+            own_whole[v] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, all_pix), repeats, warmup=0)
         if progress is not None:
             progress(f"render curve{'' if sharpness == 1.0 else f' (sharpness {sharpness:g})'}: view {v + 1}/{len(views)}, "
                      f"{len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
-    whole = np.array([max(float(meas.c_render_ms), 1e-9) for meas in measured])[:, None]
-    fractions = times / whole
+    fractions = times / np.maximum(own_whole, 1e-9)[:, None]
     if per_view is not None:
         per_view.extend(fractions.tolist())
-    curve = fractions.mean(axis=0) * float(np.median(whole))
+    curve = fractions.mean(axis=0) * float(np.median([float(meas.c_render_ms) for meas in measured]))
     return RenderCurve(tuple(float(s) for s in shares), tuple(curve.tolist()), float(fixed_ms))
 
 

@@ -168,6 +168,54 @@ def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatc
     assert list(curve.times_ms) == sorted(curve.times_ms)
 
 
+
+@pytest.mark.parametrize("shares", [(0.25, 0.5, 1.0), (0.25, 0.5)])
+def test_render_curve_divides_by_the_whole_pattern_timed_in_its_own_pass(monkeypatch, shares):
+    """The estimate's whole-pattern times (``c_render_ms``) were taken earlier and read 25% slow against the pass
+    that renders the masks (the same pixels timed minutes apart): each fraction is of the pass's own whole pattern,
+    so share 1 costs exactly the RecNN alone's render, and the bound there stays under 1x."""
+    import imls_lightning.estimate.measure as measure
+    from imls_lightning.estimate import RenderCost, slower_render, speedup_at
+
+    p = downsample_pattern(64, 2)
+    on_object = np.zeros(p.count, bool)
+    on_object[: p.count // 4] = True
+    per_px = {0: 1.0, 1: 3.0, 2: 2.0}
+
+    class Costed:
+        cost = 0.0
+        calls: list = []
+
+        def render_pixels(self, view, m, pix):
+            self.cost = per_px[int(view)] * len(pix)
+            self.calls.append(len(pix))
+
+    renderer = Costed()
+
+    def known(fn, repeats, warmup=0):
+        fn()
+        return renderer.cost
+
+    monkeypatch.setattr(measure, "median_ms", known)
+    z = np.zeros((2, 2, 3), np.uint8)
+    drift = 1.25
+    views = [ViewMeasurement(0.0, drift * per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4,
+                             30.0, z, z, on_object) for v in (0, 1, 2)]
+    per_view: list = []
+    curve = measure.render_curve(renderer, p, [0, 1, 2], views, shares, blur=0.0, floor=0.25, repeats=1, fixed_ms=0.0,
+                                 per_view=per_view)
+    kept = [len(silhouette_mask(on_object, s, p, 0.0, 0.25)) for s in shares]
+    np.testing.assert_allclose(per_view, [[k / p.count for k in kept]] * 3, rtol=1e-12)
+    c_render = drift * 2.0 * p.count      # the median view's pattern as the estimate measured it
+    assert curve.times_ms == pytest.approx(tuple(c_render * k / p.count for k in kept), rel=1e-12)
+    # one extra render per view of the whole pattern only where the shares stop short of 1
+    assert renderer.calls.count(p.count) == 3
+    if shares[-1] == 1.0:
+        assert curve.times_ms[-1] == pytest.approx(c_render, rel=1e-12)
+        flat = RenderCost(fixed_ms=0.0, object_ms_per_px=0.0, background_ms_per_px=0.0, object_px=1, background_px=1)
+        assert speedup_at(slower_render(curve, flat), 1.0, c_render_ms=c_render, nets_ms=10.0, recnn_ms=5.0) < 1.0
+
+
 def _cli(tmp_path, *extra):
     env = dict(os.environ, IMLS_RUNS_DIR=str(tmp_path))
     # the needed share (20 masks rendered and rebuilt per view) only where a test asks for it: the suite's time
