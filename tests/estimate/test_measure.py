@@ -130,6 +130,22 @@ def test_a_sharpened_silhouette_mask_moves_the_floor_onto_the_object():
         silhouette_mask(on_object, 0.25, p, sharpness=0.5)
 
 
+class _CostedRenderer:
+    """A renderer whose cost is known (ms per pixel, per view) and a ``median_ms`` that reads it, in place of the
+    timing; ``calls`` records each render's pixel count."""
+
+    def __init__(self, per_px):
+        self.per_px, self.cost, self.calls = per_px, 0.0, []
+
+    def render_pixels(self, view, m, pix):
+        self.cost = self.per_px[int(view)] * len(pix)
+        self.calls.append(len(pix))
+
+    def median_ms(self, fn, repeats, warmup=0):
+        fn()
+        return self.cost
+
+
 def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatch):
     """Views of unequal cost (the close one 3x the far one): each view's times as fractions of its own whole
     pattern, averaged, on the median view's whole pattern; a median per share jumped between views. A renderer
@@ -140,20 +156,8 @@ def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatc
     on_object = np.zeros(p.count, bool)
     on_object[: p.count // 4] = True
     per_px = {0: 1.0, 1: 3.0, 2: 2.0}   # ms per pixel of views 0, 1, 2
-
-    class Costed:
-        cost = 0.0
-
-        def render_pixels(self, view, m, pix):
-            self.cost = per_px[int(view)] * len(pix)
-
-    renderer = Costed()
-
-    def known(fn, repeats, warmup=0):
-        fn()
-        return renderer.cost
-
-    monkeypatch.setattr(measure, "median_ms", known)
+    renderer = _CostedRenderer(per_px)
+    monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
     z = np.zeros((2, 2, 3), np.uint8)
     views = [ViewMeasurement(0.0, per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4, 30.0, z, z,
                              on_object) for v in (0, 1, 2)]
@@ -168,7 +172,6 @@ def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatc
     assert list(curve.times_ms) == sorted(curve.times_ms)
 
 
-
 @pytest.mark.parametrize("shares", [(0.25, 0.5, 1.0), (0.25, 0.5)])
 def test_render_curve_divides_by_the_whole_pattern_timed_in_its_own_pass(monkeypatch, shares):
     """The estimate's whole-pattern times (``c_render_ms``) were taken earlier and read 25% slow against the pass
@@ -181,22 +184,8 @@ def test_render_curve_divides_by_the_whole_pattern_timed_in_its_own_pass(monkeyp
     on_object = np.zeros(p.count, bool)
     on_object[: p.count // 4] = True
     per_px = {0: 1.0, 1: 3.0, 2: 2.0}
-
-    class Costed:
-        cost = 0.0
-        calls: list = []
-
-        def render_pixels(self, view, m, pix):
-            self.cost = per_px[int(view)] * len(pix)
-            self.calls.append(len(pix))
-
-    renderer = Costed()
-
-    def known(fn, repeats, warmup=0):
-        fn()
-        return renderer.cost
-
-    monkeypatch.setattr(measure, "median_ms", known)
+    renderer = _CostedRenderer(per_px)
+    monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
     z = np.zeros((2, 2, 3), np.uint8)
     drift = 1.25
     views = [ViewMeasurement(0.0, drift * per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4,
