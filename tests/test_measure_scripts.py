@@ -745,3 +745,36 @@ def test_object_floor_chooses_the_smallest_margin_whose_quarters_stay_bounded():
     assert mod.choose([row(None, [0.5, 0.4, 0.3, 0.1], 0.3)], 1.0) == 0  # the bands alone already keep it
     # a joint search: lower bands under a floor may hold at a smaller share than the bands with a floor
     assert mod.choose(rows + [row(0.1, [0.9, 0.6, 0.2, 0.1], 0.33)], 1.0) == 4
+
+
+def test_estimate_vs_measured_reads_the_row_and_its_own_times():
+    """With a row's metrics.csv: the row's render fraction is the mean over its timed views of the product's
+    selective render over the mean of the RecNN alone's; the estimate's fraction at the share is read off the curve
+    of the sharpness the row kept, and put on the row's own stage times; the row's reading is estimated_speedup's."""
+    import csv
+
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import estimate_vs_measured as evm
+
+    from imls_lightning.estimate import RenderCurve, speedup_from_estimate
+
+    est_path = ROOT / "benchmarks" / "seed_whole" / "estimate.json"
+    metrics = ROOT / "benchmarks" / "seed_whole" / "eval_metrics.csv"
+    (row,) = evm.main(["--sharpness", "3", f"{est_path}:0.342873:2.55588:{metrics}"])
+    est = json.loads(est_path.read_text())
+    assert row["row_reading"] == pytest.approx(speedup_from_estimate(est, 0.342873, 3.0))
+    assert row["row_reading"] == pytest.approx(2.17598, rel=1e-4)   # the row's estimated_speedup in paper_scale.csv
+    with open(metrics, newline="") as f:
+        timed = [r for r in csv.DictReader(f) if r["total_ms"]]
+
+    def mean(method, col):
+        return np.mean([float(r[col]) for r in timed if r["method"] == method])
+    render, whole = mean("imls", "selective_render_ms"), mean("recnn", "selective_render_ms")
+    assert row["row_render_fraction"] == pytest.approx(render / whole)
+    frac = RenderCurve(**est["by_sharpness"]["3"]["render_curve"]).render_ms(0.342873) / est["c_render_ms"]
+    assert row["estimate_render_fraction"] == pytest.approx(frac)
+    nets = mean("imls", "importance_ms") + mean("imls", "decoder_ms")
+    assert row["on_row_times"] == pytest.approx((whole + mean("recnn", "recnn_ms")) /
+                                                (nets + frac * whole + mean("recnn", "recnn_ms")))
+    # the row's own times give back its speed-up with its own fraction (a ratio of means)
+    assert (mean("recnn", "total_ms") / mean("imls", "total_ms")) == pytest.approx(2.55588, rel=1e-3)

@@ -1,8 +1,9 @@
 """Measurements of the before-training estimate: render costs, untrained networks, bilinear C -> FR.
 
 Everything is measured on views drawn like the training views (never the test trajectory: choosing
-scenes and sizes is tuning). Times are medians of ``repeats`` runs after a warm-up, per view, then
-the median over the views.
+scenes and sizes is tuning). Times are medians of ``repeats`` runs after a warm-up, per view. Render times
+are then averaged over the views, as a benchmark row averages its timed views' totals (its speed-up is the
+ratio of those means); per-pixel costs and network times take the median over the views.
 """
 from __future__ import annotations
 
@@ -150,6 +151,35 @@ def render_cost(views: list[ViewMeasurement]) -> RenderCost:
                       background_px=int(np.median([v.background_px for v in views])))
 
 
+def on_own_patterns(times: np.ndarray, own_whole: np.ndarray, c_render_ms) -> np.ndarray:
+    """``(S,)``: each share's render, averaged over the views, each view's times ``(V, S)`` taken as fractions of
+    its own whole pattern timed in the same pass (``own_whole``, ``(V,)``) and put on that view's whole-pattern
+    render as the estimate measured it (``c_render_ms``, ``(V,)``): ``mean_v(times[v] / own_whole[v] * c_render_ms[v])``.
+
+    The fractions: the same pixels timed minutes apart differed by up to 30% (rt_plumes), so a mask's time is only
+    comparable with a whole pattern of its own pass. The mean over views, weighted so by each view's cost: a row's
+    speed-up is the ratio of its timed views' mean totals, where a dear view counts for more (seed_whole's row:
+    2.56x as that ratio, 2.24x as a ratio of medians), and a mean of curves that rise with the share rises too,
+    where a median per share jumped between views. At share 1 the curve is the mean ``c_render_ms`` exactly.
+
+    Example:
+        >>> on_own_patterns(np.array([[1.0, 2.0], [6.0, 12.0]]), np.array([2.0, 12.0]), [4.0, 10.0]).tolist()
+        [3.5, 7.0]
+    """
+    t = np.asarray(times, np.float64)
+    whole = np.asarray(own_whole, np.float64)
+    c = np.asarray(c_render_ms, np.float64)
+    if t.ndim != 2 or whole.shape != (t.shape[0],) or c.shape != whole.shape or t.shape[0] == 0:
+        raise InputError(f"on_own_patterns: expected (V, S) times with one whole pattern and one c_render_ms per view; "
+                         f"got {t.shape}, {whole.shape}, {c.shape}")
+    return (t / np.maximum(whole, 1e-9)[:, None] * c[:, None]).mean(axis=0)
+
+
+def mean_c_render_ms(measured: list[ViewMeasurement]) -> float:
+    """The whole pattern's ray cast, the mean over the views (the bound's RecNN alone; :func:`on_own_patterns`)."""
+    return float(np.mean([float(v.c_render_ms) for v in measured]))
+
+
 def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     """``(B, 1, n, n)`` blurred by a separable Gaussian of ``sigma`` pixels (replicated edges); ``sigma <= 0``:
     ``x`` as it is."""
@@ -200,10 +230,11 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
     """The render of exactly a :func:`silhouette_mask`'s pixels at each share (the renderer is warm: no untimed
     run); ``fixed_ms``: the cost of a call with no pixel (:attr:`RenderCost.fixed_ms`).
 
-    Each view's times are taken as fractions of its own whole pattern's render, averaged over the views and put on
-    the median view's (``c_render_ms``, as the bound's RecNN alone): a median over views per share picked another
-    view at each share when their costs differ (flame_whole's three views: 0.59-1.11 s), and the curve went down
-    and up (0.70 s at 90% of C after 0.71 s at 80%), where a larger share's mask holds the smaller's pixels.
+    Each view's times are taken as fractions of its own whole pattern's render, put on that view's ``c_render_ms``
+    and averaged over the views (:func:`on_own_patterns`; at share 1 the bound's RecNN alone,
+    :func:`mean_c_render_ms`): a median over views per share picked another view at each share when their costs
+    differ (flame_whole's three views: 0.59-1.11 s), and the curve went down and up (0.70 s at 90% of C after 0.71 s
+    at 80%), where a larger share's mask holds the smaller's pixels.
 
     The whole pattern a fraction divides by is timed in this pass (share 1.0's mask, or the pattern itself when the
     shares stop short of 1), not taken from ``measured``: the same pixels timed minutes apart differed by up to 30%
@@ -228,10 +259,9 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
         if progress is not None:
             progress(f"render curve{'' if sharpness == 1.0 else f' (sharpness {sharpness:g})'}: view {v + 1}/{len(views)}, "
                      f"{len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
-    fractions = times / np.maximum(own_whole, 1e-9)[:, None]
     if per_view is not None:
-        per_view.extend(fractions.tolist())
-    curve = fractions.mean(axis=0) * float(np.median([float(meas.c_render_ms) for meas in measured]))
+        per_view.extend((times / np.maximum(own_whole, 1e-9)[:, None]).tolist())
+    curve = on_own_patterns(times, own_whole, [float(meas.c_render_ms) for meas in measured])
     return RenderCurve(tuple(float(s) for s in shares), tuple(curve.tolist()), float(fixed_ms))
 
 
@@ -384,5 +414,5 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
     return out
 
 
-__all__ = ["median_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
+__all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
            "render_cost", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]

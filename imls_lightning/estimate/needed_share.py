@@ -12,7 +12,8 @@ with nothing learned but the quick RecNN (``recnn_lead``):
    share is the smallest share whose mean gap stays within ``epsilon_db`` (the ORP criterion).
 3. **The render of exactly those pixels,** timed: an importance mask keeps the costly rays (edges and
    thin structure march through translucent material), so the bound's uniform cost per object pixel
-   can be optimistic.
+   can be optimistic. Each view's times are fractions of its own whole pattern timed in the same pass, as
+   the bound's render curve takes them (:func:`~.measure.on_own_patterns`).
 
 It is an estimate, not a bound: the oracle sees the C-Image (as the IML does, not the IMS), and the fill
 is untrained (the learned decoder beats it by several dB at low shares). BENCHMARKS.md compares it with
@@ -39,7 +40,7 @@ from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern
 from ..core.unpredictability import base_unpredictability, importance_mask, two_pass_mask, unpredictability
 from ..models.pull_push import fill_c_image
-from .measure import frame_tensor, median_ms
+from .measure import frame_tensor, median_ms, on_own_patterns
 
 #: the shares of C at which the needed share is searched (a finer grid than the bound's)
 NEEDED_SHARES = tuple(round(0.05 * i, 2) for i in range(1, 21))
@@ -53,7 +54,7 @@ class NeededShare:
     shares: list[float]            # the target shares
     kept: list[float]              # the shares the masks kept (mean over the views)
     gap_db: list[float]            # mean PSNR gap to the reference on the whole C-Image
-    render_ms: list[float]         # median render of exactly the masks' pixels
+    render_ms: list[float]         # render of exactly the masks' pixels (mean over views, on each view's pattern)
     needed_share: float | None     # the smallest share within epsilon_db (interpolated); None: none is
     seconds: float
 
@@ -123,7 +124,8 @@ def share_gaps(rebuild: Callable[[torch.Tensor], torch.Tensor], pattern: Samplin
 def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str, pattern: SamplingPattern,
                  renderer, views: Sequence, frames: Sequence[np.ndarray], epsilon_db: float = 1.0,
                  shares: Sequence[float] = NEEDED_SHARES, floor: float = 0.25, repeats: int = 3, warmup: int = 1,
-                 seed: int = 0, progress: Callable[[str], None] | None = None) -> NeededShare:
+                 seed: int = 0, progress: Callable[[str], None] | None = None,
+                 c_render_ms: Sequence[float] | None = None) -> NeededShare:
     """Measure the untrained importance mask's gap and render time at each share on ``views`` / ``frames``.
 
     Args:
@@ -135,6 +137,9 @@ def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str
         epsilon_db: the ORP's tolerance (1 dB in the paper).
         floor: the importance every pixel keeps, relative to the mean (:func:`masks_at_share`).
         progress: called with a line after each view's masks are measured (long on paper-size volumes).
+        c_render_ms: each view's whole-pattern render as the estimate measured it (the bound's RecNN alone):
+            each view's mask times are put on it as fractions of the whole pattern timed in this pass (the
+            mask of share 1, or one more render where the shares stop short of it). None: on this pass's own.
     """
     eps = check_number(epsilon_db, "epsilon_db", 0.0, lo_open=True, what="a positive PSNR tolerance in dB")
     if len(views) != len(frames) or len(views) == 0:
@@ -148,8 +153,16 @@ def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str
             progress(f"needed share: view {v + 1}/{len(views)}, {len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
 
     kept, gaps = share_gaps(rebuild, pattern, frames, shares, floor, seed, on_mask=time_render)
+    if c_render_ms is not None and len(c_render_ms) != len(views):
+        raise InputError(f"needed_share: expected one c_render_ms per view ({len(views)}), got {len(c_render_ms)}")
+    all_pix = pattern.indices.numpy()
+    # the whole pattern of each view's own pass: the mask of share 1 when it kept every pixel
+    own = np.array([ms[v, -1] if kept[v, -1] == 1.0 else
+                    median_ms(lambda v=v: renderer.render_pixels(views[v], pattern.fr_size, all_pix), repeats, warmup)
+                    for v in range(len(views))])
+    render = on_own_patterns(ms, own, own if c_render_ms is None else c_render_ms)
     gap, share_kept = gaps.mean(0).tolist(), kept.mean(0).tolist()
-    return NeededShare(eps, reference, [float(s) for s in shares], share_kept, gap, np.median(ms, 0).tolist(),
+    return NeededShare(eps, reference, [float(s) for s in shares], share_kept, gap, render.tolist(),
                        first_share_within(share_kept, gap, eps), time.perf_counter() - t0)
 
 

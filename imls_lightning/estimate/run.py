@@ -26,8 +26,8 @@ from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
 from ..report.machine import BUSY_LIMIT, OtherLoad, busy_cores, shared_cores_warning
 from .bound import SHARES, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
-from .measure import (RecNNLead, build_networks, measure_view, network_ms, recnn_lead, render_cost, render_curve,
-                      upsample_c_image, upsampler_name)
+from .measure import (RecNNLead, build_networks, mean_c_render_ms, measure_view, network_ms, recnn_lead, render_cost,
+                      render_curve, upsample_c_image, upsampler_name)
 from .needed_share import NeededShare, needed_share
 
 RESULT = "estimate.json"
@@ -86,6 +86,8 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette (each view a fraction of its pattern) and per-pixel model",
         "ims_timing": "the product's mask head: sharpened, rescaled, lifted",
         "network_timing": "each call after a ray cast", "view_distances": "stratified",
+        # renders averaged over the views on each one's own pattern (was: the median view's); the needed share's too
+        "render_over_views": "mean, each view's fractions of its own pattern",
         "mask_repeats": check_integer(cfg.get("mask_repeats", 1), "mask_repeats", 1),
         # only when set: the paper's masks alone hash as they did before the key
         **({"sharpness": _sharpness(cfg)} if _sharpness(cfg) != [1.0] else {}),
@@ -206,7 +208,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     nets_t = network_ms(nets, pattern, opts, repeats=max(repeats, 10), warmup=max(warmup, 2), sharpness=max(sharpnesses),
                         before=cast)
     model = render_cost(measured)
-    c_render_ms = float(np.median([v.c_render_ms for v in measured]))
+    c_render_ms = mean_c_render_ms(measured)  # the mean, as the render curves and a row's speed-up average views
     nets_ms = nets_t["ims_ms"] + nets_t["decoder_ms"]
     density = float(cfg.background_density)
     # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
@@ -352,7 +354,8 @@ def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, patt
     # 20 masks on every view, each rendered mask_repeats times (no warm-up: the renderer is warm)
     ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
                       epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density),
-                      repeats=mask_repeats, warmup=0, seed=int(cfg.seed), progress=_say)
+                      repeats=mask_repeats, warmup=0, seed=int(cfg.seed), progress=_say,
+                      c_render_ms=[v.c_render_ms for v in measured])
     where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
     _say(f"needed share: an untrained importance mask and fill, rebuilt by the {name}, stay within "
          f"{ns.epsilon_db:g} dB at {where} ({ns.seconds:.0f} s)")

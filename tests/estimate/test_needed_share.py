@@ -84,3 +84,61 @@ def test_share_gaps_with_a_first_pass_keeps_it_and_knows_less():
     kept_base, gap_base = share_gaps(rebuild, p, [frame], shares, base=0.2)
     assert (kept_base >= 0.2 - 1e-6).all() and np.isfinite(gap_base).all()
     assert gap_base[0, 0] >= gap_full[0, 0] - 0.05
+
+
+class _CostedFrameRenderer:
+    """A renderer whose cost is known (ms per pixel, per view), read by a ``median_ms`` put in place of the timing."""
+
+    def __init__(self, per_px):
+        self.per_px, self.cost, self.calls = per_px, 0.0, []
+
+    def render_pixels(self, view, resolution, pixels):
+        self.cost = self.per_px[int(view)] * len(pixels)
+        self.calls.append(len(pixels))
+
+    def median_ms(self, fn, repeats, warmup=0):
+        fn()
+        return self.cost
+
+
+@pytest.mark.parametrize("shares", [NEEDED_SHARES, NEEDED_SHARES[:10]])
+def test_needed_share_renders_on_each_views_own_pattern(monkeypatch, shares):
+    """The masks' renders as the bound's render curve takes them: each view's times as fractions of its whole
+    pattern timed in the same pass (share 1's mask, or one more render where the shares stop short of it), put on
+    the pattern's time the estimate measured for that view (here 25% slower than the pass: the same pixels timed
+    minutes apart) and averaged over the views. Share 1 then costs the RecNN alone's render exactly."""
+    import imls_lightning.estimate.needed_share as ns_mod
+
+    p = downsample_pattern(64, 2)
+    frames = [_textured_band(16, seed=0), _textured_band(32, seed=1)]
+    per_px = {0: 1.0, 1: 3.0}
+    renderer = _CostedFrameRenderer(per_px)
+    monkeypatch.setattr(ns_mod, "median_ms", renderer.median_ms)
+    c_render = [1.25 * per_px[v] * p.count for v in (0, 1)]
+
+    def rebuild(c):
+        return upsample_c_image(c, p)[0]
+
+    ns = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, shares=shares, repeats=1, warmup=0,
+                      c_render_ms=c_render)
+    kept, _ = share_gaps(rebuild, p, frames, shares)
+    expected = np.mean([kept[v] * c_render[v] for v in (0, 1)], axis=0)   # each view's fraction is its kept share
+    np.testing.assert_allclose(ns.render_ms, expected, rtol=1e-12)
+    assert renderer.calls.count(p.count) == 2   # the whole pattern once per view: share 1's mask, or one more render
+    if shares[-1] == 1.0:
+        assert ns.render_ms[-1] == pytest.approx(np.mean(c_render), rel=1e-12)
+    # without the estimate's pattern times: on this pass's own
+    own = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, shares=shares, repeats=1, warmup=0)
+    np.testing.assert_allclose(own.render_ms, np.mean([kept[v] * per_px[v] * p.count for v in (0, 1)], axis=0),
+                               rtol=1e-12)
+    with pytest.raises(InputError, match="one c_render_ms per view"):
+        needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, shares=shares, c_render_ms=[1.0])
+
+
+def test_exception_on_own_patterns_shapes():
+    from imls_lightning.estimate.measure import on_own_patterns
+
+    with pytest.raises(InputError, match="one whole pattern and one c_render_ms per view"):
+        on_own_patterns(np.ones((2, 3)), np.ones(2), [1.0])
+    with pytest.raises(InputError, match="on_own_patterns"):
+        on_own_patterns(np.ones(3), np.ones(3), np.ones(3))
