@@ -54,7 +54,7 @@ def row_times(metrics: str | Path) -> dict[str, float]:
 
 def compare(path: str, share: float, measured: float, sharpness: float = 1.0, metrics: str | None = None) -> dict:
     from imls_lightning.estimate import RenderCost, RenderCurve, slower_render, speedup_at, speedup_from_estimate
-    from imls_lightning.estimate.bound import sharpness_key
+    from imls_lightning.estimate.bound import estimate_render
 
     est = json.loads(Path(path).read_text())
     model, silhouette = RenderCost(**est["render_cost"]), RenderCurve(**est["render_curve"])
@@ -70,9 +70,7 @@ def compare(path: str, share: float, measured: float, sharpness: float = 1.0, me
            "slower_error": slower / measured - 1.0, "sharpness": float(sharpness), "row_reading": reading,
            "row_reading_error": reading / measured - 1.0}
     if metrics:
-        own = (est.get("by_sharpness") or {}).get(sharpness_key(sharpness)) if float(sharpness) != 1.0 else None
-        curve = RenderCurve(**(own["render_curve"] if own else est["render_curve"]))
-        frac = curve.render_ms(share) / float(est["c_render_ms"])
+        frac = estimate_render(est, sharpness).render_ms(share, density) / float(est["c_render_ms"])
         t = row_times(metrics)
         on_row = (t["c_render_ms"] + t["recnn_ms"]) / (t["nets_ms"] + frac * t["c_render_ms"] + t["recnn_ms"])
         out.update(row_render_fraction=t["render_ms"] / t["c_render_ms"], estimate_render_fraction=frac,

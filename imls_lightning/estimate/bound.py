@@ -185,16 +185,22 @@ def sharpness_key(gamma: float) -> str:
     return f"{float(gamma):g}"
 
 
+def estimate_render(estimate: dict[str, Any], sharpness: float = 1.0) -> RenderCost | RenderCurve:
+    """The selective render an ``estimate.json``'s content predicts for masks of ``sharpness``: that sharpness's own
+    curve (``by_sharpness``) when the estimate has one, else the paper's masks' curve, or the render-cost model of an
+    estimate made before the curve. Raises ``KeyError`` / ``TypeError`` on a malformed estimate."""
+    own = (estimate.get("by_sharpness") or {}).get(sharpness_key(sharpness)) if float(sharpness) != 1.0 else None
+    curve = own["render_curve"] if own else estimate.get("render_curve")
+    return RenderCurve(**curve) if curve else RenderCost(**estimate["render_cost"])
+
+
 def speedup_from_estimate(estimate: dict[str, Any], share: float, sharpness: float = 1.0) -> float:
     """The bound at any ``share`` from an ``estimate.json``'s content (its measured render curve, or the
     render-cost model of an estimate made before the curve, and its stage times): a benchmark row's
     ``estimated_speedup`` at the share it measured. ``sharpness``: the IMS mask sharpness the row's ORP kept;
     its own curve (``by_sharpness``) when the estimate has one, else the paper's masks' curve."""
     try:
-        own = (estimate.get("by_sharpness") or {}).get(sharpness_key(sharpness)) if float(sharpness) != 1.0 else None
-        curve = own["render_curve"] if own else estimate.get("render_curve")
-        cost = RenderCurve(**curve) if curve else RenderCost(**estimate["render_cost"])
-        return speedup_at(cost, share, c_render_ms=estimate["c_render_ms"], nets_ms=estimate["nets_ms"],
+        return speedup_at(estimate_render(estimate, sharpness), share, c_render_ms=estimate["c_render_ms"], nets_ms=estimate["nets_ms"],
                           recnn_ms=estimate["recnn_ms"], background_density=estimate["background_density"])
     except (KeyError, TypeError) as err:
         raise InputError(f"estimate: missing or malformed key {err} (expected an estimate.json of python -m "
@@ -202,4 +208,4 @@ def speedup_from_estimate(estimate: dict[str, Any], share: float, sharpness: flo
 
 
 __all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "speedup_at", "bound_table", "share_for_speedup", "sharpness_key",
-           "speedup_from_estimate"]
+           "estimate_render", "speedup_from_estimate"]

@@ -15,6 +15,7 @@ from data_gen.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
 from imls_lightning.estimate.measure import (ViewMeasurement, gaussian_blur, object_pixels, render_cost, silhouette_mask,
                                              upsample_c_image)
+from tests.estimate.helpers import CostedRenderer
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -130,22 +131,6 @@ def test_a_sharpened_silhouette_mask_moves_the_floor_onto_the_object():
         silhouette_mask(on_object, 0.25, p, sharpness=0.5)
 
 
-class _CostedRenderer:
-    """A renderer whose cost is known (ms per pixel, per view) and a ``median_ms`` that reads it, in place of the
-    timing; ``calls`` records each render's pixel count."""
-
-    def __init__(self, per_px):
-        self.per_px, self.cost, self.calls = per_px, 0.0, []
-
-    def render_pixels(self, view, m, pix):
-        self.cost = self.per_px[int(view)] * len(pix)
-        self.calls.append(len(pix))
-
-    def median_ms(self, fn, repeats, warmup=0):
-        fn()
-        return self.cost
-
-
 def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatch):
     """Views of unequal cost (the close one 3x the far one): each view's times as fractions of its own whole
     pattern, put on that view's pattern and averaged; a median per share jumped between views. A renderer whose
@@ -156,7 +141,7 @@ def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatc
     on_object = np.zeros(p.count, bool)
     on_object[: p.count // 4] = True
     per_px = {0: 1.0, 1: 3.0, 2: 2.0}   # ms per pixel of views 0, 1, 2
-    renderer = _CostedRenderer(per_px)
+    renderer = CostedRenderer(per_px)
     monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
     z = np.zeros((2, 2, 3), np.uint8)
     views = [ViewMeasurement(0.0, per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4, 30.0, z, z,
@@ -184,7 +169,7 @@ def test_render_curve_divides_by_the_whole_pattern_timed_in_its_own_pass(monkeyp
     on_object = np.zeros(p.count, bool)
     on_object[: p.count // 4] = True
     per_px = {0: 1.0, 1: 3.0, 2: 2.0}
-    renderer = _CostedRenderer(per_px)
+    renderer = CostedRenderer(per_px)
     monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
     z = np.zeros((2, 2, 3), np.uint8)
     drift = 1.25

@@ -9,6 +9,7 @@ from data_gen.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern
 from imls_lightning.estimate.measure import upsample_c_image
 from imls_lightning.estimate.needed_share import NEEDED_SHARES, first_share_within, needed_share, share_gaps
+from tests.estimate.helpers import CostedRenderer
 
 
 def test_first_share_within_interpolates_between_the_shares():
@@ -86,21 +87,6 @@ def test_share_gaps_with_a_first_pass_keeps_it_and_knows_less():
     assert gap_base[0, 0] >= gap_full[0, 0] - 0.05
 
 
-class _CostedFrameRenderer:
-    """A renderer whose cost is known (ms per pixel, per view), read by a ``median_ms`` put in place of the timing."""
-
-    def __init__(self, per_px):
-        self.per_px, self.cost, self.calls = per_px, 0.0, []
-
-    def render_pixels(self, view, resolution, pixels):
-        self.cost = self.per_px[int(view)] * len(pixels)
-        self.calls.append(len(pixels))
-
-    def median_ms(self, fn, repeats, warmup=0):
-        fn()
-        return self.cost
-
-
 @pytest.mark.parametrize("shares", [NEEDED_SHARES, NEEDED_SHARES[:10]])
 def test_needed_share_renders_on_each_views_own_pattern(monkeypatch, shares):
     """The masks' renders as the bound's render curve takes them: each view's times as fractions of its whole
@@ -112,7 +98,7 @@ def test_needed_share_renders_on_each_views_own_pattern(monkeypatch, shares):
     p = downsample_pattern(64, 2)
     frames = [_textured_band(16, seed=0), _textured_band(32, seed=1)]
     per_px = {0: 1.0, 1: 3.0}
-    renderer = _CostedFrameRenderer(per_px)
+    renderer = CostedRenderer(per_px)
     monkeypatch.setattr(ns_mod, "median_ms", renderer.median_ms)
     c_render = [1.25 * per_px[v] * p.count for v in (0, 1)]
 
