@@ -50,7 +50,9 @@ END = 45      # seconds kept after the boxes: the last checkpoint, result.json, 
 
 def stage_commands(scene: str, data: str, recnn: str) -> dict[str, list[str]]:
     """``{stage: argv}`` of bench-paper's pair for ``recnn``, from its dry run (the placeholders ``<RecNN>`` and ``<IML>``
-    are the input checkpoints)."""
+    are the input checkpoints). The IMS's decoder stage, a second ``model=ims`` line that fine-tunes from ``<IMS>``, is
+    ``ims_decoder``: this driver does not run it (bench-paper does, from the IMS run that comes back); taken for the
+    IMS, it replaced the IMS's own command and failed on its unfilled placeholder."""
     out = subprocess.run([PY, "-m", "imls_lightning.bench_paper", "--config-name", "bench_paper_gpu", f"scene={scene}",
                           f"recnns=[{recnn}]", f"data={data}", "train_only=true", "dry_run=true"],
                          capture_output=True, text=True, check=True)
@@ -61,7 +63,8 @@ def stage_commands(scene: str, data: str, recnn: str) -> dict[str, list[str]]:
             stages["cache"] = [PY, *argv[1:]]
         elif argv[:3] == ["python", "-m", "imls_lightning.train"]:
             model = next(a.split("=", 1)[1] for a in argv if a.startswith("model="))
-            name = {"recnn": "sparser" if any(a.startswith("pattern.") for a in argv) else "recnn", "ims": "ims", "las": "las",
+            name = {"recnn": "sparser" if any(a.startswith("pattern.") for a in argv) else "recnn", "las": "las",
+                    "ims": "ims_decoder" if any(a.startswith("model.init_checkpoint=") for a in argv) else "ims",
                     "iml": "blue_noise" if "model.importance=uniform" in argv else "iml"}[model]
             stages[name] = [PY, *argv[1:]]
     # the paper's LAS does not serve a foveated RecNN (las_with), so only a grid pattern's pair has it
