@@ -115,6 +115,34 @@ def choose(rows: list[dict], epsilon: float) -> int | None:
                                epsilon)
 
 
+def open_evaluation(evaluation: Path):
+    """A finished evaluation's folder, opened as it ran: ``(summary, orp, settings, networks, pattern, cache, rows,
+    positions)``, its IMS at the ORP's sharpness. Exits with one line unless its ORP was found by distance bands with
+    lifted masks. The folder's ``orp_object_floor`` (the record of its candidates) is left out of the settings."""
+    from data_gen.scene import build_scene
+    from data_gen.scene import register_resolvers as register_scene_resolvers
+    from imls_lightning.config import register_resolvers
+    from imls_lightning.evaluation.networks import load_networks
+    from imls_lightning.evaluation.run import open_views
+    from imls_lightning.evaluation.settings import parse_settings
+
+    register_resolvers()
+    register_scene_resolvers()
+    summary = json.loads((evaluation / "summary.json").read_text())
+    orp = summary.get("orp") or {}
+    if not orp.get("found") or not orp.get("by_distance") or not orp.get("lift"):
+        raise SystemExit(f"error: {evaluation}: expected an ORP found by distance bands with lifted masks")
+    conf = OmegaConf.load(evaluation / "config.yaml")
+    cfg = OmegaConf.merge(conf, conf.settings, {"progress": False, "reuse": False, "output_dir": None})
+    cfg.orp_object_floor = None
+    s = parse_settings(cfg)
+    scene = build_scene(cfg.scene)
+    nets = load_networks(s, int(cfg.data.resolution))
+    nets.ims_task.mask_sharpness = float(orp.get("sharpness") or 1.0)
+    cache, rows, positions = open_views(cfg, s, scene, int(cfg.data.resolution))
+    return summary, orp, s, nets, nets.ims_task.pattern, cache, rows, positions
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("evaluation", type=Path, help="a finished evaluation's folder (config.yaml, summary.json) with a by-distance ORP")
@@ -130,28 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     if not all(0 < k <= 2 for k in a.band_scales):
         ap.error("--band-scales must lie in (0, 2]")
     op = _orp_promise()
-    from data_gen.scene import build_scene
-    from data_gen.scene import register_resolvers as register_scene_resolvers
-    from imls_lightning.config import register_resolvers
-    from imls_lightning.evaluation.networks import load_networks
-    from imls_lightning.evaluation.run import open_views
-    from imls_lightning.evaluation.settings import parse_settings
     from imls_lightning.models.ims import DistanceMeans
 
-    register_resolvers()
-    register_scene_resolvers()
-    conf = OmegaConf.load(a.evaluation / "config.yaml")
-    summary = json.loads((a.evaluation / "summary.json").read_text())
-    orp = summary.get("orp") or {}
-    if not orp.get("found") or not orp.get("by_distance") or not orp.get("lift"):
-        raise SystemExit(f"error: {a.evaluation}: expected an ORP found by distance bands with lifted masks")
-    cfg = OmegaConf.merge(conf, conf.settings, {"progress": False, "reuse": False, "output_dir": None})
-    s = parse_settings(cfg)
-    scene = build_scene(cfg.scene)
-    nets = load_networks(s, int(cfg.data.resolution))
-    nets.ims_task.mask_sharpness = float(orp.get("sharpness") or 1.0)
-    pattern = nets.ims_task.pattern
-    cache, rows_all, positions = open_views(cfg, s, scene, int(cfg.data.resolution))
+    summary, orp, s, nets, pattern, cache, rows_all, positions = open_evaluation(a.evaluation)
     bands = DistanceMeans(orp["by_distance"]["edges"], orp["by_distance"]["means"])
     eps = float(orp.get("epsilon_db", 1.0))
     splits = {"val": [int(r) for r in cache.splits["val"]], "test": [int(rows_all[p]) for p in positions]}

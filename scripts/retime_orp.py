@@ -61,6 +61,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the two-pass sampler at the operating point searched for it: an evaluation's summary.json "
                          "(its two_pass) or scripts/orp_promise.py --two-pass's JSON (its first row); a share per band "
                          "of camera distance where it has one")
+    ap.add_argument("--also", nargs="+", default=[], metavar="IMS_CKPT",
+                    help="also the product built from these IMS checkpoints at their own recorded points (e.g. a copy of "
+                         "the same checkpoint recorded at another object floor: scripts/object_floor_by_band.py), on the "
+                         "same ray caster, alternated with the others")
     ap.add_argument("--blocked", action="store_true",
                     help="per view, each method's runs back to back (as the evaluation times them: its working set stays in "
                          "the caches, as from one frame to the next of one renderer) instead of alternated run by run (each "
@@ -102,6 +106,12 @@ def main(argv: list[str] | None = None) -> int:
     rows = test[spaced(len(test), a.views)]
 
     methods = {"RecNN alone": alone, "IML/S + RecNN (recorded ORP)": product}
+    for other in a.also:
+        also = IMLSRenderer.from_checkpoints(other, recnn_checkpoint=a.recnn, renderer=product.renderer, opts=opts)
+        if also.operating_point is None or not also.operating_point.found:
+            print(f"error: --also {other}: no recorded operating point", file=sys.stderr)
+            return 2
+        methods[f"IML/S + RecNN ({Path(other).parent.name}'s record)"] = also
     if a.two_pass is not None:
         from imls_lightning.inference.two_pass import TwoPassFill
 
@@ -150,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nspeed-up of IML/S + RecNN over the RecNN alone: {base / imls:.2f}x; "
           f"limit (the ORP's pixels ray-cast alone, networks free): {limit:.2f}x")
     for n in list(methods)[2:]:
-        print(f"speed-up of {n} over the RecNN alone: {base / mean[n]['total']:.2f}x")
+        limit_n = f"; limit {base / max(mean[n]['selective_render'], 1e-9):.2f}x" if n.startswith("IML/S") else ""
+        print(f"speed-up of {n} over the RecNN alone: {base / mean[n]['total']:.2f}x{limit_n}")
     return 0
 
 

@@ -550,6 +550,86 @@ def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run,
             parse_settings(_compose(*_args(run["ck"], bad)))
 
 
+def test_object_floor_by_band_keeps_each_bands_cheapest_margin_that_holds_there():
+    """orp_object_floor_by_band: from the candidates' per-view gaps and shares on the validation views, each band of
+    camera distance keeps the cheapest margin whose bound on its own views (the stratified bound, a band per stratum)
+    holds and that leaves at most tail of them over epsilon (a direct re-check); the chosen record's views are each at
+    its band's margin; a band with no validation view takes the largest margin; without bands it is a one-line
+    error."""
+    from types import SimpleNamespace
+
+    from imls_lightning.evaluation.operating_point import _object_floor_by_band
+    from imls_lightning.models.ims import DistanceMeans
+    from imls_lightning.orp import stratified_gap_bound
+
+    rng = np.random.default_rng(3)
+    d = np.array([2.0, 2.1, 2.2, 2.3, 3.1, 3.2, 3.3, 3.4, 3.5, 3.6])
+    views = np.zeros((10, 9), np.float32)
+    views[:, 2] = d
+    cache = SimpleNamespace(views=views)
+    near = d < 3.0
+    # no floor: near views 1.5-2 dB off, far ones 0.2-1.4 (one over); margins close the gap, near ones need 0.2
+    base = np.where(near, 1.5 + 0.5 * rng.random(10), 0.2 + 0.2 * rng.random(10))
+    base[-1] = 1.4
+    cands = []
+    for margin, fix_near, fix_far in ((None, 1.0, 1.0), (0.0, 1.0, 0.4), (0.1, 0.6, 0.2), (0.2, 0.2, 0.1)):
+        gaps = base * np.where(near, fix_near, fix_far)
+        shares = np.where(near, 0.4, 0.2) + (0.0 if margin is None else margin)
+        cands.append({"margin": margin, "gaps_db": gaps.tolist(), "c_shares": shares.tolist(), "gap_db": float(gaps.mean()),
+                      "gap_bound_db": float(gaps.max()), "c_share": float(shares.mean()),
+                      "views_over_epsilon": int((gaps > 1.0).sum())})
+    bands = DistanceMeans([3.0], [0.4, 0.2])
+    s = SimpleNamespace(orp_confidence=0.95, epsilon_db=1.0, orp_object_floor_tail=0.0)
+    f = _object_floor_by_band(s, cache, list(range(10)), bands, [dict(c) for c in cands], 0.2, 20)
+
+    def held(k, c):
+        idx = (d >= 3.0) == bool(k)
+        _, each = stratified_gap_bound(c["gaps_db"], (d >= 3.0).astype(int), 0.95, 20)
+        return each[k].bound <= 1.0 and int((np.asarray(c["gaps_db"])[idx] > 1.0).sum()) == 0
+
+    want = [min((c for c in cands if held(k, c)), key=lambda c: np.mean(np.asarray(c["c_shares"])[(d >= 3.0) == bool(k)]))["margin"]
+            for k in (0, 1)]
+    assert want == [0.2, 0.0]  # the near band needs the largest margin, the far one the object alone
+    c = f["chosen"]
+    assert f["by_band"] and c["band_margins"] == want and c["margin"] == 0.2
+    pick = {0.2: 3, 0.0: 1}
+    gaps = [cands[pick[want[int(x >= 3.0)]]]["gaps_db"][j] for j, x in enumerate(d)]
+    assert c["gap_db"] == pytest.approx(np.mean(gaps)) and c["views_over_epsilon"] == 0
+    assert all("gaps_db" not in x for x in f["candidates"]) and len(f["candidates"][0]["band_bounds_db"]) == 2
+    from imls_lightning.report.document import _object_floor_lines
+
+    section = "\n".join(_object_floor_lines(f, 1.0))
+    assert "its band's margin (below)" in section and "near to far 0.20 / 0.00." in section
+    assert "| C-share by band |" in section and section.count("\n| ") >= 2 + len(cands)
+    # a tail of 1: the bound alone; the far band then needs no floor (its bound holds with one view over)
+    loose = _object_floor_by_band(SimpleNamespace(orp_confidence=0.95, epsilon_db=1.0, orp_object_floor_tail=1.0), cache,
+                                  list(range(10)), bands, [dict(c) for c in cands], 0.2, 20)
+    assert loose["chosen"]["band_margins"][1] is None
+    # a band no validation view falls in: the largest margin
+    three = DistanceMeans([3.0, 9.0], [0.4, 0.2, 0.1])
+    g3 = _object_floor_by_band(s, cache, list(range(10)), three, [dict(c) for c in cands], 0.2, 20)
+    assert g3["chosen"]["band_margins"] == [0.2, 0.0, 0.2]
+    with pytest.raises(InputError, match=re.escape("orp_object_floor_by_band=true: the operating point has no bands")):
+        _object_floor_by_band(s, cache, list(range(10)), None, cands, 0.2, 20)
+
+
+def test_object_floor_by_band_settings_and_their_errors():
+    from imls_lightning.evaluation import parse_settings
+
+    base = ["checkpoints.ims=ims.ckpt", "orp_object_floor=[0.0,0.1]"]
+    s = parse_settings(_compose(*base, "orp_by_distance=true", "orp_strata=4", "orp_object_floor_by_band=true",
+                                "orp_object_floor_tail=0.1"))
+    assert s.orp_object_floor_by_band and s.orp_object_floor_tail == 0.1
+    assert s.hashed()["orp_object_floor"] == {"margins": [0.0, 0.1], "tau": 0.2, "by_band": True, "tail": 0.1}
+    assert parse_settings(_compose(*base)).hashed()["orp_object_floor"] == {"margins": [0.0, 0.1], "tau": 0.2}
+    for bad, msg in ((["orp_object_floor_by_band=true"], "orp_object_floor_by_band=true: a margin per band of camera "
+                      "distance needs the bands (orp_by_distance=true)"),
+                     (["orp_object_floor_by_band=maybe"], "orp_object_floor_by_band='maybe': expected true or false"),
+                     (["orp_object_floor_tail=1.5"], "orp_object_floor_tail=1.5: expected the share in [0, 1]")):
+        with pytest.raises(InputError, match=re.escape(msg)):
+            parse_settings(_compose(*base, *bad))
+
+
 def test_object_floor_without_validation_views_is_a_one_line_error():
     from types import SimpleNamespace
 

@@ -269,6 +269,29 @@ def test_export_runs_a_point_recorded_with_an_object_floor(renderer, tmp_path):
     assert share.min() > 0.25, share  # the floor, not u = 0.05, sets the share
 
 
+def test_export_runs_a_point_floored_per_band(renderer, tmp_path):
+    """A by-distance point with an object-floor margin per band is exported as it runs: the im network gives each view
+    its band's mean value and margin (the same IMs as IMLSRenderer.from_checkpoints), and export.json carries the
+    margins."""
+    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+
+    ims = _low_pim_ims("enhancenet", 3.0)
+    ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
+    views = _views(6, 13)
+    d = np.linalg.norm(views[:, :3], axis=1)
+    edge = float(np.median(d))
+    bands = {"edges": [edge], "means": [0.05, 0.05]}
+    floor = {"margin": 0.3, "tau": 0.01, "band_margins": [0.3, None]}
+    write_operating_point(ckpt, OperatingPoint(mean=0.05, lift=True, c_share=0.05, ipr=0.01, epsilon_db=1.0, by_distance=bands,
+                                               object_floor=floor))
+    out = export_renderer(ckpt, tmp_path / "ts")
+    meta = json.loads((out / "export.json").read_text())
+    assert meta["floor_margins"] == [0.3, None] and meta["operating_point"]["object_floor"] == floor
+    ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
+    share = np.array(_compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), views, tol=1)) / ref.pattern.count
+    assert share[d < edge].min() > 0.25 and share[d >= edge].max() < 0.15, share  # the near band floored, the far not
+
+
 def test_standalone_ims_needs_recnn_checkpoint(ckpts, renderer, tmp_path):
     with pytest.raises(InputError, match="recnn_checkpoint=<RecNN .ckpt>"):
         export_renderer(ckpts["standalone"], tmp_path / "a")

@@ -417,6 +417,20 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     with pytest.raises(SystemExit, match="expected an evaluation's summary.json or orp_promise.py --two-pass rows"):
         mod.main(args + ["--two-pass-from", str(bad)])
 
+    # --also: a copy of the checkpoint recorded at another point, alternated with the others on the same ray caster
+    other = tmp_path / "other"
+    other.mkdir()
+    copy = Path(shutil.copy(ckpt, other / "ims.ckpt"))
+    assert mod.main(args + ["--also", str(copy)]) == 2
+    err = capsys.readouterr().err
+    assert f"error: --also {copy}: no recorded operating point" in err, err
+    write_operating_point(copy, OperatingPoint(mean=0.2, lift=True, c_share=0.2, ipr=0.05, epsilon_db=1.0))
+    assert mod.main(args + ["--also", str(copy)]) == 0
+    out = capsys.readouterr().out
+    also = next(line.split(" | ") for line in out.splitlines() if line.startswith("| IML/S + RecNN (other's record)"))
+    assert float(also[1].rstrip("%")) < float(got[1].rstrip("%")), out  # its own, smaller point
+    assert "speed-up of IML/S + RecNN (other's record) over the RecNN alone" in out and "; limit " in out
+
     # without empty-space skipping: the same pixels (PSNR to the last digit), other costs
     assert mod.main(args + ["--no-skip-empty"]) == 0
     out = capsys.readouterr().out
@@ -778,3 +792,22 @@ def test_estimate_vs_measured_reads_the_row_and_its_own_times():
                                                 (nets + frac * whole + mean("recnn", "recnn_ms")))
     # the row's own times give back its speed-up with its own fraction (a ratio of means)
     assert (mean("recnn", "total_ms") / mean("imls", "total_ms")) == pytest.approx(2.55588, rel=1e-3)
+
+
+def test_object_floor_by_band_script_refuses_bad_arguments_and_an_evaluation_without_bands(tmp_path, capsys):
+    """scripts/object_floor_by_band.py: margins and tail outside [0, 1] are argparse errors; an evaluation whose ORP has
+    no bands of camera distance (or no lifted masks) is refused in one line before any network is loaded."""
+    import json
+
+    mod = _script_module("object_floor_by_band")
+    ev = tmp_path / "eval"
+    ev.mkdir()
+    (ev / "config.yaml").write_text("settings: {}\n")
+    for bad in (["--tail", "1.5"], ["--margins", "-0.1"]):
+        with pytest.raises(SystemExit):
+            mod.main([str(ev), "--out", str(tmp_path / "o"), *bad])
+        assert "--margins and --tail must lie in [0, 1]" in capsys.readouterr().err
+    (ev / "summary.json").write_text(json.dumps({"orp": {"found": True, "lift": True, "by_distance": None}}))
+    with pytest.raises(SystemExit, match="expected an ORP found by distance bands with lifted masks"):
+        mod.main([str(ev), "--out", str(tmp_path / "o")])
+    assert not (tmp_path / "o").exists()

@@ -275,15 +275,20 @@ def object_fraction(pim: torch.Tensor, valid: torch.Tensor, tau: float = 0.2) ->
         return hit.sum(dim=(1, 2, 3)) / count
 
 
-def floored_mean(mean: torch.Tensor, fraction: torch.Tensor, margin: float) -> torch.Tensor:
+def floored_mean(mean: torch.Tensor, fraction: torch.Tensor, margin: "float | torch.Tensor") -> torch.Tensor:
     """Each view's mean value raised to its object's fraction plus ``margin`` where that is larger, at most 1:
-    ``max(u, min(1, f + margin))``, ``(B,)``.
+    ``max(u, min(1, f + margin))``, ``(B,)``. ``margin``: one number, or ``(B,)``, one per view (a floor per band of
+    camera distance, :class:`~imls_lightning.models.ims.DistanceMeans`); a negative margin of -1 is no floor for
+    that view (``f - 1 <= 0``).
 
     Example:
         >>> floored_mean(torch.tensor([0.3, 0.6]), torch.tensor([0.35, 0.35]), 0.1).tolist()
         [0.44999998807907104, 0.6000000238418579]
+        >>> floored_mean(torch.tensor([0.3, 0.3]), torch.tensor([0.35, 0.35]), torch.tensor([0.1, -1.0])).tolist()
+        [0.44999998807907104, 0.30000001192092896]
     """
-    return torch.maximum(mean.float(), (fraction.float() + float(margin)).clamp(max=1.0))
+    m = margin.to(device=fraction.device, dtype=torch.float32) if torch.is_tensor(margin) else float(margin)
+    return torch.maximum(mean.float(), (fraction.float() + m).clamp(max=1.0))
 
 
 def lift_to_share(

@@ -242,12 +242,15 @@ def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, resu
                                 per_view=True)
             candidates.append({"margin": margin, "gap_db": rec["gap_db"], "gap_bound_db": rec["gap_bound_db"],
                                "c_share": rec["c_share"], "strata_gap_db": rec.get("strata_gap_db"),
-                               "views_over_epsilon": int(sum(g > s.epsilon_db for g in rec["gaps_db"]))})
+                               "views_over_epsilon": int(sum(g > s.epsilon_db for g in rec["gaps_db"])), "views": len(rows),
+                               "gaps_db": rec["gaps_db"], "c_shares": rec["c_shares"]})
             c = candidates[-1]
             print(f"[evaluate] object floor on {len(rows)} validation views: " + ("no floor" if margin is None else
                   f"object + {margin:g}") + f": {c['c_share']:.1%} of C, gap {c['gap_db']:.2f} dB (bound {c['gap_bound_db']:.2f}), "
                   f"{c['views_over_epsilon']} views over {s.epsilon_db:g} dB", file=sys.stderr, flush=True)
-    pick = choose_object_floor(candidates, s.epsilon_db)
+    if s.orp_object_floor_by_band:
+        return _object_floor_by_band(s, cache, rows, bands, candidates, tau, future_views)
+    pick = choose_object_floor(candidates, s.epsilon_db, s.orp_object_floor_tail)
     if pick is None:
         pick = min(range(len(candidates)), key=lambda i: (candidates[i]["gap_bound_db"], i))
         print(f"[evaluate] warning: object floor: no margin keeps the bound within {s.epsilon_db:g} dB on the validation "
@@ -257,20 +260,95 @@ def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, resu
                                                "gap_db": c["gap_db"], "gap_bound_db": c["gap_bound_db"], "views": len(rows)}
     print("[evaluate] object floor: " + ("none (the operating point alone is the cheapest that holds)" if chosen is None else
           f"each view at least its object (PIM' > {tau:g}) + {chosen['margin']:g} of C"), file=sys.stderr, flush=True)
-    return {"tau": float(tau), "views": len(rows), "candidates": candidates, "chosen": chosen}
+    return {"tau": float(tau), "views": len(rows), "candidates": [_brief(c) for c in candidates], "chosen": chosen}
 
 
-def choose_object_floor(candidates: Sequence[dict[str, Any]], epsilon_db: float) -> int | None:
+def _brief(candidate: dict[str, Any]) -> dict[str, Any]:
+    """A candidate for the summary: its per-view lists left out."""
+    return {k: v for k, v in candidate.items() if k not in ("gaps_db", "c_shares")}
+
+
+def _object_floor_by_band(s: Settings, cache, rows, bands, candidates: list[dict[str, Any]], tau: float,
+                          future_views: int | None) -> dict[str, Any]:
+    """``orp_object_floor_by_band``: each band of camera distance (``bands``, the point's
+    :class:`~imls_lightning.models.ims.DistanceMeans`) keeps its own margin, judged on its own validation views as
+    :func:`object_floor_point` judges one for all (the bound for the band's share of ``future_views`` within
+    ``epsilon_db``, at most ``orp_object_floor_tail`` of its views over it; the cheapest that holds, no floor among
+    them). A band no validation view falls in takes the largest candidate margin. The chosen record's ``margin`` is
+    the largest band margin (for consumers that take one), ``band_margins`` the bands' (``None``: no floor there)."""
+    from ..orp import stratified_gap_bound
+
+    if bands is None:
+        raise InputError("orp_object_floor_by_band=true: the operating point has no bands of camera distance "
+                         "(orp_by_distance=true)")
+    views = torch.as_tensor(np.stack([np.asarray(cache.views[r], np.float32) for r in rows]))
+    label = bands.cpu().band(views).numpy()
+    k_bands = int(bands.means.numel())
+    per_band = []
+    for c in candidates:
+        g, sh = np.asarray(c["gaps_db"], np.float64), np.asarray(c["c_shares"], np.float64)
+        present = sorted(set(label.tolist()))
+        _, each = stratified_gap_bound(g, label, s.orp_confidence, future_views)
+        bound = dict(zip(present, (b.bound for b in each)))
+        c["band_bounds_db"] = [bound.get(k) for k in range(k_bands)]
+        c["band_c_shares"] = [float(sh[label == k].mean()) if (label == k).any() else None for k in range(k_bands)]
+        c["band_views_over_epsilon"] = [int((g[label == k] > s.epsilon_db).sum()) for k in range(k_bands)]
+        per_band.append(c)
+    choice, warned = [], []
+    for k in range(k_bands):
+        n_k = int((label == k).sum())
+        if n_k == 0:
+            choice.append(max(range(len(candidates)), key=lambda i: (-1.0 if candidates[i]["margin"] is None
+                                                                     else candidates[i]["margin"], -i)))
+            warned.append(f"band {k}: no validation view, the largest margin")
+            continue
+        band = [{"gap_bound_db": c["band_bounds_db"][k], "c_share": c["band_c_shares"][k],
+                 "views_over_epsilon": c["band_views_over_epsilon"][k], "views": n_k} for c in candidates]
+        pick = choose_object_floor(band, s.epsilon_db, s.orp_object_floor_tail)
+        if pick is None:
+            pick = min(range(len(band)), key=lambda i: (band[i]["gap_bound_db"], i))
+            warned.append(f"band {k}: nothing holds, the smallest bound")
+        choice.append(pick)
+    for w in warned:
+        print(f"[evaluate] warning: object floor by band: {w}", file=sys.stderr, flush=True)
+    margins = [candidates[i]["margin"] for i in choice]
+    gaps = np.array([candidates[choice[k]]["gaps_db"][j] for j, k in enumerate(label)])
+    shares = np.array([candidates[choice[k]]["c_shares"][j] for j, k in enumerate(label)])
+    bounds = [candidates[choice[k]]["band_bounds_db"][k] for k in range(k_bands)]
+    chosen = None
+    if any(m is not None for m in margins):
+        chosen = {"margin": float(max(m for m in margins if m is not None)), "tau": float(tau),
+                  "band_margins": [None if m is None else float(m) for m in margins],
+                  "c_share": float(shares.mean()), "gap_db": float(gaps.mean()),
+                  "gap_bound_db": float(max(b for b in bounds if b is not None)), "views": len(rows),
+                  "views_over_epsilon": int((gaps > s.epsilon_db).sum())}
+    print("[evaluate] object floor by band (near to far): " + " / ".join("none" if m is None else f"{m:g}" for m in margins)
+          + f": {shares.mean():.1%} of C, gap {gaps.mean():.2f} dB, {int((gaps > s.epsilon_db).sum())} of {len(rows)} "
+          f"validation views over {s.epsilon_db:g} dB", file=sys.stderr, flush=True)
+    return {"tau": float(tau), "views": len(rows), "by_band": True, "tail": s.orp_object_floor_tail,
+            "candidates": [_brief(c) for c in per_band], "chosen": chosen}
+
+
+def choose_object_floor(candidates: Sequence[dict[str, Any]], epsilon_db: float, tail: float = 1.0) -> int | None:
     """Of ``candidates`` (each with ``gap_bound_db`` and ``c_share``) whose bound stays within ``epsilon_db``, the index of
-    the one with the smallest share of C (the fastest; the earlier on a tie); ``None`` where none holds.
+    the one with the smallest share of C (the fastest; the earlier on a tie); ``None`` where none holds. With
+    ``tail < 1`` a candidate that also has ``views_over_epsilon`` and ``views`` must leave at most ``tail * views`` of
+    its views over ``epsilon_db`` (a promise per view beside the one on the mean).
 
     Example:
         >>> cands = [{"gap_bound_db": 1.4, "c_share": 0.30}, {"gap_bound_db": 0.9, "c_share": 0.41},
         ...          {"gap_bound_db": 0.6, "c_share": 0.45}]
         >>> choose_object_floor(cands, 1.0), choose_object_floor(cands, 0.5)
         (1, None)
+        >>> cands[1].update(views_over_epsilon=2, views=10)
+        >>> choose_object_floor(cands, 1.0, tail=0.1)
+        2
     """
-    held = [i for i, c in enumerate(candidates) if float(c["gap_bound_db"]) <= epsilon_db]
+    def holds(c) -> bool:
+        over_ok = tail >= 1.0 or c.get("views") is None or int(c["views_over_epsilon"]) <= tail * int(c["views"])
+        return float(c["gap_bound_db"]) <= epsilon_db and over_ok
+
+    held = [i for i, c in enumerate(candidates) if holds(c)]
     return min(held, key=lambda i: (float(candidates[i]["c_share"]), i)) if held else None
 
 
@@ -415,7 +493,8 @@ def distance_means(result):
         return None
     from ..models.ims import DistanceMeans
 
-    return DistanceMeans(bands["edges"], bands["means"])
+    chosen = (getattr(result, "object_floor", None) or {}).get("chosen") or {}
+    return DistanceMeans(bands["edges"], bands["means"], chosen.get("band_margins"))
 
 
 def camera_distance(cache, row: int) -> float:

@@ -113,6 +113,8 @@ class Settings:
     ims_sharpness_views: int = 6         # search views the candidates' operating points are timed on (0: by share of C)
     orp_object_floor: list[float] = field(default_factory=list)  # the object floor's candidate margins ([]: no floor)
     orp_object_floor_tau: float = 0.2    # PIM' above this counts as the object
+    orp_object_floor_by_band: bool = False  # a margin per band of camera distance (needs orp_by_distance)
+    orp_object_floor_tail: float = 1.0   # the share of a band's validation views a margin may leave over epsilon_db
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -134,7 +136,10 @@ class Settings:
             **({"ims_sharpness": self.ims_sharpness} if self.ims_sharpness != [1.0] else {}),
             **({"ims_sharpness_views": self.ims_sharpness_views} if len(self.ims_sharpness) > 1 else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
-            **({"orp_object_floor": {"margins": self.orp_object_floor, "tau": self.orp_object_floor_tau}}
+            **({"orp_object_floor": {"margins": self.orp_object_floor, "tau": self.orp_object_floor_tau,
+                                     # only when set: evaluations made before the keys existed keep their directories
+                                     **({"by_band": True} if self.orp_object_floor_by_band else {}),
+                                     **({"tail": self.orp_object_floor_tail} if self.orp_object_floor_tail != 1.0 else {})}}
                if self.orp_object_floor else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
@@ -203,7 +208,16 @@ def _object_floor(cfg) -> dict[str, Any]:
     for m in items:
         margins.add(check_number(m, "orp_object_floor", 0.0, 1.0,
                                  what="a margin or a list of margins in [0, 1] (shares of C above the object's own)"))
-    return {"orp_object_floor": sorted(margins), "orp_object_floor_tau": tau}
+    by_band = OmegaConf.select(cfg, "orp_object_floor_by_band", default=False)
+    if not isinstance(by_band, bool):
+        raise InputError(f"orp_object_floor_by_band={by_band!r}: expected true or false")
+    if by_band and margins and not OmegaConf.select(cfg, "orp_by_distance", default=False):
+        raise InputError("orp_object_floor_by_band=true: a margin per band of camera distance needs the bands "
+                         "(orp_by_distance=true)")
+    tail = check_number(OmegaConf.select(cfg, "orp_object_floor_tail", default=1.0), "orp_object_floor_tail", 0.0, 1.0,
+                        what="the share in [0, 1] of a band's validation views a margin may leave over epsilon_db")
+    return {"orp_object_floor": sorted(margins), "orp_object_floor_tau": tau, "orp_object_floor_by_band": by_band,
+            "orp_object_floor_tail": tail}
 
 
 def _timing(cfg) -> str:

@@ -214,7 +214,8 @@ def _product_record(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Mo
     ps, pr, shares = [], [], []
     for c, fr, g, p_rec, v in prepared:
         means = u(v).float() if callable(u) else torch.full((c.shape[0],), float(u))
-        im = mask_head.threshold(g, means, lift).float()
+        margins = u.floor_margin(v) if hasattr(u, "floor_margin") else None  # a floor per band of camera distance
+        im = mask_head.threshold(g, means, lift, margins).float()
         ps.append(psnr_per_image(recnn(decoder(im * c, im)), fr))
         pr.append(p_rec)
         shares.append(im.flatten(1).sum(1))

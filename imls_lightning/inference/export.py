@@ -287,7 +287,9 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
             "lift": lift,
             "sharpness": float(nets.head.sharpness),  # the im network's masks, sharpened as the record's ORP was searched
             # the im network's floor on each view's mean value (its object + margin), as the record's evaluation chose it
+            # (its band's margin where the record chose one per band: by_distance's floor_margins)
             "object_floor": None if nets.head.object_floor is None else dict(zip(("margin", "tau"), nets.head.object_floor)),
+            "floor_margins": None if product.by_distance is None else product.by_distance.floor_margins,
             "by_distance": None if product.by_distance is None else point.by_distance,
             "operating_point": None if point is None else asdict(point),
             "inputs": {"im": [1, 9], "decoder": [1, 4, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},

@@ -74,6 +74,9 @@ class OperatingPoint:
             ``orp_object_floor``, chosen on the cache's validation views after the search): ``{"margin", "tau"}`` and
             what chose it (``c_share``, ``gap_db`` and ``gap_bound_db`` there, ``views``), or ``None``: no floor
             (:meth:`~imls_lightning.models.ims.IMSMaskHead.with_object_floor`). Records written before it read as ``None``.
+            With ``band_margins`` (``orp_object_floor_by_band``) each band of ``by_distance`` has its own margin
+            (``None``: no floor there), which :meth:`distance_means` carries; ``margin`` is then the largest, for
+            consumers that take one.
     """
 
     mean: float | None
@@ -100,7 +103,8 @@ class OperatingPoint:
             return None
         from ..models.ims import DistanceMeans
 
-        return DistanceMeans(self.by_distance["edges"], self.by_distance["means"])
+        margins = (self.object_floor or {}).get("band_margins")
+        return DistanceMeans(self.by_distance["edges"], self.by_distance["means"], margins)
 
     def describe(self) -> str:
         """One line: the mean value, the share and IPR it gave, and the bound."""
@@ -116,8 +120,12 @@ class OperatingPoint:
                 bands += " (" + " / ".join(f"{100 * c:.0f}" for c in b["c_shares"]) + " % of C)"
             bands += " split at " + ", ".join(f"{e:.2f}" for e in b["edges"])
         sharp = "" if self.sharpness == 1.0 else f", sharpness {self.sharpness:g}"
-        floor = "" if not self.object_floor else (f"; each view at least its object (PIM' > {self.object_floor['tau']:g}) "
-                                                  f"+ {self.object_floor['margin']:g} of C")
+        floor = ""
+        if self.object_floor:
+            f = self.object_floor
+            margin = (f"{f['margin']:g}" if not f.get("band_margins") else
+                      "(near to far) " + " / ".join("none" if m is None else f"{m:g}" for m in f["band_margins"]))
+            floor = f"; each view at least its object (PIM' > {f['tau']:g}) + {margin} of C"
         return (f"u = {self.mean:.3f}{' (masks lifted)' if self.lift else ''}{sharp}{share}{ipr} on the validation views "
                 f"(within {self.epsilon_db:g} dB of the RecNN alone){bands}{floor}")
 
@@ -178,6 +186,8 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
                                by_distance=_by_distance(record.get("by_distance")),
                                sharpness=check_sharpness(record.get("sharpness", 1.0)),
                                object_floor=_object_floor(record.get("object_floor")))
+        if (point.object_floor or {}).get("band_margins") is not None and not point.by_distance:
+            raise ValueError("object_floor.band_margins without by_distance bands to hold them")
         point.distance_means()  # the bands are checked as a renderer will read them
     except (KeyError, TypeError, ValueError, InputError) as err:
         return None, f"malformed ({type(err).__name__}: {err})"
@@ -193,6 +203,11 @@ def _object_floor(value: Any) -> dict | None:
         raise TypeError(f"object_floor is a {type(value).__name__}, expected a mapping")
     margin, tau = check_object_floor(value["margin"], value["tau"])
     out: dict[str, Any] = {"margin": margin, "tau": tau}
+    if value.get("band_margins") is not None:  # one per band of by_distance: distance_means() checks the count
+        from ..models.ims import check_band_margins
+
+        bm = value["band_margins"]
+        out["band_margins"] = check_band_margins(bm, len(bm) if isinstance(bm, (list, tuple)) else -1, "object_floor.band_margins")
     for key in ("c_share", "gap_db", "gap_bound_db"):
         if value.get(key) is not None:
             out[key] = float(value[key])

@@ -314,21 +314,31 @@ class IMSMaskHead(nn.Module):
         return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, self.sharpness,
                            None if margin is None else (margin, tau))
 
-    def forward(self, view: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False) -> torch.Tensor:
+    def forward(self, view: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False,
+                floor_margin: torch.Tensor | None = None) -> torch.Tensor:
         """IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` at the trained mean (``mean=None``) or at ``mean``
-        (a number or ``(B,)``; ``target="pim"`` only), lifted to the share ``mean`` with ``lift``. Run
-        the generator under autocast if wanted: the thresholding is float32 whatever its output."""
-        return self.threshold(self.generator(view), mean, lift)
+        (a number or ``(B,)``; ``target="pim"`` only), lifted to the share ``mean`` with ``lift``; ``floor_margin``
+        see :meth:`threshold`. Run the generator under autocast if wanted: the thresholding is float32 whatever its
+        output."""
+        return self.threshold(self.generator(view), mean, lift, floor_margin)
 
-    def threshold(self, g: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False) -> torch.Tensor:
+    def threshold(self, g: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False,
+                  floor_margin: torch.Tensor | None = None) -> torch.Tensor:
         """Generator output ``g`` ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool (see the class doc).
 
         ``mean=None``: the trained mean. A number or ``(B,)`` tensor: the PIM' rescaled to it (at
         ``u == u_train``, the same float32, bit for bit the trained-mean IM), lifted with ``lift``.
+        ``floor_margin`` ``(B,)``: each view's object-floor margin in place of the head's one (a floor per band of
+        camera distance, :meth:`DistanceMeans.floor_margin`; -1: none for that view); the head's ``object_floor``
+        gives ``tau``.
 
         Raises:
-            InputError: a mean value for an IMS trained with ``target="im"`` (a binary IM cannot be rescaled).
+            InputError: a mean value for an IMS trained with ``target="im"`` (a binary IM cannot be rescaled);
+                ``floor_margin`` for a head without an ``object_floor``.
         """
+        if floor_margin is not None and self.object_floor is None:
+            raise InputError("floor_margin: margins per view need a head with an object_floor (its tau); "
+                             "make one with with_object_floor(margin, tau)")
         with torch.autocast(device_type=g.device.type, enabled=False):
             g = g.float()
             P, valid = self.P.to(g.device), self.valid.to(g.device)
@@ -345,14 +355,17 @@ class IMSMaskHead(nn.Module):
                 raise InputError(f"mean={mean if not torch.is_tensor(mean) else 'per view'}: its IMS was trained with "
                                  "model.target=im; rescaling the IMS's mask to another mean value needs an IMS trained "
                                  "with model.target=pim")
-            return self._rescaled(g, mean, bool(lift), P, valid)
+            return self._rescaled(g, mean, bool(lift), P, valid, floor_margin)
 
-    def _rescaled(self, g: torch.Tensor, mean, lift: bool, P: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    def _rescaled(self, g: torch.Tensor, mean, lift: bool, P: torch.Tensor, valid: torch.Tensor,
+                  floor_margin: torch.Tensor | None = None) -> torch.Tensor:
         lower = self.lower
         ut = torch.as_tensor(mean, dtype=torch.float32, device=g.device).reshape(-1, 1, 1, 1)
         pim = (g + 1.0) * 0.5
         if self.object_floor is not None:  # the object's own fraction, from the unsharpened PIM', plus the margin
             margin, tau = self.object_floor
+            if floor_margin is not None:  # each view's band's margin
+                margin = floor_margin.to(device=g.device, dtype=torch.float32).reshape(-1).expand(g.shape[0])
             ut = floored_mean(ut.flatten().expand(g.shape[0]), object_fraction(pim, valid, tau), margin).reshape(-1, 1, 1, 1)
         scale = (ut - lower) / torch.tensor(self.trained_mean - lower, dtype=torch.float32, device=g.device)
         pim = sharpen_importance(pim, self.sharpness, valid)
@@ -393,21 +406,31 @@ class DistanceMeans(nn.Module):
     where the object fills the C-Image, need more pixels than views from afar. The band is found by
     comparisons and a gather, so tracing and ONNX export see no branch.
 
+    With ``floor_margins`` each band also has its own object floor's margin (the evaluation's
+    ``orp_object_floor_by_band``: close-ups need a larger one than views from afar), which
+    :meth:`floor_margin` gives per view and :class:`MaskAt` hands to the head (its ``object_floor`` gives the
+    ``tau``); ``None`` in a band: no floor there.
+
     Args:
         edges: ``K - 1`` increasing finite distances (``K >= 1``).
         means: ``K`` mean values in ``[0.01, 1]``.
+        floor_margins: ``K`` margins in ``[0, 1]`` or ``None`` (no floor in that band), or ``None`` (default): the
+            head's one margin for every view.
 
     Raises:
-        InputError: edges not increasing or not finite, a mean outside ``[0.01, 1]``, ``len(means) != len(edges) + 1``.
+        InputError: edges not increasing or not finite, a mean outside ``[0.01, 1]``, ``len(means) != len(edges) + 1``,
+            floor margins not one per band or outside ``[0, 1]``.
 
     Example:
         >>> sched = DistanceMeans([2.7, 3.0], [0.9, 0.7, 0.5])
         >>> views = torch.tensor([[2.5, 0, 0, 0, 0, 0, 0, 1, 0], [0, 2.8, 0, 0, 0, 0, 0, 1, 0], [0, 0, 3.3, 0, 0, 0, 0, 1, 0]])
         >>> [round(u, 2) for u in sched(views).tolist()]
         [0.9, 0.7, 0.5]
+        >>> [round(m, 2) for m in DistanceMeans([2.7, 3.0], [0.9, 0.7, 0.5], [0.1, 0.02, None]).floor_margin(views).tolist()]
+        [0.1, 0.02, -1.0]
     """
 
-    def __init__(self, edges, means):
+    def __init__(self, edges, means, floor_margins=None):
         super().__init__()
         import math
 
@@ -421,14 +444,48 @@ class DistanceMeans(nn.Module):
             raise InputError(f"by_distance: mean values {u}: expected numbers in [0.01, 1]")
         self.register_buffer("edges", torch.tensor(e, dtype=torch.float32))
         self.register_buffer("means", torch.tensor(u, dtype=torch.float32))
+        self.floor_margins = None if floor_margins is None else check_band_margins(floor_margins, len(u))
+        if self.floor_margins is not None:  # -1: no floor in that band (floored_mean then keeps the band's u)
+            self.register_buffer("margins", torch.tensor([NO_FLOOR if m is None else m for m in self.floor_margins],
+                                                         dtype=torch.float32))
+
+    def band(self, view: torch.Tensor) -> torch.Tensor:
+        """The band index ``(B,)`` int64 of each view ``(B, 9)``, near to far."""
+        d = view[:, :3].float().norm(dim=1)
+        return (d.unsqueeze(1) >= self.edges.to(d.device)).sum(1)
 
     def forward(self, view: torch.Tensor) -> torch.Tensor:
-        d = view[:, :3].float().norm(dim=1)
-        band = (d.unsqueeze(1) >= self.edges.to(d.device)).sum(1)
-        return self.means.to(d.device)[band]
+        return self.means.to(view.device)[self.band(view)]
+
+    def floor_margin(self, view: torch.Tensor) -> torch.Tensor | None:
+        """Each view's band's object-floor margin ``(B,)`` (-1: no floor in its band), or ``None``: no floor
+        margins per band (the head's one margin holds)."""
+        if self.floor_margins is None:
+            return None
+        return self.margins.to(view.device)[self.band(view)]
 
     def extra_repr(self) -> str:
-        return f"edges={[round(x, 4) for x in self.edges.tolist()]}, means={[round(x, 4) for x in self.means.tolist()]}"
+        return (f"edges={[round(x, 4) for x in self.edges.tolist()]}, means={[round(x, 4) for x in self.means.tolist()]}"
+                + ("" if self.floor_margins is None else f", floor_margins={list(self.floor_margins)}"))
+
+
+NO_FLOOR = -1.0  # a band's margin that leaves its views' u as it is (floored_mean: max(u, f - 1) = u)
+
+
+def check_band_margins(margins, bands: int, name: str = "floor_margins") -> list[float | None]:
+    """One object-floor margin in ``[0, 1]`` or ``None`` (no floor) per band of camera distance.
+
+    Example:
+        >>> check_band_margins([0.1, None, "0"], 3)
+        [0.1, None, 0.0]
+    """
+    from data_gen.validate import check_number
+
+    items = list(margins) if isinstance(margins, (list, tuple)) else None
+    if items is None or len(items) != bands:
+        raise InputError(f"{name}={margins!r}: expected {bands} margins (one per band of camera distance), each in [0, 1] or null")
+    return [None if m is None else check_number(m, f"{name}[{i}]", 0.0, 1.0, what="a share of the C-Image in [0, 1] or null")
+            for i, m in enumerate(items)]
 
 
 class MaskAt(nn.Module):
@@ -458,8 +515,9 @@ class MaskAt(nn.Module):
         self.lift = bool(lift) and mean is not None
 
     def forward(self, view: torch.Tensor) -> torch.Tensor:
-        mean = self.mean if self.by_distance is None else self.by_distance(view)
-        return self.head(view, mean, self.lift)
+        if self.by_distance is None:
+            return self.head(view, self.mean, self.lift)
+        return self.head(view, self.by_distance(view), self.lift, floor_margin=self.by_distance.floor_margin(view))
 
     def extra_repr(self) -> str:
         return f"mean={'by distance' if self.by_distance is not None else self.mean}, lift={self.lift}"

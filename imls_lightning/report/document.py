@@ -352,7 +352,8 @@ def _object_floor_lines(f: dict, epsilon_db: float) -> list[str]:
     """The object floor's choice (``orp_object_floor``): each candidate margin on the validation views, and the one kept."""
     c = f.get("chosen")
     kept = ("no floor (the operating point alone was the cheapest that held)" if c is None else
-            f"**each view at least its object + {fmt(c['margin'], 2)} of C**")
+            f"**each view at least its object + {fmt(c['margin'], 2)} of C**" if not c.get("band_margins") else
+            "**each view at least its object + its band's margin (below)**")
     L = [f"**Object floor** (`orp_object_floor`): each view's u raised to its object's share of C (the pixels whose IMS "
          f"PIM', from the view alone, exceeds {fmt(f['tau'], 2)}) plus a margin, judged on the cache's {f['views']} validation "
          f"views (not the search's, where the operating point holds by construction; never the test trajectory) by the "
@@ -362,6 +363,18 @@ def _object_floor_lines(f: dict, epsilon_db: float) -> list[str]:
                       [["no floor" if x["margin"] is None else fmt(x["margin"], 2), fmt_pct(x["c_share"]), fmt(x["gap_db"], 2),
                         fmt(x["gap_bound_db"], 2), " / ".join(fmt(g, 2) for g in (x.get("strata_gap_db") or [])) or "–",
                         str(x["views_over_epsilon"])] for x in f["candidates"]], "lrrrlr"))
+    if f.get("by_band"):
+        bands = c["band_margins"] if c else None
+        L.append(f"**By band** (`orp_object_floor_by_band`): each band of camera distance kept its own cheapest margin "
+                 f"that held on its own validation views (its bound within ε, at most {fmt_pct(f.get('tail', 1.0))} of them "
+                 "over ε): near to far " + (" / ".join("no floor" if m is None else fmt(m, 2) for m in bands) if bands
+                                            else "no floor in any") + ".")
+        L.append("")
+        L.append(md_table(["margin", "C-share by band", "bound by band (dB)", f"views over {fmt(epsilon_db, 2)} dB by band"],
+                          [["no floor" if x["margin"] is None else fmt(x["margin"], 2),
+                            " / ".join(fmt_pct(v) if v is not None else "–" for v in x["band_c_shares"]),
+                            " / ".join(fmt(v, 2) if v is not None else "–" for v in x["band_bounds_db"]),
+                            " / ".join(str(v) for v in x["band_views_over_epsilon"])] for x in f["candidates"]], "lllr"))
     L.append("")
     return L
 

@@ -443,6 +443,10 @@ def test_floored_mean_is_the_larger_of_u_and_the_object_plus_margin_at_most_one(
     assert floored_mean(u, f, 0.1).tolist() == pytest.approx(want)
     assert torch.equal(floored_mean(u, f, 0.0), torch.maximum(u, f))
     assert floored_mean(u, f, 1.0).tolist() == [1.0] * 4
+    # one margin per view (a band's; -1: no floor for that view), against the direct formula
+    m = torch.tensor([0.1, -1.0, 0.0, 0.5])
+    want = [a if c < 0 else max(a, min(1.0, b + c)) for a, b, c in zip(u.tolist(), f.tolist(), m.tolist())]
+    assert floored_mean(u, f, m).tolist() == pytest.approx(want)
 
 
 def test_object_floor_errors_are_one_line():

@@ -347,3 +347,40 @@ def test_a_floored_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_path,
     assert load_product(str(ck)).operating_point is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: object_floor.margin=1.5: expected a share of the C-Image" in err[0]
+
+
+def test_a_point_floored_per_band_travels_with_the_checkpoint(tiny_checkpoints, tmp_path, capsys):
+    """A by-distance point whose object floor has a margin per band (orp_object_floor_by_band) records them; a renderer
+    built from the checkpoint alone runs each view at its band's mean value and margin (the one-margin head's masks at
+    that margin; None: the unfloored head's) and describes them; band margins without bands, or not one per band, are a
+    malformed record, ignored with one line."""
+    import json
+    import shutil
+
+    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
+
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(tiny_checkpoints["ims_pim"], ck)
+    bands = {"edges": [3.0], "means": [0.5, 0.2]}
+    floor = {"margin": 0.3, "tau": 0.2, "band_margins": [0.3, None], "c_share": 0.4, "gap_db": 0.1, "gap_bound_db": 0.6,
+             "views": 40}
+    write_operating_point(ck, OperatingPoint(mean=0.5, lift=True, c_share=0.4, ipr=0.1, epsilon_db=1.0, by_distance=bands,
+                                             object_floor=floor))
+    point = read_operating_point(ck, log=None)
+    assert point.object_floor == floor and point.distance_means().floor_margins == [0.3, None]
+    assert "+ (near to far) 0.3 / none of C" in point.describe()
+    r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
+    plain = load_ims_nets(str(ck)).head
+    near = torch.tensor([[0.0, 0.0, 2.5, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+    far = torch.tensor([[0.0, 0.0, 3.5, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+    assert torch.equal(r.predict_im(near), plain.with_object_floor(0.3, 0.2)(near, 0.5, True))
+    assert torch.equal(r.predict_im(far), plain(far, 0.2, True))
+    rec = json.loads(sidecar_path(ck).read_text())
+    for bad, msg in (({**rec, "by_distance": None}, "object_floor.band_margins without by_distance bands"),
+                     ({**rec, "object_floor": {**floor, "band_margins": [0.3]}}, "floor_margins=[0.3]: expected 2 margins")):
+        capsys.readouterr()
+        sidecar_path(ck).write_text(json.dumps(bad))
+        assert load_product(str(ck)).operating_point is None
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
+        assert len(err) == 1 and "ignored: malformed" in err[0] and msg in err[0], err

@@ -332,6 +332,37 @@ def test_mask_head_object_floor():
         head.with_object_floor(-0.5)
 
 
+def test_object_floor_margin_per_band_of_camera_distance():
+    """DistanceMeans(edges, means, floor_margins): each view's band's margin (None: no floor there) goes to the head
+    through MaskAt, and its masks are the one-margin head's at that view's margin (None: the unfloored head's), traced
+    too. Margins per view need a head with an object floor (its tau); a bad list is refused in one line."""
+    from imls_lightning.models.ims import DistanceMeans
+
+    g = _outputs(8)
+    P, valid = torch.rand(N, N), torch.rand(N, N) > 0.15
+    head = IMSMaskHead(_Fixed(g), P, valid, "pim", trained_mean=0.2)
+    # four views at distances 0, 1.7, 3.5, 5.2 (the first three coordinates are the eye): bands split at 1 and 4
+    views = torch.arange(4, dtype=torch.float32)[:, None].expand(4, 9).contiguous()
+    sched = DistanceMeans([1.0, 4.0], [0.6, 0.3, 0.1], [0.25, None, 0.0])
+    assert sched.band(views).tolist() == [0, 1, 1, 2] and sched.floor_margin(views).tolist() == [0.25, -1.0, -1.0, 0.0]
+    assert DistanceMeans([1.0], [0.6, 0.3]).floor_margin(views) is None
+    assert "floor_margins=[0.25, None, 0.0]" in repr(sched)
+    floored = head.with_object_floor(0.25, 0.3)
+    got = floored.at(sched, True)(views)
+    u = sched(views)
+    for b, margin in enumerate([0.25, None, None, 0.0]):
+        want = head.with_object_floor(margin, 0.3)(views[b:b + 1], u[b:b + 1], True)
+        assert torch.equal(got[b:b + 1], want), b
+    traced = torch.jit.trace(floored.at(sched, True), (views[:1],), check_trace=False)
+    assert torch.equal(traced(views), got)
+    with pytest.raises(InputError, match="floor_margin: margins per view need a head with an object_floor"):
+        head.at(sched, True)(views)
+    for bad, msg in (([0.1, None], "floor_margins=[0.1, None]: expected 3 margins"),
+                     ([0.1, 1.5, None], "floor_margins[1]=1.5: expected a share of the C-Image in [0, 1] or null")):
+        with pytest.raises(InputError, match=re.escape(msg)):
+            DistanceMeans([1.0, 4.0], [0.6, 0.3, 0.1], bad)
+
+
 def test_mask_head_object_floor_extremes_stay_finite_and_boolean():
     """Saturated and empty generator outputs, no valid pixel, tau near its ends: masks stay boolean, shares in [0, 1]."""
     P = torch.rand(N, N)
