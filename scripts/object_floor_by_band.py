@@ -36,11 +36,14 @@ def test_record(nets, cache, rows, pattern, bands, floor: dict, epsilon: float) 
     share of C, views over ``epsilon`` and the same by band."""
     from imls_lightning.evaluation.measurement import view_loader
     from imls_lightning.inference.baselines import product_point
+    from imls_lightning.models.iml import FillDecoder
 
     chosen = floor.get("chosen")
     head = nets.ims_task.mask_head.with_object_floor(None if chosen is None else chosen["margin"], floor["tau"])
-    rec = product_point(head, nets.ims_task.decoder, nets.recnn.eval(), list(view_loader(cache, rows, pattern)), bands,
-                        lift=True, per_view=True)
+    batches = list(view_loader(cache, rows, pattern))
+    rec = product_point(head, nets.ims_task.decoder, nets.recnn.eval(), batches, bands, lift=True, per_view=True)
+    # the simplest alternative on the same pixels: the untrained pull-push fill in place of the decoder
+    fill = product_point(head, FillDecoder(pattern), nets.recnn.eval(), batches, bands, lift=True, per_view=True)
     views = torch.as_tensor(np.stack([np.asarray(cache.views[r], np.float32) for r in rows]))
     label = bands.band(views).numpy()
     g, s = np.asarray(rec["gaps_db"]), np.asarray(rec["c_shares"])
@@ -50,7 +53,9 @@ def test_record(nets, cache, rows, pattern, bands, floor: dict, epsilon: float) 
             "band_views": [int((label == b).sum()) for b in range(k)],
             "band_gap_db": [float(g[label == b].mean()) if (label == b).any() else None for b in range(k)],
             "band_c_share": [float(s[label == b].mean()) if (label == b).any() else None for b in range(k)],
-            "band_views_over_epsilon": [int((g[label == b] > epsilon).sum()) for b in range(k)]}
+            "band_views_over_epsilon": [int((g[label == b] > epsilon).sum()) for b in range(k)],
+            "fill": {"gap_db": float(np.mean(fill["gaps_db"])), "psnr": fill["psnr_imls"],
+                     "views_over_epsilon": int((np.asarray(fill["gaps_db"]) > epsilon).sum())}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -96,7 +101,9 @@ def main(argv: list[str] | None = None) -> int:
           f"(worst {test['worst_gap_db']:.2f}), {test['views_over_epsilon']} views over {s.epsilon_db:g} dB; by band: "
           + " | ".join(f"{n} views, {sh:.1%}, {g:.2f} dB, {o} over" for n, sh, g, o in
                        zip(test["band_views"], test["band_c_share"], test["band_gap_db"], test["band_views_over_epsilon"])
-                       if n))
+                       if n)
+          + f"; the IMS mask + pull-push fill instead of the decoder: gap {test['fill']['gap_db']:.2f} dB, "
+          f"{test['fill']['views_over_epsilon']} views over")
     if a.json:
         from data_gen.atomic import atomic_json
 

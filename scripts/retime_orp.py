@@ -65,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the product built from these IMS checkpoints at their own recorded points (e.g. a copy of "
                          "the same checkpoint recorded at another object floor: scripts/object_floor_by_band.py), on the "
                          "same ray caster, alternated with the others")
+    ap.add_argument("--fill", action="store_true",
+                    help="also each IML/S product's own mask with the untrained pull-push fill in place of its decoder "
+                         "(the evaluation's imls_fill: the simplest alternative on the same pixels)")
     ap.add_argument("--blocked", action="store_true",
                     help="per view, each method's runs back to back (as the evaluation times them: its working set stays in "
                          "the caches, as from one frame to the next of one renderer) instead of alternated run by run (each "
@@ -112,6 +115,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --also {other}: no recorded operating point", file=sys.stderr)
             return 2
         methods[f"IML/S + RecNN ({Path(other).parent.name}'s record)"] = also
+    if a.fill:
+        from imls_lightning.models.iml import FillDecoder
+
+        for name in [n for n in methods if n.startswith("IML/S")]:
+            r = methods[name]
+            methods[name.replace("IML/S + RecNN", "IMS mask + fill + RecNN")] = IMLSRenderer(
+                r.renderer, r.pattern, r.predict_im, FillDecoder(r.pattern), r.recnn, r.opts)
     if a.two_pass is not None:
         from imls_lightning.inference.two_pass import TwoPassFill
 

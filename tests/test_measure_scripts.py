@@ -431,6 +431,12 @@ def test_retime_orp_runs_the_recorded_point_against_the_recnn_alone(tiny_checkpo
     assert float(also[1].rstrip("%")) < float(got[1].rstrip("%")), out  # its own, smaller point
     assert "speed-up of IML/S + RecNN (other's record) over the RecNN alone" in out and "; limit " in out
 
+    # --fill: each IML/S product's own mask with the pull-push fill instead of its decoder: the same pixels
+    assert mod.main(args + ["--fill"]) == 0
+    out = capsys.readouterr().out
+    fill = next(line.split(" | ") for line in out.splitlines() if line.startswith("| IMS mask + fill + RecNN (recorded ORP)"))
+    assert fill[1] == got[1] and "speed-up of IMS mask + fill + RecNN (recorded ORP) over the RecNN alone" in out, out
+
     # without empty-space skipping: the same pixels (PSNR to the last digit), other costs
     assert mod.main(args + ["--no-skip-empty"]) == 0
     out = capsys.readouterr().out
