@@ -282,24 +282,22 @@ def _object_floor_by_band(s: Settings, cache, rows, bands, candidates: list[dict
         raise InputError("orp_object_floor_by_band=true: the operating point has no bands of camera distance "
                          "(orp_by_distance=true)")
     views = torch.as_tensor(np.stack([np.asarray(cache.views[r], np.float32) for r in rows]))
-    label = bands.cpu().band(views).numpy()
+    label = bands.band(views.to(bands.edges.device)).cpu().numpy()
     k_bands = int(bands.means.numel())
-    per_band = []
-    for c in candidates:
+    present = sorted(set(label.tolist()))  # stratified_gap_bound's order of its per-stratum bounds
+    for c in candidates:  # each candidate's record per band, beside its record over all views
         g, sh = np.asarray(c["gaps_db"], np.float64), np.asarray(c["c_shares"], np.float64)
-        present = sorted(set(label.tolist()))
         _, each = stratified_gap_bound(g, label, s.orp_confidence, future_views)
         bound = dict(zip(present, (b.bound for b in each)))
         c["band_bounds_db"] = [bound.get(k) for k in range(k_bands)]
         c["band_c_shares"] = [float(sh[label == k].mean()) if (label == k).any() else None for k in range(k_bands)]
         c["band_views_over_epsilon"] = [int((g[label == k] > s.epsilon_db).sum()) for k in range(k_bands)]
-        per_band.append(c)
+    largest = max(range(len(candidates)), key=lambda i: -1.0 if candidates[i]["margin"] is None else candidates[i]["margin"])
     choice, warned = [], []
     for k in range(k_bands):
         n_k = int((label == k).sum())
         if n_k == 0:
-            choice.append(max(range(len(candidates)), key=lambda i: (-1.0 if candidates[i]["margin"] is None
-                                                                     else candidates[i]["margin"], -i)))
+            choice.append(largest)
             warned.append(f"band {k}: no validation view, the largest margin")
             continue
         band = [{"gap_bound_db": c["band_bounds_db"][k], "c_share": c["band_c_shares"][k],
@@ -326,7 +324,7 @@ def _object_floor_by_band(s: Settings, cache, rows, bands, candidates: list[dict
           + f": {shares.mean():.1%} of C, gap {gaps.mean():.2f} dB, {int((gaps > s.epsilon_db).sum())} of {len(rows)} "
           f"validation views over {s.epsilon_db:g} dB", file=sys.stderr, flush=True)
     return {"tau": float(tau), "views": len(rows), "by_band": True, "tail": s.orp_object_floor_tail,
-            "candidates": [_brief(c) for c in per_band], "chosen": chosen}
+            "candidates": [_brief(c) for c in candidates], "chosen": chosen}
 
 
 def choose_object_floor(candidates: Sequence[dict[str, Any]], epsilon_db: float, tail: float = 1.0) -> int | None:

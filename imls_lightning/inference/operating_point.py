@@ -206,8 +206,7 @@ def _object_floor(value: Any) -> dict | None:
     if value.get("band_margins") is not None:  # one per band of by_distance: distance_means() checks the count
         from ..models.ims import check_band_margins
 
-        bm = value["band_margins"]
-        out["band_margins"] = check_band_margins(bm, len(bm) if isinstance(bm, (list, tuple)) else -1, "object_floor.band_margins")
+        out["band_margins"] = check_band_margins(value["band_margins"], name="object_floor.band_margins")
     for key in ("c_share", "gap_db", "gap_bound_db"):
         if value.get(key) is not None:
             out[key] = float(value[key])

@@ -472,8 +472,9 @@ class DistanceMeans(nn.Module):
 NO_FLOOR = -1.0  # a band's margin that leaves its views' u as it is (floored_mean: max(u, f - 1) = u)
 
 
-def check_band_margins(margins, bands: int, name: str = "floor_margins") -> list[float | None]:
-    """One object-floor margin in ``[0, 1]`` or ``None`` (no floor) per band of camera distance.
+def check_band_margins(margins, bands: int | None = None, name: str = "floor_margins") -> list[float | None]:
+    """One object-floor margin in ``[0, 1]`` or ``None`` (no floor) per band of camera distance (``bands`` of them;
+    ``None``: any number, at least one).
 
     Example:
         >>> check_band_margins([0.1, None, "0"], 3)
@@ -482,8 +483,9 @@ def check_band_margins(margins, bands: int, name: str = "floor_margins") -> list
     from data_gen.validate import check_number
 
     items = list(margins) if isinstance(margins, (list, tuple)) else None
-    if items is None or len(items) != bands:
-        raise InputError(f"{name}={margins!r}: expected {bands} margins (one per band of camera distance), each in [0, 1] or null")
+    if not items or (bands is not None and len(items) != bands):
+        want = f"{bands} margins" if bands is not None else "a list of margins"
+        raise InputError(f"{name}={margins!r}: expected {want} (one per band of camera distance), each in [0, 1] or null")
     return [None if m is None else check_number(m, f"{name}[{i}]", 0.0, 1.0, what="a share of the C-Image in [0, 1] or null")
             for i, m in enumerate(items)]
 
