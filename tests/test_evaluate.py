@@ -717,6 +717,65 @@ def test_second_run_with_reuse_returns_the_report_at_once(run):
     assert took < run["took"]  # no network built, nothing rendered (the first run measured 150 renders)
 
 
+def test_an_interrupted_evaluation_resumes_at_the_view_it_was_measuring(run, tmp_path, monkeypatch, capsys):
+    """A killed evaluation (a session's end) keeps its searched point and its measured views in partial/; the same
+    command then measures only the rest, and writes what an uninterrupted run writes."""
+    from imls_lightning.evaluation import evaluate
+    from imls_lightning.evaluation import run as run_mod
+
+    import shutil
+
+    ims = tmp_path / "ims.ckpt"  # its own copy: these runs record their points beside it, not beside the module's
+    shutil.copyfile(run["ck"]["ims_pim"], ims)
+    args = [a for a in _args(run["ck"], "max_views=3", "shares=null", "mean_values=[0.1]", "grid_views=2")
+            if not a.startswith("checkpoints.ims=")] + [f"checkpoints.ims={ims}"]
+    measure, calls = run_mod.measure_methods, []
+
+    def killed_at_the_second_view(*a, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return measure(*a, **kw)
+
+    out = tmp_path / "eval"
+    monkeypatch.setattr(run_mod, "measure_methods", killed_at_the_second_view)
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(_compose(*args, f"output_dir={out}"))
+    assert not (out / "report.md").exists() and (out / "partial" / "point.json").is_file()
+    assert len((out / "partial" / "views.jsonl").read_text().splitlines()) == 1
+
+    def searched_again(*a, **kw):
+        raise AssertionError("the operating point was searched again")
+
+    calls.clear()
+    monkeypatch.setattr(run_mod, "measure_methods", lambda *a, **kw: (calls.append(1), measure(*a, **kw))[1])
+    monkeypatch.setattr(run_mod, "operating_point", searched_again)
+    monkeypatch.setattr(run_mod, "two_pass_point", searched_again)
+    capsys.readouterr()
+    report = evaluate(_compose(*args, f"output_dir={out}"))
+    assert len(calls) == 2 and "resuming: 1 of the 3 views already measured" in capsys.readouterr().err
+    assert not (out / "partial").exists()  # a finished evaluation keeps no partial results
+    assert "Resumed evaluation (sitting 2): 1 of the 3 views were measured in an earlier sitting" in report.read_text()
+
+    monkeypatch.undo()  # the same settings uninterrupted: the same point and the same images
+    whole = evaluate(_compose(*args, f"output_dir={tmp_path / 'whole'}"))
+    a, b = (json.loads((r.parent / "summary.json").read_text()) for r in (report, whole))
+    assert a["orp"]["mean"] == b["orp"]["mean"] and a["orp"]["points"] == b["orp"]["points"]
+    assert a["two_pass"]["share"] == b["two_pass"]["share"] and a["las_ipr"] == pytest.approx(b["las_ipr"])
+    psnr = lambda r: {(x["view"], x["method"]): float(x["psnr"]) for x in _rows(r.parent / "metrics.csv")[1]}  # noqa: E731
+    assert psnr(report) == pytest.approx(psnr(whole), abs=1e-6) and len(psnr(report)) == 3 * len(a["methods"])
+    assert (report.parent / "image_grid.png").is_file()
+    assert "Resumed evaluation" not in whole.read_text()
+    # resume=false starts over: the point is searched again
+    monkeypatch.setattr(run_mod, "measure_methods", killed_at_the_second_view)
+    calls.clear()
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(_compose(*args, f"output_dir={out}"))
+    monkeypatch.setattr(run_mod, "operating_point", searched_again)
+    with pytest.raises(AssertionError, match="searched again"):
+        evaluate(_compose(*args, f"output_dir={out}", "resume=false"))
+
+
 def test_python_api_reuses_the_same_directory(run):
     from imls_lightning.evaluation import evaluate
 

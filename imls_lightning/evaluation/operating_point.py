@@ -485,13 +485,14 @@ def band_edges(lo: Sequence[float], hi: Sequence[float]) -> list[float] | None:
 
 def distance_means(result):
     """The :class:`~imls_lightning.models.ims.DistanceMeans` IML/S runs at after a by-distance search (``None``: one
-    mean value for every view)."""
-    bands = getattr(result, "by_distance", None) if result is not None else None
+    mean value for every view); ``result`` the search's or its summary (:func:`orp_summary`, a dict)."""
+    get = result.get if isinstance(result, dict) else lambda key: getattr(result, key, None)
+    bands = get("by_distance") if result is not None else None
     if not bands:
         return None
     from ..models.ims import DistanceMeans
 
-    chosen = (getattr(result, "object_floor", None) or {}).get("chosen") or {}
+    chosen = (get("object_floor") or {}).get("chosen") or {}
     return DistanceMeans(bands["edges"], bands["means"], chosen.get("band_margins"))
 
 

@@ -1,7 +1,9 @@
 """The evaluation itself, :func:`evaluate`, in named steps: where the results go (and whether a finished
 run of the same settings is reused), the views, the ORP, the methods, the measurement view by view
 (the sweeps right after each sweep view's methods), the untrained baselines, the options sweep, and
-the files and the report. ``python -m imls_lightning.evaluate`` parses its config and calls it."""
+the files and the report. What it has found and measured is kept as it goes (:mod:`.resume`): an interrupted run
+of the same settings resumes at the view it was measuring. ``python -m imls_lightning.evaluate`` parses its config
+and calls it."""
 from __future__ import annotations
 
 import json
@@ -24,6 +26,7 @@ from .measurement import measure_methods, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
 from .operating_point import (camera_distance, distance_means, gap_by_distance, orp_summary, paired_gap, product_path_orp,
                               record_operating_point)
+from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
 from .sweeps import Sweeps, front_notes, options_sweep
 from .two_pass import TwoPassPoint, two_pass_method, two_pass_point
@@ -86,23 +89,57 @@ def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
 
 
 def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer=None):
-    """The ORP on the product path (validation views): ``(result | None, mean IML/S runs at | None, lift)``;
-    ``renderer`` times the mask sharpnesses' operating points when there are several."""
+    """The ORP on the product path (validation views): ``(orp summary | None, mean IML/S runs at | None, lift)``, the
+    summary :func:`~.operating_point.orp_summary`'s; ``renderer`` times the mask sharpnesses' operating points when there
+    are several."""
     ims = nets.ims_task
-    orp_result, imls_mean, lift = None, None, s.ims_lift is True  # lift: IML/S's masks lifted to their share
+    orp, imls_mean, lift = None, None, s.ims_lift is True  # lift: IML/S's masks lifted to their share
     if s.orp and ims.target == "pim":
-        orp_result = product_path_orp(s, cfg, cache, scene, nets, ims.pattern, device, future_views=len(positions),
-                                      renderer=renderer)
-        lift = orp_result.lifted
-        if orp_result.found:
-            imls_mean = float(orp_result.mean)
+        result = product_path_orp(s, cfg, cache, scene, nets, ims.pattern, device, future_views=len(positions),
+                                  renderer=renderer)
+        lift = result.lifted
+        orp = orp_summary(result, s, lifted=lift)
+        if result.found:
+            imls_mean = float(result.mean)
         else:
             notes.append(f"ORP: no mean value in [0.01, 1] brings IML/S within {s.epsilon_db} dB of the RecNN alone on the "
                          "validation views; IML/S runs at its trained mean.")
     elif s.orp:
         notes.append(f"ORP search skipped: the IMS was trained with model.target={ims.target}, whose binary mask cannot be "
                      "rescaled to another mean (train the IMS with model.target=pim).")
-    return orp_result, imls_mean, lift
+    return orp, imls_mean, lift
+
+
+def restore_point(nets: Networks, orp: dict[str, Any] | None) -> None:
+    """Put the IMS task's masks where the search left them (:func:`~.operating_point.product_path_orp`): its mask
+    sharpness and object floor, from the ORP's summary (a resumed evaluation restores its point without searching)."""
+    if orp is None:
+        return
+    ims = nets.ims_task
+    ims.mask_sharpness = float(orp.get("sharpness", 1.0))
+    chosen = (orp.get("object_floor") or {}).get("chosen") if orp.get("found") else None
+    ims.mask_object_floor = None if not chosen else (float(chosen["margin"]), float(chosen["tau"]))
+
+
+def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer,
+               progress: EvaluationProgress):
+    """The operating point and the two-pass sampler's: ``(orp summary | None, imls_mean, lift, two_pass | None)``,
+    restored from ``progress`` when an earlier sitting searched them, else searched and kept there."""
+    point = progress.point
+    if point:
+        restore_point(nets, point["orp"])
+        notes += point["notes"]
+        orp, imls_mean, lift = point["orp"], point["imls_mean"], bool(point["lift"])
+    else:
+        orp, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
+        progress.save_point({"orp": orp, "imls_mean": imls_mean, "lift": lift, "notes": list(notes)})
+    if s.two_pass_base is None:
+        return orp, imls_mean, lift, None
+    if progress.point.get("two_pass") is not None:
+        return orp, imls_mean, lift, TwoPassPoint.from_dict(progress.point["two_pass"])
+    two_pass = two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device, future_views=len(positions))
+    progress.save_point({**progress.point, "two_pass": two_pass.to_dict()})
+    return orp, imls_mean, lift, two_pass
 
 
 def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list[float]:
@@ -152,20 +189,31 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
 
 
 def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[str, Method], order: list[str],
-                  sweeps: Sweeps | None, grid_pos: set[int], timed_pos: set[int], sweep_pos: list[int]):
+                  sweeps: Sweeps | None, grid_pos: set[int], timed_pos: set[int], sweep_pos: list[int],
+                  progress: EvaluationProgress | None = None):
     """Every method on every evaluated view, the sweeps right after a sweep view's methods:
     ``(metric rows, sweep rows, image grid, load)``, ``load`` a ``{"view", "cores", "seconds"}`` per timed view: the
-    cores other processes kept busy while it was timed (:class:`~imls_lightning.report.machine.OtherLoad`)."""
+    cores other processes kept busy while it was timed (:class:`~imls_lightning.report.machine.OtherLoad`).
+    ``progress``: the views an earlier sitting measured are taken from it, and each new one is kept there."""
     rows: list[dict[str, Any]] = []
     grid: dict[int, dict[str, Any]] = {}
     sweep_rows: list[dict[str, Any]] = []
     load: list[dict[str, Any]] = []
+    done = progress.views if progress is not None else {}
     for p in progress_bar(positions, len(positions), f"evaluate {scene.name}", s.progress):
         p = int(p)
+        if p in done:  # measured in an earlier sitting
+            rec = done[p]
+            rows += rec["rows"]
+            sweep_rows += rec["sweep_rows"]
+            if rec["grid"]:
+                grid[p] = progress.grid(p)
+            if rec["load"] is not None:
+                load.append(rec["load"])
+            continue
         r = int(rows_all[p])
         view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
-        if p in grid_pos:
-            grid[p] = {"truth": truth}
+        view_rows, view_sweep, view_grid = [], [], {"truth": truth} if p in grid_pos else None
         timed = p in timed_pos
         with rep.OtherLoad() as other:  # the cores other jobs keep busy while this view is timed
             # a timed view's methods in one schedule (s.timing: rounds, or each method's runs back to back)
@@ -175,15 +223,22 @@ def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[
                 fields, image, info = measured[name]
                 if not timed:  # one untimed run: its image counts, its stage times do not
                     fields.update({k: None for k in fields if k.endswith("_ms")})
-                rows.append({"view": p, "row": r, "method": name, **fields})
-                if p in grid_pos:
-                    grid[p][name] = image
+                view_rows.append({"view": p, "row": r, "method": name, **fields})
+                if view_grid is not None:
+                    view_grid[name] = image
                     if name == "imls":
-                        grid[p]["imls_im"] = info.get("im")
+                        view_grid["imls_im"] = info.get("im")
             if sweeps is not None and p in sweep_pos:
-                sweep_rows += sweeps.run_view(p, r, view, truth)
-        if timed:
-            load.append({"view": p, "cores": other.cores, "seconds": other.seconds})
+                view_sweep = sweeps.run_view(p, r, view, truth)
+        view_load = {"view": p, "cores": other.cores, "seconds": other.seconds} if timed else None
+        if progress is not None:
+            progress.add_view(p, view_rows, view_sweep, view_load, view_grid)
+        rows += view_rows
+        sweep_rows += view_sweep
+        if view_grid is not None:
+            grid[p] = view_grid
+        if view_load is not None:
+            load.append(view_load)
     return rows, sweep_rows, grid, load
 
 
@@ -241,25 +296,26 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     renderer = make_renderer(scene, rcfg)
     device = pick_device(s.options.device)
     notes: list[str] = []
-    orp_result, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
-    two_pass = None if s.two_pass_base is None else two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device,
-                                                                   future_views=len(positions))
-    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
-                                          by_distance=distance_means(orp_result), two_pass=two_pass)
-    order = [k for k in rep.METHOD_ORDER if k in methods]
-
     grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()
     sweep_pos = [int(positions[i]) for i in spaced(len(positions), s.sweep_views)]
     # latency on timed_views of the evaluated views (repeats runs each), quality on all of them; the sweep's
     # views are always timed: the speed-quality front puts every method on them
     timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
+    # what an interrupted run of these settings measured: its point and views are kept, the rest measured
+    progress = EvaluationProgress(out, positions, timed_pos, resume=s.resume)
+    orp, imls_mean, lift, two_pass = find_point(s, cfg, cache, scene, nets, device, positions, notes, renderer, progress)
+    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
+                                          by_distance=distance_means(orp), two_pass=two_pass)
+    order = [k for k in rep.METHOD_ORDER if k in methods]
     if len(timed_pos) < len(positions):
         notes.append(f"Latency: stage times on {len(timed_pos)} of the {len(positions)} evaluated views (evenly spaced, "
                      f"median of {s.repeats} runs each); PSNR and SSIM on all {len(positions)}.")
     # the sweeps of the latency / PSNR plot and the speed-quality front: on the sweep's views, right after their methods
     sweeps = Sweeps(s, methods, nets, renderer, s.options, resolution) if sweep_pos else None
     rows, sweep_rows, grid, load = measure_views(s, scene, cache, rows_all, positions, methods, order, sweeps, grid_pos, timed_pos,
-                                                 sweep_pos)
+                                                 sweep_pos, progress)
+    if (note := progress.note()) is not None:
+        notes.append(note)
     load_summary = timing_load(load)
     if (note := load_note(load_summary)) is not None:
         notes.append(note)
@@ -278,10 +334,12 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         rep.write_metrics_csv(option_rows, out / "options.csv", rep.OPTION_COLUMNS)
 
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
-                   methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp_result=orp_result,
+                   methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp=orp,
                    equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass,
                    timing_load=load_summary)
-    return write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
+    report = write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
+    progress.finish()
+    return report
 
 
 def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str, Any], cache, rows_all, nets: Networks,
@@ -289,11 +347,11 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     """``config.yaml``, ``summary.json`` and the report (last), then the operating point beside the IMS
     checkpoint; returns ``report.md``'s path."""
     m, pattern, rows, sweep_rows = int(cfg.data.resolution), nets.ims_task.pattern, res["rows"], res["sweep_rows"]
-    positions, sweep_pos, orp_result = res["positions"], res["sweep_pos"], res["orp_result"]
+    positions, sweep_pos = res["positions"], res["sweep_pos"]
     plain = {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
     plain.update(checkpoints=to_plain(cfg.checkpoints), settings=s.hashed(), output_dir=str(out))
     rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)))
-    orp = orp_summary(orp_result, s, lifted=res["lift"]) if orp_result is not None else None
+    orp = None if res["orp"] is None else dict(res["orp"])
     if orp is not None:  # the same operating point on the evaluated (test) views, beside the validation gap
         orp["test"] = paired_gap(rows, "recnn", "imls")
         # and where on them it is lost: the gap by camera distance (seed_shell's grew on close-ups)
@@ -303,7 +361,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         two_pass = {**res["two_pass"].to_dict(), "test": paired_gap(rows, "recnn", "two_pass"),
                     "test_by_distance": gap_by_distance(rows, lambda row: camera_distance(cache, row), method="two_pass")}
     front = rep.front_points(rows, sweep_rows, sweep_pos,
-                             notes=front_notes(res["methods"], res["imls_mean"], orp_result, res["las_ipr"]))
+                             notes=front_notes(res["methods"], res["imls_mean"], bool(orp and orp["found"]), res["las_ipr"]))
     # the machine-readable results the benchmarks collect (make bench-paper)
     rep.atomic_write_text(out / "summary.json", json.dumps({
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),

@@ -115,6 +115,7 @@ class Settings:
     orp_object_floor_tau: float = 0.2    # PIM' above this counts as the object
     orp_object_floor_by_band: bool = False  # a margin per band of camera distance (needs orp_by_distance)
     orp_object_floor_tail: float = 1.0   # the share of a band's validation views a margin may leave over epsilon_db
+    resume: bool = True                  # an interrupted run of the same settings continues from its partial/ results
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -176,7 +177,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         las_ipr=las_ipr, las_iprs=_floats(cfg, "las_iprs", 0.0, 1.0, lo_open=True),
         mean_values=_floats(cfg, "mean_values", 0.01, 1.0), sweep_views=_int(cfg, "sweep_views", 1, allow_none=True),
         grid_views=_int(cfg, "grid_views", 0), output_dir=cfg.get("output_dir") or None,
-        reuse=bool(cfg.get("reuse", False)), progress=bool(cfg.get("progress", True)),
+        reuse=bool(cfg.get("reuse", False)), progress=bool(cfg.get("progress", True)), resume=bool(cfg.get("resume", True)),
         blue_noise=ck.get("blue_noise") or None, orp=bool(cfg.get("orp", True)),
         epsilon_db=_floats(cfg, "epsilon_db", 0.0, 100.0)[0] if cfg.get("epsilon_db") is not None else 1.0,
         orp_max_views=_int(cfg, "orp_max_views", 1, allow_none=True),

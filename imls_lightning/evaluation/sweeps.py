@@ -66,9 +66,10 @@ class Sweeps:
         return out
 
 
-def front_notes(methods: dict[str, Method], imls_mean: float | None, orp_result, las_ipr: float | None) -> dict[str, str]:
-    """How each method's operating point in the main rows is shown on the speed-quality front."""
-    at = f"ORP u={imls_mean:.3g}" if imls_mean is not None and orp_result is not None and orp_result.found else "trained u"
+def front_notes(methods: dict[str, Method], imls_mean: float | None, orp_found: bool, las_ipr: float | None) -> dict[str, str]:
+    """How each method's operating point in the main rows is shown on the speed-quality front (``orp_found``: IML/S runs
+    at the searched ORP)."""
+    at = f"ORP u={imls_mean:.3g}" if imls_mean is not None and orp_found else "trained u"
     notes = {"full": "every pixel", "recnn": "its pattern", "imls": at, "iml": f"{at} (bound)", "imls_fill": f"IML/S's pixels, {at}",
              "blue_noise": "IML/S's share"}
     if "two_pass" in methods:
