@@ -743,6 +743,7 @@ def test_an_interrupted_evaluation_resumes_at_the_view_it_was_measuring(run, tmp
         evaluate(_compose(*args, f"output_dir={out}"))
     assert not (out / "report.md").exists() and (out / "partial" / "point.json").is_file()
     assert len((out / "partial" / "views.jsonl").read_text().splitlines()) == 1
+    shutil.copytree(out / "partial", tmp_path / "kept")  # for resume=false below
 
     def searched_again(*a, **kw):
         raise AssertionError("the operating point was searched again")
@@ -767,10 +768,8 @@ def test_an_interrupted_evaluation_resumes_at_the_view_it_was_measuring(run, tmp
     assert (report.parent / "image_grid.png").is_file()
     assert "Resumed evaluation" not in whole.read_text()
     # resume=false starts over: the point is searched again
-    monkeypatch.setattr(run_mod, "measure_methods", killed_at_the_second_view)
-    calls.clear()
-    with pytest.raises(KeyboardInterrupt):
-        evaluate(_compose(*args, f"output_dir={out}"))
+    (out / "report.md").unlink()
+    shutil.copytree(tmp_path / "kept", out / "partial")
     monkeypatch.setattr(run_mod, "operating_point", searched_again)
     with pytest.raises(AssertionError, match="searched again"):
         evaluate(_compose(*args, f"output_dir={out}", "resume=false"))
