@@ -407,3 +407,25 @@ def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypat
     assert "| mri_head, enhancenet | 61.0 |" in text and "enhancenet, per-view u" in text
     assert "| cpu | The CPU it was measured on |" in text  # not relabelled with the machine that summarizes
     assert bp.read_rows(out / "paper_scale.csv")[0]["scene"] == "mri_head" and (out / "paper_scale_breakdown.png").is_file()
+
+
+def test_the_speedup_interval_columns_and_tables_from_before_them(tmp_path):
+    """A narrow pass (seed_whole: 2.02x against a 2x goal) needs its spread beside it: the row carries IML/S's 95%
+    interval over its timed views, both tables show it, and a table written before the columns reads them empty."""
+    s = {**_summary(), "speedup_interval": {"imls": {"speedup": 2.5, "low": 2.31, "high": 2.7, "views": 12, "confidence": 0.95},
+                                            "las": {"speedup": 1.4, "low": 1.3, "high": 1.5, "views": 12, "confidence": 0.95}}}
+    row = bp.csv_row(s)
+    assert (row["speedup_low"], row["speedup_high"]) == (2.31, 2.7)
+    assert (bp.csv_row(_summary())["speedup_low"], bp.csv_row(_summary())["speedup_high"]) == ("", "")
+    path = tmp_path / "paper_scale.csv"
+    before = bp.LEGACY_COLUMNS + bp.ESTIMATE_COLUMNS + bp.RENDERER_COLUMNS + bp.FLOOR_COLUMNS + bp.LOAD_COLUMNS
+    bp.write_csv([{k: v for k, v in bp.csv_row(_summary("mri_head")).items() if k in before}], path, columns=before)
+    old = bp.read_rows(path)
+    assert old[0]["speedup_low"] == "" and old[0]["speedup_high"] == ""
+    rows = bp.merge_rows(old, [row])
+    bp.write_csv(rows, path)
+    again = bp.read_rows(path)
+    assert [r["speedup_low"] for r in again] == ["", "2.31"]
+    assert [bp.speedup_cell(r) for r in again] == ["2.50×", "2.50× (2.31–2.70)"]
+    section = bp.section_text(again, partial=False)
+    assert "| speed-up (95% interval) |" in section and "2.50× (2.31–2.70)" in section

@@ -189,6 +189,29 @@ def test_report_has_the_paper_tables(run):
         assert f"]({name})" in text, name
 
 
+def test_the_speedup_comes_with_its_interval_over_the_timed_views(run):
+    """summary.json's ``speedup_interval``: every timed method over the RecNN alone, from the per-view totals of
+    metrics.csv; the report's speed-up table shows IML/S's, with the number of views it resampled."""
+    from imls_lightning.evaluation.speedup import speedup_intervals
+
+    summ = json.loads((run["out"] / "summary.json").read_text())
+    with open(run["out"] / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    again = speedup_intervals(rows)
+    assert list(summ["speedup_interval"]) == list(again)
+    for method, iv in again.items():
+        assert summ["speedup_interval"][method] == pytest.approx(iv, rel=1e-6), method
+    imls = summ["speedup_interval"]["imls"]
+    s = summary(run["out"] / "metrics.csv")
+    assert imls["speedup"] == pytest.approx(s["recnn"]["latency_ms"]["total"] / s["imls"]["latency_ms"]["total"])
+    assert imls["low"] <= imls["speedup"] <= imls["high"] and imls["views"] == summ["timed_views"]
+    assert "recnn" not in summ["speedup_interval"] and "full" in summ["speedup_interval"]
+    table = run["report"].read_text().split("## Speed-up of IML/S + RecNN")[1].split("##")[0]
+    assert "95% interval (timed views resampled)" in table
+    line = next(ln for ln in table.splitlines() if ln.startswith("| over RecNN alone"))
+    assert f"({imls['views']} views)" in line
+
+
 def test_plots_and_image_grid_are_pngs(run):
     from matplotlib.image import imread
 

@@ -15,11 +15,21 @@ ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 
 
-def _run(args, tmp, check=True, timeout=300):
+def _run(args, tmp, check=True, timeout=300, subprocess_=False):
+    """``python -m imls_lightning.train`` on the tiny scene: in this process (:func:`tests.cli.run_in_process`; a
+    subprocess spends 6-9 s importing before its first setting), or with ``subprocess_=True`` as a real one, for
+    what only a process shows: its one-line stderr and exit status as a shell sees them."""
+    common = [*args, "scene=tiny", "data=tiny", "renderer=numba", f"paths.runs_dir={tmp}/runs", f"data.cache_dir={tmp}/cache",
+              "trainer.enable_progress_bar=false"]
+    if not subprocess_:
+        from tests.cli import run_in_process
+
+        p = run_in_process("imls_lightning.train", common)
+        if check and p.returncode != 0:
+            raise AssertionError(f"exit {p.returncode}\nSTDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-3000:]}")
+        return p
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="2")
-    cmd = [PY, "-m", "imls_lightning.train", *args, "scene=tiny", "data=tiny", "renderer=numba",
-           f"paths.runs_dir={tmp}/runs", f"data.cache_dir={tmp}/cache", "trainer.enable_progress_bar=false"]
-    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    p = subprocess.run([PY, "-m", "imls_lightning.train", *common], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
     if check and p.returncode != 0:
         raise AssertionError(f"exit {p.returncode}\nSTDOUT:\n{p.stdout[-3000:]}\nSTDERR:\n{p.stderr[-3000:]}")
     return p
@@ -45,7 +55,7 @@ def recnn_ckpt(work):
 
 def test_failed_run_leaves_no_empty_run_folder(tmp_path):
     """A failed run left an empty run folder (only Hydra's .hydra/ and log) behind (issue 17, minor)."""
-    p = _run(["model=iml", "model.depth=0"], tmp_path, check=False)
+    p = _run(["model=iml", "model.depth=0"], tmp_path, check=False, subprocess_=True)  # the log a process leaves
     _one_line_error(p, "model.depth=0")
     assert not (tmp_path / "runs").exists() or list((tmp_path / "runs").iterdir()) == []
 
@@ -297,7 +307,7 @@ def _one_line_error(p, *needles):
 
 
 def test_exception_end_to_end_without_recnn_checkpoint(work):
-    p = _run(["model=iml", "model.mode=end_to_end", "trainer.fast_dev_run=true"], work, check=False)
+    p = _run(["model=iml", "model.mode=end_to_end", "trainer.fast_dev_run=true"], work, check=False, subprocess_=True)
     _one_line_error(p, "recnn.checkpoint")
 
 
@@ -308,7 +318,8 @@ def test_exception_recnn_checkpoint_of_other_pattern(work, recnn_ckpt):
 
 
 def test_exception_missing_checkpoint_file(work):
-    p = _run(["model=iml", "model.mode=end_to_end", "recnn.checkpoint=/nonexistent/x.ckpt", "trainer.fast_dev_run=true"], work, check=False)
+    p = _run(["model=iml", "model.mode=end_to_end", "recnn.checkpoint=/nonexistent/x.ckpt", "trainer.fast_dev_run=true"], work, check=False,
+             subprocess_=True)
     _one_line_error(p, "recnn.checkpoint=/nonexistent/x.ckpt", "not found")
 
 
@@ -415,6 +426,7 @@ def test_chunk_timer_stops_only_when_the_next_epoch_would_overrun(monkeypatch):
 def test_exception_bad_chunk_minutes(tmp_path, value):
     p = _run(["model=recnn", f"chunk_minutes={value}", "trainer.max_epochs=1"], tmp_path, check=False)
     _one_line_error(p, f"chunk_minutes=")
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())  # no run folder left behind
 
 
 @pytest.mark.slow

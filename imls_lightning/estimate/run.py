@@ -7,6 +7,7 @@ a readable ``estimate.json`` is reused, anything else is measured again.
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -520,9 +521,15 @@ def run_estimate(cfg: DictConfig) -> Path:
         warning = shared_cores_warning(busy, "this estimate")
         if warning:
             _say(warning)
+        created = next((d for d in reversed([out_dir, *out_dir.parents]) if not d.exists()), None)  # the topmost new folder
         out_dir.mkdir(parents=True, exist_ok=True)
-        with OtherLoad() as during:  # a job that starts during the timing: the reading before it misses that one
-            measured = measure(cfg, out_dir, scene=scene)
+        try:
+            with OtherLoad() as during:  # a job that starts during the timing: the reading before it misses that one
+                measured = measure(cfg, out_dir, scene=scene)
+        except BaseException:
+            if created is not None:  # a setting refused, or an interrupt: no folder of a measurement that never finished
+                shutil.rmtree(created, ignore_errors=True)
+            raise
         est = dict(measured, settings=settings, busy_cores=busy, timing_busy_cores=during.cores)
         if not warning and (late := shared_cores_warning(during.cores, "this estimate")):
             _say(late)

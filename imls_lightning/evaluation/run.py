@@ -28,6 +28,7 @@ from .operating_point import (camera_distance, distance_means, gap_by_distance, 
                               record_operating_point)
 from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
+from .speedup import speedup_intervals
 from .sweeps import Sweeps, front_notes, options_sweep
 from .two_pass import TwoPassPoint, two_pass_method, two_pass_point
 
@@ -369,6 +370,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "imls_mean": res["imls_mean"], "orp": orp,
         "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "timing": s.timing,
         "repeats": s.repeats, "methods": rep.summarize_rows(rows),
+        "speedup_interval": speedup_intervals(rows),  # each method over the RecNN alone, the timed views resampled
         "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass,
         "timing_load": res.get("timing_load")},
         indent=1, default=float))

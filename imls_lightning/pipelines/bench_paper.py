@@ -38,10 +38,14 @@ FLOOR_COLUMNS = ("object_floor_margin",)
 #: the most cores other processes kept busy while one of the row's views was timed (the evaluation's ``timing_load``;
 #: above :data:`~imls_lightning.report.machine.BUSY_LIMIT` its times read high; empty: not measured, rows before it)
 LOAD_COLUMNS = ("timing_busy_cores",)
-CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS
+#: the speed-up's 95% bootstrap interval over the row's timed views (the evaluation's ``speedup_interval``; empty: rows
+#: before it whose per-view times were not kept)
+INTERVAL_COLUMNS = ("speedup_low", "speedup_high")
+CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS + INTERVAL_COLUMNS
 #: the tables written before each group of columns was appended, still read
 EARLIER_COLUMNS = (LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS,
-                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS)
+                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS,
+                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS)
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
@@ -141,7 +145,29 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "skip_empty": summary.get("skip_empty", True),
         "object_floor_margin": ((orp.get("object_floor") or {}).get("chosen") or {}).get("margin", "") if orp.get("found") else "",
         "timing_busy_cores": (summary.get("timing_load") or {}).get("max", ""),
+        **interval_cells(summary),
     }
+
+
+def interval_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`INTERVAL_COLUMNS` of a row: IML/S's interval over the RecNN alone in the summary's
+    ``speedup_interval`` (empty where the evaluation predates it)."""
+    iv = (summary.get("speedup_interval") or {}).get("imls") or {}
+    return {"speedup_low": iv.get("low", ""), "speedup_high": iv.get("high", "")}
+
+
+def speedup_cell(row: Mapping[str, Any]) -> str:
+    """A row's speed-up with its interval where it has one: ``2.02× (1.90–2.15)``.
+
+    Example:
+        >>> speedup_cell({"recnn_ms": "300", "imls_ms": "150", "speedup_low": "1.9", "speedup_high": "2.1"})
+        '2.00× (1.90–2.10)'
+        >>> speedup_cell({"recnn_ms": 300.0, "imls_ms": 150.0, "speedup_low": "", "speedup_high": ""})
+        '2.00×'
+    """
+    text = speedup(_num(row.get("recnn_ms")), _num(row.get("imls_ms")))
+    lo, hi = _num(row.get("speedup_low")), _num(row.get("speedup_high"))
+    return f"{text} ({lo:.2f}–{hi:.2f})" if math.isfinite(lo) and math.isfinite(hi) else text
 
 
 def read_adaptive(report: Path) -> dict[str, Any]:
@@ -200,8 +226,8 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
         # a table from before the estimate's columns: they stay empty until the pair is estimated; every row timed
         # before skip_empty existed was timed with empty-space skipping, and every row before the floor ran without one
-        return [{**{k: "" for k in ESTIMATE_COLUMNS}, "skip_empty": True, "object_floor_margin": "", "timing_busy_cores": "",
-                 **dict(r)} for r in reader]
+        return [{**{k: "" for k in ESTIMATE_COLUMNS + INTERVAL_COLUMNS}, "skip_empty": True, "object_floor_margin": "",
+                 "timing_busy_cores": "", **dict(r)} for r in reader]
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:
@@ -319,12 +345,14 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
             "ray-cast, IML decoder, RecNN) on the validation views, within ε = 1 dB of the RecNN alone; PSNR is measured "
             "on the 120-view test trajectory. One IMS regresses PIM' and is rescaled to the ORP's mean (the paper's "
             "rescale; where that finds no ORP, its masks are lifted to each mean's share of C, `ims_lift`, and the pair's section says so). "
-            "`speedup` = RecNN alone / IML/S + RecNN; `las_*` is LAS at IML/S's IPR.", ""]
+            "`speedup` = RecNN alone / IML/S + RecNN, with its 95% bootstrap interval over the row's timed views in "
+            "parentheses (`speedup_low`, `speedup_high`; how far the ratio moves with the views drawn, not between "
+            "sittings); `las_*` is LAS at IML/S's IPR.", ""]
     head = ["scene", "RecNN", "FR / C", "step (voxels)", "ORP mean", "C-share", "IPR", "RecNN PSNR", "IML/S PSNR", "gap (dB)",
-            "RecNN (ms)", "IML/S (ms)", "speed-up", "LAS (ms)", "LAS PSNR", "full ray cast (ms)"]
+            "RecNN (ms)", "IML/S (ms)", "speed-up (95% interval)", "LAS (ms)", "LAS PSNR", "full ray cast (ms)"]
     main = [[scene_cell(r), r["recnn"], f"{r['fr_size']}² / {r['c_size']}²", fmt(r.get("sample_distance_voxels")), fmt(r.get("mean"), 3),
              fmt_pct(_num(r.get("c_share"))), fmt_pct(_num(r.get("ipr"))), fmt(r.get("psnr_recnn_db")), fmt(r.get("psnr_imls_db")),
-             fmt(r.get("gap_db")), fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
+             fmt(r.get("gap_db")), fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup_cell(r),
              fmt(r.get("las_ms"), 1), fmt(r.get("las_psnr_db")), fmt(r.get("full_ms"), 1)] for r in rows]
     per_view = {}
     for s in summaries:
@@ -460,13 +488,12 @@ def section_text(rows: Sequence[Mapping[str, Any]], partial: bool, adaptive: Seq
              "`make bench-paper`; details, per-stage breakdown and the paper's figures in "
              "[benchmarks/paper_scale.md](benchmarks/paper_scale.md), rows in `benchmarks/paper_scale.csv`.", ""]
     main = [[scene_cell(r), r["recnn"], orp_cell(r), f"{fmt(r.get('psnr_imls_db'))} ({fmt(r.get('gap_db'))} dB)",
-             fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup(_num(r.get("recnn_ms")), _num(r.get("imls_ms"))),
-             las_cell(r)] for r in rows]
+             fmt(r.get("recnn_ms"), 1), fmt(r.get("imls_ms"), 1), speedup_cell(r), las_cell(r)] for r in rows]
     per_view = {(a["scene"], a["recnn"]): [a["scene"], f"{a['recnn']}, per-view u", f"per view: {fmt_pct(_num(a.get('c_share')))}",
                                            f"{fmt(a.get('psnr_adaptive_db'))} ({fmt(a.get('gap_db'))} dB)", fmt(a.get("recnn_ms"), 1),
                                            fmt(a.get("adaptive_ms"), 1), speedup(_num(a.get("recnn_ms")), _num(a.get("adaptive_ms"))), "–"]
                 for a in adaptive}
-    lines.append(md_table(["scene", "RecNN", "ORP C-share", "IML/S PSNR (gap)", "RecNN alone (ms)", "IML/S + RecNN (ms)", "speed-up",
+    lines.append(md_table(["scene", "RecNN", "ORP C-share", "IML/S PSNR (gap)", "RecNN alone (ms)", "IML/S + RecNN (ms)", "speed-up (95% interval)",
                            "LAS (ms, PSNR)"], rows_beside(main, per_view)))
     lines += skipping_note(rows)
     if adaptive:

@@ -160,7 +160,11 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
     if "imls" in summ:
         L.append("## Speed-up of IML/S + RecNN")
         L.append("")
-        L.append(speedup_table(summ))
+        L.append(speedup_table(summ, rows=ctx.rows))
+        L.append("")
+        L.append("The interval resamples the timed views, a view's methods together (a percentile bootstrap): how far the "
+                 "ratio moves with the views drawn. It does not cover a machine whose ray caster runs at another speed "
+                 "in another sitting.")
         L.append("")
 
     L.append("## Average image quality")

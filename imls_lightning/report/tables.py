@@ -146,20 +146,30 @@ def sweep_table(points: Mapping[tuple[str, float], Mapping[str, Any]]) -> str:
 
 
 def speedup_table(summ: Mapping[str, Mapping[str, Any]], target: str = "imls",
-                  over: Sequence[str] = ("recnn", "las", "full", "iml", "two_pass")) -> str:
-    """Speed-up of ``target`` (IML/S + RecNN) over each baseline: ``their total / its total`` and the PSNR change."""
+                  over: Sequence[str] = ("recnn", "las", "full", "iml", "two_pass"),
+                  rows: Sequence[Mapping[str, Any]] | None = None) -> str:
+    """Speed-up of ``target`` (IML/S + RecNN) over each baseline: ``their total / its total`` and the PSNR change;
+    with the metric ``rows``, also its 95% bootstrap interval over the timed views
+    (:func:`~imls_lightning.evaluation.speedup.speedup_interval`)."""
+    from ..evaluation.speedup import paired_totals, speedup_interval
+
     t = summ[target]
     t_ms = t["latency_ms"].get("total", math.nan)
-    rows = []
+    out = []
     for o in over:
         if o not in summ:
             continue
         s = summ[o]
         o_ms = s["latency_ms"].get("total", math.nan)
         dp = (t["psnr"] - s["psnr"]) if o != "full" else math.nan
-        rows.append([f"over {s['label']}", fmt(o_ms, 2), fmt(t_ms, 2), f"**{speedup(o_ms, t_ms)}**",
-                     fmt(dp, 2, " dB") if o != "full" else "– (exact reference)"])
-    return md_table([f"{t['label']}", "their latency (ms)", "IML/S latency (ms)", "speed-up", "PSNR change"], rows)
+        line = [f"over {s['label']}", fmt(o_ms, 2), fmt(t_ms, 2), f"**{speedup(o_ms, t_ms)}**"]
+        if rows is not None:
+            slow, fast = paired_totals(rows, o, target)
+            line.append(f"{speedup_interval(slow, fast).text()} ({len(slow)} views)" if slow else "–")
+        out.append(line + [fmt(dp, 2, " dB") if o != "full" else "– (exact reference)"])
+    head = [f"{t['label']}", "their latency (ms)", "IML/S latency (ms)", "speed-up"]
+    head += ["95% interval (timed views resampled)"] if rows is not None else []
+    return md_table(head + ["PSNR change"], out)
 
 
 def quality_table(rows: Sequence[Mapping[str, Any]], summ: Mapping[str, Mapping[str, Any]], methods: Sequence[str]) -> str:

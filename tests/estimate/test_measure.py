@@ -199,6 +199,16 @@ def _cli(tmp_path, *extra):
                           capture_output=True, text=True, timeout=300)
 
 
+def _cli_here(tmp_path, monkeypatch, *extra):
+    """:func:`_cli` in this process (:func:`tests.cli.run_in_process`), for the documented errors of the settings."""
+    from tests.cli import run_in_process
+
+    monkeypatch.setenv("IMLS_RUNS_DIR", str(tmp_path))
+    args = ["scene=tiny", "resolution=32", "views=2", "repeats=1", "warmup=0", "options.half=false",
+            "recnn_sizes.enhancenet.channels=4", "recnn_sizes.enhancenet.blocks=1", "needed_share=false", *extra]
+    return run_in_process("imls_lightning.estimate", args)
+
+
 def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     r = _cli(tmp_path)
     assert r.returncode == 0, r.stderr
@@ -249,9 +259,9 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     ("epsilon_db=0", "epsilon_db"),
     ("silhouette_blur=-1", "silhouette_blur"),
 ])
-def test_cli_exception_bad_settings(tmp_path, override, match):
-    r = _cli(tmp_path, override)
-    assert r.returncode != 0
+def test_cli_exception_bad_settings(tmp_path, monkeypatch, override, match):
+    r = _cli_here(tmp_path, monkeypatch, override)
+    assert r.returncode == 2 and not (tmp_path / "estimate").exists()
     last = r.stderr.strip().splitlines()[-1]
     assert match in last and "Traceback" not in r.stderr
 

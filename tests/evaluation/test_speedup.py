@@ -1,0 +1,146 @@
+"""imls_lightning.evaluation.speedup: the speed-up's bootstrap interval over the timed views, and the script that
+gives the rows measured before it their interval (scripts/speedup_intervals.py)."""
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from data_gen.errors import InputError
+from imls_lightning.evaluation.speedup import RESAMPLES, SpeedupInterval, paired_totals, speedup_interval, speedup_intervals
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _direct(slow, fast, confidence, resamples, seed):
+    """The interval one resample at a time: the same draws, a loop instead of fancy indexing."""
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(slow), size=(resamples, len(slow)))
+    ratios = []
+    for draw in idx:
+        ratios.append(math.fsum(slow[i] for i in draw) / math.fsum(fast[i] for i in draw))
+    ratios.sort()
+    return float(np.quantile(ratios, (1 - confidence) / 2)), float(np.quantile(ratios, (1 + confidence) / 2))
+
+
+def test_the_interval_equals_a_direct_bootstrap_and_the_ratio_is_that_of_the_means():
+    rng = np.random.default_rng(3)
+    slow = list(2500 + 400 * rng.standard_normal(12))
+    fast = [s / (2.0 + 0.15 * rng.standard_normal()) for s in slow]
+    iv = speedup_interval(slow, fast, confidence=0.9, resamples=2000, seed=7)
+    assert iv.speedup == pytest.approx(np.mean(slow) / np.mean(fast), rel=1e-12)
+    lo, hi = _direct(slow, fast, 0.9, 2000, 7)
+    assert (iv.low, iv.high) == (pytest.approx(lo, rel=1e-12), pytest.approx(hi, rel=1e-12))
+    assert iv.low < iv.speedup < iv.high and iv.views == 12 and iv.confidence == 0.9
+    assert speedup_interval(slow, fast, 0.9, 2000, 7) == iv  # a fixed seed: a report repeats
+
+
+def test_a_ratio_the_same_on_every_view_has_no_spread_and_more_views_narrow_it():
+    iv = speedup_interval([300.0, 600.0, 900.0], [100.0, 200.0, 300.0])
+    assert iv.low == pytest.approx(3.0) and iv.high == pytest.approx(3.0) and iv.text() == "3.00–3.00×"
+    rng = np.random.default_rng(0)
+    widths = []
+    for n in (8, 32, 128):
+        slow = 1000 + 300 * rng.random(n)
+        fast = slow / (2.0 + 0.3 * rng.standard_normal(n))
+        w = speedup_interval(slow, fast)
+        widths.append(w.high - w.low)
+    assert widths[0] > widths[1] > widths[2]  # about 1/sqrt(n)
+    assert widths[0] / widths[2] == pytest.approx(4.0, rel=0.5)
+
+
+def test_the_interval_covers_the_true_ratio_about_as_often_as_it_says():
+    """Views whose ratio scatters around 2.0: the 90% interval over 30 views holds the ratio of the population's
+    means in about 90% of 200 draws (a percentile bootstrap runs a little narrow on few views)."""
+    rng = np.random.default_rng(11)
+    ratio = lambda n: 2.0 + 0.4 * rng.standard_normal(n).clip(-2.5, 2.5)  # noqa: E731  a view's speed-up
+    # fast = slow / ratio with ratio independent of slow: mean(slow) / mean(fast) -> 1 / E[1 / ratio]
+    truth = 1.0 / np.mean(1.0 / ratio(200_000))
+    hits = 0
+    for trial in range(200):
+        slow = 1000 + 400 * rng.random(30)
+        iv = speedup_interval(slow, slow / ratio(30), confidence=0.9, resamples=400, seed=trial)
+        hits += iv.low <= truth <= iv.high
+    assert 0.8 <= hits / 200 <= 0.97
+
+
+def test_one_view_gives_its_ratio_and_no_interval_text():
+    iv = speedup_interval([300.0], [150.0])
+    assert (iv.speedup, iv.low, iv.high, iv.views) == (2.0, 2.0, 2.0, 1) and iv.text() == "–"
+    assert SpeedupInterval(**iv.to_dict()) == iv
+
+
+@pytest.mark.parametrize("slow, fast, kw, match", [
+    ([], [], {}, "no timed views"),
+    ([1.0, 2.0], [1.0], {}, "2 reference totals but 1 method totals"),
+    ([1.0, math.nan], [1.0, 1.0], {}, "finite and > 0"),
+    ([1.0, 2.0], [1.0, 0.0], {}, "finite and > 0"),
+    ([1.0, 2.0], [1.0, 1.0], {"confidence": 1.0}, r"confidence=1.0: expected a number in \(0, 1\)"),
+    ([1.0, 2.0], [1.0, 1.0], {"resamples": 10}, "resamples=10: expected at least 100"),
+])
+def test_each_documented_error(slow, fast, kw, match):
+    with pytest.raises(InputError, match=match):
+        speedup_interval(slow, fast, **kw)
+
+
+def _rows():
+    """A metrics.csv's rows: 3 views timed, a fourth measured for PSNR only (no total), LAS timed on two views."""
+    rows = []
+    for v, (r, i) in enumerate([(400.0, 200.0), (420.0, 200.0), (380.0, 190.0), (None, None)]):
+        rows.append({"view": str(v), "method": "recnn", "total_ms": "" if r is None else str(r)})
+        rows.append({"view": str(v), "method": "imls", "total_ms": "" if i is None else str(i)})
+        rows.append({"view": str(v), "method": "las", "total_ms": str(300.0) if v < 2 else ""})
+        rows.append({"view": str(v), "method": "full", "total_ms": ""})
+    return rows
+
+
+def test_paired_totals_and_every_methods_interval_over_the_recnn():
+    assert paired_totals(_rows(), "recnn", "imls") == ([400.0, 420.0, 380.0], [200.0, 200.0, 190.0])
+    assert paired_totals(_rows(), "recnn", "las") == ([400.0, 420.0], [300.0, 300.0])
+    out = speedup_intervals(_rows())
+    assert list(out) == ["imls", "las"]  # the reference and a method never timed are left out
+    assert out["imls"]["speedup"] == pytest.approx(1200.0 / 590.0) and out["imls"]["views"] == 3
+    assert out["las"]["speedup"] == pytest.approx(820.0 / 600.0) and out["las"]["views"] == 2
+    assert RESAMPLES >= 10_000
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("speedup_intervals_script", ROOT / "scripts" / "speedup_intervals.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _write_metrics(path: Path, rows) -> Path:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["view", "method", "total_ms"])
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def test_the_script_gives_a_row_its_interval_only_from_the_metrics_of_that_rows_run(tmp_path, capsys):
+    records = tmp_path / "pairs.json"
+    summary = {"scene": "s", "recnn": "enhancenet",
+               "methods": {"recnn": {"latency_ms": {"total": 400.0}}, "imls": {"latency_ms": {"total": 590.0 / 3}}}}
+    records.write_text(json.dumps({"s, enhancenet": {"summary": summary, "minutes": 1, "settings": {}, "command": "x"}}))
+    good = _write_metrics(tmp_path / "metrics.csv", _rows())
+    other = _write_metrics(tmp_path / "other.csv", [{**r, "total_ms": str(2 * float(r["total_ms"]))} if r["total_ms"] else r
+                                                    for r in _rows()])
+    script = _script()
+    assert script.main([f"s:enhancenet={other}", "--records", str(records)]) == 2
+    assert "recnn's mean total over its timed views is 800.00 ms, the pair's record says 400.00 ms" in capsys.readouterr().err
+    assert "speedup_interval" not in json.loads(records.read_text())["s, enhancenet"]["summary"]  # nothing written
+    assert script.main(["s:enhancenet", "--records", str(records)]) == 2
+    assert "expected SCENE:RECNN=METRICS_CSV" in capsys.readouterr().err
+    assert script.main([f"t:enhancenet={good}", "--records", str(records)]) == 2
+    assert "no pair 't, enhancenet'" in capsys.readouterr().err
+    assert script.main([f"s:enhancenet={good}", "--records", str(records)]) == 0
+    assert "s, enhancenet: IML/S 2.034x, 95% interval" in capsys.readouterr().out
+    iv = json.loads(records.read_text())["s, enhancenet"]["summary"]["speedup_interval"]
+    assert iv["imls"] == speedup_intervals(_rows())["imls"]
