@@ -429,3 +429,11 @@ def test_the_speedup_interval_columns_and_tables_from_before_them(tmp_path):
     assert [bp.speedup_cell(r) for r in again] == ["2.50×", "2.50× (2.31–2.70)"]
     section = bp.section_text(again, partial=False)
     assert "| speed-up (95% interval) |" in section and "2.50× (2.31–2.70)" in section
+
+
+def test_module_doctests():
+    """The examples in bench_paper's docstrings (speedup_cell, las_cell, estimate_args, ...) hold."""
+    import doctest
+
+    result = doctest.testmod(bp)
+    assert result.attempted >= 5 and result.failed == 0, result

@@ -289,6 +289,17 @@ def test_orp_gap_on_validation_and_test_views_side_by_side(run):
     bins = orp["test_by_distance"]
     assert sum(b["views"] for b in bins) == 2 and len(bins) == 2 and bins[0]["hi"] <= bins[1]["lo"]
     assert np.mean([b["gap_db"] for b in bins]) == pytest.approx(orp["test"]["gap_db"], abs=1e-6)
+    # and where the trade pays: each bin's speed-up over its timed views, from metrics.csv's totals
+    summ = json.loads((run["out"] / "summary.json").read_text())
+    assert sum(b["timed_views"] for b in bins) == summ["timed_views"]
+    totals = {(r["method"], int(r["view"])): float(r["total_ms"]) for r in csv.DictReader(open(run["out"] / "metrics.csv")) if r["total_ms"]}
+    for b in bins:
+        assert (b["speedup"] is None) == (b["timed_views"] == 0)
+    if [b["timed_views"] for b in bins] == [1, 1]:  # one view a bin: each bin's speed-up is its view's
+        ratios = [totals[("recnn", v)] / totals[("imls", v)] for (m, v) in totals if m == "imls"]
+        assert sorted(ratios) == pytest.approx(sorted(b["speedup"] for b in bins), rel=1e-6)
+    if orp["found"]:
+        assert "speed-up (timed views)" in section
 
 
 def test_orp_search_views_path_are_exploratory_paths_of_their_own_seeds(run):

@@ -565,14 +565,20 @@ def gap_by_distance(rows: Sequence[dict[str, Any]], distance: Callable[[int], fl
                     method: str = "imls", bins: int = 4) -> list[dict[str, Any]]:
     """The per-view gap ``reference - method`` in ``bins`` equal-count bins of the camera distance (``distance`` of a
     row's cache ``row``): where on the trajectory an operating point loses its promise. Each bin: its distance range,
-    views, mean and largest gap, the method's mean C-share. Empty when the two share no view.
+    views, mean and largest gap, the method's mean C-share, and where both were timed there, the speed-up
+    ``sum(reference totals) / sum(method totals)`` over its ``timed_views`` (else None): where the trade pays.
+    Empty when the two share no view.
 
     Example:
         >>> rows = [{"view": v, "row": v, "method": m, "psnr": p, "c_share": 0.8}
         ...         for v, (a, b) in enumerate([(40, 37), (40, 38), (38, 37.9), (38, 38)]) for m, p in (("recnn", a), ("imls", b))]
         >>> [(b["lo"], b["views"], round(b["gap_db"], 2)) for b in gap_by_distance(rows, lambda r: 2.0 + r, bins=2)]
         [(2.0, 2, 2.5), (4.0, 2, 0.05)]
+        >>> [(b["speedup"], b["timed_views"]) for b in gap_by_distance(rows, lambda r: 2.0 + r, bins=2)]
+        [(None, 0), (None, 0)]
     """
+    from .speedup import paired_totals
+
     ref, got, views = _paired(rows, reference, method)
     if not views:
         return []
@@ -582,9 +588,12 @@ def gap_by_distance(rows: Sequence[dict[str, Any]], distance: Callable[[int], fl
     order = np.argsort(d, kind="stable")
     out = []
     for part in np.array_split(order, min(bins, len(views))):
+        members = {views[i] for i in part}
+        slow, fast = paired_totals([r for r in rows if int(r["view"]) in members], reference, method)
         out.append({"lo": float(d[part].min()), "hi": float(d[part].max()), "views": int(len(part)),
                     "gap_db": float(gap[part].mean()), "max_gap_db": float(gap[part].max()),
-                    "c_share": float(np.nanmean(share[part])) if np.isfinite(share[part]).any() else None})
+                    "c_share": float(np.nanmean(share[part])) if np.isfinite(share[part]).any() else None,
+                    "speedup": sum(slow) / sum(fast) if slow else None, "timed_views": len(slow)})
     return out
 
 

@@ -458,7 +458,7 @@ def las_cell(row: Mapping[str, Any]) -> str:
     """``"<ms>, <PSNR> dB"`` of LAS at the row's IPR, or ``"–"`` for a pair without LAS (FoVolNet: ``las_with``).
 
     Example:
-        >>> las_cell({"las_ms": 648.85, "las_psnr_db": 29.57}), las_cell({"las_ms": None})
+        >>> las_cell({"las_ms": 648.84, "las_psnr_db": 29.57}), las_cell({"las_ms": None})
         ('648.8, 29.57 dB', '–')
     """
     if not math.isfinite(_num(row.get("las_ms"))):

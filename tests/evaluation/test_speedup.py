@@ -144,3 +144,22 @@ def test_the_script_gives_a_row_its_interval_only_from_the_metrics_of_that_rows_
     assert "s, enhancenet: IML/S 2.034x, 95% interval" in capsys.readouterr().out
     iv = json.loads(records.read_text())["s, enhancenet"]["summary"]["speedup_interval"]
     assert iv["imls"] == speedup_intervals(_rows())["imls"]
+
+
+def test_the_gap_by_camera_distance_carries_each_bins_speedup_over_its_timed_views():
+    """Where on the trajectory the trade pays: seed_whole's per-view ratio ran 1.65-2.40x, close-ups keeping more of
+    the pattern. Each distance bin's speed-up is the ratio of its timed views' summed totals; a bin with none timed
+    has none."""
+    from imls_lightning.evaluation.operating_point import gap_by_distance
+
+    totals = {0: (400.0, 250.0), 1: (420.0, 240.0), 2: None, 3: (380.0, 150.0), 4: (390.0, 140.0), 5: None}
+    rows = []
+    for v, tot in totals.items():
+        for m, k in (("recnn", 0), ("imls", 1)):
+            rows.append({"view": v, "row": v, "method": m, "psnr": 40.0 - 0.5 * k, "c_share": 0.4,
+                         "total_ms": None if tot is None else tot[k]})
+    near, far = gap_by_distance(rows, lambda r: 3.0 + 0.1 * r, bins=2)
+    assert (near["views"], near["timed_views"], far["timed_views"]) == (3, 2, 2)
+    assert near["speedup"] == pytest.approx(820.0 / 490.0) and far["speedup"] == pytest.approx(770.0 / 290.0)
+    (only,) = gap_by_distance([r for r in rows if r["view"] in (2, 5)], lambda r: 3.0 + 0.1 * r, bins=1)
+    assert only["speedup"] is None and only["timed_views"] == 0
