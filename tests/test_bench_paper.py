@@ -383,7 +383,7 @@ def test_legacy_table_reads_with_empty_estimate_columns(tmp_path):
     path.write_text(",".join(bp.LEGACY_COLUMNS + bp.ESTIMATE_COLUMNS) + "\n" + ",".join(["ct_head", "enhancenet"] + ["1"] * 20) + "\n")
     bp.write_csv([*bp.read_rows(path), {**bp.csv_row({**_summary("flame_whole"), "skip_empty": False})}], path)
     assert [r["skip_empty"] for r in bp.read_rows(path)] == ["true", "false"]
-    assert bp.estimate_cells(None, 0.3) == {k: "" for k in bp.ESTIMATE_COLUMNS}
+    assert bp.estimate_cells(None, 0.3) == {k: "" for k in bp.ESTIMATE_COLUMNS + bp.ESTIMATE_INTERVAL_COLUMNS}
 
 
 def test_summarize_only_rewrites_the_tables_from_the_records(tmp_path, monkeypatch):

@@ -23,10 +23,10 @@ Example:
     >>> share_for_speedup(bound_table(cost, c_render_ms=336.0, nets_ms=32.0, recnn_ms=16.0), 2.0)
     0.2
 """
-from .bound import (SHARES, RenderCost, RenderCurve, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at,
-                    speedup_from_estimate)
+from .bound import (SHARES, RenderCost, RenderCurve, bound_intervals, bound_table, estimate_interval, share_for_speedup,
+                    sharpness_key, slower_render, speedup_at, speedup_from_estimate)
 from .run import DEFAULT_TARGETS, RESULT, format_report, read_estimate, run_estimate
 
 __all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "bound_table", "share_for_speedup", "sharpness_key", "speedup_at",
-           "speedup_from_estimate",
+           "speedup_from_estimate", "estimate_interval", "bound_intervals",
            "DEFAULT_TARGETS", "RESULT", "format_report", "read_estimate", "run_estimate"]

@@ -207,5 +207,89 @@ def speedup_from_estimate(estimate: dict[str, Any], share: float, sharpness: flo
                          "imls_lightning.estimate)") from None
 
 
+def estimate_interval(estimate: dict[str, Any], share: float, sharpness: float = 1.0, confidence: float = 0.95,
+                      resamples: int = 10_000, seed: int = 0):
+    """:func:`speedup_from_estimate` with a percentile bootstrap interval over the estimate's views, or None for an
+    estimate that kept no per-view render times (made before ``per_view``, or by the model alone) or whose per-view
+    times do not give back its own render curve (to 0.1%: an estimate made by an earlier method).
+
+    The estimate draws a few views (6, their distances stratified) and averages their renders: each view's whole
+    pattern ``c_render_ms[v]`` and its silhouette masks' times as fractions of it (``per_view``; a sharpened mask's
+    in ``by_sharpness``). A resample draws the views with replacement and makes the same means, the slower of that
+    curve and the per-pixel model at each share (:func:`slower_render`; the model and the network times stay as
+    measured), then the bound at ``share``. It says how far the views drawn move the estimate, as
+    :func:`~imls_lightning.evaluation.speedup.speedup_interval` says it of a row; not a sitting's machine speed.
+
+    Returns:
+        :class:`~imls_lightning.evaluation.speedup.SpeedupInterval` or None.
+
+    Example:
+        >>> est = {"c_render_ms": 150.0, "nets_ms": 10.0, "recnn_ms": 10.0, "background_density": 0.25,
+        ...        "render_cost": {"fixed_ms": 0.0, "object_ms_per_px": 0.0, "background_ms_per_px": 0.0,
+        ...                        "object_px": 1, "background_px": 1},
+        ...        "per_view": [{"c_render_ms": c, "silhouette_fractions": [0.1 * i for i in range(1, 11)]}
+        ...                     for c in (100.0, 200.0)]}
+        >>> iv = estimate_interval(est, 0.3)
+        >>> round(iv.speedup, 3), iv.views, iv.low <= iv.speedup <= iv.high
+        (2.462, 2, True)
+    """
+    from ..evaluation.speedup import SpeedupInterval
+
+    views = estimate.get("per_view") or []
+    if not views or any(k not in estimate for k in ("render_cost", "c_render_ms", "nets_ms", "recnn_ms", "background_density")):
+        return None
+    own = (estimate.get("by_sharpness") or {}).get(sharpness_key(sharpness)) if float(sharpness) != 1.0 else None
+    if own is not None:
+        fractions, density = own.get("silhouette_fractions_per_view"), own.get("background_density")
+    else:
+        fractions, density = [v.get("silhouette_fractions") for v in views], estimate["background_density"]
+    if density is None:
+        return None
+    density = float(density)
+    if not fractions or len(fractions) != len(views) or any(not f or len(f) != len(SHARES) for f in fractions):
+        return None
+    c = np.array([float(v["c_render_ms"]) for v in views])
+    frac = np.array(fractions, dtype=np.float64)
+    model = RenderCost(**estimate["render_cost"])
+    floor = np.array([model.render_ms(s, density) for s in SHARES])
+    nets, recnn, s = float(estimate["nets_ms"]), float(estimate["recnn_ms"]), _share(share)
+
+    xs = np.concatenate([[0.0], SHARES])
+    k = int(np.clip(np.searchsorted(xs, s, side="right") - 1, 0, len(SHARES) - 1))  # s in [xs[k], xs[k + 1]]
+    w = (s - xs[k]) / (xs[k + 1] - xs[k])
+
+    def bound(idx: np.ndarray) -> np.ndarray:  # (R, V) view draws -> (R,) bounds at the share
+        c_mean = c[idx].mean(axis=1)
+        curve = np.maximum((frac[idx] * c[idx][..., None]).mean(axis=1), floor)  # (R, S)
+        ys = np.concatenate([np.full((len(curve), 1), float(model.fixed_ms)), curve], axis=1)
+        render = (1.0 - w) * ys[:, k] + w * ys[:, k + 1]  # RenderCurve.render_ms, for every draw at once
+        return (c_mean + recnn) / (nets + render + recnn)
+
+    # never trust a record that does not give back its own curve: an estimate of an earlier method (a median over
+    # views) kept per-view times its curve was not made from
+    own_curve = estimate_render(estimate, sharpness)
+    if isinstance(own_curve, RenderCurve):
+        mean_curve = np.maximum((frac * c[:, None]).mean(axis=0), floor)
+        if not np.allclose(mean_curve, np.asarray(own_curve.times_ms, np.float64), rtol=1e-3):
+            return None
+    point = float(bound(np.arange(len(c))[None, :])[0])
+    draws = bound(np.random.default_rng(seed).integers(0, len(c), size=(int(resamples), len(c))))
+    lo, hi = np.quantile(draws, [(1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
+    return SpeedupInterval(point, float(lo), float(hi), len(c), float(confidence))
+
+
+def bound_intervals(estimate: dict[str, Any], sharpness: float = 1.0, confidence: float = 0.95) -> list[dict[str, float]] | None:
+    """``[{"share", "low", "high"}]`` at every :data:`SHARES`: :func:`estimate_interval` of the bound (``estimate.json``'s
+    ``bound_interval``; a sharpness's own under ``by_sharpness``), or None where the estimate has no per-view times."""
+    out = []
+    for sh in SHARES:
+        iv = estimate_interval(estimate, sh, sharpness, confidence)
+        if iv is None:
+            return None
+        out.append({"share": float(sh), "low": iv.low, "high": iv.high})
+    return out
+
+
 __all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "speedup_at", "bound_table", "share_for_speedup", "sharpness_key",
-           "estimate_render", "speedup_from_estimate"]
+           "estimate_render", "speedup_from_estimate", "estimate_interval",
+           "bound_intervals"]

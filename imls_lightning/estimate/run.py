@@ -26,7 +26,7 @@ from data_gen.views import camera_distance
 from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
 from ..report.machine import BUSY_LIMIT, OtherLoad, busy_cores, shared_cores_warning
-from .bound import SHARES, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
+from .bound import SHARES, bound_intervals, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
 from .measure import (RecNNLead, build_networks, mean_c_render_ms, measure_view, network_ms, recnn_lead, render_cost,
                       render_curve, upsample_c_image, upsampler_name)
 from .needed_share import NeededShare, needed_share
@@ -274,6 +274,15 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     }
 
 
+def add_intervals(est: dict[str, Any]) -> dict[str, Any]:
+    """``bound_interval`` in ``est`` and in each sharpness of its ``by_sharpness``: the bound's 95% interval at every
+    share over the estimate's views resampled (:func:`~.bound.bound_intervals`; None without per-view times)."""
+    est["bound_interval"] = bound_intervals(est)
+    for key, b in (est.get("by_sharpness") or {}).items():
+        b["bound_interval"] = bound_intervals(est, float(key))
+    return est
+
+
 def ray_cast_between(renderer, pattern, view, stride: int = 8):
     """What the product runs between two network calls, for :func:`~.measure.network_ms`'s ``before``: a ray cast, of
     every ``stride``-th pixel of the pattern of ``view`` (the volume's data pass through the caches, as in the
@@ -421,6 +430,10 @@ def format_report(est: Mapping[str, Any]) -> str:
     for key, b in sorted((est.get("by_sharpness") or {}).items(), key=lambda kv: float(kv[0])):
         lines.append(f"  γ = {key:<9}" + " ".join(f"{r['speedup']:>5.2f}" for r in b["bound"])
                      + "  (the mask sharpened: its pixels are the dearer object's)")
+    if est.get("bound_interval"):  # how far the views drawn move it: a narrow pass needs more views
+        lines.append(f"  the speed-up's 95% interval over the {len(est.get('per_view') or [])} views resampled: "
+                     + ", ".join(f"{r['low']:.2f}-{r['high']:.2f}x at {r['share']:.0%}" for r in est["bound_interval"][1:5])
+                     + " of C")
     lead = est.get("recnn_lead")
     if lead:
         lines.append(f"  a RecNN trained {lead['steps']} steps on {lead['train_views']} views: {lead['recnn_db']:.2f} dB, "
@@ -531,6 +544,7 @@ def run_estimate(cfg: DictConfig) -> Path:
                 shutil.rmtree(created, ignore_errors=True)
             raise
         est = dict(measured, settings=settings, busy_cores=busy, timing_busy_cores=during.cores)
+        add_intervals(est)
         if not warning and (late := shared_cores_warning(during.cores, "this estimate")):
             _say(late)
         atomic_json(path, est)

@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError
 
-from ..estimate import read_estimate, speedup_from_estimate
+from ..estimate import estimate_interval, read_estimate, speedup_from_estimate
 from ..orp.overrides import override_key
 from ..report import atomic_write_text, md_table, shared_cores_warning
 from ..report.tables import equal_share_markdown, fmt, fmt_pct, speedup
@@ -41,11 +41,16 @@ LOAD_COLUMNS = ("timing_busy_cores",)
 #: the speed-up's 95% bootstrap interval over the row's timed views (the evaluation's ``speedup_interval``; empty: rows
 #: before it whose per-view times were not kept)
 INTERVAL_COLUMNS = ("speedup_low", "speedup_high")
-CSV_COLUMNS = LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS + INTERVAL_COLUMNS
+#: the estimate's 95% interval at the row's share over the estimate's views resampled (empty: an estimate without
+#: per-view times, or made by an earlier method; ``estimate.estimate_interval``)
+ESTIMATE_INTERVAL_COLUMNS = ("estimated_low", "estimated_high")
+CSV_COLUMNS = (LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS + INTERVAL_COLUMNS
+               + ESTIMATE_INTERVAL_COLUMNS)
 #: the tables written before each group of columns was appended, still read
 EARLIER_COLUMNS = (LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS,
                    LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS,
-                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS)
+                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS,
+                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS + INTERVAL_COLUMNS)
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
@@ -113,17 +118,20 @@ def _total(methods: Mapping[str, Any], name: str) -> float:
 
 
 def estimate_cells(estimate: Mapping[str, Any] | None, c_share: Any, sharpness: Any = 1.0) -> dict[str, Any]:
-    """The :data:`ESTIMATE_COLUMNS` of a row from its pair's ``estimate.json`` content (empty without one);
-    ``estimated_speedup`` is the estimate's bound at the share the row measured, on the render curve of the mask
-    sharpness its ORP kept (where the estimate has one)."""
+    """The :data:`ESTIMATE_COLUMNS` and :data:`ESTIMATE_INTERVAL_COLUMNS` of a row from its pair's ``estimate.json``
+    content (empty without one); ``estimated_speedup`` is the estimate's bound at the share the row measured, on the
+    render curve of the mask sharpness its ORP kept (where the estimate has one), ``estimated_low`` / ``_high`` its
+    interval over the estimate's views."""
     if not estimate:
-        return {k: "" for k in ESTIMATE_COLUMNS}
+        return {k: "" for k in ESTIMATE_COLUMNS + ESTIMATE_INTERVAL_COLUMNS}
     try:
         est_speedup = speedup_from_estimate(estimate, float(c_share), float(sharpness))
+        iv = estimate_interval(estimate, float(c_share), float(sharpness))
     except (TypeError, ValueError):
-        est_speedup = math.nan
+        est_speedup, iv = math.nan, None
     return {"volume_dims": estimate.get("volume_dims", ""), "c_render_ms": estimate["c_render_ms"],
-            "nets_ms": estimate["nets_ms"], "bilinear_db": estimate["bilinear_db"], "estimated_speedup": est_speedup}
+            "nets_ms": estimate["nets_ms"], "bilinear_db": estimate["bilinear_db"], "estimated_speedup": est_speedup,
+            "estimated_low": iv.low if iv else "", "estimated_high": iv.high if iv else ""}
 
 
 def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -133,7 +141,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
     orp = summary.get("orp") or {}
     recnn_ms, imls_ms = _total(m, "recnn"), _total(m, "imls")
     psnr_r, psnr_i = float(recnn.get("psnr", math.nan)), float(imls.get("psnr", math.nan))
-    return {
+    row = {
         "scene": summary["scene"], "recnn": summary["recnn"], "fr_size": summary["fr_size"], "c_size": summary["c_size"],
         "sample_distance_voxels": summary.get("sample_distance_voxels"),
         "mean": orp.get("mean") if orp.get("found") else summary.get("imls_mean"),
@@ -147,6 +155,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "timing_busy_cores": (summary.get("timing_load") or {}).get("max", ""),
         **interval_cells(summary),
     }
+    return {k: row[k] for k in CSV_COLUMNS}  # in the table's order (the estimate's interval comes last)
 
 
 def interval_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
@@ -226,7 +235,7 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
         # a table from before the estimate's columns: they stay empty until the pair is estimated; every row timed
         # before skip_empty existed was timed with empty-space skipping, and every row before the floor ran without one
-        return [{**{k: "" for k in ESTIMATE_COLUMNS + INTERVAL_COLUMNS}, "skip_empty": True, "object_floor_margin": "",
+        return [{**{k: "" for k in ESTIMATE_COLUMNS + INTERVAL_COLUMNS + ESTIMATE_INTERVAL_COLUMNS}, "skip_empty": True, "object_floor_margin": "",
                  "timing_busy_cores": "", **dict(r)} for r in reader]
 
 

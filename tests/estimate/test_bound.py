@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from data_gen.errors import InputError
@@ -142,3 +143,76 @@ def test_slower_render_takes_the_slower_prediction_at_each_share():
         assert t == max(c, COST.render_ms(s, 0.25))
     assert out.fixed_ms == 0.8 and out.shares == curve.shares
     assert any(t > c for t, c in zip(out.times_ms, curve.times_ms)) and any(t == c for t, c in zip(out.times_ms, curve.times_ms))
+
+
+def _estimate_with_views(c=(2000.0, 2600.0, 1800.0, 2400.0, 2200.0, 2900.0), seed=4):
+    """An estimate.json's content whose curve is the mean of its views' (as the estimate makes it), with a sharpened
+    curve of its own: each view's silhouette fractions rise with the share, differently per view."""
+    from imls_lightning.estimate import SHARES, RenderCost, RenderCurve, slower_render
+
+    rng = np.random.default_rng(seed)
+    shares = np.array(SHARES)
+    frac = np.array([shares ** (1.0 + 0.4 * rng.random()) for _ in c])
+    sharp = np.minimum(frac * 1.15, 1.0)
+    cs = np.array(c)
+    model = RenderCost(fixed_ms=1.0, object_ms_per_px=0.01, background_ms_per_px=0.005, object_px=20000, background_px=45536)
+    curve = slower_render(RenderCurve(SHARES, tuple((frac * cs[:, None]).mean(axis=0)), model.fixed_ms), model, 0.25)
+    curve3 = slower_render(RenderCurve(SHARES, tuple((sharp * cs[:, None]).mean(axis=0)), model.fixed_ms), model, 0.25 ** 3)
+    return {"c_render_ms": float(cs.mean()), "nets_ms": 60.0, "recnn_ms": 40.0, "background_density": 0.25,
+            "render_cost": model.to_dict(), "render_curve": curve.to_dict(),
+            "per_view": [{"c_render_ms": float(x), "silhouette_fractions": f.tolist()} for x, f in zip(cs, frac)],
+            "by_sharpness": {"3": {"background_density": 0.25 ** 3, "render_curve": curve3.to_dict(),
+                                   "silhouette_fractions_per_view": sharp.tolist()}}}
+
+
+def _direct_interval(est, share, frac_key, density, resamples, seed):
+    """The interval one draw at a time, through the package's own curve and bound (RenderCurve, slower_render, speedup_at)."""
+    from imls_lightning.estimate import SHARES, RenderCost, RenderCurve, slower_render, speedup_at
+
+    model = RenderCost(**est["render_cost"])
+    c = np.array([v["c_render_ms"] for v in est["per_view"]])
+    frac = np.array(frac_key)
+    idx = np.random.default_rng(seed).integers(0, len(c), size=(resamples, len(c)))
+    out = []
+    for draw in idx:
+        curve = slower_render(RenderCurve(SHARES, tuple((frac[draw] * c[draw][:, None]).mean(axis=0)), model.fixed_ms), model, density)
+        out.append(speedup_at(curve, share, c_render_ms=c[draw].mean(), nets_ms=est["nets_ms"], recnn_ms=est["recnn_ms"]))
+    return np.quantile(out, [0.025, 0.975])
+
+
+@pytest.mark.parametrize("share", [0.05, 0.2, 0.375, 0.95, 1.0])
+def test_the_estimates_interval_is_a_bootstrap_of_its_own_bound_over_its_views(share):
+    from imls_lightning.estimate import estimate_interval, speedup_from_estimate
+
+    est = _estimate_with_views()
+    iv = estimate_interval(est, share, resamples=300, seed=2)
+    assert iv.speedup == pytest.approx(speedup_from_estimate(est, share), rel=1e-9) and iv.views == 6
+    lo, hi = _direct_interval(est, share, [v["silhouette_fractions"] for v in est["per_view"]], 0.25, 300, 2)
+    assert (iv.low, iv.high) == (pytest.approx(lo, rel=1e-9), pytest.approx(hi, rel=1e-9))
+    sharp = estimate_interval(est, share, sharpness=3.0, resamples=300, seed=2)  # a sharpened mask's own curve
+    assert sharp.speedup == pytest.approx(speedup_from_estimate(est, share, 3.0), rel=1e-9)
+    lo, hi = _direct_interval(est, share, est["by_sharpness"]["3"]["silhouette_fractions_per_view"], 0.25 ** 3, 300, 2)
+    assert (sharp.low, sharp.high) == (pytest.approx(lo, rel=1e-9), pytest.approx(hi, rel=1e-9))
+
+
+def test_an_estimate_without_per_view_times_or_whose_views_do_not_give_its_curve_has_no_interval():
+    """Never trust a record that does not give back its own curve: rt_plumes's row estimate took a median over its
+    views, and its per-view times made a curve 7% lower; such an estimate gets no interval rather than a wrong one."""
+    from imls_lightning.estimate import bound_intervals, estimate_interval
+
+    est = _estimate_with_views()
+    assert estimate_interval({k: v for k, v in est.items() if k != "per_view"}, 0.3) is None
+    shifted = {**est, "render_curve": {**est["render_curve"], "times_ms": [1.07 * t for t in est["render_curve"]["times_ms"]]}}
+    assert estimate_interval(shifted, 0.3) is None and bound_intervals(shifted) is None
+    assert estimate_interval({k: v for k, v in est.items() if k != "render_cost"}, 0.3) is None
+    table = bound_intervals(est)
+    assert [r["share"] for r in table] == pytest.approx([0.1 * i for i in range(1, 11)])
+    assert all(r["low"] <= r["high"] for r in table) and table[0]["low"] > table[-1]["high"]  # fewer pixels, faster
+    from imls_lightning.estimate import RenderCurve, slower_render
+
+    same = _estimate_with_views(c=(2000.0,) * 6, seed=0)  # six copies of one view: nothing to resample
+    same["per_view"] = [same["per_view"][0]] * 6
+    one = RenderCurve(SHARES, tuple(2000.0 * np.array(same["per_view"][0]["silhouette_fractions"])), 1.0)
+    same["render_curve"] = slower_render(one, RenderCost(**same["render_cost"]), 0.25).to_dict()
+    iv = estimate_interval(same, 0.3)
+    assert iv.low == pytest.approx(iv.speedup) and iv.high == pytest.approx(iv.speedup)

@@ -236,6 +236,14 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     assert 0 <= est["object_fraction"] <= 1 and np.isfinite(est["bilinear_db"])
     assert (path.parent / "contact_sheet.png").is_file()
     assert "speed-up" in r.stdout
+    # the bound's interval over the views resampled, at every share, and its line on stdout
+    from imls_lightning.estimate import estimate_interval
+
+    assert [x["share"] for x in est["bound_interval"]] == pytest.approx([0.1 * i for i in range(1, 11)])
+    mid = estimate_interval(est, 0.3)
+    assert mid.speedup == pytest.approx(est["bound"][2]["speedup"], rel=1e-9)
+    assert (est["bound_interval"][2]["low"], est["bound_interval"][2]["high"]) == (pytest.approx(mid.low), pytest.approx(mid.high))
+    assert "95% interval over the 2 views resampled" in r.stdout
     table = tmp_path / "estimates.csv"
     again = _cli(tmp_path, f"table={table}")   # the same settings: reused, and its row goes into the table
     assert again.returncode == 0 and "reusing" in again.stderr
