@@ -235,6 +235,31 @@ def estimate_interval(estimate: dict[str, Any], share: float, sharpness: float =
     """
     from ..evaluation.speedup import SpeedupInterval
 
+    bounds = _resampled_bounds(estimate, (share,), sharpness, resamples, seed)
+    if bounds is None:
+        return None
+    point, draws = bounds
+    lo, hi = np.quantile(draws[:, 0], [(1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
+    return SpeedupInterval(float(point[0]), float(lo), float(hi), len(estimate["per_view"]), float(confidence))
+
+
+def bound_intervals(estimate: dict[str, Any], sharpness: float = 1.0, confidence: float = 0.95) -> list[dict[str, float]] | None:
+    """``[{"share", "low", "high"}]`` at every :data:`SHARES`: :func:`estimate_interval` of the bound (``estimate.json``'s
+    ``bound_interval``; a sharpness's own under ``by_sharpness``), or None where the estimate has no per-view times."""
+    bounds = _resampled_bounds(estimate, SHARES, sharpness)  # one set of draws serves every share
+    if bounds is None:
+        return None
+    lo, hi = np.quantile(bounds[1], [(1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0], axis=0)
+    return [{"share": float(sh), "low": float(a), "high": float(b)} for sh, a, b in zip(SHARES, lo, hi)]
+
+
+def _resampled_bounds(estimate: dict[str, Any], shares: Sequence[float], sharpness: float = 1.0, resamples: int = 10_000,
+                      seed: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
+    """The bound at ``shares`` on all the estimate's views ``(len(shares),)`` and on ``resamples`` draws of them with
+    replacement ``(resamples, len(shares))``. Each draw's render is made as the estimate makes its own: the mean over
+    the drawn views of each view's fractions on that view's pattern (``measure.on_own_patterns``), then
+    :func:`slower_render` and :func:`speedup_at`. None for an estimate without per-view times, or whose views do not
+    give back its own curve."""
     views = estimate.get("per_view") or []
     if not views or any(k not in estimate for k in ("render_cost", "c_render_ms", "nets_ms", "recnn_ms", "background_density")):
         return None
@@ -243,51 +268,27 @@ def estimate_interval(estimate: dict[str, Any], share: float, sharpness: float =
         fractions, density = own.get("silhouette_fractions_per_view"), own.get("background_density")
     else:
         fractions, density = [v.get("silhouette_fractions") for v in views], estimate["background_density"]
-    if density is None:
-        return None
-    density = float(density)
-    if not fractions or len(fractions) != len(views) or any(not f or len(f) != len(SHARES) for f in fractions):
+    if density is None or not fractions or len(fractions) != len(views) or any(not f or len(f) != len(SHARES) for f in fractions):
         return None
     c = np.array([float(v["c_render_ms"]) for v in views])
     frac = np.array(fractions, dtype=np.float64)
     model = RenderCost(**estimate["render_cost"])
-    floor = np.array([model.render_ms(s, density) for s in SHARES])
-    nets, recnn, s = float(estimate["nets_ms"]), float(estimate["recnn_ms"]), _share(share)
+    stages = dict(nets_ms=estimate["nets_ms"], recnn_ms=estimate["recnn_ms"], background_density=float(density))
 
-    xs = np.concatenate([[0.0], SHARES])
-    k = int(np.clip(np.searchsorted(xs, s, side="right") - 1, 0, len(SHARES) - 1))  # s in [xs[k], xs[k + 1]]
-    w = (s - xs[k]) / (xs[k + 1] - xs[k])
-
-    def bound(idx: np.ndarray) -> np.ndarray:  # (R, V) view draws -> (R,) bounds at the share
-        c_mean = c[idx].mean(axis=1)
-        curve = np.maximum((frac[idx] * c[idx][..., None]).mean(axis=1), floor)  # (R, S)
-        ys = np.concatenate([np.full((len(curve), 1), float(model.fixed_ms)), curve], axis=1)
-        render = (1.0 - w) * ys[:, k] + w * ys[:, k + 1]  # RenderCurve.render_ms, for every draw at once
-        return (c_mean + recnn) / (nets + render + recnn)
+    def bounds(idx: np.ndarray) -> tuple[RenderCurve, list[float]]:
+        curve = RenderCurve(SHARES, tuple((frac[idx] * c[idx, None]).mean(axis=0)), model.fixed_ms)
+        curve = slower_render(curve, model, float(density))
+        c_ms = float(c[idx].mean())
+        return curve, [speedup_at(curve, s, c_render_ms=c_ms, **stages) for s in shares]
 
     # never trust a record that does not give back its own curve: an estimate of an earlier method (a median over
     # views) kept per-view times its curve was not made from
+    whole, point = bounds(np.arange(len(c)))
     own_curve = estimate_render(estimate, sharpness)
-    if isinstance(own_curve, RenderCurve):
-        mean_curve = np.maximum((frac * c[:, None]).mean(axis=0), floor)
-        if not np.allclose(mean_curve, np.asarray(own_curve.times_ms, np.float64), rtol=1e-3):
-            return None
-    point = float(bound(np.arange(len(c))[None, :])[0])
-    draws = bound(np.random.default_rng(seed).integers(0, len(c), size=(int(resamples), len(c))))
-    lo, hi = np.quantile(draws, [(1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0])
-    return SpeedupInterval(point, float(lo), float(hi), len(c), float(confidence))
-
-
-def bound_intervals(estimate: dict[str, Any], sharpness: float = 1.0, confidence: float = 0.95) -> list[dict[str, float]] | None:
-    """``[{"share", "low", "high"}]`` at every :data:`SHARES`: :func:`estimate_interval` of the bound (``estimate.json``'s
-    ``bound_interval``; a sharpness's own under ``by_sharpness``), or None where the estimate has no per-view times."""
-    out = []
-    for sh in SHARES:
-        iv = estimate_interval(estimate, sh, sharpness, confidence)
-        if iv is None:
-            return None
-        out.append({"share": float(sh), "low": iv.low, "high": iv.high})
-    return out
+    if isinstance(own_curve, RenderCurve) and not np.allclose(whole.times_ms, own_curve.times_ms, rtol=1e-3):
+        return None
+    draws = np.random.default_rng(seed).integers(0, len(c), size=(int(resamples), len(c)))
+    return np.array(point), np.array([bounds(idx)[1] for idx in draws])
 
 
 __all__ = ["SHARES", "RenderCost", "RenderCurve", "slower_render", "speedup_at", "bound_table", "share_for_speedup", "sharpness_key",

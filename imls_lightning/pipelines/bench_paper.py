@@ -44,13 +44,12 @@ INTERVAL_COLUMNS = ("speedup_low", "speedup_high")
 #: the estimate's 95% interval at the row's share over the estimate's views resampled (empty: an estimate without
 #: per-view times, or made by an earlier method; ``estimate.estimate_interval``)
 ESTIMATE_INTERVAL_COLUMNS = ("estimated_low", "estimated_high")
-CSV_COLUMNS = (LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS + INTERVAL_COLUMNS
-               + ESTIMATE_INTERVAL_COLUMNS)
+#: the groups of columns in the order they were appended to the table
+COLUMN_GROUPS = (LEGACY_COLUMNS, ESTIMATE_COLUMNS, RENDERER_COLUMNS, FLOOR_COLUMNS, LOAD_COLUMNS, INTERVAL_COLUMNS,
+                 ESTIMATE_INTERVAL_COLUMNS)
+CSV_COLUMNS = sum(COLUMN_GROUPS, ())
 #: the tables written before each group of columns was appended, still read
-EARLIER_COLUMNS = (LEGACY_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS, LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS,
-                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS,
-                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS,
-                   LEGACY_COLUMNS + ESTIMATE_COLUMNS + RENDERER_COLUMNS + FLOOR_COLUMNS + LOAD_COLUMNS + INTERVAL_COLUMNS)
+EARLIER_COLUMNS = tuple(sum(COLUMN_GROUPS[:n], ()) for n in range(1, len(COLUMN_GROUPS)))
 #: the columns of ``benchmarks/paper_scale_adaptive.csv``: the per-view adaptive mean of each pair
 #: (``python -m imls_lightning.adaptive``), its RecNN alone and the fixed mean of the same IPR measured in the same run
 ADAPTIVE_COLUMNS = ("scene", "recnn", "u_median", "c_share", "ipr", "psnr_recnn_db", "psnr_adaptive_db", "gap_db", "within_eps",
