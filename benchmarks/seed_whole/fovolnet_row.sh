@@ -3,9 +3,10 @@
 # FoVolNet at bench-paper's chosen size (8 / 8 / 8 channels, 2 kernel levels of 3x3) trains on whole 512^2 images;
 # the epochs are cut to what a 3-hour sitting holds (RECNN_EPOCHS, IML_EPOCHS, IMS_EPOCHS, IMS_DECODER_EPOCHS). Epochs are outside a run's
 # identity: a later call with more continues the same runs from last.ckpt. Every stage trains in 30-minute chunks
-# (exit status 3: the loop runs the same command again). IMS_DECODER_RANGE sets the means the IMS decoder trains on
-# (default [0.1,0.5], bench-paper's; the ORP lies at 0.58-0.78 here, so [0.2,0.9] trains it where it is used). TRAIN_ONLY=1 stops before the evaluation, which needs the
+# (exit status 3: the loop runs the same command again). TRAIN_ONLY=1 stops before the evaluation, which needs the
 # cores to itself. The sparser-pattern FoVolNet (what a user would do instead) is skipped unless SPARSER=1.
+# IMS_DECODER_RANGE: the means the IMS decoder trains on (default [0.1,0.5], bench-paper's; [0.2,0.9] was tried,
+# BENCHMARKS.md "seed_whole's FoVolNet row").
 #   bash benchmarks/seed_whole/fovolnet_row.sh [overrides...]        (log: tee it to logs/seed_whole_fovolnet_row.log)
 cd "$(dirname "$0")/../.." && source .venv/bin/activate
 extra=()
