@@ -8,7 +8,8 @@ Each argument is ``estimate.json:share:measured speed-up[:metrics.csv]`` (the sh
 ``--csv``, the speed-up at that share from the silhouette mask's measured render, from the per-pixel model, and
 from the slower of the two (the estimate's bound, :func:`imls_lightning.estimate.slower_render`), each with its
 error against the measured speed-up (issue 31 asks within 15%); and the row's reading, ``estimated_speedup`` as
-``make bench-paper`` writes it (the curve of ``--sharpness``, the sharpness the row's ORP kept).
+``make bench-paper`` writes it (the curve of ``--sharpness``, the sharpness the row's ORP kept), with its 95% interval
+over the estimate's views resampled where the estimate kept them (``row_reading_low`` / ``_high``).
 
 With the row's per-view ``metrics.csv`` (an evaluation's), the render is compared apart from the machine: the
 fraction of the whole pattern's render the product's mask took in the row (means over its timed views, as its
@@ -30,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 COLUMNS = ("estimate", "scene", "skip_empty", "share", "measured", "silhouette", "per_pixel_model", "slower", "slower_error",
            "sharpness", "row_reading", "row_reading_error", "row_render_fraction", "estimate_render_fraction", "on_row_times",
-           "on_row_times_error")
+           "on_row_times_error", "views", "row_reading_low", "row_reading_high", "seconds")
 
 
 def row_times(metrics: str | Path) -> dict[str, float]:
@@ -53,7 +54,8 @@ def row_times(metrics: str | Path) -> dict[str, float]:
 
 
 def compare(path: str, share: float, measured: float, sharpness: float = 1.0, metrics: str | None = None) -> dict:
-    from imls_lightning.estimate import RenderCost, RenderCurve, slower_render, speedup_at, speedup_from_estimate
+    from imls_lightning.estimate import (RenderCost, RenderCurve, estimate_interval, slower_render, speedup_at,
+                                         speedup_from_estimate)
     from imls_lightning.estimate.bound import estimate_render
 
     est = json.loads(Path(path).read_text())
@@ -68,7 +70,11 @@ def compare(path: str, share: float, measured: float, sharpness: float = 1.0, me
            "share": share, "measured": measured, "silhouette": speedup_at(silhouette, share, **kw),
            "per_pixel_model": speedup_at(model, share, **kw, background_density=density), "slower": slower,
            "slower_error": slower / measured - 1.0, "sharpness": float(sharpness), "row_reading": reading,
-           "row_reading_error": reading / measured - 1.0}
+           "row_reading_error": reading / measured - 1.0, "views": len(est.get("per_view") or []) or "",
+           "seconds": est.get("seconds", "")}
+    interval = estimate_interval(est, share, sharpness)   # the row's reading over the estimate's views resampled
+    if interval is not None:
+        out.update(row_reading_low=interval.low, row_reading_high=interval.high)
     if metrics:
         frac = estimate_render(est, sharpness).render_ms(share, density) / float(est["c_render_ms"])
         t = row_times(metrics)
@@ -102,6 +108,8 @@ def main(argv=None) -> list[dict]:
               f"{row['per_pixel_model']:.2f}x ({row['per_pixel_model'] / row['measured'] - 1:+.0%}), the estimate (slower) "
               f"{row['slower']:.2f}x ({row['slower_error']:+.0%}); the row's reading (γ = {row['sharpness']:g}) "
               f"{row['row_reading']:.2f}x ({row['row_reading_error']:+.0%})"
+              + (f", 95% over its {row['views']} views {row['row_reading_low']:.2f}-{row['row_reading_high']:.2f}x"
+                 if "row_reading_low" in row else "")
               + (f"; the mask's render {row['estimate_render_fraction']:.3f} of the pattern (the row's "
                  f"{row['row_render_fraction']:.3f}), on the row's times {row['on_row_times']:.2f}x "
                  f"({row['on_row_times_error']:+.0%})" if "on_row_times" in row else ""), flush=True)

@@ -663,6 +663,30 @@ def test_estimate_vs_measured_on_the_committed_estimates(tmp_path, capsys):
         evm.main([f"{path}:0.3"])
 
 
+def test_estimate_vs_measured_gives_the_reading_its_interval_over_the_estimates_views(tmp_path, capsys):
+    """An estimate that kept its views' times (the committed 18-view seed_whole estimate): the row's reading carries
+    estimate_interval's 95% interval at the row's share and sharpness, on stdout and in the CSV."""
+    import csv
+
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import estimate_vs_measured as evm
+
+    from imls_lightning.estimate import estimate_interval
+
+    path = ROOT / "benchmarks" / "estimate_check" / "seed_whole_estimate_18_views.json"
+    out = tmp_path / "rows.csv"
+    (row,) = evm.main(["--sharpness", "3", "--csv", str(out), f"{path}:0.374953:2.02242"])
+    est = json.loads(path.read_text())
+    interval = estimate_interval(est, 0.374953, 3.0)
+    assert row["views"] == len(est["per_view"]) == 18 and row["seconds"] == est["seconds"]
+    assert (row["row_reading_low"], row["row_reading_high"]) == (pytest.approx(interval.low), pytest.approx(interval.high))
+    assert row["row_reading_low"] < row["row_reading"] < row["row_reading_high"]
+    assert row["row_reading"] == pytest.approx(interval.speedup, rel=1e-9)
+    assert f"95% over its 18 views {interval.low:.2f}-{interval.high:.2f}x" in capsys.readouterr().out
+    (written,) = list(csv.DictReader(out.open()))
+    assert float(written["row_reading_low"]) == pytest.approx(interval.low, rel=1e-3) and written["views"] == "18"
+
+
 def test_ims_mask_shape_script_on_real_checkpoints(tiny_checkpoints, capsys):
     """scripts/ims_mask_shape.py: densities in [0, 1] that account for the share, the rings against a direct distance,
     and the timed ratios, on the tiny scene's real IMS (target=pim)."""
@@ -784,6 +808,7 @@ def test_estimate_vs_measured_reads_the_row_and_its_own_times():
     est = json.loads(est_path.read_text())
     assert row["row_reading"] == pytest.approx(speedup_from_estimate(est, 0.342873, 3.0))
     assert row["row_reading"] == pytest.approx(2.17598, rel=1e-4)   # the row's estimated_speedup in paper_scale.csv
+    assert "row_reading_low" not in row and row["views"] == ""   # an estimate without per-view times has no interval
     with open(metrics, newline="") as f:
         timed = [r for r in csv.DictReader(f) if r["total_ms"]]
 

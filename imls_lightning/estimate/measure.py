@@ -1,7 +1,8 @@
 """Measurements of the before-training estimate: render costs, untrained networks, bilinear C -> FR.
 
 Everything is measured on views drawn like the training views (never the test trajectory: choosing
-scenes and sizes is tuning). Times are medians of ``repeats`` runs after a warm-up, per view. Render times
+scenes and sizes is tuning). Times are medians of ``repeats`` runs per view (one by default: the views, not the
+runs, carry the variance), the renderer warmed by one untimed ray cast before the first view. Render times
 are then averaged over the views, as a benchmark row averages its timed views' totals (its speed-up is the
 ratio of those means); per-pixel costs and network times take the median over the views.
 """
@@ -97,38 +98,54 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
 
 @dataclass
 class ViewMeasurement:
-    full_ms: float
+    """One view's render costs; the full frame and what is scored on it only on the views whose frame was rendered
+    (:func:`measure_view`'s ``full_frame``), None on the others."""
+    full_ms: float | None
     c_render_ms: float
     empty_ms: float
     object_ms: float
     background_ms: float
     object_px: int
     background_px: int
-    bilinear_db: float
-    fr: np.ndarray          # (m, m, 3) uint8
-    upsampled: np.ndarray   # (m, m, 3) uint8
-    on_object: np.ndarray   # (K,) bool: the pattern's pixels on the object
+    bilinear_db: float | None
+    fr: np.ndarray | None          # (m, m, 3) uint8
+    upsampled: np.ndarray | None   # (m, m, 3) uint8
+    on_object: np.ndarray          # (K,) bool: the pattern's pixels on the object
 
 
-def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: int, warmup: int) -> ViewMeasurement:
-    """Render costs and the classical upsampling's PSNR on one view.
+def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: int, warmup: int,
+                 full_frame: bool = True) -> ViewMeasurement:
+    """Render costs and, with ``full_frame``, the classical upsampling's PSNR on one view.
 
-    The FR frame is rendered once (timed once: it is the cache's cost, not a stage of any method); the
-    downsampling pattern's C-Image is its subset, so it is not rendered again for the PSNR.
+    With ``full_frame`` the FR frame is rendered once (timed once: it is the cache's cost, not a stage of any
+    method); the downsampling pattern's C-Image is its subset, so it is not rendered again for the PSNR. Without
+    it, no FR frame is rendered: the last timed run of the pattern gives its colours (which pixels are on the
+    object; seed_whole: a 512^2 frame costs 3x its C pattern). Every view times its object's and its background's
+    pixels apart: the per-pixel model's medians taken over the 6 frame views alone put its costs 23-34% above the
+    18 views' (seed_whole), and the bound would have followed the model.
     """
     m = pattern.fr_size
     idx = pattern.indices.numpy()
-    t0 = time.perf_counter()
-    fr = renderer.render(view, m)
-    full_ms = (time.perf_counter() - t0) * 1e3
-    colours = fr.reshape(-1, 3)[idx]
+    fr = full_ms = None
+    if full_frame:
+        t0 = time.perf_counter()
+        fr = renderer.render(view, m)
+        full_ms = (time.perf_counter() - t0) * 1e3
+        colours = fr.reshape(-1, 3)[idx]
+        c_ms = median_ms(lambda: renderer.render_pixels(view, m, idx), repeats, warmup)
+    else:
+        runs: list[np.ndarray] = []
+        c_ms = median_ms(lambda: runs.append(renderer.render_pixels(view, m, idx)), repeats, warmup)
+        colours = runs[-1]
     obj = object_pixels(colours, background)
     obj_idx, bg_idx = idx[obj], idx[~obj]
-    c_ms = median_ms(lambda: renderer.render_pixels(view, m, idx), repeats, warmup)
     empty = np.zeros(0, np.int64)
     empty_ms = median_ms(lambda: renderer.render_pixels(view, m, empty), repeats, warmup)
     obj_ms = median_ms(lambda: renderer.render_pixels(view, m, obj_idx), repeats, warmup) if len(obj_idx) else empty_ms
     bg_ms = median_ms(lambda: renderer.render_pixels(view, m, bg_idx), repeats, warmup) if len(bg_idx) else empty_ms
+    if fr is None:
+        return ViewMeasurement(None, c_ms, empty_ms, obj_ms, bg_ms, int(obj.sum()), int((~obj).sum()), None, None,
+                               None, obj)
     n = pattern.c_size
     flat = np.zeros((n * n, 3), np.float32)
     flat[: len(idx)] = colours.astype(np.float32) / 255.0
@@ -138,6 +155,30 @@ def measure_view(renderer, pattern: SamplingPattern, view, background, repeats: 
     up_u8 = (up[0].permute(1, 2, 0).clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
     return ViewMeasurement(full_ms, c_ms, empty_ms, obj_ms, bg_ms, int(obj.sum()), int((~obj).sum()),
                            psnr_db(up, target), fr, up_u8, obj)
+
+
+def frame_subset(distances, count: int) -> list[int]:
+    """The indices of ``count`` of the views whose full frame is rendered (the quality half: the classical
+    upsampling's PSNR, the contact sheet, the needed share), spread over their camera distances: the views
+    ranked by distance and cut into ``count`` equal slices of ranks, the middle view of each (all of them when
+    ``count`` >= their number), in the views' order.
+
+    The timing half needs many views (the views, not the runs, carry a speed-up's variance: 6 views gave a
+    95% interval of 14-25% either side, 18 views 7%), the quality half few (its PSNR varies little between
+    views), and a full frame costs several C patterns: so only this subset renders one.
+
+    Example:
+        >>> frame_subset([4.0, 3.0, 5.0, 3.5, 4.5], 3)     # the nearest (1), the middle (0) and the farthest (2)
+        [0, 1, 2]
+        >>> frame_subset([4.0, 3.0, 5.0], 1), frame_subset([4.0, 3.0], 6)
+        ([0], [0, 1])
+    """
+    d = np.asarray(distances, np.float64)
+    if count >= len(d):
+        return list(range(len(d)))
+    order = np.argsort(d, kind="stable")
+    ranks = ((np.arange(count) + 0.5) * len(d) / count).astype(int)   # the middle rank of each of count slices
+    return sorted(int(i) for i in order[ranks])
 
 
 def render_cost(views: list[ViewMeasurement]) -> RenderCost:
@@ -224,9 +265,10 @@ def silhouette_mask(on_object: np.ndarray, share: float, pattern: SamplingPatter
     return pattern.indices.numpy()[keep]
 
 
-def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
-                 floor: float, repeats: int, fixed_ms: float, progress: Callable[[str], None] | None = None,
-                 sharpness: float = 1.0, per_view: list | None = None) -> RenderCurve:
+def render_curves(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
+                  floor: float, repeats: int, fixed_ms: float, sharpnesses=(1.0,),
+                  progress: Callable[[str], None] | None = None,
+                  per_view: dict | None = None) -> dict[float, RenderCurve]:
     """The render of exactly a :func:`silhouette_mask`'s pixels at each share (the renderer is warm: no untimed
     run); ``fixed_ms``: the cost of a call with no pixel (:attr:`RenderCost.fixed_ms`).
 
@@ -236,33 +278,60 @@ def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewM
     differ (flame_whole's three views: 0.59-1.11 s), and the curve went down and up (0.70 s at 90% of C after 0.71 s
     at 80%), where a larger share's mask holds the smaller's pixels.
 
-    The whole pattern a fraction divides by is timed in this pass (share 1.0's mask, or the pattern itself when the
-    shares stop short of 1), not taken from ``measured``: the same pixels timed minutes apart differed by up to 30%
+    The whole pattern a fraction divides by is timed in this pass (share 1.0's mask when it kept every pixel, or the
+    pattern itself), not taken from ``measured``: the same pixels timed minutes apart differed by up to 30%
     (rt_plumes: share 1.0 read 0.70-1.04 of ``c_render_ms``, 0.90 on average), so the curve sat 10% under the
     RecNN alone it is compared with, and the bound at share 1 read 1.04x, more than the RecNN alone with networks
     added can be.
 
-    ``per_view``: a list that gets each view's fractions of its own pattern, one list per view (the spread the mean
-    hides: a mask of one share costs 0.23-0.51 of its view's pattern on seed_whole)."""
-    times = np.zeros((len(views), len(shares)))
+    Every sharpness in ``sharpnesses`` gets its curve from the same pass: a view's masks of all of them are timed
+    one after the other, against one whole pattern, and a mask whose pixels were already timed in the view's pass
+    (the whole pattern at share 1, at every sharpness) is not cast again: a second sharpness's curve took as long as
+    the first (seed_whole: 204 s of a 581 s estimate) and its masks were timed minutes after the first's.
+
+    ``per_view``: a mapping that gets, per sharpness, each view's fractions of its own pattern, one list per view
+    (the spread the mean hides: a mask of one share costs 0.23-0.51 of its view's pattern on seed_whole)."""
+    gammas = [float(g) for g in sharpnesses]
+    times = np.zeros((len(gammas), len(views), len(shares)))
     own_whole = np.zeros(len(views))
+    all_pix = pattern.indices.numpy()
     t0 = time.perf_counter()
     for v, (view, meas) in enumerate(zip(views, measured)):
+        timed: dict[tuple[int, bytes], float] = {}   # this view's pass: a pixel set's time, by its bytes
+
+        def cast(pix: np.ndarray) -> float:
+            key = (len(pix), pix.tobytes())
+            if key not in timed:
+                timed[key] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
+            return timed[key]
         for j, s in enumerate(shares):
-            pix = silhouette_mask(meas.on_object, s, pattern, blur, floor, sharpness)
-            times[v, j] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
-        if float(shares[-1]) == 1.0:
-            own_whole[v] = times[v, -1]
-        else:
-            all_pix = pattern.indices.numpy()
-            own_whole[v] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, all_pix), repeats, warmup=0)
+            for i, g in enumerate(gammas):
+                times[i, v, j] = cast(silhouette_mask(meas.on_object, s, pattern, blur, floor, g))
+        own_whole[v] = cast(all_pix)   # share 1's mask when it kept every pixel, else one more render
         if progress is not None:
-            progress(f"render curve{'' if sharpness == 1.0 else f' (sharpness {sharpness:g})'}: view {v + 1}/{len(views)}, "
-                     f"{len(shares)} masks ({time.perf_counter() - t0:.0f} s)")
+            which = ", ".join(f"sharpness {g:g}" for g in gammas if g != 1.0)
+            progress(f"render curve{f' (and {which})' if which else ''}: view {v + 1}/{len(views)}, "
+                     f"{len(timed)} masks ({time.perf_counter() - t0:.0f} s)")
+    c_render = [float(meas.c_render_ms) for meas in measured]
+    out = {}
+    for i, g in enumerate(gammas):
+        if per_view is not None:
+            per_view.setdefault(g, []).extend((times[i] / np.maximum(own_whole, 1e-9)[:, None]).tolist())
+        curve = on_own_patterns(times[i], own_whole, c_render)
+        out[g] = RenderCurve(tuple(float(s) for s in shares), tuple(curve.tolist()), float(fixed_ms))
+    return out
+
+
+def render_curve(renderer, pattern: SamplingPattern, views, measured: list[ViewMeasurement], shares, *, blur: float,
+                 floor: float, repeats: int, fixed_ms: float, progress: Callable[[str], None] | None = None,
+                 sharpness: float = 1.0, per_view: list | None = None) -> RenderCurve:
+    """:func:`render_curves` of one ``sharpness``; ``per_view``: a list that gets each view's fractions."""
+    fractions: dict = {}
+    curve = render_curves(renderer, pattern, views, measured, shares, blur=blur, floor=floor, repeats=repeats,
+                          fixed_ms=fixed_ms, sharpnesses=(sharpness,), progress=progress, per_view=fractions)
     if per_view is not None:
-        per_view.extend((times / np.maximum(own_whole, 1e-9)[:, None]).tolist())
-    curve = on_own_patterns(times, own_whole, [float(meas.c_render_ms) for meas in measured])
-    return RenderCurve(tuple(float(s) for s in shares), tuple(curve.tolist()), float(fixed_ms))
+        per_view.extend(fractions[float(sharpness)])
+    return curve[float(sharpness)]
 
 
 def build_networks(pattern: SamplingPattern, recnn_net: Mapping[str, Any], iml: Mapping[str, Any],
@@ -414,5 +483,5 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
     return out
 
 
-__all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view",
-           "render_cost", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]
+__all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view", "frame_subset",
+           "render_cost", "render_curve", "render_curves", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]

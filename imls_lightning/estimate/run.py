@@ -27,8 +27,8 @@ from ..core.patterns import build_pattern
 from ..inference.pipeline import NetOptions
 from ..report.machine import BUSY_LIMIT, OtherLoad, busy_cores, shared_cores_warning
 from .bound import SHARES, bound_intervals, bound_table, share_for_speedup, sharpness_key, slower_render, speedup_at
-from .measure import (RecNNLead, build_networks, mean_c_render_ms, measure_view, network_ms, recnn_lead, render_cost,
-                      render_curve, upsample_c_image, upsampler_name)
+from .measure import (RecNNLead, build_networks, frame_subset, mean_c_render_ms, measure_view, network_ms, recnn_lead,
+                      render_cost, render_curves, upsample_c_image, upsampler_name)
 from .needed_share import NeededShare, needed_share
 
 RESULT = "estimate.json"
@@ -81,6 +81,9 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "recnn": recnn_net(cfg), "iml": OmegaConf.to_container(cfg.iml, resolve=True),
         "ims": OmegaConf.to_container(cfg.ims, resolve=True),
         "candidates": OmegaConf.to_container(cfg.get("candidates") or OmegaConf.create([]), resolve=True), "views": int(cfg.views), "seed": int(cfg.seed),
+        # the full frames on a subset of the views (one untimed cast first, no FR render on the others)
+        "frame_views": min(check_integer(cfg.get("frame_views", cfg.views), "frame_views", 1),
+                           check_integer(cfg.views, "views", 1)),
         "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
         "background_density": float(cfg.background_density), "target": cfg.target,
         "needed_share": bool(cfg.get("needed_share", True)), "epsilon_db": cfg.get("epsilon_db", 1.0),
@@ -90,6 +93,9 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         # renders averaged over the views on each one's own pattern (was: the median view's); the needed share's too
         "render_over_views": "mean, each view's fractions of its own pattern",
         "mask_repeats": check_integer(cfg.get("mask_repeats", 1), "mask_repeats", 1),
+        # the needed share's masks ray-cast only around it (its gaps need no ray cast)
+        "needed_renders": "the two shares around the needed share",
+        "curves": "every sharpness in one pass per view, a pixel set cast once",
         # only when set: the paper's masks alone hash as they did before the key
         **({"sharpness": _sharpness(cfg)} if _sharpness(cfg) != [1.0] else {}),
     })
@@ -178,6 +184,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
 
     register_resolvers()
     n_views = check_integer(cfg.views, "views", 1)
+    n_frames = check_integer(cfg.get("frame_views", n_views), "frame_views", 1)
     lead_cfg = _lead_settings(cfg)
     check_number(cfg.get("epsilon_db", 1.0), "epsilon_db", 0.0, lo_open=True, what="a positive PSNR tolerance in dB")
     repeats = check_integer(cfg.repeats, "repeats", 1)
@@ -198,12 +205,20 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     # miss a part of the range (flame_whole: one view's mask pixels cost 0.36-0.66 of its pattern at the same share)
     views = sample_training_views(n_views, scene.camera_distance, seed=int(cfg.seed), lookat_jitter=0.1,
                                   stratify_distance=True)
+    # the quality half (full frames: bilinear PSNR, contact sheet, needed share) on a subset spread over the distances;
+    # every view times the pattern (the speed-up's variance is the views')
+    framed = set(frame_subset([camera_distance(v) for v in views], n_frames))
+    # one untimed ray cast before any timing: numba compiles and the volume's pages load on the first call
+    renderer.render_pixels(views[0], pattern.fr_size, pattern.indices.numpy())
     measured = []
     for i, view in enumerate(views):
-        measured.append(measure_view(renderer, pattern, view, scene.background, repeats, warmup))
+        measured.append(measure_view(renderer, pattern, view, scene.background, repeats, warmup, full_frame=i in framed))
         v = measured[-1]
-        _say(f"view {i + 1}/{n_views}: frame {v.full_ms:.0f} ms, C pattern {v.c_render_ms:.1f} ms, "
-             f"object {v.object_px / max(v.object_px + v.background_px, 1):.0%} of C, {v.bilinear_db:.2f} dB")
+        quality = (f"frame {v.full_ms:.0f} ms, bilinear {v.bilinear_db:.2f} dB, " if v.fr is not None else "")
+        _say(f"view {i + 1}/{n_views}: {quality}C pattern {v.c_render_ms:.1f} ms, "
+             f"object {v.object_px / max(v.object_px + v.background_px, 1):.0%} of C ({time.perf_counter() - t_start:.0f} s)")
+    frames = [v for v in measured if v.fr is not None]
+    framed_views = [view for i, view in enumerate(views) if i in framed]
     # the IMS's stage as the product runs it at a lifted ORP: sharpened (the largest sharpness asked), rescaled, lifted
     cast = ray_cast_between(renderer, pattern, views[0])
     nets_t = network_ms(nets, pattern, opts, repeats=max(repeats, 10), warmup=max(warmup, 2), sharpness=max(sharpnesses),
@@ -214,26 +229,27 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     density = float(cfg.background_density)
     # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
     # the bound takes the slower at each share (each misses a cost the other sees; bound.slower_render)
-    fractions: list[list[float]] = []
-    silhouette = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                              repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say, per_view=fractions)
+    fractions_by: dict[float, list[list[float]]] = {}
+    curves = render_curves(renderer, pattern, views, measured, SHARES, blur=blur, floor=density, repeats=mask_repeats,
+                           fixed_ms=model.fixed_ms, sharpnesses=sharpnesses, progress=_say, per_view=fractions_by)
+    silhouette, fractions = curves[1.0], fractions_by[1.0]
     cost = slower_render(silhouette, model, density)
-    by_sharpness = {sharpness_key(g): sharpened_bound(g, renderer, pattern, views, measured, model, blur, density, mask_repeats,
-                                                      c_render_ms, nets_ms, nets_t["recnn_ms"], target)
+    by_sharpness = {sharpness_key(g): sharpened_bound(g, curves[g], fractions_by[g], model, density, c_render_ms, nets_ms,
+                                                      nets_t["recnn_ms"], target)
                     for g in sharpnesses if g != 1.0}
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
     modelled = bound_table(model, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"],
                            background_density=density)
     silhouette_table = bound_table(silhouette, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=nets_t["recnn_ms"])
-    sheet = write_contact_sheet(measured, out_dir / "contact_sheet.png")
+    sheet = write_contact_sheet(frames, out_dir / "contact_sheet.png")
     train_frames = lead_frames(cfg, lead_cfg, renderer, pattern, scene)
-    eval_frames = [v.fr for v in measured]
+    eval_frames = [v.fr for v in frames]
     candidates = candidate_rows(cfg, cands, pattern, opts, cost, c_render_ms, target, density, repeats, warmup,
                                 sharpness=max(sharpnesses), before=cast,
                                 lead=lambda net, label: measure_lead(cfg, lead_cfg, net, pattern, train_frames,
                                                                      eval_frames, opts, label))
     lead = measure_lead(cfg, lead_cfg, recnn_net(cfg), pattern, train_frames, eval_frames, opts)
-    needed = measure_needed_share(cfg, lead, renderer, pattern, views, measured, mask_repeats)
+    needed = measure_needed_share(cfg, lead, renderer, pattern, framed_views, frames, mask_repeats)
     alone = c_render_ms + nets_t["recnn_ms"]
     return {
         "candidates": candidates, "recnn_lead": lead.to_dict() if lead else None,
@@ -247,10 +263,11 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
                             if needed and needed.needed_share is not None else None),
         "scene": scene.name, "volume_dims": "x".join(str(d) for d in scene.volume.dims),
         "recnn": str(cfg.recnn.name), "pattern": pattern.kind, "fr_size": pattern.fr_size, "c_size": pattern.c_size,
-        "c_render_ms": c_render_ms, "full_frame_ms": float(np.median([v.full_ms for v in measured])),
+        "c_render_ms": c_render_ms, "full_frame_ms": float(np.median([v.full_ms for v in frames])),
         "nets_ms": nets_ms, "ims_ms": nets_t["ims_ms"], "decoder_ms": nets_t["decoder_ms"], "recnn_ms": nets_t["recnn_ms"],
-        "render_to_nets": c_render_ms / nets_ms, "bilinear_db": float(np.mean([v.bilinear_db for v in measured])),
-        "bilinear_db_per_view": [v.bilinear_db for v in measured],
+        "render_to_nets": c_render_ms / nets_ms, "bilinear_db": float(np.mean([v.bilinear_db for v in frames])),
+        # the views whose full frame was rendered (frame_views of them), in per_view's order
+        "bilinear_db_per_view": [v.bilinear_db for v in frames], "frame_view_indices": sorted(framed),
         # each view's own: what the medians and means above are taken over (a mask's cost at one share differs by
         # up to 2x between views); silhouette_fractions: each share's silhouette render over that view's pattern
         "per_view": [{"camera_distance": camera_distance(view), "c_render_ms": v.c_render_ms,
@@ -294,14 +311,12 @@ def ray_cast_between(renderer, pattern, view, stride: int = 8):
     return cast
 
 
-def sharpened_bound(gamma: float, renderer, pattern, views, measured, model, blur: float, density: float, mask_repeats: int,
-                    c_render_ms: float, nets_ms: float, recnn_ms: float, target: float) -> dict[str, Any]:
-    """The bound of masks sharpened by ``gamma``: the silhouette mask sharpened as the IMS's head sharpens its own,
-    rendered at each share, against the per-pixel model whose background density falls to ``density ** gamma`` (the
-    floor's importance ratio to the object's, raised to ``gamma``); the slower render at each share."""
-    fractions: list[list[float]] = []
-    curve = render_curve(renderer, pattern, views, measured, SHARES, blur=blur, floor=density,
-                         repeats=mask_repeats, fixed_ms=model.fixed_ms, progress=_say, sharpness=gamma, per_view=fractions)
+def sharpened_bound(gamma: float, curve, fractions: list[list[float]], model, density: float, c_render_ms: float,
+                    nets_ms: float, recnn_ms: float, target: float) -> dict[str, Any]:
+    """The bound of masks sharpened by ``gamma``: ``curve``, the silhouette mask sharpened as the IMS's head sharpens
+    its own, rendered at each share (:func:`~.measure.render_curves`, ``fractions`` its views' own), against the
+    per-pixel model whose background density falls to ``density ** gamma`` (the floor's importance ratio to the
+    object's, raised to ``gamma``); the slower render at each share."""
     cost = slower_render(curve, model, density ** gamma)
     table = bound_table(cost, c_render_ms=c_render_ms, nets_ms=nets_ms, recnn_ms=recnn_ms)
     return {"sharpness": float(gamma), "render_curve": cost.to_dict(), "silhouette_ms": list(curve.times_ms),
@@ -444,7 +459,9 @@ def format_report(est: Mapping[str, Any]) -> str:
         lines.append(f"  untrained importance + fill, rebuilt by the {need['reference']}: gap to it (dB) at")
         lines.append("  share of C   " + " ".join(f"{r['kept']:>5.0%}" for r in rows[1::2]))
         lines.append("  gap (dB)     " + " ".join(f"{r['gap_db']:>5.2f}" for r in rows[1::2]))
-        lines.append("  render (ms)  " + " ".join(f"{r['render_ms']:>5.0f}" for r in rows[1::2]))
+        lines.append("  render (ms)  " + " ".join(f"{r['render_ms']:>5.0f}" if r["render_ms"] is not None else f"{'-':>5}"
+                                              for r in rows[1::2])
+                     + "  (-: not ray-cast; the masks around the needed share are)")
         if est.get("needed_share") is not None:
             lines.append(f"  needed share within {need['epsilon_db']:g} dB: {est['needed_share']:.0%} of C, where IML/S "
                          f"would run at {est['speedup_at_needed']:.2f}x (rendering exactly those pixels; a mask of the "

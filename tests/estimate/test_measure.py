@@ -131,21 +131,34 @@ def test_a_sharpened_silhouette_mask_moves_the_floor_onto_the_object():
         silhouette_mask(on_object, 0.25, p, sharpness=0.5)
 
 
+#: ms per pixel of the three views of :func:`_costed_views` (the close one 3x the far one)
+PER_PX = {0: 1.0, 1: 3.0, 2: 2.0}
+
+
+def _costed_views(monkeypatch, drift: float = 1.0):
+    """A 64^2 downsampling pattern whose top quarter of C is the object, a renderer of known cost per pixel and view
+    (:data:`PER_PX`) put in place of the timing, and three views measured at ``drift`` times that cost (the estimate's
+    whole-pattern times, taken earlier than a render curve's pass)."""
+    import imls_lightning.estimate.measure as measure
+
+    p = downsample_pattern(64, 2)
+    on_object = np.zeros(p.count, bool)
+    on_object[: p.count // 4] = True
+    renderer = CostedRenderer(PER_PX)
+    monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
+    z = np.zeros((2, 2, 3), np.uint8)
+    views = [ViewMeasurement(0.0, drift * PER_PX[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4, 30.0,
+                             z, z, on_object) for v in (0, 1, 2)]
+    return p, on_object, renderer, views
+
+
 def test_render_curve_averages_each_views_fraction_of_its_own_pattern(monkeypatch):
     """Views of unequal cost (the close one 3x the far one): each view's times as fractions of its own whole
     pattern, put on that view's pattern and averaged; a median per share jumped between views. A renderer whose
     cost is known (per pixel, per view) stands for the timing."""
     import imls_lightning.estimate.measure as measure
 
-    p = downsample_pattern(64, 2)
-    on_object = np.zeros(p.count, bool)
-    on_object[: p.count // 4] = True
-    per_px = {0: 1.0, 1: 3.0, 2: 2.0}   # ms per pixel of views 0, 1, 2
-    renderer = CostedRenderer(per_px)
-    monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
-    z = np.zeros((2, 2, 3), np.uint8)
-    views = [ViewMeasurement(0.0, per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4, 30.0, z, z,
-                             on_object) for v in (0, 1, 2)]
+    p, on_object, renderer, views = _costed_views(monkeypatch)
     shares = (0.25, 0.5, 1.0)
     per_view: list = []
     curve = measure.render_curve(renderer, p, [0, 1, 2], views, shares, blur=0.0, floor=0.25, repeats=1, fixed_ms=0.0,
@@ -165,16 +178,8 @@ def test_render_curve_divides_by_the_whole_pattern_timed_in_its_own_pass(monkeyp
     import imls_lightning.estimate.measure as measure
     from imls_lightning.estimate import RenderCost, slower_render, speedup_at
 
-    p = downsample_pattern(64, 2)
-    on_object = np.zeros(p.count, bool)
-    on_object[: p.count // 4] = True
-    per_px = {0: 1.0, 1: 3.0, 2: 2.0}
-    renderer = CostedRenderer(per_px)
-    monkeypatch.setattr(measure, "median_ms", renderer.median_ms)
-    z = np.zeros((2, 2, 3), np.uint8)
     drift = 1.25
-    views = [ViewMeasurement(0.0, drift * per_px[v] * p.count, 0.0, 0.0, 0.0, p.count // 4, p.count - p.count // 4,
-                             30.0, z, z, on_object) for v in (0, 1, 2)]
+    p, on_object, renderer, views = _costed_views(monkeypatch, drift)
     per_view: list = []
     curve = measure.render_curve(renderer, p, [0, 1, 2], views, shares, blur=0.0, floor=0.25, repeats=1, fixed_ms=0.0,
                                  per_view=per_view)
@@ -188,6 +193,28 @@ def test_render_curve_divides_by_the_whole_pattern_timed_in_its_own_pass(monkeyp
         assert curve.times_ms[-1] == pytest.approx(c_render, rel=1e-12)
         flat = RenderCost(fixed_ms=0.0, object_ms_per_px=0.0, background_ms_per_px=0.0, object_px=1, background_px=1)
         assert speedup_at(slower_render(curve, flat), 1.0, c_render_ms=c_render, nets_ms=10.0, recnn_ms=5.0) < 1.0
+
+
+def test_render_curves_time_every_sharpness_in_one_pass_and_each_pixel_set_once(monkeypatch):
+    """Two sharpnesses in one pass: each curve is the one its sharpness gets alone, and a view's whole pattern (every
+    sharpness's share-1 mask) is cast once, not once per sharpness."""
+    import imls_lightning.estimate.measure as measure
+
+    p, on_object, renderer, views = _costed_views(monkeypatch)
+    shares = (0.3, 0.6, 1.0)
+    kw = dict(blur=2.0, floor=0.25, repeats=1, fixed_ms=0.0)
+    fractions: dict = {}
+    curves = measure.render_curves(renderer, p, [0, 1, 2], views, shares, sharpnesses=(1.0, 3.0), per_view=fractions, **kw)
+    calls = list(renderer.calls)
+    assert calls.count(p.count) == 3 and len(calls) == 3 * 5   # per view: 2 x 2 masks below share 1, the whole once
+    for g in (1.0, 3.0):
+        alone: list = []
+        single = measure.render_curve(renderer, p, [0, 1, 2], views, shares, sharpness=g, per_view=alone, **kw)
+        assert curves[g].times_ms == pytest.approx(single.times_ms, rel=1e-12)
+        np.testing.assert_allclose(fractions[g], alone, rtol=1e-12)
+    sharp = [len(silhouette_mask(on_object, s, p, 2.0, 0.25, 3.0)) for s in shares[:2]]
+    plain = [len(silhouette_mask(on_object, s, p, 2.0, 0.25)) for s in shares[:2]]
+    assert sharp != plain   # the two sharpnesses' masks differ, so both were cast
 
 
 def _cli(tmp_path, *extra):
@@ -261,6 +288,7 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     ("options.half=maybe", "options.half=maybe"),
     ("target=0.5", "target=0.5"),
     ("views=0", "views"),
+    ("frame_views=0", "frame_views"),
     ("recnn_sizes.enhancenet.channels=0", "channels=0"),
     ("recnn_lead.steps=-1", "recnn_lead.steps"),
     ("recnn_lead.lr=0", "recnn_lead.lr=0"),
@@ -300,7 +328,7 @@ def test_cli_a_render_curve_per_mask_sharpness(tmp_path):
     assert speedup_from_estimate(est, 0.3, 2.0) == pytest.approx(
         alone / (est["nets_ms"] + np.interp(0.3, [0, *two["render_curve"]["shares"]],
                                             [two["render_curve"]["fixed_ms"], *two["render_curve"]["times_ms"]]) + est["recnn_ms"]))
-    assert "γ = 2" in r.stdout and "render curve (sharpness 2): view 2/2" in r.stderr
+    assert "γ = 2" in r.stdout and "render curve (and sharpness 2): view 2/2" in r.stderr
     # each view's own numbers, which the curves average: fractions of that view's pattern, per share
     assert len(est["per_view"]) == 2 and len(two["silhouette_fractions_per_view"]) == 2
     for v in est["per_view"]:
@@ -430,7 +458,8 @@ def test_cli_recnn_lead_reported_and_tabled(tmp_path):
     # the quality half: the untrained masks rebuilt by that quick RecNN, every share's gap finite, 0 at the whole pattern
     need = est["needed"]
     assert need["reference"] == "recnn (3 steps)" and len(need["rows"]) == 20
-    assert all(np.isfinite(row["gap_db"]) and row["render_ms"] >= 0 for row in need["rows"])
+    assert all(np.isfinite(row["gap_db"]) for row in need["rows"])
+    assert 1 <= sum(row["render_ms"] is not None and row["render_ms"] >= 0 for row in need["rows"]) <= 2  # around it
     assert need["rows"][-1]["kept"] == 1.0 and need["rows"][-1]["gap_db"] == pytest.approx(0.0, abs=1e-6)
     assert est["needed_share"] is not None and 0.05 <= est["needed_share"] <= 1.0
     assert est["speedup_at_needed"] > 0 and est["bound_at_needed"] > 0 and "needed share within 1 dB" in r.stdout
@@ -573,3 +602,73 @@ def test_exception_cli_mask_repeats_must_be_positive(tmp_path):
     r = _cli(tmp_path, "mask_repeats=0")
     assert r.returncode == 2 and "mask_repeats" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "estimate").exists()
+
+
+def _tiny_scene_and_renderer():
+    from hydra import compose, initialize_config_dir
+
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene, register_resolvers
+
+    register_resolvers()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        cfg = compose(config_name="estimate", overrides=["scene=tiny"])
+    scene = build_scene(cfg.scene)
+    return scene, make_renderer(scene, cfg.renderer)
+
+
+class _FrameCounter:
+    """The renderer, counting its full-frame renders."""
+
+    def __init__(self, renderer):
+        self.renderer, self.frames = renderer, 0
+
+    def render(self, view, resolution):
+        self.frames += 1
+        return self.renderer.render(view, resolution)
+
+    def render_pixels(self, view, resolution, pixels):
+        return self.renderer.render_pixels(view, resolution, pixels)
+
+
+def test_a_view_timed_without_its_frame_finds_the_same_object_pixels_from_its_pattern():
+    """full_frame=False: no FR render; the pattern's own run gives the object pixels the frame gives, and nothing
+    is scored (no frame, no PSNR); its object and background are timed apart as a frame view's are."""
+    from data_gen.views import sample_training_views
+    from imls_lightning.estimate.measure import measure_view
+
+    scene, renderer = _tiny_scene_and_renderer()
+    p = downsample_pattern(32, 2)
+    view = sample_training_views(1, scene.camera_distance, seed=3)[0]
+    spy = _FrameCounter(renderer)
+    framed = measure_view(spy, p, view, scene.background, repeats=1, warmup=0)
+    assert spy.frames == 1 and framed.fr.shape == (32, 32, 3) and np.isfinite(framed.bilinear_db)
+    timed = measure_view(spy, p, view, scene.background, repeats=2, warmup=1, full_frame=False)
+    assert spy.frames == 1   # not rendered again
+    assert timed.fr is None and timed.upsampled is None and timed.full_ms is None and timed.bilinear_db is None
+    assert 0 < timed.object_px < p.count and np.array_equal(timed.on_object, framed.on_object)
+    assert (timed.object_px, timed.background_px) == (framed.object_px, framed.background_px)
+    assert timed.c_render_ms > 0 and timed.object_ms > 0 and timed.background_ms > 0
+
+
+def test_cli_frames_only_on_a_subset_spread_over_the_distances(tmp_path):
+    """views=3 frame_views=1: every view is timed (the bound, its interval), one renders its frame (the PSNR, the
+    contact sheet, the needed share): the view of the middle distance."""
+    from PIL import Image
+
+    r = _cli(tmp_path, "views=3", "frame_views=1", "needed_share=true")
+    assert r.returncode == 0, r.stderr
+    path = Path(r.stdout.strip().splitlines()[-1])
+    est = json.loads(path.read_text())
+    per_view = est["per_view"]
+    assert len(per_view) == 3 and est["settings"]["frame_views"] == 1
+    assert [v["full_ms"] is not None for v in per_view].count(True) == 1
+    distances = [v["camera_distance"] for v in per_view]
+    middle = sorted(range(3), key=distances.__getitem__)[1]
+    assert est["frame_view_indices"] == [middle] and per_view[middle]["full_ms"] > 0
+    assert len(est["bilinear_db_per_view"]) == 1 and est["bilinear_db"] == est["bilinear_db_per_view"][0]
+    assert est["full_frame_ms"] == per_view[middle]["full_ms"]
+    assert Image.open(path.parent / "contact_sheet.png").size == (3 * 256, 256)   # one view's row
+    assert [line for line in r.stderr.splitlines() if "needed share: view" in line][-1].count("view 1/1") == 1
+    assert "95% interval over the 3 views resampled" in r.stdout
+    assert all(np.isfinite(b["speedup"]) for b in est["bound"]) and np.isfinite(est["bilinear_db"])

@@ -8,7 +8,8 @@ import torch
 from data_gen.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern
 from imls_lightning.estimate.measure import upsample_c_image
-from imls_lightning.estimate.needed_share import NEEDED_SHARES, first_share_within, needed_share, share_gaps
+from imls_lightning.estimate.needed_share import (NEEDED_SHARES, first_share_within, needed_share, share_gaps,
+                                                  timed_shares)
 from tests.estimate.helpers import CostedRenderer
 
 
@@ -54,7 +55,10 @@ def test_needed_share_follows_the_detailed_part_of_a_frame_and_is_zero_gap_at_th
                           repeats=1, warmup=0)
         assert ns.shares == list(NEEDED_SHARES) and len(ns.gap_db) == len(NEEDED_SHARES)
         assert ns.gap_db[-1] == pytest.approx(0.0, abs=1e-6) and ns.kept[-1] == 1.0   # every pixel: the reference
-        assert all(np.isfinite(ns.gap_db)) and all(np.isfinite(ns.render_ms)) and ns.gap_db[0] > 5.0
+        assert all(np.isfinite(ns.gap_db)) and ns.gap_db[0] > 5.0
+        timed = timed_shares(ns.kept, ns.gap_db, 1.0)   # only the masks around the needed share are ray-cast
+        assert len(timed) == 2 and [j for j, r in enumerate(ns.render_ms) if r is not None] == timed
+        assert all(np.isfinite(ns.render_ms[j]) and ns.render_ms[j] > 0 for j in timed)
         out[width] = ns.needed_share
         d = ns.to_dict()
         assert d["needed_share"] == ns.needed_share and len(d["rows"]) == len(NEEDED_SHARES)
@@ -106,7 +110,7 @@ def test_needed_share_renders_on_each_views_own_pattern(monkeypatch, shares):
         return upsample_c_image(c, p)[0]
 
     ns = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, shares=shares, repeats=1, warmup=0,
-                      c_render_ms=c_render)
+                      c_render_ms=c_render, time_all=True)
     kept, _ = share_gaps(rebuild, p, frames, shares)
     expected = np.mean([kept[v] * c_render[v] for v in (0, 1)], axis=0)   # each view's fraction is its kept share
     np.testing.assert_allclose(ns.render_ms, expected, rtol=1e-12)
@@ -114,7 +118,8 @@ def test_needed_share_renders_on_each_views_own_pattern(monkeypatch, shares):
     if shares[-1] == 1.0:
         assert ns.render_ms[-1] == pytest.approx(np.mean(c_render), rel=1e-12)
     # without the estimate's pattern times: on this pass's own
-    own = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, shares=shares, repeats=1, warmup=0)
+    own = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, shares=shares, repeats=1, warmup=0,
+                       time_all=True)
     np.testing.assert_allclose(own.render_ms, np.mean([kept[v] * per_px[v] * p.count for v in (0, 1)], axis=0),
                                rtol=1e-12)
     with pytest.raises(InputError, match="one c_render_ms per view"):
@@ -128,3 +133,29 @@ def test_exception_on_own_patterns_shapes():
         on_own_patterns(np.ones((2, 3)), np.ones(2), [1.0])
     with pytest.raises(InputError, match="on_own_patterns"):
         on_own_patterns(np.ones(3), np.ones(3), np.ones(3))
+
+
+def test_needed_share_ray_casts_only_the_masks_around_it(monkeypatch):
+    """By default only the two masks around the needed share are ray-cast on each view, and the whole pattern once:
+    the render at the needed share is the one every mask's renders give (it interpolates between those two)."""
+    import imls_lightning.estimate.needed_share as ns_mod
+
+    p = downsample_pattern(64, 2)
+    frames = [_textured_band(16, seed=0), _textured_band(32, seed=1)]
+    renderer = CostedRenderer({0: 1.0, 1: 3.0})
+    monkeypatch.setattr(ns_mod, "median_ms", renderer.median_ms)
+    c_render = [1.1 * p.count, 2.9 * p.count]
+
+    def rebuild(c):
+        return upsample_c_image(c, p)[0]
+
+    every = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, c_render_ms=c_render, time_all=True)
+    renderer.calls.clear()
+    around = needed_share(rebuild, "bilinear", p, renderer, [0, 1], frames, c_render_ms=c_render)
+    timed = timed_shares(every.kept, every.gap_db, 1.0)
+    assert around.needed_share == every.needed_share is not None and len(timed) == 2
+    assert len(renderer.calls) == 2 * (len(timed) + 1) and renderer.calls.count(p.count) == 2
+    assert [j for j, r in enumerate(around.render_ms) if r is not None] == timed
+    assert around.render_at(around.needed_share) == pytest.approx(every.render_at(every.needed_share), rel=1e-12)
+    d = around.to_dict()
+    assert sum(r["render_ms"] is not None for r in d["rows"]) == 2
