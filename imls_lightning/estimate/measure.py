@@ -50,6 +50,40 @@ def median_ms(fn: Callable[[], Any], repeats: int, warmup: int = 1, before: Call
     return float(np.median(times))
 
 
+class PassTimer:
+    """One view's timing pass: the median time of ray-casting a set of pixels, each set cast once per pass (a set
+    timed again, such as the whole pattern that is every mask's share-1 set, is read back). ``timing``: the
+    :func:`median_ms` to use (a caller's own, so that a test's stand-in reaches it).
+
+    Example:
+        >>> class Renderer:
+        ...     calls = 0
+        ...     def render_pixels(self, view, resolution, pixels):
+        ...         Renderer.calls += 1
+        >>> cast = PassTimer(Renderer(), None, 8, repeats=2)
+        >>> _ = cast(np.arange(4)), cast(np.arange(4)), cast(np.arange(3))
+        >>> Renderer.calls, len(cast)
+        (4, 2)
+    """
+
+    def __init__(self, renderer, view, resolution: int, repeats: int, warmup: int = 0,
+                 timing: Callable[..., float] | None = None):
+        self.renderer, self.view, self.resolution = renderer, view, resolution
+        self.repeats, self.warmup, self.timing = repeats, warmup, timing
+        self._times: dict[tuple[int, bytes], float] = {}
+
+    def __call__(self, pixels: np.ndarray) -> float:
+        key = (len(pixels), np.asarray(pixels).tobytes())
+        if key not in self._times:
+            timing = self.timing or median_ms
+            self._times[key] = timing(lambda: self.renderer.render_pixels(self.view, self.resolution, pixels),
+                                      self.repeats, self.warmup)
+        return self._times[key]
+
+    def __len__(self) -> int:
+        return len(self._times)
+
+
 def object_pixels(colours: np.ndarray, background) -> np.ndarray:
     """``(K,)`` bool: the C pixels ``(K, 3)`` uint8 whose colour is not the background's."""
     bg = np.round(np.asarray(background, np.float64) * 255.0)
@@ -297,13 +331,7 @@ def render_curves(renderer, pattern: SamplingPattern, views, measured: list[View
     all_pix = pattern.indices.numpy()
     t0 = time.perf_counter()
     for v, (view, meas) in enumerate(zip(views, measured)):
-        timed: dict[tuple[int, bytes], float] = {}   # this view's pass: a pixel set's time, by its bytes
-
-        def cast(pix: np.ndarray) -> float:
-            key = (len(pix), pix.tobytes())
-            if key not in timed:
-                timed[key] = median_ms(lambda: renderer.render_pixels(view, pattern.fr_size, pix), repeats, warmup=0)
-            return timed[key]
+        cast = PassTimer(renderer, view, pattern.fr_size, repeats, timing=median_ms)
         for j, s in enumerate(shares):
             for i, g in enumerate(gammas):
                 times[i, v, j] = cast(silhouette_mask(meas.on_object, s, pattern, blur, floor, g))
@@ -311,7 +339,7 @@ def render_curves(renderer, pattern: SamplingPattern, views, measured: list[View
         if progress is not None:
             which = ", ".join(f"sharpness {g:g}" for g in gammas if g != 1.0)
             progress(f"render curve{f' (and {which})' if which else ''}: view {v + 1}/{len(views)}, "
-                     f"{len(timed)} masks ({time.perf_counter() - t0:.0f} s)")
+                     f"{len(cast)} masks ({time.perf_counter() - t0:.0f} s)")
     c_render = [float(meas.c_render_ms) for meas in measured]
     out = {}
     for i, g in enumerate(gammas):
@@ -483,5 +511,5 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
     return out
 
 
-__all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view", "frame_subset",
+__all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view", "frame_subset", "PassTimer",
            "render_cost", "render_curve", "render_curves", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]

@@ -40,7 +40,7 @@ from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern
 from ..core.unpredictability import base_unpredictability, importance_mask, two_pass_mask, unpredictability
 from ..models.pull_push import fill_c_image
-from .measure import frame_tensor, median_ms, on_own_patterns
+from .measure import PassTimer, frame_tensor, median_ms, on_own_patterns
 
 #: the shares of C at which the needed share is searched (a finer grid than the bound's)
 NEEDED_SHARES = tuple(round(0.05 * i, 2) for i in range(1, 21))
@@ -79,14 +79,19 @@ def first_share_within(kept: Sequence[float], gaps: Sequence[float], epsilon_db:
         >>> first_share_within([0.2, 0.4, 0.6], [3.0, 1.5, 0.5], 1.0)
         0.5
     """
-    for i, g in enumerate(gaps):
-        if g <= epsilon_db:
-            if i == 0:
-                return float(kept[0])
-            g0, g1 = gaps[i - 1], g
-            t = (g0 - epsilon_db) / (g0 - g1)
-            return float(kept[i - 1] + t * (kept[i] - kept[i - 1]))
-    return None
+    i = _first_within(gaps, epsilon_db)
+    if i is None:
+        return None
+    if i == 0:
+        return float(kept[0])
+    g0, g1 = gaps[i - 1], gaps[i]
+    t = (g0 - epsilon_db) / (g0 - g1)
+    return float(kept[i - 1] + t * (kept[i] - kept[i - 1]))
+
+
+def _first_within(gaps: Sequence[float], epsilon_db: float) -> int | None:
+    """The index of the first share whose gap is within ``epsilon_db``; None when none is."""
+    return next((i for i, g in enumerate(gaps) if g <= epsilon_db), None)
 
 
 def share_gaps(rebuild: Callable[[torch.Tensor], torch.Tensor], pattern: SamplingPattern, frames: Sequence,
@@ -165,11 +170,10 @@ def needed_share(rebuild: Callable[[torch.Tensor], torch.Tensor], reference: str
     all_pix = pattern.indices.numpy()
     own = np.zeros(len(views))
     for v in range(len(views)):
+        cast = PassTimer(renderer, views[v], pattern.fr_size, repeats, warmup, timing=median_ms)
         for j in timed:
-            ms[v, j] = median_ms(lambda: renderer.render_pixels(views[v], pattern.fr_size, masks[v, j]), repeats, warmup)
-        # the whole pattern of this view's own pass: the mask of share 1 when it was timed and kept every pixel
-        own[v] = ms[v, -1] if len(shares) - 1 in timed and kept[v, -1] == 1.0 else \
-            median_ms(lambda: renderer.render_pixels(views[v], pattern.fr_size, all_pix), repeats, warmup)
+            ms[v, j] = cast(masks[v, j])
+        own[v] = cast(all_pix)   # the whole pattern of this view's own pass: share 1's mask when it kept every pixel
         if progress is not None:
             progress(f"needed share: view {v + 1}/{len(views)}, {len(shares)} masks, {len(timed)} of them ray-cast "
                      f"({time.perf_counter() - t0:.0f} s)")
@@ -190,10 +194,8 @@ def timed_shares(kept: Sequence[float], gaps: Sequence[float], epsilon_db: float
         >>> timed_shares([0.2, 0.4], [3.0, 2.0], 1.0)
         []
     """
-    for i, g in enumerate(gaps):
-        if g <= epsilon_db:
-            return [i] if i == 0 else [i - 1, i]
-    return []
+    i = _first_within(gaps, epsilon_db)
+    return [] if i is None else [i] if i == 0 else [i - 1, i]
 
 
 __all__ = ["NEEDED_SHARES", "NeededShare", "first_share_within", "share_gaps", "needed_share", "timed_shares"]
