@@ -22,54 +22,58 @@ _PP_EPS = 1e-12
 
 def _pull(m: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     oh, ow = m.shape[-2] // 2, m.shape[-1] // 2
-    # adaptive pooling windows = LAS start/end_index (floor(i H / oH) .. ceil((i+1) H / oH))
-    mass = F.adaptive_avg_pool2d(m, (oh, ow))
-    wsum = F.adaptive_avg_pool2d(m * d, (oh, ow))
-    m_low = F.adaptive_max_pool2d(m, (oh, ow))
+    if m.shape[-2] == 2 * oh and m.shape[-1] == 2 * ow:  # even sides: the windows are the 2x2 blocks
+        mass, wsum, m_low = F.avg_pool2d(m, 2), F.avg_pool2d(m * d, 2), F.max_pool2d(m, 2)
+    else:  # adaptive pooling windows = LAS start/end_index (floor(i H / oH) .. ceil((i+1) H / oH))
+        mass = F.adaptive_avg_pool2d(m, (oh, ow))
+        wsum = F.adaptive_avg_pool2d(m * d, (oh, ow))
+        m_low = F.adaptive_max_pool2d(m, (oh, ow))
     ok = mass > _PP_EPS
     d_low = torch.where(ok, wsum / torch.where(ok, mass, torch.ones_like(mass)), torch.zeros_like(wsum))
     return m_low, d_low
 
 
-def _push_index(n_high: int, n_low: int, device) -> tuple[torch.Tensor, torch.Tensor]:
-    """Indices into the 1-padded coarse axis: the own coarse pixel and the neighbour on the side."""
-    i = torch.arange(n_high, device=device)
-    own = i // 2
-    side = own + torch.where(i % 2 == 0, -1, 1)
-    # +1 for the zero pad; indices outside [0, n_low) land on the pad (weight 0 via `valid`)
-    return own.clamp(max=n_low) + 1, side.clamp(-1, n_low) + 1
+def _upsample_axis(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
+    """The push's bilinear taps along one axis (``dim`` = -2 rows, -1 columns): fine pixel i = 3/4 of coarse pixel
+    i // 2 + 1/4 of its neighbour on i's side (i even: before, odd: after), zero beyond the edge; the axis goes
+    from k to n = 2 k or 2 k + 1 pixels (an odd n's last pixel has its own coarse pixel past the edge)."""
+    k = x.shape[dim]
+    pad = (1, 1 + n - 2 * k) if dim == -1 else (0, 0, 1, 1 + n - 2 * k)
+    padded = F.pad(x, pad)
+    length = padded.shape[dim] - 2
+    own = 0.75 * padded.narrow(dim, 1, length)
+    before, after = own.add(padded.narrow(dim, 0, length), alpha=0.25), own.add(padded.narrow(dim, 2, length), alpha=0.25)
+    interleaved = torch.stack([before, after], dim).flatten(dim - 1, dim) if dim == -1 else \
+        torch.stack([before, after], -2).flatten(-3, -2)
+    return interleaved.narrow(dim, 0, n)
 
 
-def _push(m, d, m_low, d_low):
+def _upsample(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """The push's (9/16, 3/16, 3/16, 1/16) taps, zero outside: separable, rows then columns."""
+    return _upsample_axis(_upsample_axis(x, h, -2), w, -1)
+
+
+def _push(m, d, m_low, d_low, top: bool = False):
     h, w = m.shape[-2:]
-    oh, ow = m_low.shape[-2:]
-    r0, r1 = _push_index(h, oh, m.device)
-    c0, c1 = _push_index(w, ow, m.device)
-    valid = F.pad(torch.ones_like(m_low[:1, :1]), (1, 1, 1, 1))
-    mp = F.pad(m_low, (1, 1, 1, 1))
-    mdp = F.pad(m_low * d_low, (1, 1, 1, 1))
-
-    def taps(x):
-        a, b = x.index_select(-2, r0), x.index_select(-2, r1)
-        return (a.index_select(-1, c0), b.index_select(-1, c0), a.index_select(-1, c1), b.index_select(-1, c1))
-
-    wts = (9 / 16, 3 / 16, 3 / 16, 1 / 16)
-    W = sum(wt * t for wt, t in zip(wts, taps(valid)))
-    N = sum(wt * t for wt, t in zip(wts, taps(mp)))
-    D = sum(wt * t for wt, t in zip(wts, taps(mdp)))
+    # one pass over [m', m' d']: N and D; W, the taps inside the image, is separable (1 inside, less at the edges)
+    nd = _upsample(torch.cat([m_low, m_low * d_low], 1), h, w)
+    N, D = nd[:, :1], nd[:, 1:]
     ok = N > _PP_EPS
     fill = torch.where(ok, D / torch.where(ok, N, torch.ones_like(N)), torch.zeros_like(D))
+    d_out = torch.lerp(fill, d, m)  # m d + (1 - m) fill, exact at m = 0 and 1: a sample comes back unchanged
+    if top:  # the finest level returns the data only
+        return m, d_out
+    W = _upsample_axis(m_low.new_ones(m_low.shape[-2], 1), h, -2) * _upsample_axis(m_low.new_ones(1, m_low.shape[-1]), w, -1)
     m_out = m + (1 - m) * (N / W)  # W >= 9/16 or 3/16 > 0 always (one coarse tap is inside)
-    d_out = m * d + (1 - m) * fill
     return m_out, d_out
 
 
-def _pull_push(m, d):
+def _pull_push(m, d, top: bool = False):
     if m.shape[-2] <= 1 or m.shape[-1] <= 1:
         return m, d
     m_low, d_low = _pull(m, d)
     m_low, d_low = _pull_push(m_low, d_low)
-    return _push(m, d, m_low, d_low)
+    return _push(m, d, m_low, d_low, top)
 
 
 def pull_push_inpaint(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -104,7 +108,7 @@ def pull_push_inpaint(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         raise ValueError(f"mask: expected (B, 1, H, W) matching values {tuple(values.shape)}, got {tuple(mask.shape)}")
     dt = torch.float64 if values.dtype == torch.float64 else torch.float32
     with torch.autocast(device_type=values.device.type, enabled=False):
-        return _pull_push(mask.to(dt), values.to(dt))[1]
+        return _pull_push(mask.to(dt), values.to(dt), top=True)[1]
 
 
 def fill_c_image(values: torch.Tensor, mask: torch.Tensor, pattern=None) -> torch.Tensor:

@@ -52,7 +52,7 @@ def ref_pull_push(mask: np.ndarray, data: np.ndarray):
     return mH, dH
 
 
-@pytest.mark.parametrize("shape", [(8, 8), (6, 5), (7, 3), (1, 4)])
+@pytest.mark.parametrize("shape", [(8, 8), (6, 5), (7, 3), (1, 4), (16, 16), (12, 9)])  # even sides pool in 2x2 blocks
 @pytest.mark.parametrize("kind", ["binary", "soft"])
 def test_pull_push_against_direct_loops(shape, kind):
     g = torch.Generator().manual_seed(shape[0] * 10 + shape[1] + (kind == "soft"))
