@@ -1137,3 +1137,21 @@ def test_exception_two_pass_settings_are_one_line(run, override, message):
 
     with pytest.raises(InputError, match=re.escape(message)):
         parse_settings(_compose(*_args(run["ck"], override)))
+
+
+@pytest.mark.slow  # torch.compile compiles every method's networks (about a minute on 2 cores), beside an eager run
+def test_every_method_runs_compiled_and_scores_as_eager(tiny_checkpoints, tmp_path):
+    """``options.compile=true``: every method's networks compiled, the same methods and views scored, each within
+    0.1 dB of the same evaluation run eagerly (issue 19's bound for an inference option), and no network falling back
+    to eager after too many recompilations."""
+    db = {}
+    for compiled in (False, True):
+        p = _cli(_args(tiny_checkpoints, f"options.compile={str(compiled).lower()}", "orp=false", "shares=null",
+                       f"output_dir={tmp_path / str(compiled)}"), timeout=900)
+        assert p.returncode == 0, f"exit {p.returncode}\nSTDERR:\n{p.stderr[-5000:]}"
+        assert "recompile_limit" not in p.stderr and "cache_size_limit" not in p.stderr, p.stderr[-3000:]
+        _, rows = _rows(Path(p.stdout.strip().splitlines()[-1]).parent / "metrics.csv")
+        db[compiled] = {(r["method"], r["view"]): float(r["psnr"]) for r in rows}
+    assert db[True].keys() == db[False].keys() and {m for m, _ in db[True]} >= {"recnn", "imls", "blue_noise", "las"}
+    far = {k: (db[True][k], db[False][k]) for k in db[True] if not abs(db[True][k] - db[False][k]) < 0.1}
+    assert not far, far

@@ -842,3 +842,26 @@ def test_object_floor_by_band_script_refuses_bad_arguments_and_an_evaluation_wit
     with pytest.raises(SystemExit, match="expected an ORP found by distance bands with lifted masks"):
         mod.main([str(ev), "--out", str(tmp_path / "o")])
     assert not (tmp_path / "o").exists()
+
+
+def test_measure_net_options_times_each_set_on_the_estimates_networks(tmp_path, capsys):
+    """Every asked option set gets a row of the three stages IML/S runs and their sum, from the networks the estimate
+    builds (a foveal pattern and a FoVolNet of given sizes here); a bad override or share is one line."""
+    mod = _script_module("measure_net_options")
+    out = tmp_path / "options.md"
+    args = ["--rounds", "2", "--repeats", "1", "--sets", "float32", "bfloat16", "--out", str(out), "--",
+            "resolution=64", "recnn=fovolnet", "++recnn.net.features=4", "++recnn.net.base_channels=4",
+            "++recnn.net.filter_channels=4", "++recnn.net.depth=2", "++recnn.net.levels=2", "++recnn.net.kernel_size=3",
+            "iml.depth=2", "iml.base_channels=4", "ims.layers=5", "ims.base_channels=4"]
+    assert mod.main(args) == 0
+    text = out.read_text()
+    assert "foveal pattern 64^2 -> 32^2" in text and "fovolnet (features=4" in text
+    rows = [line for line in text.splitlines() if line.startswith("| float32") or line.startswith("| bfloat16")]
+    assert len(rows) == 2 and rows[0].split(" | ")[5] == "1.00x"
+    for row in rows:  # the networks column is the sum of the three stages
+        ims, dec, rec, total = (float(x) for x in row.split(" | ")[1:5])
+        assert ims > 0 and dec > 0 and rec > 0 and abs(ims + dec + rec - total) < 0.15
+    with pytest.raises(SystemExit, match="^Could not override 'recnn.net.nonsense'"):
+        mod.main(["--", "recnn=fovolnet", "recnn.net.nonsense=3"])
+    with pytest.raises(SystemExit, match=r"--share=0.0: expected a share of C in \(0, 1\]"):
+        mod.main(["--share", "0"])

@@ -19,7 +19,7 @@ for i in $(seq 1 20); do
     'stages.blue_noise=["model.mode=end_to_end","model.mean=0.2","model.mean_range=[0.05,0.6]","model.depth=4","model.base_channels=8","trainer.max_epochs=2"]' \
     'stages.ims=["data.num_views=1500","data.train_pixels=pattern","data.val_fraction=0.02","model.target=pim","model.loss.mse=1.0","model.loss.perceptual.weight=0.0","model.loss.adversarial=0.0","model.layers=7","model.base_channels=16","model.max_channels=256","model.betas=[0.9,0.999]","model.decoder_lr=1.0e-3","model.decoder_every=4","model.decoder_mean_range=[0.1,1.0]","trainer.max_epochs='"${IMS_EPOCHS:-4}"'","model.monitor=val/fr_psnr"]' \
     'stages.ims_decoder=["model.decoder_lr=3.0e-4","model.decoder_mean_range='"${IMS_DECODER_RANGE:-[0.1,0.5]}"'","model.decoder_lift=true","trainer.max_epochs='"${IMS_DECODER_EPOCHS:-2}"'","model.monitor=val/decoder_fr_psnr"]' \
-    'evaluate=["max_views=null","timed_views='"${TIMED_VIEWS:-12}"'","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.04,0.08,0.12,0.16,0.2}"']"]'
+    'evaluate=["max_views=null","timed_views='"${TIMED_VIEWS:-12}"'","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","options.compile=auto","ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.04,0.08,0.12,0.16,0.2}"']"]'
   rc=$?; echo "[row] pass $i rc=$rc at $(date)"
   [ $rc -eq 3 ] || exit $rc
 done

@@ -468,48 +468,62 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
     return RecNNLead(int(steps), len(train_frames), float(np.mean(rec)), float(np.mean(up)), time.perf_counter() - t0, net)
 
 
-@torch.inference_mode()
-def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
-               warmup: int, share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2,
-               before: Callable[[], Any] | None = None) -> dict[str, float]:
-    """Median ms of each stage IML/S adds and of the RecNN, as the product path runs them
-    (autocast and channels-last input as ``opts`` asks). The IMS's stage is the product's mask head
-    (:class:`~imls_lightning.models.ims.IMSMaskHead`): the generator, then its PIM' sharpened to ``sharpness``, rescaled
-    from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's lifted ORP runs it.
-
-    ``before``: run untimed before each timed call, e.g. a ray cast. In the product the networks follow a ray cast,
-    which leaves the caches holding the volume's data; back to back, each network's weights and activations stay
-    cached (flame_whole: 13 / 27 / 18 ms in the product's run, 10 / 20 / 13 back to back)."""
+def network_stages(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions,
+                   share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2) -> dict[str, Callable[[], Any]]:
+    """The stages IML/S adds and the RecNN, prepared as the product path runs them (on ``opts``'s device, in its
+    precision and layout, compiled when it asks), each a call ``() -> output`` on fixed inputs: ``ims_ms`` (the
+    product's mask head, :class:`~imls_lightning.models.ims.IMSMaskHead`: the generator, then its PIM' sharpened to
+    ``sharpness``, rescaled from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's
+    lifted ORP runs it), ``decoder_ms`` (the IML's decoder module on a mask of ``share``) and ``recnn_ms``. A compiled
+    stage compiles on its first call. The inputs come channels-last, as the renderer hands a C-Image over."""
     device = pick_device(opts.device)
     n = pattern.c_size
     recnn = prepare_net(nets["recnn"], device, opts)
-    iml = prepare_net(nets["iml"], device, opts)
+    decoder = prepare_net(nets["iml"].decoder, device, opts)  # the module the product runs (compiled when asked)
     gen = prepare_net(nets["ims"], device, opts)
     head = IMSMaskHead(gen, plastic_rank_pattern(n), pattern.valid, "pim", trained_mean=float(trained_mean),
                        sharpness=float(sharpness)).to(device)
     view = torch.tensor([[0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]], device=device)
     c = torch.rand(1, n, n, 3, device=device).permute(0, 3, 1, 2)  # channels-last memory, as the renderer hands it over
     im = ((torch.rand(1, 1, n, n, device=device) < share) & pattern.valid.to(device)).to(c.dtype)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
+    @torch.inference_mode()
     def run_ims():
         with opts.autocast(device):
             g = gen(view)
-        return head.threshold(g, float(share), True)
+        out = head.threshold(g, float(share), True)
+        sync()
+        return out
 
+    @torch.inference_mode()
     def run_decoder():
         with opts.autocast(device):
-            return iml.decode(im * c, im)
+            out = decoder(im * c, im)
+        sync()
+        return out
 
+    @torch.inference_mode()
     def run_recnn():
         with opts.autocast(device):
-            return recnn(c)
+            out = recnn(c)
+        sync()
+        return out
 
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    out = {}
-    for name, fn in (("ims_ms", run_ims), ("decoder_ms", run_decoder), ("recnn_ms", run_recnn)):
-        out[name] = median_ms(lambda fn=fn: (fn(), sync()), repeats, warmup, before=before)
-    return out
+    return {"ims_ms": run_ims, "decoder_ms": run_decoder, "recnn_ms": run_recnn}
+
+
+def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
+               warmup: int, share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2,
+               before: Callable[[], Any] | None = None) -> dict[str, float]:
+    """Median ms of each stage IML/S adds and of the RecNN, as the product path runs them (:func:`network_stages`).
+
+    ``before``: run untimed before each timed call, e.g. a ray cast. In the product the networks follow a ray cast,
+    which leaves the caches holding the volume's data; back to back, each network's weights and activations stay
+    cached (flame_whole: 13 / 27 / 18 ms in the product's run, 10 / 20 / 13 back to back)."""
+    stages = network_stages(nets, pattern, opts, share, sharpness, trained_mean)
+    return {name: median_ms(fn, repeats, warmup, before=before) for name, fn in stages.items()}
 
 
 __all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view", "frame_subset", "PassTimer",
-           "render_cost", "render_curve", "render_curves", "build_networks", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]
+           "render_cost", "render_curve", "render_curves", "build_networks", "network_stages", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]

@@ -287,7 +287,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "target": target, "share_for_target": share_for_speedup(table, target),
         "share_for_2x": share_for_speedup(table, 2.0), "share_for_1_5x": share_for_speedup(table, 1.5),
         "contact_sheet": str(sheet), "seconds": time.perf_counter() - t_start,
-        "options": {"half": opts.half, "channels_last": opts.channels_last, "device": opts.device},
+        "options": {"half": opts.half, "channels_last": opts.channels_last, "compile": opts.compile, "device": opts.device},
     }
 
 

@@ -49,6 +49,9 @@ from __future__ import annotations
 import abc
 import contextlib
 import copy
+import importlib.util
+import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -114,6 +117,20 @@ def half_is_faster(device: torch.device) -> bool:
     return _HALF_IS_FASTER[key]
 
 
+def compile_available(device: torch.device) -> str | None:
+    """``None`` where ``torch.compile`` can build kernels for ``device``, else why not, in a few words: on CUDA it
+    needs Triton, on the CPU a C++ compiler (``$CXX``, else ``g++``, ``c++`` or ``clang++`` on the PATH).
+
+    Example:
+        >>> compile_available(torch.device("cpu")) in (None, "no C++ compiler ($CXX, g++, c++ or clang++) on the PATH")
+        True
+    """
+    if device.type == "cuda":
+        return None if importlib.util.find_spec("triton") is not None else "Triton is not installed"
+    names = [os.environ["CXX"]] if os.environ.get("CXX") else ["g++", "c++", "clang++"]
+    return None if any(shutil.which(n) for n in names) else "no C++ compiler ($CXX, g++, c++ or clang++) on the PATH"
+
+
 def view_tensor(view, device) -> torch.Tensor:
     """A view's 9 numbers as the networks' input: a ``(1, 9)`` float32 tensor on ``device`` (a copy: the
     cache's views are read-only memory maps, which torch warns on).
@@ -132,14 +149,16 @@ class NetOptions:
     device: str = "auto"
     half: bool = False            # float16 on CUDA, bfloat16 on the CPU (autocast); from_config also takes "auto"
     channels_last: bool = False
-    compile: bool = False         # torch.compile each network (first call pays the compile)
+    compile: bool = False         # torch.compile each network (first call pays the compile); from_config takes "auto"
 
     #: the switches (besides ``device``), as in the ``options`` node of evaluate / adaptive
     SWITCHES = ("half", "channels_last", "compile")
 
     @classmethod
     def from_config(cls, options: Mapping[str, Any] | None, device: str | None = None, key: str = "options") -> "NetOptions":
-        """Validated options from a config node ``{device?, half?, channels_last?, compile?}``;
+        """Validated options from a config node ``{device?, half?, channels_last?, compile?}`` (``half`` and
+        ``compile`` also take ``"auto"``: bfloat16 where it is faster here, :func:`half_is_faster`; torch.compile where it
+        can build kernels, :func:`compile_available`);
         ``device`` (when given) is used instead of the node's. A bad key or value raises a one-line
         :class:`InputError` naming ``<key>.<name>``; a missing CUDA device fails here, not mid-run.
 
@@ -151,11 +170,18 @@ class NetOptions:
         unknown = set(opt) - {"device", *cls.SWITCHES}
         if unknown:
             raise InputError(f"{key}.{sorted(unknown)[0]}: unknown option; expected device, {', '.join(cls.SWITCHES)}")
+        dev = lambda: pick_device(str(device if device is not None else opt.get("device", "auto")))  # noqa: E731
         if opt.get("half") == "auto":
-            opt["half"] = half_is_faster(pick_device(str(device if device is not None else opt.get("device", "auto"))))
+            opt["half"] = half_is_faster(dev())
+        if opt.get("compile") in ("auto", True):
+            why_not = compile_available(dev())
+            if why_not and opt["compile"] is True:
+                raise InputError(f"{key}.compile=true: torch.compile cannot run here ({why_not}); "
+                                 "set compile=auto (compile where it can) or false")
+            opt["compile"] = why_not is None
         for k in cls.SWITCHES:
             if not isinstance(opt.get(k, False), bool):
-                raise InputError(f"{key}.{k}={opt.get(k)}: expected true or false" + (" or auto" if k == "half" else ""))
+                raise InputError(f"{key}.{k}={opt.get(k)}: expected true or false" + (" or auto" if k in ("half", "compile") else ""))
         out = cls(device=str(device if device is not None else opt.get("device", "auto")),
                   **{k: bool(opt.get(k, False)) for k in cls.SWITCHES})
         pick_device(out.device)

@@ -538,13 +538,24 @@ def estimate_args(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence
                 sizes.append(f"{keys[key]}={str(o).split('=', 1)[1]}")
     return ["-m", "imls_lightning.estimate", f"scene={stages.scene}", *scene_overrides, f"recnn={stages.recnn}",
             f"renderer={stages.renderer}", f"runs_dir={stages.runs_dir}", *[str(o) for o in net], *sizes,
-            *timing_overrides(cfg), *evaluated_sharpness(cfg), *override_list(cfg, "estimate")]
+            *timing_overrides(cfg), *evaluated_sharpness(cfg), *evaluated_options(cfg), *override_list(cfg, "estimate")]
 
 
 def _ims_sharpness(cfg: DictConfig) -> list[str]:
     """The value of the evaluation's ``ims_sharpness`` override, as written (``[]``: not set)."""
     found = [str(o).split("=", 1)[1] for o in override_list(cfg, "evaluate") if override_key(str(o)) == "ims_sharpness"]
     return found[-1:]
+
+
+def evaluated_options(cfg: DictConfig) -> list[str]:
+    """The evaluation's network options (``options.half``, ``options.compile``, ...) as the estimate's overrides, so a
+    row's estimate times its networks as the row runs them (eager and compiled networks differ by 10-40%).
+
+    Example:
+        >>> evaluated_options(OmegaConf.create({"evaluate": ["repeats=10", "options.half=auto", "options.compile=auto"]}))
+        ['options.half=auto', 'options.compile=auto']
+    """
+    return [str(o) for o in override_list(cfg, "evaluate") if override_key(str(o)).startswith("options.")]
 
 
 def evaluated_sharpness(cfg: DictConfig) -> list[str]:
