@@ -9,15 +9,26 @@ rounds each time every option set's stages (``--repeats`` runs after 2 warm-ups)
 hits every option set alike; the table gives each stage's median over the rounds and the sum of the three stages
 IML/S runs per frame. Option sets: float32, bfloat16 autocast, and each with ``torch.compile``.
 
+``--product-views N`` also times the product path on N views of the scene (the estimate's views: random, distances
+stratified, never the test trajectory), the networks following real ray casts as they do in a frame: the RecNN alone
+on its whole pattern against IML/S + RecNN (:class:`~imls_lightning.inference.pipeline.IMLSRenderer`: the mask head
+runs and is timed, and the pixels ray-cast are the estimate's mask of a trained IMS's shape at ``--share``, the view's
+object silhouette blurred, :func:`~imls_lightning.estimate.measure.silhouette_mask`), every option set's two methods
+interleaved run by run on each view. Untrained networks make the images meaningless, not the times.
+
 Usage (the overrides are the estimate's, ``conf/estimate.yaml``):
     .venv/bin/python scripts/measure_net_options.py --out benchmarks/net_options_fovolnet.md -- recnn=fovolnet \\
         ++recnn.net.features=8 ++recnn.net.base_channels=8 ++recnn.net.filter_channels=8 ++recnn.net.depth=4 \\
         ++recnn.net.levels=2 ++recnn.net.kernel_size=3     (bench_paper.yaml's recnn_net.fovolnet)
     .venv/bin/python scripts/measure_net_options.py --out benchmarks/net_options_enhancenet.md
+    # and the product path on 6 views of seed_whole, the row's ray caster, at the FoVolNet row's share
+    .venv/bin/python scripts/measure_net_options.py --sets bfloat16 "bfloat16 + torch.compile" --product-views 6 \
+        --share 0.692 -- scene=seed_whole renderer.skip_empty=false recnn=fovolnet ++recnn.net.features=8 ...
 """
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -40,11 +51,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sharpness", type=float, default=3.0, help="the mask head's sharpness (the evaluation's gamma)")
     ap.add_argument("--sets", nargs="+", default=list(OPTION_SETS), choices=list(OPTION_SETS), metavar="SET",
                     help=f"option sets to compare (default all: {', '.join(OPTION_SETS)})")
+    ap.add_argument("--product-views", type=int, default=0,
+                    help="also time RecNN alone against IML/S + RecNN on this many of the scene's views (default 0: not)")
+    ap.add_argument("--product-repeats", type=int, default=3, help="timed runs per method and view (default 3, after 1)")
     ap.add_argument("--out", type=Path, help="write the table (markdown) here too")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of conf/estimate.yaml (recnn=..., recnn.net.*=...)")
     args = ap.parse_args(argv)
-    if args.rounds < 1 or args.repeats < 1:
-        raise SystemExit("--rounds, --repeats: expected integers >= 1")
+    if args.rounds < 1 or args.repeats < 1 or args.product_repeats < 1 or args.product_views < 0:
+        raise SystemExit("--rounds, --repeats, --product-repeats: expected integers >= 1; --product-views: >= 0")
     if not 0.0 < args.share <= 1.0:
         raise SystemExit(f"--share={args.share}: expected a share of C in (0, 1]")
 
@@ -95,12 +109,85 @@ def main(argv: list[str] | None = None) -> int:
         total = sum(med[name].values())
         lines.append(f"| {name} | {med[name]['ims_ms']:.1f} | {med[name]['decoder_ms']:.1f} | {med[name]['recnn_ms']:.1f} "
                      f"| {total:.1f} | {total / base:.2f}x | {first_s[name]:.1f} |")
+    if args.product_views:
+        lines += ["", *product_path(cfg, pattern, build, args)]
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(f"`{' '.join(['scripts/measure_net_options.py', *(argv if argv is not None else sys.argv[1:])])}`\n\n" + text)
+        command = shlex.join(["scripts/measure_net_options.py", *(argv if argv is not None else sys.argv[1:])])
+        args.out.write_text(f"`{command}`\n\n" + text)
     return 0
+
+
+def product_path(cfg, pattern, build, args) -> list[str]:
+    """The product-path table of ``--product-views`` (markdown lines): per option set, the stage medians of the RecNN
+    alone and of IML/S + RecNN (mean over the views) and the speed-up (median over the views, with its range)."""
+    import torch
+
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene, register_resolvers
+    from data_gen.views import sample_training_views
+    from imls_lightning.core.patterns import plastic_rank_pattern
+    from imls_lightning.estimate.measure import object_pixels, silhouette_mask
+    from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions, RecNNAlone, time_methods
+    from imls_lightning.models.ims import IMSMaskHead
+
+    register_resolvers()
+    scene = build_scene(cfg.scene)
+    renderer = make_renderer(scene, cfg.renderer)
+    views = sample_training_views(args.product_views, scene.camera_distance, seed=int(cfg.seed), lookat_jitter=0.1,
+                                  stratify_distance=True)
+    n, k = pattern.c_size, pattern.count
+    methods, order = {}, []
+    for name in args.sets:
+        nets = build()
+        opts = NetOptions(device="cpu", **OPTION_SETS[name])
+        head = IMSMaskHead(nets["ims"], plastic_rank_pattern(n), pattern.valid, "pim", trained_mean=0.2,
+                           sharpness=args.sharpness)
+        methods[f"{name}|alone"] = RecNNAlone(renderer, pattern, nets["recnn"], opts)
+        methods[f"{name}|imls"] = IMLSRenderer(renderer, pattern, head, nets["iml"].decoder, nets["recnn"], opts,
+                                               mean=args.share, lift=True)
+        order.append(name)
+    renderer.render_pixels(views[0], pattern.fr_size, pattern.indices.numpy())  # numba compiles, the volume loads
+    stage_runs = {m: [] for m in methods}
+    speedups = {name: [] for name in order}
+    shares = []
+    for i, view in enumerate(views):
+        on_object = object_pixels(renderer.render_pixels(view, pattern.fr_size, pattern.indices.numpy()), scene.background)
+        pix = silhouette_mask(on_object, args.share, pattern, float(cfg.get("silhouette_blur", 4.0)),
+                              float(cfg.get("background_density", 0.25)), args.sharpness)
+        im = torch.zeros(n * n, dtype=torch.bool)
+        im[:k] = torch.from_numpy(np.isin(pattern.indices.numpy(), pix))
+        shares.append(float(im.sum()) / k)
+        run_args = {m: {"im": im.view(n, n)} for m in methods if m.endswith("|imls")}
+        timed = time_methods(methods, view, repeats=args.product_repeats, warmup=1, run_args=run_args)
+        for m, (_, med, _) in timed.items():
+            stage_runs[m].append(med)
+        for name in order:
+            speedups[name].append(timed[f"{name}|alone"][1]["total"] / timed[f"{name}|imls"][1]["total"])
+        print(f"[options] product path: view {i + 1}/{len(views)}", flush=True)
+
+    def mean_ms(m: str, stage: str) -> float:
+        return 1e3 * float(np.mean([r.get(stage, 0.0) for r in stage_runs[m]]))
+
+    share = float(np.mean(shares))
+    lines = [f"The product path on {len(views)} views of scene {cfg.scene.get('name', '?')} (renderer "
+             f"{cfg.renderer.get('name', '?')}, skip_empty={cfg.renderer.get('skip_empty', True)}): the RecNN alone against "
+             f"IML/S + RecNN at {share:.1%} of C (the estimate's mask of a trained IMS's shape), {args.product_repeats} "
+             "runs after 1 per method and view, every method interleaved; stage times in ms, the mean over the views "
+             "of each view's medians; speed-up: the ratio of the mean totals, and the median of the views' ratios "
+             "(min-max)", "",
+             "| option set | RecNN alone: render | RecNN | total | IML/S: importance | render | decoder | RecNN | total "
+             "| speed-up | median over views |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for name in order:
+        a, b = f"{name}|alone", f"{name}|imls"
+        sp = speedups[name]
+        lines.append(f"| {name} | {mean_ms(a, 'selective_render'):.0f} | {mean_ms(a, 'recnn'):.1f} | {mean_ms(a, 'total'):.0f} "
+                     f"| {mean_ms(b, 'importance'):.1f} | {mean_ms(b, 'selective_render'):.0f} | {mean_ms(b, 'decoder'):.1f} "
+                     f"| {mean_ms(b, 'recnn'):.1f} | {mean_ms(b, 'total'):.0f} "
+                     f"| {mean_ms(a, 'total') / mean_ms(b, 'total'):.2f}x | {float(np.median(sp)):.2f}x ({min(sp):.2f}-{max(sp):.2f}) |")
+    return lines
 
 
 if __name__ == "__main__":

@@ -861,6 +861,19 @@ def test_measure_net_options_times_each_set_on_the_estimates_networks(tmp_path, 
     for row in rows:  # the networks column is the sum of the three stages
         ims, dec, rec, total = (float(x) for x in row.split(" | ")[1:5])
         assert ims > 0 and dec > 0 and rec > 0 and abs(ims + dec + rec - total) < 0.15
+    # the product path on the tiny scene: the RecNN alone against IML/S + RecNN, both option sets, real ray casts
+    assert mod.main(["--rounds", "1", "--repeats", "1", "--sets", "float32", "bfloat16", "--product-views", "2",
+                     "--product-repeats", "1", "--share", "0.5", "--out", str(out), "--", "scene=tiny", *args[args.index("--") + 1:]]) == 0
+    text = out.read_text()
+    assert "The product path on 2 views of scene tiny" in text
+    product = [line for line in text.split("The product path")[1].splitlines() if line.startswith(("| float32", "| bfloat16"))]
+    assert len(product) == 2
+    for row in product:
+        cells = row.strip("| ").split(" | ")
+        alone, imls, speedup = float(cells[3]), float(cells[8]), float(cells[9].rstrip("x"))
+        assert alone > 0 and imls > 0
+        # the ratio of the mean totals, which the table prints rounded to whole ms
+        assert abs(speedup - alone / imls) <= 0.5 / imls * (1 + alone / imls) + 0.01, row
     with pytest.raises(SystemExit, match="^Could not override 'recnn.net.nonsense'"):
         mod.main(["--", "recnn=fovolnet", "recnn.net.nonsense=3"])
     with pytest.raises(SystemExit, match=r"--share=0.0: expected a share of C in \(0, 1\]"):
