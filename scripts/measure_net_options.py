@@ -127,24 +127,20 @@ def product_path(cfg, pattern, build, args) -> list[str]:
 
     from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene, register_resolvers
-    from data_gen.views import sample_training_views
-    from imls_lightning.core.patterns import plastic_rank_pattern
-    from imls_lightning.estimate.measure import object_pixels, silhouette_mask
+    from imls_lightning.estimate.measure import estimate_mask_head, object_pixels, silhouette_mask
+    from imls_lightning.estimate.run import estimate_views
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions, RecNNAlone, time_methods
-    from imls_lightning.models.ims import IMSMaskHead
 
     register_resolvers()
     scene = build_scene(cfg.scene)
     renderer = make_renderer(scene, cfg.renderer)
-    views = sample_training_views(args.product_views, scene.camera_distance, seed=int(cfg.seed), lookat_jitter=0.1,
-                                  stratify_distance=True)
+    views = estimate_views(scene, args.product_views, int(cfg.seed))
     n, k = pattern.c_size, pattern.count
     methods, order = {}, []
     for name in args.sets:
         nets = build()
         opts = NetOptions(device="cpu", **OPTION_SETS[name])
-        head = IMSMaskHead(nets["ims"], plastic_rank_pattern(n), pattern.valid, "pim", trained_mean=0.2,
-                           sharpness=args.sharpness)
+        head = estimate_mask_head(nets["ims"], pattern, args.sharpness)
         methods[f"{name}|alone"] = RecNNAlone(renderer, pattern, nets["recnn"], opts)
         methods[f"{name}|imls"] = IMLSRenderer(renderer, pattern, head, nets["iml"].decoder, nets["recnn"], opts,
                                                mean=args.share, lift=True)

@@ -468,49 +468,45 @@ def recnn_lead(recnn: torch.nn.Module, pattern: SamplingPattern, train_frames: l
     return RecNNLead(int(steps), len(train_frames), float(np.mean(rec)), float(np.mean(up)), time.perf_counter() - t0, net)
 
 
+def estimate_mask_head(generator: torch.nn.Module, pattern: SamplingPattern, sharpness: float = 1.0,
+                       trained_mean: float = 0.2) -> IMSMaskHead:
+    """The product's mask head around an (untrained) IMS generator, as the estimate times it: PIM' regressed
+    (``target="pim"``), sharpened to ``sharpness``, rescaled from ``trained_mean``."""
+    return IMSMaskHead(generator, plastic_rank_pattern(pattern.c_size), pattern.valid, "pim",
+                       trained_mean=float(trained_mean), sharpness=float(sharpness))
+
+
 def network_stages(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions,
                    share: float = 0.3, sharpness: float = 1.0, trained_mean: float = 0.2) -> dict[str, Callable[[], Any]]:
     """The stages IML/S adds and the RecNN, prepared as the product path runs them (on ``opts``'s device, in its
     precision and layout, compiled when it asks), each a call ``() -> output`` on fixed inputs: ``ims_ms`` (the
-    product's mask head, :class:`~imls_lightning.models.ims.IMSMaskHead`: the generator, then its PIM' sharpened to
-    ``sharpness``, rescaled from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's
-    lifted ORP runs it), ``decoder_ms`` (the IML's decoder module on a mask of ``share``) and ``recnn_ms``. A compiled
-    stage compiles on its first call. The inputs come channels-last, as the renderer hands a C-Image over."""
+    product's mask head, :func:`estimate_mask_head`: the generator, then its PIM' sharpened to ``sharpness``, rescaled
+    from ``trained_mean`` to the mean ``share`` and lifted to that share, as the evaluation's lifted ORP runs it),
+    ``decoder_ms`` (the IML's decoder module on a mask of ``share``) and ``recnn_ms``. A compiled stage compiles on its
+    first call. The inputs come channels-last, as the renderer hands a C-Image over."""
     device = pick_device(opts.device)
     n = pattern.c_size
     recnn = prepare_net(nets["recnn"], device, opts)
     decoder = prepare_net(nets["iml"].decoder, device, opts)  # the module the product runs (compiled when asked)
     gen = prepare_net(nets["ims"], device, opts)
-    head = IMSMaskHead(gen, plastic_rank_pattern(n), pattern.valid, "pim", trained_mean=float(trained_mean),
-                       sharpness=float(sharpness)).to(device)
+    head = estimate_mask_head(gen, pattern, sharpness, trained_mean).to(device)
     view = torch.tensor([[0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]], device=device)
     c = torch.rand(1, n, n, 3, device=device).permute(0, 3, 1, 2)  # channels-last memory, as the renderer hands it over
     im = ((torch.rand(1, 1, n, n, device=device) < share) & pattern.valid.to(device)).to(c.dtype)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
-    @torch.inference_mode()
-    def run_ims():
-        with opts.autocast(device):
-            g = gen(view)
-        out = head.threshold(g, float(share), True)
-        sync()
-        return out
+    def stage(network: Callable[[], torch.Tensor], after: Callable[[torch.Tensor], Any] = lambda x: x):
+        @torch.inference_mode()
+        def run():
+            with opts.autocast(device):
+                out = network()
+            out = after(out)  # outside autocast: the mask head thresholds in float32
+            sync()
+            return out
+        return run
 
-    @torch.inference_mode()
-    def run_decoder():
-        with opts.autocast(device):
-            out = decoder(im * c, im)
-        sync()
-        return out
-
-    @torch.inference_mode()
-    def run_recnn():
-        with opts.autocast(device):
-            out = recnn(c)
-        sync()
-        return out
-
-    return {"ims_ms": run_ims, "decoder_ms": run_decoder, "recnn_ms": run_recnn}
+    return {"ims_ms": stage(lambda: gen(view), lambda g: head.threshold(g, float(share), True)),
+            "decoder_ms": stage(lambda: decoder(im * c, im)), "recnn_ms": stage(lambda: recnn(c))}
 
 
 def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, opts: NetOptions, repeats: int,
@@ -526,4 +522,4 @@ def network_ms(nets: Mapping[str, torch.nn.Module], pattern: SamplingPattern, op
 
 
 __all__ = ["median_ms", "on_own_patterns", "mean_c_render_ms", "object_pixels", "upsampler_name", "upsample_c_image", "psnr_db", "ViewMeasurement", "measure_view", "frame_subset", "PassTimer",
-           "render_cost", "render_curve", "render_curves", "build_networks", "network_stages", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]
+           "render_cost", "render_curve", "render_curves", "build_networks", "estimate_mask_head", "network_stages", "network_ms", "RecNNLead", "recnn_lead", "frame_tensor", "BACKGROUND_TOLERANCE"]

@@ -175,12 +175,19 @@ def _target(cfg: DictConfig, pattern) -> float:
     return t
 
 
+def estimate_views(scene, count: int, seed: int) -> list:
+    """The estimate's views of ``scene``: random, as training views are drawn (another seed: never the test
+    trajectory), their camera distances stratified, one per slice of ``scene.camera_distance``."""
+    from data_gen.views import sample_training_views
+
+    return sample_training_views(count, scene.camera_distance, seed=seed, lookat_jitter=0.1, stratify_distance=True)
+
+
 def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     """Run every measurement and return the estimate's content (also writes the contact sheet).
     ``scene``: the built scene (built here from ``cfg.scene`` when None)."""
     from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene, register_resolvers
-    from data_gen.views import sample_training_views
 
     register_resolvers()
     n_views = check_integer(cfg.views, "views", 1)
@@ -203,8 +210,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     # random views as the training views are drawn (another seed): never the test trajectory
     # distances stratified: a view's cost and object size follow its distance, and a few independent draws can
     # miss a part of the range (flame_whole: one view's mask pixels cost 0.36-0.66 of its pattern at the same share)
-    views = sample_training_views(n_views, scene.camera_distance, seed=int(cfg.seed), lookat_jitter=0.1,
-                                  stratify_distance=True)
+    views = estimate_views(scene, n_views, int(cfg.seed))
     # the quality half (full frames: bilinear PSNR, contact sheet, needed share) on a subset spread over the distances;
     # every view times the pattern (the speed-up's variance is the views')
     framed = set(frame_subset([camera_distance(v) for v in views], n_frames))

@@ -43,9 +43,8 @@ def _upsample_axis(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
     length = padded.shape[dim] - 2
     own = 0.75 * padded.narrow(dim, 1, length)
     before, after = own.add(padded.narrow(dim, 0, length), alpha=0.25), own.add(padded.narrow(dim, 2, length), alpha=0.25)
-    interleaved = torch.stack([before, after], dim).flatten(dim - 1, dim) if dim == -1 else \
-        torch.stack([before, after], -2).flatten(-3, -2)
-    return interleaved.narrow(dim, 0, n)
+    # (..., L, 2) or (..., L, 2, W): each coarse pixel's two fine pixels side by side, then one axis of 2 L
+    return torch.stack([before, after], dim).flatten(dim - 1, dim).narrow(dim, 0, n)
 
 
 def _upsample(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
