@@ -299,17 +299,24 @@ def breakdown_rows(summary: Mapping[str, Any]) -> list[list[str]]:
     return rows
 
 
-def plot_breakdown(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
-    """Stacked bars per method and pair, plus the limit (the paper's time-breakdown figure)."""
+def plot_breakdown(summaries: Sequence[Mapping[str, Any]], path: Path, columns: int = 4) -> Path:
+    """Stacked bars per method and pair, plus the limit (the paper's time-breakdown figure), ``columns`` pairs a row.
+
+    Each panel's title gives IML/S + RecNN against the RecNN alone (speed-up, PSNR gap). The full ray cast, several
+    times the rest, is cut at the panel's top with its total written there, so the other bars stay readable."""
+    import math
+
     import numpy as np
 
     from ..inference.pipeline import STAGES
     from ..report.names import METHOD_LABELS, STAGE_COLORS, STAGE_LABELS
     from ..report.plots import new_figure, save_figure
 
-    fig = new_figure(max(6.0, 4.2 * len(summaries)), 4.4)
+    cols = max(1, min(columns, len(summaries)))
+    rows = math.ceil(len(summaries) / cols)
+    fig = new_figure(max(6.0, 4.0 * cols), 4.6 * rows)
     for k, s in enumerate(summaries):
-        ax = fig.add_subplot(1, len(summaries), k + 1)
+        ax = fig.add_subplot(rows, cols, k + 1)
         names = [n for n in BREAKDOWN_METHODS if n in s["methods"]]
         lat = [s["methods"][n]["latency_ms"] for n in names]
         if "imls" in s["methods"]:
@@ -321,19 +328,32 @@ def plot_breakdown(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
             if vals.any():
                 ax.bar(x, vals, 0.65, bottom=bottom, color=STAGE_COLORS[st], label=STAGE_LABELS[st])
                 bottom += vals
+        rest = [tot for n, tot in zip(names, bottom) if n != "full"]
+        top = 1.3 * max(rest) if rest and max(rest) > 0 else None
         for xi, tot in zip(x, bottom):
-            ax.text(xi, tot, f"{tot:.0f}", ha="center", va="bottom", fontsize=7)
+            cut = top is not None and tot > top
+            ax.text(xi, 0.97 * top if cut else tot, f"{tot:.0f}" + (" (cut)" if cut else ""), ha="center",
+                    va="top" if cut else "bottom", fontsize=7, rotation=90 if cut else 0)
+        if top is not None:
+            ax.set_ylim(0, top)
         ax.set_xticks(x)
         ax.set_xticklabels([METHOD_LABELS.get(n, "limit: ORP pixels") for n in names], rotation=25, ha="right", fontsize=7)
-        ax.set_title(f"{s['scene']}, {s['recnn']} ({s['fr_size']}² FR)", fontsize=9)
+        title = f"{s['scene']}, {s['recnn']} ({s['fr_size']}² FR)"
+        m = s["methods"]
+        if "imls" in m and "recnn" in m and m["imls"]["latency_ms"].get("total"):
+            title += (f"\nIML/S {m['recnn']['latency_ms']['total'] / m['imls']['latency_ms']['total']:.2f}x the RecNN alone, "
+                      f"{float(m['imls']['psnr']) - float(m['recnn']['psnr']):+.2f} dB")
+        ax.set_title(title, fontsize=9)
         ax.grid(axis="y", alpha=0.3)
-        if k == 0:
+        if k % cols == 0:
             ax.set_ylabel("average latency (ms)")
     handles: dict[str, Any] = {}  # every stage that any pair shows (LAS's low-res render only where LAS ran)
     for ax in fig.axes:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
-    fig.axes[-1].legend(list(handles.values()), list(handles), fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.legend(list(handles.values()), list(handles), fontsize=8, loc="lower center", ncol=len(handles),
+               bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, 0.04 / rows, 1, 1))
     return save_figure(fig, path)
 
 
