@@ -809,6 +809,51 @@ def test_an_interrupted_evaluation_resumes_at_the_view_it_was_measuring(run, tmp
         evaluate(_compose(*args, f"output_dir={out}", "resume=false"))
 
 
+def test_an_evaluation_uses_a_finished_ones_operating_point_with_orp_from(run, tmp_path, monkeypatch, capsys):
+    """orp_from: the point another evaluation of the same IMS and RecNN searched, used unsearched on other views (the
+    sparser-pattern baseline added beside a row, a new trajectory); its gaps measured afresh; other networks refused."""
+    import shutil
+
+    from imls_lightning.evaluation import evaluate
+    from imls_lightning.evaluation import run as run_mod
+
+    def searched_again(*a, **kw):
+        raise AssertionError("the operating point was searched again")
+
+    source = json.loads((run["out"] / "summary.json").read_text())
+    assert set(source["checkpoints_sha256"]) >= {"ims", "las", "blue_noise", "recnn_sparser"}
+    args = [*_args(run["ck"], "max_views=3", "shares=null", "mean_values=[0.1]", "grid_views=0"), f"orp_from={run['out']}"]
+    monkeypatch.setattr(run_mod, "operating_point", searched_again)
+    monkeypatch.setattr(run_mod, "two_pass_point", searched_again)
+    record = Path(str(run["ck"]["ims_pim"]) + ".orp.json")
+    recorded = record.read_bytes() if record.is_file() else None
+    report = evaluate(_compose(*args, f"output_dir={tmp_path / 'borrowed'}"))
+    got = json.loads((report.parent / "summary.json").read_text())
+    assert got["imls_mean"] == source["imls_mean"] and got["orp"]["points"] == source["orp"]["points"]
+    assert got["views"] == 3 and got["orp"]["test"]["views"] == 3  # its gap on these views, not the source's
+    assert f"the evaluation in {run['out']} searched" in report.read_text()
+    assert (record.read_bytes() if record.is_file() else None) == recorded  # the source's record stands
+    # an evaluation from before the hashes were recorded: checked against the files its config.yaml names
+    old = tmp_path / "old"
+    shutil.copytree(run["out"], old)
+    (old / "summary.json").write_text(json.dumps({k: v for k, v in source.items() if k != "checkpoints_sha256"}))
+    again = evaluate(_compose(*[a for a in args if not a.startswith("orp_from=")], f"orp_from={old}",
+                              f"output_dir={tmp_path / 'from_old'}"))
+    assert json.loads((again.parent / "summary.json").read_text())["imls_mean"] == source["imls_mean"]
+    # refused in one line: other networks, no point found, not an evaluation's folder
+    other = tmp_path / "other"
+    shutil.copytree(run["out"], other)
+    (other / "summary.json").write_text(json.dumps({**source, "checkpoints_sha256": {**source["checkpoints_sha256"], "ims": "0" * 16}}))
+    base = [a for a in args if not a.startswith("orp_from=")]
+    with pytest.raises(InputError, match=r"orp_from=.*other: its checkpoints.ims is not this run's checkpoints.ims"):
+        evaluate(_compose(*base, f"orp_from={other}", f"output_dir={tmp_path / 'x'}"))
+    (other / "summary.json").write_text(json.dumps({**source, "orp": None}))
+    with pytest.raises(InputError, match=r"orp_from=.*other: that evaluation found no operating point"):
+        evaluate(_compose(*base, f"orp_from={other}", f"output_dir={tmp_path / 'x'}"))
+    with pytest.raises(InputError, match=r"orp_from=.*: expected a finished evaluation's folder \(it has no summary.json\)"):
+        evaluate(_compose(*base, f"orp_from={tmp_path}", f"output_dir={tmp_path / 'x'}"))
+
+
 def test_python_api_reuses_the_same_directory(run):
     from imls_lightning.evaluation import evaluate
 

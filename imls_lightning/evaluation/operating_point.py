@@ -1,7 +1,8 @@
 """The operating point (ORP) of an evaluation: searched on the product path on views no network was
 trained on (:func:`orp_search_views`, :func:`product_path_orp`, with the IMS's masks lifted when the
 paper's rescale finds none: :func:`orp_with_lift`), summarized for the report (:func:`orp_summary`,
-:func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`)."""
+:func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`); or taken from a finished evaluation of the same
+networks instead of searched (:func:`borrowed_point`, ``orp_from``)."""
 from __future__ import annotations
 
 import sys
@@ -611,3 +612,55 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
             "sharpness": float(getattr(result, "sharpness", 1.0)),
             "sharpness_candidates": getattr(result, "sharpness_candidates", None),
             "object_floor": getattr(result, "object_floor", None)}
+
+
+#: the checkpoints an operating point belongs to: the search ran the IMS (its decoder inside) and the RecNN alone
+POINT_NETWORKS = ("ims", "recnn")
+
+
+def borrowed_point(s: Settings, ck_hashes: dict[str, str], scene: str) -> dict[str, Any]:
+    """The operating point a finished evaluation searched (``orp_from``: its folder), for this run to use unsearched:
+    ``{"orp", "imls_mean", "lift", "two_pass", "notes"}`` as :class:`~.resume.EvaluationProgress` keeps a point.
+
+    The point belongs to its networks: the IMS and RecNN checkpoints of that evaluation (the hashes its
+    ``summary.json`` records, else the files its ``config.yaml`` names) must be byte for byte this run's
+    (``ck_hashes``, :func:`~imls_lightning.config.file_hash` by checkpoint key). The scene may differ: that is how an
+    operating point is tried on a volume nobody tuned it for. Its gaps on the new views are measured afresh; what the
+    summary says of its own test views is dropped. Anything else is a one-line :class:`InputError`.
+    """
+    import json
+
+    from ..config import file_hash
+
+    folder = Path(str(s.orp_from))
+    where = f"orp_from={s.orp_from}"
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+        config = OmegaConf.load(folder / "config.yaml")
+    except (OSError, ValueError) as err:
+        raise InputError(f"{where}: its summary.json or config.yaml is unreadable ({type(err).__name__})") from None
+    orp = summary.get("orp") if isinstance(summary, dict) else None
+    if not isinstance(orp, dict) or "found" not in orp or not orp.get("found"):
+        raise InputError(f"{where}: that evaluation found no operating point to use (its summary.json has no found ORP)")
+    theirs = summary.get("checkpoints_sha256")
+    for key in POINT_NETWORKS:  # None on both sides: the RecNN inside the IMS checkpoint, the same when the IMS is
+        mine = ck_hashes.get(key)
+        if isinstance(theirs, dict):
+            other = theirs.get(key)
+        else:  # an evaluation from before the hashes were recorded: the files its config.yaml names
+            path = OmegaConf.select(config, f"checkpoints.{key}", default=None)
+            if path and not Path(str(path)).expanduser().is_file():
+                raise InputError(f"{where}: its checkpoints.{key} ({path}) is gone, so whether it is this run's cannot "
+                                 "be checked")
+            other = file_hash(Path(str(path)).expanduser()) if path else None
+        if other != mine:
+            raise InputError(f"{where}: its checkpoints.{key} is not this run's checkpoints.{key} (an operating point "
+                             "belongs to the networks it was searched with)")
+    fresh = ("test", "test_by_distance")  # measured again on this run's views
+    two_pass = summary.get("two_pass")
+    note = (f"Operating point: not searched here; the one the evaluation in {folder} searched on "
+            f"{orp.get('where') or 'its validation views'}" + (f" (scene {summary.get('scene')})" if summary.get("scene") != scene else "")
+            + " (orp_from), with the same IMS and RecNN checkpoints.")
+    return {"orp": {k: v for k, v in orp.items() if k not in fresh}, "imls_mean": float(orp["mean"]),
+            "lift": bool(orp.get("lift")), "notes": [note],
+            "two_pass": None if not isinstance(two_pass, dict) else {k: v for k, v in two_pass.items() if k not in fresh}}

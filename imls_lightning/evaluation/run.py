@@ -24,8 +24,8 @@ from ..models.iml import FillDecoder
 from .baselines import blue_noise_method, equal_share, sparser_method
 from .measurement import measure_methods, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
-from .operating_point import (camera_distance, distance_means, gap_by_distance, orp_summary, paired_gap, product_path_orp,
-                              record_operating_point)
+from .operating_point import (borrowed_point, camera_distance, distance_means, gap_by_distance, orp_summary, paired_gap,
+                              product_path_orp, record_operating_point)
 from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
 from .speedup import speedup_intervals
@@ -123,10 +123,18 @@ def restore_point(nets: Networks, orp: dict[str, Any] | None) -> None:
 
 
 def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer,
-               progress: EvaluationProgress):
+               progress: EvaluationProgress, borrowed: dict[str, Any] | None = None):
     """The operating point and the two-pass sampler's: ``(orp summary | None, imls_mean, lift, two_pass | None)``,
-    restored from ``progress`` when an earlier sitting searched them, else searched and kept there."""
+    restored from ``progress`` when an earlier sitting searched them, else taken from ``borrowed`` (``orp_from``:
+    :func:`~.operating_point.borrowed_point`) or searched, and kept there."""
     point = progress.point
+    if not point and borrowed is not None:
+        tp = borrowed["two_pass"]  # kept only for the same first pass and floor; else searched below
+        same_sampler = tp is not None and (tp.get("base"), tp.get("floor")) == (s.two_pass_base, s.two_pass_floor)
+        progress.save_point({"orp": borrowed["orp"], "imls_mean": borrowed["imls_mean"], "lift": borrowed["lift"],
+                             "notes": [*notes, *borrowed["notes"]], **({"two_pass": tp} if same_sampler else {})})
+        notes.clear()  # they come back from the point, as on a resumed run
+        point = progress.point
     if point:
         restore_point(nets, point["orp"])
         notes += point["notes"]
@@ -281,6 +289,9 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     check_trained_on(cfg, s)
     scene = build_scene(cfg.scene)
     rcfg = to_plain(cfg.renderer)
+    # a point taken from another evaluation is checked against these networks before anything is loaded
+    borrowed = borrowed_point(s, {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}, scene.name) \
+        if s.orp_from else None
 
     # the output directory and the reuse check need only the checkpoints' bytes and hyper-parameters:
     # a reused run returns before any network is built (or Lightning imported)
@@ -304,7 +315,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
     # what an interrupted run of these settings measured: its point and views are kept, the rest measured
     progress = EvaluationProgress(out, positions, timed_pos, resume=s.resume)
-    orp, imls_mean, lift, two_pass = find_point(s, cfg, cache, scene, nets, device, positions, notes, renderer, progress)
+    orp, imls_mean, lift, two_pass = find_point(s, cfg, cache, scene, nets, device, positions, notes, renderer, progress,
+                                                borrowed)
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
                                           by_distance=distance_means(orp), two_pass=two_pass)
     order = [k for k in rep.METHOD_ORDER if k in methods]
@@ -366,6 +378,8 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     # the machine-readable results the benchmarks collect (make bench-paper)
     rep.atomic_write_text(out / "summary.json", json.dumps({
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
+        # the networks' bytes: another evaluation may use this one's operating point only with the same (orp_from)
+        "checkpoints_sha256": {k: file_hash(Path(str(p)).expanduser()) for k, p in checkpoint_paths(s).items()},
         "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "skip_empty": rcfg.get("skip_empty", True) is not False,
         "imls_mean": res["imls_mean"], "orp": orp,
         "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "timing": s.timing,
@@ -385,6 +399,6 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         orp=orp, equal_share=res["equal_share"], front=front, two_pass=two_pass,
     )
     report = rep.write_report(ctx)
-    if orp is not None:  # after the report: only a finished evaluation records its point
+    if orp is not None and not s.orp_from:  # after the report: only a finished search records its point
         record_operating_point(s, orp, scene.name, report, int(orp.get("views") or 0))
     return report

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
@@ -116,6 +117,8 @@ class Settings:
     orp_object_floor_by_band: bool = False  # a margin per band of camera distance (needs orp_by_distance)
     orp_object_floor_tail: float = 1.0   # the share of a band's validation views a margin may leave over epsilon_db
     resume: bool = True                  # an interrupted run of the same settings continues from its partial/ results
+    orp_from: str | None = None          # a finished evaluation's folder whose operating point is used, not searched
+    orp_from_sha256: str | None = None   # its summary.json's bytes (part of this run's identity)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -143,6 +146,8 @@ class Settings:
                                      **({"tail": self.orp_object_floor_tail} if self.orp_object_floor_tail != 1.0 else {})}}
                if self.orp_object_floor else {}),
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
+            # the point taken from another evaluation: its summary's bytes (only when set)
+            **({"orp_from": self.orp_from_sha256} if self.orp_from else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
                              # its share per band of camera distance, as the ORP's mean value (results changed with it)
                              **({"by_distance": True} if self.orp_by_distance else {})}}
@@ -190,8 +195,26 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
         orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
         ims_sharpness_views=_int(cfg, "ims_sharpness_views", 0) if OmegaConf.select(cfg, "ims_sharpness_views") is not None else 6,
-        **_object_floor(cfg),
+        **_object_floor(cfg), **_orp_from(cfg),
     )
+
+
+def _orp_from(cfg) -> dict[str, Any]:
+    """``orp_from``: a finished evaluation's folder (its ``summary.json`` and ``config.yaml``); this run uses the
+    operating point that evaluation searched on its validation views instead of searching again (null: search).
+    The folder must hold both files; whether its networks are this run's is checked when they are loaded."""
+    from ..config import file_hash
+
+    v = OmegaConf.select(cfg, "orp_from", default=None)
+    if v is None or v == "":
+        return {"orp_from": None}
+    folder = Path(str(v)).expanduser()
+    if folder.is_file() and folder.name == "summary.json":
+        folder = folder.parent
+    missing = [n for n in ("summary.json", "config.yaml") if not (folder / n).is_file()]
+    if missing:
+        raise InputError(f"orp_from={v}: expected a finished evaluation's folder (it has no {missing[0]})")
+    return {"orp_from": str(folder), "orp_from_sha256": file_hash(folder / "summary.json")}
 
 
 def _object_floor(cfg) -> dict[str, Any]:
