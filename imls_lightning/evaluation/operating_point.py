@@ -1,8 +1,8 @@
 """The operating point (ORP) of an evaluation: searched on the product path on views no network was
 trained on (:func:`orp_search_views`, :func:`product_path_orp`, with the IMS's masks lifted when the
 paper's rescale finds none: :func:`orp_with_lift`), summarized for the report (:func:`orp_summary`,
-:func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`); or taken from a finished evaluation of the same
-networks instead of searched (:func:`borrowed_point`, ``orp_from``)."""
+:func:`paired_gap`, :func:`gap_by_distance`) and recorded beside the IMS checkpoint (:func:`record_operating_point`);
+or taken from a finished evaluation of the same networks instead of searched (:func:`borrowed_point`, ``orp_from``)."""
 from __future__ import annotations
 
 import sys
@@ -640,7 +640,7 @@ def borrowed_point(s: Settings, ck_hashes: dict[str, str], scene: str) -> dict[s
     except (OSError, ValueError) as err:
         raise InputError(f"{where}: its summary.json or config.yaml is unreadable ({type(err).__name__})") from None
     orp = summary.get("orp") if isinstance(summary, dict) else None
-    if not isinstance(orp, dict) or "found" not in orp or not orp.get("found"):
+    if not isinstance(orp, dict) or not orp.get("found"):
         raise InputError(f"{where}: that evaluation found no operating point to use (its summary.json has no found ORP)")
     theirs = summary.get("checkpoints_sha256")
     for key in POINT_NETWORKS:  # None on both sides: the RecNN inside the IMS checkpoint, the same when the IMS is

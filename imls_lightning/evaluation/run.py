@@ -62,12 +62,17 @@ def checkpoint_paths(s: Settings) -> dict[str, str]:
     return paths
 
 
+def checkpoint_hashes(paths: dict[str, str]) -> dict[str, str]:
+    """``{key: SHA-256}`` of the checkpoints :func:`checkpoint_paths` found (memoized per file by ``file_hash``)."""
+    return {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}
+
+
 def output_dir(cfg: DictConfig, s: Settings, scene, rcfg: dict[str, Any], paths: dict[str, str]) -> Path:
     """The evaluation's folder: ``output_dir``, else ``<runs_dir>/eval/<scene>-<recnn>-<hash>``, the hash of
     the checkpoints' bytes and every setting that changes the results (no network is built)."""
     from data_gen.renderers import renderer_pixel_settings
 
-    ck_hashes = {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}
+    ck_hashes = checkpoint_hashes(paths)
     # renderer.skip_empty=false changes no pixel but every time: such an evaluation is a run of its own
     costs = [{"skip_empty": False}] if rcfg.get("skip_empty", True) is False else []
     run_hash = settings_hash(ck_hashes, cfg.scene, cfg.data, renderer_pixel_settings(rcfg), s.hashed(), *costs)
@@ -290,7 +295,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     scene = build_scene(cfg.scene)
     rcfg = to_plain(cfg.renderer)
     # a point taken from another evaluation is checked against these networks before anything is loaded
-    borrowed = borrowed_point(s, {k: file_hash(Path(str(p)).expanduser()) for k, p in paths.items()}, scene.name) \
+    borrowed = borrowed_point(s, checkpoint_hashes(paths), scene.name) \
         if s.orp_from else None
 
     # the output directory and the reuse check need only the checkpoints' bytes and hyper-parameters:
@@ -379,7 +384,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     rep.atomic_write_text(out / "summary.json", json.dumps({
         "scene": scene.name, "recnn": nets.recnn_name, "fr_size": m, "c_size": int(pattern.c_size),
         # the networks' bytes: another evaluation may use this one's operating point only with the same (orp_from)
-        "checkpoints_sha256": {k: file_hash(Path(str(p)).expanduser()) for k, p in checkpoint_paths(s).items()},
+        "checkpoints_sha256": checkpoint_hashes(checkpoint_paths(s)),
         "sample_distance_voxels": sample_distance_voxels(scene, rcfg), "skip_empty": rcfg.get("skip_empty", True) is not False,
         "imls_mean": res["imls_mean"], "orp": orp,
         "las_ipr": res["las_ipr"], "views": len(positions), "timed_views": len(res["timed_pos"]), "timing": s.timing,
