@@ -28,6 +28,7 @@ from imls_lightning.report import METHOD_ORDER, summary
 ROOT = Path(__file__).resolve().parents[1]
 MEANS = [0.1, 0.3]
 LAS_IPRS = [0.1]
+LAS_SEARCH_IPRS = [0.05, 0.1, 0.25, 0.5]
 FRONT_SHARES = [0.2, 1.0]
 # the stages each method reports (pipeline.py's table); every other stage column stays empty
 METHOD_STAGES = {
@@ -35,6 +36,7 @@ METHOD_STAGES = {
     "recnn": {"selective_render", "recnn"},
     "recnn_sparser": {"selective_render", "recnn"},
     "las": {"low_res_render", "importance", "selective_render", "recnn"},
+    "las_searched": {"low_res_render", "importance", "selective_render", "recnn"},
     "iml": {"selective_render", "importance", "decoder", "recnn"},
     "imls": {"importance", "selective_render", "decoder", "recnn"},
     "imls_fill": {"importance", "selective_render", "decoder", "recnn"},
@@ -50,7 +52,8 @@ def _args(ck: dict, *extra: str) -> list[str]:
             f"checkpoints.blue_noise={ck['blue']}", f"checkpoints.recnn_sparser={ck['recnn_sparser']}", "orp_max_views=4",
             f"front_shares=[{','.join(map(str, FRONT_SHARES))}]",
             "progress=false", "max_views=2", "sweep_views=1", f"mean_values=[{','.join(map(str, MEANS))}]",
-            f"las_iprs=[{','.join(map(str, LAS_IPRS))}]", "grid_views=2", "warmup=0", *extra]
+            f"las_iprs=[{','.join(map(str, LAS_IPRS))}]", f"las_search_iprs=[{','.join(map(str, LAS_SEARCH_IPRS))}]",
+            "las_searched=true", "grid_views=2", "warmup=0", *extra]
 
 
 def _cli(args: list[str], timeout: int = 300) -> subprocess.CompletedProcess:
@@ -171,14 +174,14 @@ def test_report_has_the_paper_tables(run):
     for needle in ("# IML/S evaluation: tiny, enhancenet", "| scene | tiny |", "| RecNN | enhancenet |",
                    "32×32", "C-Image size | 16×16", "| renderer | numba |", "python -m imls_lightning.evaluate",
                    "## Average latency per method and stage (ms)", "## Speed-up of IML/S + RecNN", "over RecNN alone",
-                   "over LAS", "over Full ray cast", "## Average image quality", "## Latency / PSNR sweep",
+                   "over LAS", "over LAS at the promise", "over Full ray cast", "## Average image quality", "## Latency / PSNR sweep",
                    "IML IM, selectively rendered", "IPR=0.1", "u=0.3"):
         assert needle in text, needle
     table = text.split("## Average latency per method and stage (ms)")[1].split("\n\n")[1]
     lines = table.splitlines()
     assert lines[0].startswith("| Method | IPR |") and "RecNN (ms)" in lines[0] and "decoder (ms)" in lines[0]
     assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "RecNN alone, sparser pattern", "LAS",
-                                                              "IML + RecNN", "IML/S + RecNN",
+                                                              "LAS at the promise (its IPR searched)", "IML + RecNN", "IML/S + RecNN",
                                                               "IML/S mask + fill + RecNN", "blue noise + decoder + RecNN",
                                                               "two passes + fill + RecNN (no IMS)"]
     # the speed-up over the RecNN alone is its total over IML/S's total
@@ -937,7 +940,8 @@ def test_summary_json_has_what_the_benchmarks_collect(run):
     from imls_lightning.pipelines.bench_paper import CSV_COLUMNS, csv_row, read_summary
 
     row = csv_row(read_summary(run["report"]))
-    assert tuple(row) == CSV_COLUMNS and all(math.isfinite(float(row[k])) for k in ("psnr_imls_db", "imls_ms", "speedup", "las_ms"))
+    assert tuple(row) == CSV_COLUMNS and all(math.isfinite(float(row[k])) for k in ("psnr_imls_db", "imls_ms", "speedup", "las_ms",
+                                                                               "las_searched_ipr", "las_searched_ms", "las_searched_psnr_db"))
     # the other jobs while its views were timed: the row's timing_busy_cores, a line in the report
     load = s["timing_load"]
     assert load is None or (load["views"] == 2 and 0.0 <= load["mean"] <= load["max"] <= os.cpu_count())
@@ -1178,6 +1182,113 @@ def test_two_pass_off_keeps_the_settings_hash_of_evaluations_without_it(run):
     ("two_pass.floor=-1", "two_pass.floor=-1: expected a number >= 0"),
 ])
 def test_exception_two_pass_settings_are_one_line(run, override, message):
+    from imls_lightning.evaluation import parse_settings
+
+    with pytest.raises(InputError, match=re.escape(message)):
+        parse_settings(_compose(*_args(run["ck"], override)))
+
+
+# ---- LAS at the product's promise (its IPR searched as the ORP is) ---------------------------------------------
+def test_las_at_the_promise_runs_at_an_ipr_searched_on_the_orps_views_and_reports_its_test_gap(run):
+    """las_searched=true: LAS's IPR is the smallest of las_search_iprs whose bound holds on the ORP's search views
+    (the largest where none does); the summary keeps every IPR searched and its gap on the evaluated views, its rows
+    sample that IPR of the FR pixels, and the report names it beside LAS at IML/S's IPR."""
+    s = json.loads((run["out"] / "summary.json").read_text())
+    ls = s["las_searched"]
+    assert [r["ipr"] for r in ls["rows"]] == LAS_SEARCH_IPRS and ls["epsilon_db"] == 1.0
+    if ls["found"]:
+        chosen = next(r for r in ls["rows"] if r["ipr"] == ls["ipr"])
+        assert chosen["gap_bound_db"] <= 1.0 < min([r["gap_bound_db"] for r in ls["rows"] if r["ipr"] < ls["ipr"]] or [2.0])
+    else:
+        assert ls["ipr"] == LAS_SEARCH_IPRS[-1] and ls["record"] is None
+    assert all(0.0 < r["kept"] <= 1.0 for r in ls["rows"])
+    assert "held-out views" in ls["where"] and ls["test"]["views"] == 2 and math.isfinite(ls["test"]["gap_db"])
+    _, rows = _rows(run["out"] / "metrics.csv")
+    las = [r for r in rows if r["method"] == "las_searched"]
+    assert len(las) == 2 and all(abs(float(r["ipr"]) - ls["ipr"]) <= 0.02 for r in las)
+    text = run["report"].read_text()
+    assert "LAS at the promise (its IPR searched)" in text and "LAS at the product's promise (what a user who chose LAS" in text
+    settings = yaml.safe_load((run["out"] / "config.yaml").read_text())["settings"]
+    assert settings["las_searched"] is True and settings["las_search_iprs"] == LAS_SEARCH_IPRS
+
+
+def test_las_search_gap_is_the_gap_the_method_measures_on_the_same_view(run):
+    """las_gaps (the search) and LASMethod (the measured method) agree on a view: the same low-res render, the same
+    bisected mask, the cached FR pixels the ray caster returns; so the gap searched is the gap LAS runs at."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene
+    from imls_lightning.core.metrics import psnr_per_image
+    from imls_lightning.estimate.measure import frame_tensor
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.las_point import las_gaps
+    from imls_lightning.inference.pipeline import LASMethod, RecNNAlone
+
+    cfg = _compose(*_args(run["ck"]))
+    s = parse_settings(cfg)
+    nets = load_networks(s, int(cfg.data.resolution))
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    renderer = make_renderer(build_scene(cfg.scene), dict(cfg.renderer))
+    view, truth = np.asarray(main.views[0], np.float64), np.asarray(main.images[0])
+    kept, gaps = las_gaps(nets.las_task.net.eval(), nets.recnn.eval(), nets.ims_task.pattern, renderer, [view], [truth],
+                          [0.1, 0.5])
+    m = int(cfg.data.resolution)
+    target = frame_tensor(truth)
+
+    def db(method, **kw):
+        return float(psnr_per_image(frame_tensor(method.run(view, **kw).image), target)[0])
+
+    ref = db(RecNNAlone(renderer, nets.ims_task.pattern, nets.recnn))
+    las = LASMethod(renderer, nets.las_task.net, m, int(nets.las_task.hparams["low_res"]))
+    for j, ipr in enumerate([0.1, 0.5]):
+        assert gaps[0, j] == pytest.approx(ref - db(las, ipr=ipr), abs=0.1)
+        assert kept[0, j] == pytest.approx(las.run(view, ipr=ipr).info["ipr"], abs=1e-6)
+
+
+def test_las_at_the_promise_by_distance_gives_each_band_its_own_ipr(run):
+    """orp_by_distance=true: LAS's IPR is searched per band of camera distance (never above the IPR that held in
+    every band); its method runs each view at its band's IPR."""
+    from data_gen.cache import ViewImageCache
+    from data_gen.renderers import make_renderer
+    from data_gen.scene import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.las_point import LASPoint, las_point, las_searched_method
+
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    cfg = _compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=true", "orp_confidence=0.5", "epsilon_db=60.0"))
+    s = parse_settings(cfg)
+    nets = load_networks(s, int(cfg.data.resolution))
+    scene = build_scene(cfg.scene)
+    point = las_point(s, cfg, main, scene, nets, make_renderer(scene, dict(cfg.renderer)), "cpu", future_views=2)
+    assert point.found
+    b = point.by_distance
+    assert len(b["values"]) == 2 and all(x <= point.ipr for x in b["values"]) and b["views"] == [2, 2]
+    assert b["hi"][0] < b["edges"][0] < b["lo"][1] and all(g <= 60.0 for g in b["bounds_db"])
+    again = LASPoint.from_dict(json.loads(json.dumps(point.to_dict())))  # as an interrupted run restores it
+    method = las_searched_method(again, object(), nets.las_task, int(cfg.data.resolution), None)
+    assert method.name == "las_searched" and method.iprs == pytest.approx(b["values"])
+    near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    far = [0.0, 0.0, b["hi"][1], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert (method.ipr_for(near), method.ipr_for(far)) == pytest.approx(tuple(b["values"]))
+
+
+def test_las_searched_off_keeps_the_settings_hash_of_evaluations_without_it(run):
+    from imls_lightning.evaluation import parse_settings
+
+    off = parse_settings(_compose(*_args(run["ck"], "las_searched=false")))
+    assert off.las_searched is False and "las_searched" not in off.hashed()
+    assert parse_settings(_compose(*_args(run["ck"]))).hashed()["las_search_iprs"] == LAS_SEARCH_IPRS
+
+
+@pytest.mark.parametrize("override, message", [
+    ("las_searched=yes", "las_searched='yes': expected true or false"),
+    ("las_search_iprs=[]", "las_search_iprs=[]: expected at least one IPR in [0.01, 1] to search LAS's among"),
+    ("las_search_iprs=[0.001]", "las_search_iprs=[0.001]: expected numbers in [0.01, 1.0]"),
+    ("checkpoints.las=null", "las_searched=true: needs checkpoints.las (the LAS checkpoint whose IPR is searched)"),
+])
+def test_exception_las_searched_settings_are_one_line(run, override, message):
     from imls_lightning.evaluation import parse_settings
 
     with pytest.raises(InputError, match=re.escape(message)):

@@ -30,6 +30,7 @@ from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
 from .speedup import speedup_intervals
 from .sweeps import Sweeps, front_notes, options_sweep
+from .las_point import LASPoint, las_point, las_searched_method
 from .two_pass import TwoPassPoint, two_pass_method, two_pass_point
 
 #: the checkpoint keys of ``checkpoints.<key>`` and the settings that name them
@@ -129,8 +130,8 @@ def restore_point(nets: Networks, orp: dict[str, Any] | None) -> None:
 
 def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer,
                progress: EvaluationProgress, borrowed: dict[str, Any] | None = None):
-    """The operating point and the two-pass sampler's: ``(orp summary | None, imls_mean, lift, two_pass | None)``,
-    restored from ``progress`` when an earlier sitting searched them, else taken from ``borrowed`` (``orp_from``:
+    """The operating point, the two-pass sampler's and LAS's at the promise: ``(orp summary | None, imls_mean, lift,
+    two_pass | None, las | None)``, restored from ``progress`` when an earlier sitting searched them, else taken from ``borrowed`` (``orp_from``:
     :func:`~.operating_point.borrowed_point`) or searched, and kept there."""
     point = progress.point
     if not point and borrowed is not None:
@@ -147,13 +148,20 @@ def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions
     else:
         orp, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
         progress.save_point({"orp": orp, "imls_mean": imls_mean, "lift": lift, "notes": list(notes)})
-    if s.two_pass_base is None:
-        return orp, imls_mean, lift, None
-    if progress.point.get("two_pass") is not None:
-        return orp, imls_mean, lift, TwoPassPoint.from_dict(progress.point["two_pass"])
-    two_pass = two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device, future_views=len(positions))
-    progress.save_point({**progress.point, "two_pass": two_pass.to_dict()})
-    return orp, imls_mean, lift, two_pass
+    two_pass, las = None, None
+    if s.two_pass_base is not None:
+        if progress.point.get("two_pass") is not None:
+            two_pass = TwoPassPoint.from_dict(progress.point["two_pass"])
+        else:
+            two_pass = two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device, future_views=len(positions))
+            progress.save_point({**progress.point, "two_pass": two_pass.to_dict()})
+    if s.las_searched:
+        if progress.point.get("las_searched") is not None:
+            las = LASPoint.from_dict(progress.point["las_searched"])
+        else:
+            las = las_point(s, cfg, cache, scene, nets, renderer, device, future_views=len(positions))
+            progress.save_point({**progress.point, "las_searched": las.to_dict()})
+    return orp, imls_mean, lift, two_pass, las
 
 
 def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list[float]:
@@ -164,10 +172,10 @@ def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list
 
 def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
                   imls_mean: float | None, lift: bool, notes: list[str], by_distance=None,
-                  two_pass: TwoPassPoint | None = None) -> tuple[dict[str, Method], float | None]:
+                  two_pass: TwoPassPoint | None = None, las: LASPoint | None = None) -> tuple[dict[str, Method], float | None]:
     """Every method measured (the networks are shared between methods with the same options) and the
     IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance;
-    ``two_pass``: the two-pass sampler's operating point (None: not measured)."""
+    ``two_pass``: the two-pass sampler's operating point, ``las``: LAS's at the promise (None: not measured)."""
     opts, pattern, ims = s.options, nets.ims_task.pattern, nets.ims_task
     imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift,
                         by_distance=by_distance)
@@ -191,6 +199,9 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
                 notes.append(f"IML/S selects no pixel on these views (IPR 0): LAS runs at the smallest IPR, 1 pixel ({las_ipr_used:.2e}).")
         methods["las"] = LASMethod(renderer, nets.las_task.net, m, int(nets.las_task.hparams["low_res"]), ipr=las_ipr_used, opts=opts)
         notes.append(f"LAS at IPR {las_ipr_used:.4f}, {how}; its mean u is bisected per view outside the timed stages (LAS's evaluation protocol).")
+        if las is not None:
+            methods["las_searched"] = las_searched_method(las, renderer, nets.las_task, m, opts)
+            notes.append(las.describe())
     else:
         notes.append("LAS skipped: no LAS checkpoint (checkpoints.las=<LAS .ckpt>, trained with python -m imls_lightning.train model=las).")
     if nets.blue is not None:
@@ -320,10 +331,10 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
     # what an interrupted run of these settings measured: its point and views are kept, the rest measured
     progress = EvaluationProgress(out, positions, timed_pos, resume=s.resume)
-    orp, imls_mean, lift, two_pass = find_point(s, cfg, cache, scene, nets, device, positions, notes, renderer, progress,
-                                                borrowed)
+    orp, imls_mean, lift, two_pass, las = find_point(s, cfg, cache, scene, nets, device, positions, notes, renderer,
+                                                     progress, borrowed)
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
-                                          by_distance=distance_means(orp), two_pass=two_pass)
+                                          by_distance=distance_means(orp), two_pass=two_pass, las=las)
     order = [k for k in rep.METHOD_ORDER if k in methods]
     if len(timed_pos) < len(positions):
         notes.append(f"Latency: stage times on {len(timed_pos)} of the {len(positions)} evaluated views (evenly spaced, "
@@ -354,7 +365,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
                    methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp=orp,
                    equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass,
-                   timing_load=load_summary)
+                   las_searched=las, timing_load=load_summary)
     report = write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
     progress.finish()
     return report
@@ -378,6 +389,10 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     if res.get("two_pass") is not None:  # its search beside its gap on the evaluated views, as the ORP's
         two_pass = {**res["two_pass"].to_dict(), "test": paired_gap(rows, "recnn", "two_pass"),
                     "test_by_distance": gap_by_distance(rows, lambda row: camera_distance(cache, row), method="two_pass")}
+    las_searched = None
+    if res.get("las_searched") is not None:  # its search beside its gap on the evaluated views, as the ORP's
+        las_searched = {**res["las_searched"].to_dict(), "test": paired_gap(rows, "recnn", "las_searched"),
+                        "test_by_distance": gap_by_distance(rows, lambda row: camera_distance(cache, row), method="las_searched")}
     front = rep.front_points(rows, sweep_rows, sweep_pos,
                              notes=front_notes(res["methods"], res["imls_mean"], bool(orp and orp["found"]), res["las_ipr"]))
     # the machine-readable results the benchmarks collect (make bench-paper)
@@ -391,7 +406,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "repeats": s.repeats, "methods": rep.summarize_rows(rows),
         "speedup_interval": speedup_intervals(rows),  # each method over the RecNN alone, the timed views resampled
         "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass,
-        "timing_load": res.get("timing_load")},
+        **({"las_searched": las_searched} if las_searched is not None else {}), "timing_load": res.get("timing_load")},
         indent=1, default=float))
     ctx = rep.ReportContext(
         out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,

@@ -18,6 +18,9 @@ from ..inference.pipeline import NetOptions
 MIN_REPEATS = 10
 #: the shares of C at which the speed-quality front measures IML/S + RecNN (and blue noise + decoder)
 FRONT_SHARES = (0.1, 0.2, 0.4, 0.6, 0.8, 1.0)
+#: the IPRs (shares of the FR pixels) LAS at the product's promise is searched among (``las_searched``): finer where
+#: the paper's LAS points lie (2.5-20%), up to twice a 4x super-resolution pattern's 25%
+LAS_SEARCH_IPRS = (0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12, 0.14, 0.17, 0.2, 0.25, 0.3, 0.4, 0.5)
 #: where the ORP is searched: ``heldout`` views drawn like the training views from a seed of their own (no
 #: network trained on them), ``path``: an exploratory path of their own, drawn like the test trajectory from a
 #: seed of its own (never the test trajectory itself), or the cache's ``val`` split (whose eye directions an IMS
@@ -119,6 +122,8 @@ class Settings:
     resume: bool = True                  # an interrupted run of the same settings continues from its partial/ results
     orp_from: str | None = None          # a finished evaluation's folder whose operating point is used, not searched
     orp_from_sha256: str | None = None   # its summary.json's bytes (part of this run's identity)
+    las_searched: bool = False           # also LAS at the product's promise: its IPR searched on the ORP's search views
+    las_search_iprs: list[float] = field(default_factory=lambda: list(LAS_SEARCH_IPRS))  # the IPRs it is searched among
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -148,6 +153,7 @@ class Settings:
             **({"orp_paths": self.orp_paths, "orp_bound": "passes"} if self.orp_views == "path" else {}),
             # the point taken from another evaluation: its summary's bytes (only when set)
             **({"orp_from": self.orp_from_sha256} if self.orp_from else {}),
+            **({"las_searched": True, "las_search_iprs": self.las_search_iprs} if self.las_searched else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
                              # its share per band of camera distance, as the ORP's mean value (results changed with it)
                              **({"by_distance": True} if self.orp_by_distance else {})}}
@@ -195,8 +201,23 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
         orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
         ims_sharpness_views=_int(cfg, "ims_sharpness_views", 0) if OmegaConf.select(cfg, "ims_sharpness_views") is not None else 6,
-        **_object_floor(cfg), **_orp_from(cfg),
+        **_object_floor(cfg), **_orp_from(cfg), **_las_searched(cfg),
     )
+
+
+def _las_searched(cfg) -> dict[str, Any]:
+    """``las_searched`` (true: LAS also at the product's promise, its IPR searched among ``las_search_iprs`` on the
+    ORP's search views; needs ``checkpoints.las`` and the ORP) and the IPRs, each in (0.01, 1]."""
+    on = OmegaConf.select(cfg, "las_searched", default=False)
+    if not isinstance(on, bool):
+        raise InputError(f"las_searched={on!r}: expected true or false")
+    iprs = _floats(cfg, "las_search_iprs", 0.01, 1.0) if OmegaConf.select(cfg, "las_search_iprs") is not None \
+        else list(LAS_SEARCH_IPRS)
+    if on and not iprs:
+        raise InputError("las_search_iprs=[]: expected at least one IPR in [0.01, 1] to search LAS's among")
+    if on and not (cfg.get("checkpoints") or {}).get("las"):
+        raise InputError("las_searched=true: needs checkpoints.las (the LAS checkpoint whose IPR is searched)")
+    return {"las_searched": on, "las_search_iprs": sorted(iprs)}
 
 
 def _orp_from(cfg) -> dict[str, Any]:

@@ -81,6 +81,10 @@ def front_notes(methods: dict[str, Method], imls_mean: float | None, orp_found: 
         notes["recnn_sparser"] = f"{pat.count} pixels ({pat.count / methods['recnn'].pattern.count:.0%} of C)"
     if las_ipr is not None:
         notes["las"] = f"IPR={las_ipr:.3g} (IML/S's)"
+    if "las_searched" in methods:
+        iprs = methods["las_searched"].iprs
+        per_band = "s per band of camera distance (near to far)" if len(iprs) > 1 else ""
+        notes["las_searched"] = f"its own searched IPR{per_band}, {' / '.join(f'{x:.1%}' for x in iprs)}"
     return notes
 
 

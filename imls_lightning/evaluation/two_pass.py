@@ -26,9 +26,9 @@ import numpy as np
 import torch
 
 from ..estimate.needed_share import NEEDED_SHARES, share_gaps
-from ..orp import protocol_gap_record
 from .networks import Networks
-from .operating_point import SearchViews, band_edges, judged, search_views, split_bands
+from .baseline_point import band_values, smallest_within
+from .operating_point import SearchViews, judged, search_views
 from .settings import Settings
 
 
@@ -112,13 +112,9 @@ def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, devi
 
     frames = [np.asarray(v.cache.images[r]) for r in v.rows]
     kept, gaps = share_gaps(rebuild, pattern, frames, shares, floor=floor, base=base)
-    rows, chosen = [], None
-    for j, share in enumerate(shares):
-        rec = protocol_gap_record(gaps[:, j].tolist(), s.orp_confidence, future_views, v.strata, v.passes, v.paths)
-        rec.update(share=share, c_share=float(kept[:, j].mean()))
-        rows.append(rec)
-        if chosen is None and rec["gap_bound_db"] <= s.epsilon_db:
-            chosen = rec
+    chosen, searched = smallest_within(v, shares, kept, gaps, s.orp_confidence, s.epsilon_db, future_views)
+    rows = [{**r, "share": r["value"], "c_share": r["kept"]} for r in searched]
+    chosen = None if chosen is None else {**chosen, "share": chosen["value"], "c_share": chosen["kept"]}
     by_distance = None
     if chosen is not None:
         print(f"[evaluate] two-pass sampler: {chosen['share']:.0%} of C, gap {chosen['gap_db']:.2f} dB "
@@ -132,37 +128,13 @@ def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, devi
 
 def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,
                 epsilon_db: float, future_views: int | None) -> dict[str, Any] | None:
-    """Each band of camera distance's own share, as the product's ORP gets a mean value per band: the smallest of
-    ``shares`` (ascending; the last is the share that held in every band, which a band keeps where none below it
-    holds) whose bound on the band's own search views, for its share of ``future_views`` and counting its passes
-    (:func:`~imls_lightning.orp.search.protocol_gap_record`), stays within ``epsilon_db``. ``kept`` and ``gaps``:
-    ``(views, len(shares))`` or wider, as :func:`~imls_lightning.estimate.needed_share.share_gaps` measured them on
-    ``v``'s views, so no view is rebuilt again.
-
-    Returns ``edges`` (:func:`~imls_lightning.evaluation.operating_point.band_edges`), and per band near to far
-    ``shares``, ``c_shares``, ``gaps_db``, ``bounds_db``, ``views``, ``lo``, ``hi``; ``None`` (one line says so)
-    where the views' distances do not separate the bands.
-    """
-    bands = split_bands(v.strata, future_views, v.passes)
-    out: dict[str, list] = {k: [] for k in ("shares", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
-    for band in bands:
-        k, idx = band.label, band.idx
-        for j, share in enumerate(shares):
-            rec = protocol_gap_record(gaps[idx, j].tolist(), confidence, band.future_views, None, band.passes, v.paths)
-            if rec["gap_bound_db"] <= epsilon_db or j == len(shares) - 1:
-                break
-        d = [v.distances[i] for i in idx]
-        for key, value in (("shares", share), ("c_shares", kept[idx, j].mean()), ("gaps_db", rec["gap_db"]),
-                           ("bounds_db", rec["gap_bound_db"]), ("lo", min(d)), ("hi", max(d))):
-            out[key].append(float(value))
-        out["views"].append(len(idx))
-        print(f"[evaluate] two-pass sampler by distance: band {k + 1} of {len(bands)} ({min(d):.2f}-{max(d):.2f}): "
-              f"{share:.0%} of C, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
-    out["edges"] = band_edges(out["lo"], out["hi"])
-    if out["edges"] is None:
-        print(f"[evaluate] warning: the two-pass sampler by distance: the search views' camera distances do not separate "
-              f"the bands; every view runs at {shares[-1]:.0%} of C", file=sys.stderr, flush=True)
+    """Each band of camera distance's own share (:func:`~imls_lightning.evaluation.baseline_point.band_values`):
+    ``edges``, and per band near to far ``shares``, ``c_shares``, ``gaps_db``, ``bounds_db``, ``views``, ``lo``,
+    ``hi``; ``None`` where the views' distances do not separate the bands."""
+    out = band_values(v, shares, kept, gaps, confidence, epsilon_db, future_views)
+    if out is None:
         return None
+    out["shares"], out["c_shares"] = out.pop("values"), out.pop("kept")
     return out
 
 

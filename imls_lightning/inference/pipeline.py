@@ -541,21 +541,39 @@ class LASMethod(Method):
             deployed LAS uses a fixed ``u``): it runs outside the timed stages; the timed
             ``importance`` stage is the importance net + one normalization + sampling.
             ``None``: the trained mean. :meth:`run` takes another per call.
+        by_distance: a :class:`~imls_lightning.models.ims.DistanceMeans` of IPRs: each view at its band of
+            camera distance's IPR instead of ``ipr`` (the evaluation's LAS searched per band, ``las_searched``).
     """
 
     name = "las"
 
     def __init__(self, renderer, las_net: torch.nn.Module, fr_size: int, low_res: int,
-                 ipr: float | None = None, opts: NetOptions | None = None):
+                 ipr: float | None = None, opts: NetOptions | None = None, by_distance: torch.nn.Module | None = None):
         super().__init__(renderer, fr_size, opts)
         self.las = prepare_net(las_net, self.device, self.opts)
         self.low_res = int(low_res)
         self.ipr = None if ipr is None else check_ipr(ipr)
+        self.by_distance = by_distance
+        if by_distance is not None:
+            for x in self.iprs:
+                check_ipr(x, "by_distance")
+
+    @property
+    def iprs(self) -> list[float | None]:
+        """The IPRs it runs at: ``[ipr]``, or its bands' near to far (``by_distance``)."""
+        # the bands' buffer is float32: round back to the IPRs it was given
+        return [self.ipr] if self.by_distance is None else [round(float(x), 6) for x in self.by_distance.means.tolist()]
+
+    def ipr_for(self, view) -> float | None:
+        """The IPR a validated view ``(9,)`` runs at: its band's with ``by_distance``, else ``ipr``."""
+        if self.by_distance is None:
+            return self.ipr
+        return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
 
     def run(self, view, ipr: float | None = None) -> RenderResult:
         """Render a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;
-        ``None``: the method's own)."""
-        ipr = self.ipr if ipr is None else check_ipr(ipr)
+        ``None``: the method's own, or its band's)."""
+        ipr = self.ipr_for(view) if ipr is None else check_ipr(ipr)
         timer = StageTimer(self.device)
         m = self.fr_size
         net = getattr(self.las, "_orig_mod", self.las)  # attributes of a compiled LASNet

@@ -44,9 +44,12 @@ INTERVAL_COLUMNS = ("speedup_low", "speedup_high")
 #: the estimate's 95% interval at the row's share over the estimate's views resampled (empty: an estimate without
 #: per-view times, or made by an earlier method; ``estimate.estimate_interval``)
 ESTIMATE_INTERVAL_COLUMNS = ("estimated_low", "estimated_high")
+#: LAS at the product's promise (the evaluation's ``las_searched``): the IPR searched on validation views (its mean
+#: over the bands), its total and PSNR; empty: not measured. ``las_ms`` / ``las_psnr_db`` stay LAS at IML/S's IPR
+LAS_SEARCHED_COLUMNS = ("las_searched_ipr", "las_searched_ms", "las_searched_psnr_db")
 #: the groups of columns in the order they were appended to the table
 COLUMN_GROUPS = (LEGACY_COLUMNS, ESTIMATE_COLUMNS, RENDERER_COLUMNS, FLOOR_COLUMNS, LOAD_COLUMNS, INTERVAL_COLUMNS,
-                 ESTIMATE_INTERVAL_COLUMNS)
+                 ESTIMATE_INTERVAL_COLUMNS, LAS_SEARCHED_COLUMNS)
 CSV_COLUMNS = sum(COLUMN_GROUPS, ())
 #: the tables written before each group of columns was appended, still read
 EARLIER_COLUMNS = tuple(sum(COLUMN_GROUPS[:n], ()) for n in range(1, len(COLUMN_GROUPS)))
@@ -152,9 +155,26 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "skip_empty": summary.get("skip_empty", True),
         "object_floor_margin": ((orp.get("object_floor") or {}).get("chosen") or {}).get("margin", "") if orp.get("found") else "",
         "timing_busy_cores": (summary.get("timing_load") or {}).get("max", ""),
-        **interval_cells(summary),
+        **interval_cells(summary), **las_searched_cells(summary),
     }
     return {k: row[k] for k in CSV_COLUMNS}  # in the table's order (the estimate's interval comes last)
+
+
+def las_searched_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`LAS_SEARCHED_COLUMNS` of a row: LAS at the product's promise as the evaluation measured it (its IPR
+    is the mean the test views ran at, one per band of camera distance); empty where it was not measured.
+
+    Example:
+        >>> las_searched_cells({"methods": {"las_searched": {"ipr": 0.12, "psnr": 33.1, "latency_ms": {"total": 900.0}}}})
+        {'las_searched_ipr': 0.12, 'las_searched_ms': 900.0, 'las_searched_psnr_db': 33.1}
+        >>> las_searched_cells({"methods": {}})
+        {'las_searched_ipr': '', 'las_searched_ms': '', 'las_searched_psnr_db': ''}
+    """
+    las = summary["methods"].get("las_searched")
+    if not las:
+        return {k: "" for k in LAS_SEARCHED_COLUMNS}
+    return {"las_searched_ipr": las.get("ipr", ""), "las_searched_ms": _total(summary["methods"], "las_searched"),
+            "las_searched_psnr_db": las.get("psnr", "")}
 
 
 def interval_cells(summary: Mapping[str, Any]) -> dict[str, Any]:

@@ -84,7 +84,7 @@ def _latency_points(ctx: ReportContext, summ, points) -> tuple[dict, dict, float
         if m == "full":
             continue
         s = summ[m]
-        extra = f" (u={ctx.iml_mean:g})" if m == "iml" else (f" (IPR {fmt_pct(s['ipr'])})" if m in ("imls", "las") else "")
+        extra = f" (u={ctx.iml_mean:g})" if m == "iml" else (f" (IPR {fmt_pct(s['ipr'])})" if m in ("imls", "las", "las_searched") else "")
         pts[f"{s['label']}{extra}"] = (s["latency_ms"].get("total", math.nan), s["psnr"])
     full = summ["full"]["latency_ms"].get("total") if "full" in summ else None
     return curves, pts, full

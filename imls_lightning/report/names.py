@@ -10,6 +10,7 @@ METHOD_LABELS = {
     "recnn": "RecNN alone",
     "recnn_sparser": "RecNN alone, sparser pattern",
     "las": "LAS",
+    "las_searched": "LAS at the promise (its IPR searched)",
     "iml": "IML + RecNN",
     "imls": "IML/S + RecNN",
     "imls_fill": "IML/S mask + fill + RecNN",
@@ -17,7 +18,7 @@ METHOD_LABELS = {
     "two_pass": "two passes + fill + RecNN (no IMS)",
     "iml_selective": "IML IM, selectively rendered",
 }
-METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "iml", "imls", "imls_fill", "blue_noise", "two_pass")
+METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "iml", "imls", "imls_fill", "blue_noise", "two_pass")
 STAGE_LABELS = {
     "low_res_render": "low-res render",
     "render": "render",
@@ -35,7 +36,7 @@ STAGE_COLORS = {
     "decoder": "#9467bd",
     "recnn": "#d62728",
 }
-METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "iml": "#ff7f0e",
+METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "las_searched": "#98df8a", "iml": "#ff7f0e",
                  "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f",
                  "two_pass": "#bcbd22"}
 

@@ -146,7 +146,7 @@ def sweep_table(points: Mapping[tuple[str, float], Mapping[str, Any]]) -> str:
 
 
 def speedup_table(summ: Mapping[str, Mapping[str, Any]], target: str = "imls",
-                  over: Sequence[str] = ("recnn", "las", "full", "iml", "two_pass"),
+                  over: Sequence[str] = ("recnn", "las", "las_searched", "full", "iml", "two_pass"),
                   rows: Sequence[Mapping[str, Any]] | None = None) -> str:
     """Speed-up of ``target`` (IML/S + RecNN) over each baseline: ``their total / its total`` and the PSNR change;
     with the metric ``rows``, also its 95% bootstrap interval over the timed views

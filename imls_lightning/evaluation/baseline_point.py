@@ -1,0 +1,81 @@
+"""A baseline's operating point searched as the product's is ("beat the simplest alternative" at the same promise):
+on the ORP's search views (:func:`~imls_lightning.evaluation.operating_point.search_views`), the smallest of a list of
+ascending settings (the two-pass sampler's share of C, LAS's IPR) whose protocol bound
+(:func:`~imls_lightning.orp.search.protocol_gap_record`: passes, bands of camera distance) stays within
+``epsilon_db`` of the RecNN alone; with ``orp_by_distance``, then each band of camera distance its own
+(:func:`band_values`), never above the one that held in every band. The evaluated (test) views are never looked at.
+
+Example:
+    >>> import numpy as np
+    >>> from imls_lightning.evaluation.operating_point import SearchViews
+    >>> v = SearchViews(None, None, "4 views", [3.0, 3.1, 5.0, 5.1], None, None, 1)
+    >>> gaps = np.array([[2.0, 0.9, 0.1], [2.0, 0.9, 0.1], [0.5, 0.2, 0.0], [0.5, 0.2, 0.0]])
+    >>> chosen, rows = smallest_within(v, [0.1, 0.2, 0.4], gaps * 0 + [[0.1, 0.2, 0.4]], gaps, 0.5, 1.0, None)
+    >>> chosen["value"], [r["value"] for r in rows]
+    (0.2, [0.1, 0.2, 0.4])
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..orp import protocol_gap_record
+from .operating_point import SearchViews, band_edges, split_bands
+
+
+def smallest_within(v: SearchViews, values: Sequence[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,
+                    epsilon_db: float, future_views: int | None) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+    """The smallest of ``values`` (ascending) whose protocol bound on ``v``'s views stays within ``epsilon_db``:
+    ``(its record or None, every value's record)``. ``kept`` and ``gaps`` are ``(views, len(values))``: the share
+    each view kept at each value and its PSNR gap to the RecNN alone. A record is
+    :func:`~imls_lightning.orp.search.protocol_gap_record`'s plus ``value`` and ``kept`` (the mean kept share)."""
+    rows, chosen = [], None
+    for j, value in enumerate(values):
+        rec = protocol_gap_record(gaps[:, j].tolist(), confidence, future_views, v.strata, v.passes, v.paths)
+        rec.update(value=float(value), kept=float(kept[:, j].mean()))
+        rows.append(rec)
+        if chosen is None and rec["gap_bound_db"] <= epsilon_db:
+            chosen = rec
+    return chosen, rows
+
+
+def band_values(v: SearchViews, values: list[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,
+                epsilon_db: float, future_views: int | None, what: str = "the two-pass sampler",
+                say: Callable[[float], str] = lambda x: f"{x:.0%} of C") -> dict[str, Any] | None:
+    """Each band of camera distance's own value, as the product's ORP gets a mean value per band: the smallest of
+    ``values`` (ascending; the last is the value that held in every band, which a band keeps where none below it
+    holds) whose bound on the band's own search views, for its share of ``future_views`` and counting its passes
+    (:func:`~imls_lightning.orp.search.protocol_gap_record`), stays within ``epsilon_db``. ``kept`` and ``gaps``:
+    ``(views, len(values))`` or wider, as measured on ``v``'s views, so no view is rebuilt again. ``what`` and
+    ``say`` word the log lines.
+
+    Returns ``edges`` (:func:`~imls_lightning.evaluation.operating_point.band_edges`), and per band near to far
+    ``values``, ``kept``, ``gaps_db``, ``bounds_db``, ``views``, ``lo``, ``hi``; ``None`` (one line says so)
+    where the views' distances do not separate the bands.
+    """
+    bands = split_bands(v.strata, future_views, v.passes)
+    out: dict[str, list] = {k: [] for k in ("values", "kept", "gaps_db", "bounds_db", "views", "lo", "hi")}
+    for band in bands:
+        k, idx = band.label, band.idx
+        for j, value in enumerate(values):
+            rec = protocol_gap_record(gaps[idx, j].tolist(), confidence, band.future_views, None, band.passes, v.paths)
+            if rec["gap_bound_db"] <= epsilon_db or j == len(values) - 1:
+                break
+        d = [v.distances[i] for i in idx]
+        for key, x in (("values", value), ("kept", kept[idx, j].mean()), ("gaps_db", rec["gap_db"]),
+                       ("bounds_db", rec["gap_bound_db"]), ("lo", min(d)), ("hi", max(d))):
+            out[key].append(float(x))
+        out["views"].append(len(idx))
+        print(f"[evaluate] {what} by distance: band {k + 1} of {len(bands)} ({min(d):.2f}-{max(d):.2f}): "
+              f"{say(value)}, gap {rec['gap_db']:.2f} dB (bound {rec['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
+    out["edges"] = band_edges(out["lo"], out["hi"])
+    if out["edges"] is None:
+        print(f"[evaluate] warning: {what} by distance: the search views' camera distances do not separate "
+              f"the bands; every view runs at {say(values[-1])}", file=sys.stderr, flush=True)
+        return None
+    return out
+
+
+__all__ = ["smallest_within", "band_values"]

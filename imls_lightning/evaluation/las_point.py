@@ -1,0 +1,151 @@
+"""LAS at the product's promise: its IPR searched on the ORP's search views, as the two-pass sampler's share is.
+
+"LAS at equal IPR" ray-casts as many pixels as IML/S, so it compares two samplers at one cost, not at one quality
+(IML/S was 1.8-7.4 dB better there on every paper-regime scene). What a user who chose LAS would run is LAS at the
+smallest IPR that keeps the same promise as the product: within ``epsilon_db`` of the RecNN alone by the protocol's
+bound (:func:`~imls_lightning.evaluation.baseline_point.smallest_within`), and with ``orp_by_distance`` an IPR per band
+of camera distance. Each search view's LAS input is a real low-res render of it (LAS's own); its sampled pixels come
+from the cached FR-Image, which the ray caster would return for them. The evaluated (test) views are never looked at.
+
+Example:
+    >>> point = las_point(s, cfg, cache, scene, nets, renderer, "cpu", future_views=120)   # doctest: +SKIP
+    >>> point.ipr, point.found                                                            # doctest: +SKIP
+    (0.15, True)
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from ..core.compaction import compact
+from ..core.metrics import psnr_per_image
+from ..estimate.measure import frame_tensor
+from .baseline_point import band_values, smallest_within
+from .networks import Networks
+from .operating_point import judged, search_views
+from .settings import Settings
+
+
+@dataclass
+class LASPoint:
+    """LAS's operating point: the IPR (share of the FR pixels) it runs at and the search that chose it."""
+    ipr: float                     # the IPR it runs at (the largest searched where none kept the bound)
+    found: bool                    # whether an IPR searched kept the bound
+    where: str                     # the search views, in the report's words
+    epsilon_db: float
+    record: dict[str, Any] | None  # the chosen IPR's protocol record (None: none found)
+    rows: list[dict[str, Any]] = field(default_factory=list)  # every IPR searched: ipr, kept, gap_db, gap_bound_db
+    # orp_by_distance: each band's own IPR (band_values: edges, values near to far, kept, gaps_db, bounds_db, views,
+    # lo, hi); None: ``ipr`` for every view
+    by_distance: dict[str, Any] | None = None
+
+    def iprs_by_distance(self):
+        """The :class:`~imls_lightning.models.ims.DistanceMeans` of the bands' IPRs (``None``: one IPR)."""
+        if not self.by_distance:
+            return None
+        from ..models.ims import DistanceMeans
+
+        return DistanceMeans(self.by_distance["edges"], self.by_distance["values"])
+
+    def describe(self) -> str:
+        """The report's line on where LAS at the promise runs and why."""
+        head = (f"LAS at the product's promise (what a user who chose LAS would run): its IPR searched on {self.where}, "
+                f"the smallest that keeps the bound on the gap to the RecNN alone within {self.epsilon_db:g} dB")
+        if not self.found:
+            return f"{head}: none of those searched did, so it runs at the largest, IPR {self.ipr:.1%}."
+        rec = self.record
+        line = f"{head}: IPR {self.ipr:.1%}, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} dB)"
+        if not self.by_distance:
+            return line + "."
+        b = self.by_distance
+        bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.1%} (bound {bd:.2f} dB)"
+                          for lo, hi, x, bd in zip(b["lo"], b["hi"], b["values"], b["bounds_db"]))
+        return f"{line}; then each band of camera distance its own, never above that one: {bands}."
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "LASPoint":
+        """The point :meth:`to_dict` wrote (``summary.json``'s ``las_searched``, an interrupted run's point)."""
+        return cls(ipr=float(d["ipr"]), found=bool(d.get("found", True)), where=str(d.get("where", "")),
+                   epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"), rows=list(d.get("rows", [])),
+                   by_distance=d.get("by_distance"))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ipr": self.ipr, "found": self.found, "where": self.where, "epsilon_db": self.epsilon_db,
+                "record": self.record, "by_distance": self.by_distance, "rows": list(self.rows)}
+
+
+def las_gaps(las_net: torch.nn.Module, recnn: torch.nn.Module, pattern, renderer, views: Sequence, frames: Sequence,
+             iprs: Sequence[float], device="cpu") -> tuple[np.ndarray, np.ndarray]:
+    """Per view and IPR, the IPR LAS kept and its PSNR gap to the RecNN alone on its whole pattern: two
+    ``(views, len(iprs))`` arrays.
+
+    Args:
+        las_net: a :class:`~imls_lightning.models.las.LASNet` (its ``low_res`` is the side of the render it sees).
+        recnn: the RecNN alone, C-Image ``(1, 3, n, n)`` -> FR ``(1, 3, m, m)``.
+        pattern: the RecNN's :class:`~imls_lightning.core.patterns.SamplingPattern`.
+        renderer: renders each view's low-res input (``render(view, side)``).
+        views, frames: the views ``(9,)`` and their FR frames ``(m, m, 3)`` uint8 (the ray caster's pixels).
+        iprs: the IPRs tried, each in ``(0, 1]``; LAS's mean is bisected per view to each (its protocol).
+    """
+    kept = np.zeros((len(frames), len(iprs)))
+    gaps = np.zeros_like(kept)
+    h = int(las_net.low_res)
+    with torch.inference_mode():
+        for i, (view, fr) in enumerate(zip(views, frames)):
+            target = frame_tensor(fr).to(device)
+            c = compact(target, pattern.indices.to(device), pattern.c_size)
+            ref = float(psnr_per_image(recnn(c).float().clamp(0, 1), target)[0])
+            low = renderer.render(np.asarray(view, np.float64), h)
+            raw = las_net.importance_net(frame_tensor(low).to(device))
+            for j, ipr in enumerate(iprs):
+                mask = las_net.mask_at(raw, las_net.mean_for_ipr(raw, float(ipr))).float()
+                out = las_net.reconstruct(target * mask, mask).float().clamp(0, 1)
+                gaps[i, j] = ref - float(psnr_per_image(out, target)[0])
+                kept[i, j] = float(mask.mean())
+    return kept, gaps
+
+
+def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, future_views: int | None = None) -> LASPoint:
+    """Search LAS's IPR on the ORP's search views (``s.las_search_iprs``; the bound at ``s.orp_confidence`` for
+    ``future_views`` new views, within ``s.epsilon_db``)."""
+    v = search_views(s, cfg, cache, scene)
+    iprs = sorted(s.las_search_iprs)
+    print(f"[evaluate] LAS at the promise: its IPR searched among {', '.join(f'{x:.1%}' for x in iprs)} on {v.where}, "
+          f"judged by the {s.orp_confidence:.0%} upper bound on the mean gap of {judged(v, future_views)}",
+          file=sys.stderr, flush=True)
+    las = nets.las_task.net.to(device).eval()
+    recnn = nets.recnn.to(device).eval()
+    views = [v.cache.views[r] for r in v.rows]
+    frames = [np.asarray(v.cache.images[r]) for r in v.rows]
+    kept, gaps = las_gaps(las, recnn, nets.ims_task.pattern, renderer, views, frames, iprs, device)
+    chosen, rows = smallest_within(v, iprs, kept, gaps, s.orp_confidence, s.epsilon_db, future_views)
+    by_distance = None
+    if chosen is not None:
+        print(f"[evaluate] LAS at the promise: IPR {chosen['value']:.1%}, gap {chosen['gap_db']:.2f} dB "
+              f"(bound {chosen['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
+        if s.orp_by_distance and v.strata is not None:
+            by_distance = band_values(v, iprs[:iprs.index(chosen["value"]) + 1], kept, gaps, s.orp_confidence,
+                                      s.epsilon_db, future_views, what="LAS at the promise", say=lambda x: f"IPR {x:.1%}")
+    else:
+        print(f"[evaluate] LAS at the promise: no IPR searched kept the bound; it runs at the largest, {iprs[-1]:.1%}",
+              file=sys.stderr, flush=True)
+    rows = [{"ipr": r["value"], "kept": r["kept"], "gap_db": r["gap_db"], "gap_bound_db": r["gap_bound_db"]} for r in rows]
+    return LASPoint(ipr=float(chosen["value"]) if chosen else float(iprs[-1]), found=chosen is not None, where=v.where,
+                    epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
+
+
+def las_searched_method(point: LASPoint, renderer, las_task, fr_size: int, opts):
+    """The method the evaluation measures at ``point`` (key ``las_searched``)."""
+    from ..inference.pipeline import LASMethod
+
+    method = LASMethod(renderer, las_task.net, fr_size, int(las_task.hparams["low_res"]), ipr=point.ipr, opts=opts,
+                       by_distance=point.iprs_by_distance())
+    method.name = "las_searched"
+    return method
+
+
+__all__ = ["LASPoint", "las_gaps", "las_point", "las_searched_method"]
