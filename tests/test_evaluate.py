@@ -113,6 +113,14 @@ def test_metrics_csv_has_every_method_and_stage(run):
     assert list(s) == list(METHOD_ORDER) and s["imls"]["views"] == 2
 
 
+def _training_cache(ck: dict):
+    """The tiny training cache (data.seed 0; the held-out one is seed 1) the module's checkpoints were trained on."""
+    from data_gen.cache import ViewImageCache
+
+    return next(c for c in (ViewImageCache.open(p) for p in sorted(ck["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+
+
 def _compose(*overrides: str):
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -1146,13 +1154,11 @@ def test_two_pass_sampler_by_distance_gives_each_band_its_own_share(run):
     """orp_by_distance=true: the two-pass sampler's share is searched per band of camera distance as the ORP's mean
     value is (never above the share that held in every band), from the gaps its search measured; its method runs each
     view at its band's share, and the settings hash changes with it (its results do)."""
-    from data_gen.cache import ViewImageCache
     from data_gen.scene import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.two_pass import two_pass_method, two_pass_point
 
-    caches = [ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*"))]
-    main = next(c for c in caches if c.manifest["data"]["seed"] == 0)
+    main = _training_cache(run["ck"])
     cfg = _compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=true", "orp_confidence=0.5", "epsilon_db=3.0"))
     s = parse_settings(cfg)
     assert s.hashed()["two_pass"] == {"base": 0.2, "floor": 0.25, "by_distance": True}
@@ -1215,7 +1221,6 @@ def test_las_at_the_promise_runs_at_an_ipr_searched_on_the_orps_views_and_report
 def test_las_search_gap_is_the_gap_the_method_measures_on_the_same_view(run):
     """las_gaps (the search) and LASMethod (the measured method) agree on a view: the same low-res render, the same
     bisected mask, the cached FR pixels the ray caster returns; so the gap searched is the gap LAS runs at."""
-    from data_gen.cache import ViewImageCache
     from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene
     from imls_lightning.core.metrics import psnr_per_image
@@ -1227,8 +1232,7 @@ def test_las_search_gap_is_the_gap_the_method_measures_on_the_same_view(run):
     cfg = _compose(*_args(run["ck"]))
     s = parse_settings(cfg)
     nets = load_networks(s, int(cfg.data.resolution))
-    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
-                if c.manifest["data"]["seed"] == 0)
+    main = _training_cache(run["ck"])
     renderer = make_renderer(build_scene(cfg.scene), dict(cfg.renderer))
     view, truth = np.asarray(main.views[0], np.float64), np.asarray(main.images[0])
     kept, gaps = las_gaps(nets.las_task.net.eval(), nets.recnn.eval(), nets.ims_task.pattern, renderer, [view], [truth],
@@ -1249,14 +1253,12 @@ def test_las_search_gap_is_the_gap_the_method_measures_on_the_same_view(run):
 def test_las_at_the_promise_by_distance_gives_each_band_its_own_ipr(run):
     """orp_by_distance=true: LAS's IPR is searched per band of camera distance (never above the IPR that held in
     every band); its method runs each view at its band's IPR."""
-    from data_gen.cache import ViewImageCache
     from data_gen.renderers import make_renderer
     from data_gen.scene import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.las_point import LASPoint, las_point, las_searched_method
 
-    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
-                if c.manifest["data"]["seed"] == 0)
+    main = _training_cache(run["ck"])
     cfg = _compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=true", "orp_confidence=0.5", "epsilon_db=60.0"))
     s = parse_settings(cfg)
     nets = load_networks(s, int(cfg.data.resolution))
