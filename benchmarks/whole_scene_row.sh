@@ -13,19 +13,16 @@
 # The IML trains 15 epochs and the IMS 10 instead of the schedule's 5 (seed_whole's curves still rose at 5; see its row.sh).
 # After the ORP search, the object floor's margin (orp_object_floor) is chosen on the cache's validation views: a view's
 # share near its own object's fraction lost seed_whole's promise on a quarter of its test views.
+# The settings both whole-scene rows share, and the loop over chunks, are in benchmarks/row_protocol.sh.
 #   bash benchmarks/whole_scene_row.sh SCENE [overrides...]
 scene=${1:?usage: whole_scene_row.sh SCENE [overrides...]}; shift
-cd "$(dirname "$0")/.." && source .venv/bin/activate
+cd "$(dirname "$0")/.." && source .venv/bin/activate && source benchmarks/row_protocol.sh
 extra=()
 [ "${TRAIN_ONLY:-0}" = 1 ] && extra+=(train_only=true)
 by_band=""
 [ "${FLOOR_BY_BAND:-0}" = 1 ] && by_band=',"orp_object_floor_by_band=true","orp_object_floor_tail='"${FLOOR_TAIL:-0.1}"'"'
 for o in ${EVAL_EXTRA:-}; do by_band+=',"'"$o"'"'; done
-for i in $(seq 1 20); do
-  python -m imls_lightning.bench_paper scene="$scene" recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
-    'stages.iml=["model.mode=end_to_end","model.mean=0.2","model.mean_range=[0.05,0.6]","model.depth=4","model.base_channels=8","trainer.max_epochs='"${IML_EPOCHS:-15}"'"]' \
-    'stages.ims=["data.num_views=1500","data.train_pixels=pattern","data.val_fraction=0.02","model.target=pim","model.loss.mse=1.0","model.loss.perceptual.weight=0.0","model.loss.adversarial=0.0","model.layers=7","model.base_channels=16","model.max_channels=256","model.betas=[0.9,0.999]","model.decoder_lr=1.0e-3","model.decoder_every=4","model.decoder_mean_range=[0.1,1.0]","trainer.max_epochs='"${IMS_EPOCHS:-10}"'","model.monitor=val/fr_psnr"]' \
-    'evaluate=["max_views=null","timed_views='"${TIMED_VIEWS:-12}"'","repeats=10","warmup=1","sweep_views=2","grid_views=3","orp_max_views=40","orp_views=path","orp_strata=4","orp_by_distance=true","options.half=auto","ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.02,0.04,0.06,0.08,0.1,0.12,0.14,0.16,0.2}"']"'"$by_band"']'
-  rc=$?; echo "[row] pass $i rc=$rc at $(date)"
-  [ $rc -eq 3 ] || exit $rc
-done
+run_in_chunks python -m imls_lightning.bench_paper scene="$scene" recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
+  'stages.iml=['"$IML_SETTINGS"',"trainer.max_epochs='"${IML_EPOCHS:-15}"'"]' \
+  'stages.ims=['"$IMS_SETTINGS"',"trainer.max_epochs='"${IMS_EPOCHS:-10}"'","model.monitor=val/fr_psnr"]' \
+  'evaluate=['"$EVAL_SETTINGS"',"ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.02,0.04,0.06,0.08,0.1,0.12,0.14,0.16,0.2}"']"'"$by_band"']'
