@@ -19,10 +19,10 @@ scene=${1:?usage: whole_scene_row.sh SCENE [overrides...]}; shift
 cd "$(dirname "$0")/.." && source .venv/bin/activate && source benchmarks/row_protocol.sh
 extra=()
 [ "${TRAIN_ONLY:-0}" = 1 ] && extra+=(train_only=true)
-by_band=""
-[ "${FLOOR_BY_BAND:-0}" = 1 ] && by_band=',"orp_object_floor_by_band=true","orp_object_floor_tail='"${FLOOR_TAIL:-0.1}"'"'
-for o in ${EVAL_EXTRA:-}; do by_band+=',"'"$o"'"'; done
+eval_extra=""
+[ "${FLOOR_BY_BAND:-0}" = 1 ] && eval_extra=',"orp_object_floor_by_band=true","orp_object_floor_tail='"${FLOOR_TAIL:-0.1}"'"'
+for o in ${EVAL_EXTRA:-}; do eval_extra+=',"'"$o"'"'; done
 run_in_chunks python -m imls_lightning.bench_paper scene="$scene" recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
   'stages.iml=['"$IML_SETTINGS"',"trainer.max_epochs='"${IML_EPOCHS:-15}"'"]' \
   'stages.ims=['"$IMS_SETTINGS"',"trainer.max_epochs='"${IMS_EPOCHS:-10}"'","model.monitor=val/fr_psnr"]' \
-  'evaluate=['"$EVAL_SETTINGS"',"ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.02,0.04,0.06,0.08,0.1,0.12,0.14,0.16,0.2}"']"'"$by_band"']'
+  'evaluate=['"$EVAL_SETTINGS"',"ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.02,0.04,0.06,0.08,0.1,0.12,0.14,0.16,0.2}"']"'"$eval_extra"']'
