@@ -1,7 +1,8 @@
 #!/bin/bash
 # A whole-framed scene's EnhanceNet row of paper_scale.csv by flame_whole's protocol (benchmarks/flame_whole/row_decoder.sh):
 # the before-training estimate, the cache, every training stage in 30-minute chunks (the IMS's decoder stage included),
-# then the evaluation without empty-space skipping, the methods timed interleaved on 12 views, gamma = 3 masks.
+# then the evaluation on the faster ray caster (empty-space skipping; SKIP_EMPTY=false for the old rows' protocol), the
+# RecNN alone and IML/S timed on both ray casters, the methods interleaved on 12 views, gamma = 3 masks.
 # A stage that stops after its chunk exits with status 3: the loop runs the same command again, which resumes it.
 # TRAIN_ONLY=1 stops after the training stages (the evaluation needs the cores to itself: run it alone later);
 # TIMED_VIEWS=N times N of the test views instead of 12 (the PSNR is always on all 120), FLOORS=a,b,...
@@ -22,7 +23,8 @@ extra=()
 eval_extra=""
 [ "${FLOOR_BY_BAND:-0}" = 1 ] && eval_extra=',"orp_object_floor_by_band=true","orp_object_floor_tail='"${FLOOR_TAIL:-0.1}"'"'
 for o in ${EVAL_EXTRA:-}; do eval_extra+=',"'"$o"'"'; done
-run_in_chunks python -m imls_lightning.bench_paper scene="$scene" recnns=[enhancenet] adaptive=null skip_empty=false "${extra[@]}" "$@" \
+run_in_chunks python -m imls_lightning.bench_paper scene="$scene" recnns=[enhancenet] adaptive=null skip_empty="${SKIP_EMPTY:-true}" "${extra[@]}" "$@" \
   'stages.iml=['"$IML_SETTINGS"',"trainer.max_epochs='"${IML_EPOCHS:-15}"'"]' \
   'stages.ims=['"$IMS_SETTINGS"',"trainer.max_epochs='"${IMS_EPOCHS:-10}"'","model.monitor=val/fr_psnr"]' \
+  'stages.las=['"$LAS_SETTINGS"']' \
   'evaluate=['"$EVAL_SETTINGS"',"ims_sharpness=[3.0]","orp_object_floor=['"${FLOORS:-0.0,0.02,0.04,0.06,0.08,0.1,0.12,0.14,0.16,0.2}"']"'"$eval_extra"']'

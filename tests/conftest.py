@@ -79,8 +79,9 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
     # bce instead of the perceptual loss: no VGG16 to load, same networks
     ims = run("ims", ["model=ims", f"iml.checkpoint={iml}", "model.layers=5", "model.base_channels=8",
                       "model.disc_base_channels=8", "model.loss.perceptual.weight=0", "model.loss.bce=1"])
-    # the product's IMS (regresses PIM', so one IMS serves every mean value: the ORP search needs it)
-    ims_pim = run("ims_pim", ["model=ims", f"iml.checkpoint={iml}", "model.layers=5", "model.base_channels=8",
+    # the product's IMS (regresses PIM', so one IMS serves every mean value: the ORP search needs it), trained on views
+    # of a seed of its own as the row protocol's is: the validation views the object floor is chosen on stay unseen
+    ims_pim = run("ims_pim", ["model=ims", f"iml.checkpoint={iml}", "data.seed=100", "model.layers=5", "model.base_channels=8",
                               "model.target=pim", "model.loss.mse=1.0", "model.loss.perceptual.weight=0",
                               "model.loss.adversarial=0"])
     # the untrained-mask baseline: the blue-noise mask with a decoder trained for it

@@ -23,22 +23,27 @@ import yaml
 
 from data_gen.errors import InputError
 from imls_lightning.inference.pipeline import STAGES
-from imls_lightning.report import METHOD_ORDER, summary
+from imls_lightning.report import METHOD_ORDER as ALL_METHODS, summary
 
 ROOT = Path(__file__).resolve().parents[1]
 MEANS = [0.1, 0.3]
 LAS_IPRS = [0.1]
 LAS_SEARCH_IPRS = [0.05, 0.1, 0.25, 0.5]
 FRONT_SHARES = [0.2, 1.0]
+# the methods the module's evaluation measures: all but the ray caster twins with skipping on (its ray caster skips
+# already; the twins march every sample: both_ray_casters)
+METHOD_ORDER = tuple(m for m in ALL_METHODS if m not in ("recnn_skip", "imls_skip"))
 # the stages each method reports (pipeline.py's table); every other stage column stays empty
 METHOD_STAGES = {
     "full": {"render"},
     "recnn": {"selective_render", "recnn"},
+    "recnn_noskip": {"selective_render", "recnn"},
     "recnn_sparser": {"selective_render", "recnn"},
     "las": {"low_res_render", "importance", "selective_render", "recnn"},
     "las_searched": {"low_res_render", "importance", "selective_render", "recnn"},
     "iml": {"selective_render", "importance", "decoder", "recnn"},
     "imls": {"importance", "selective_render", "decoder", "recnn"},
+    "imls_noskip": {"importance", "selective_render", "decoder", "recnn"},
     "imls_fill": {"importance", "selective_render", "decoder", "recnn"},
     "blue_noise": {"importance", "selective_render", "decoder", "recnn"},
     "two_pass": {"low_res_render", "importance", "selective_render", "decoder", "recnn"},
@@ -1313,3 +1318,77 @@ def test_every_method_runs_compiled_and_scores_as_eager(tiny_checkpoints, tmp_pa
     assert db[True].keys() == db[False].keys() and {m for m, _ in db[True]} >= {"recnn", "imls", "blue_noise", "las"}
     far = {k: (db[True][k], db[False][k]) for k in db[True] if not abs(db[True][k] - db[False][k]) < 0.1}
     assert not far, far
+
+
+# ---- the fastest baseline and the protocol's views ---------------------------------------------------------------
+def test_both_ray_casters_are_timed_in_one_run_and_the_speedup_counts_against_the_faster(run):
+    """both_ray_casters (default): the RecNN alone and IML/S are timed with skipping off too, on every timed view, with
+    the very same images; summary.json's ray_casters and the CSV row give both and speedup_vs_fastest."""
+    from imls_lightning.pipelines.bench_paper import csv_row, read_summary
+
+    _, rows = _rows(run["out"] / "metrics.csv")
+    by = {(r["view"], r["method"]): r for r in rows}
+    timed = {r["view"] for r in rows if r["method"] == "recnn" and r["total_ms"] != ""}
+    assert timed
+    for v in timed:
+        for name in ("recnn", "imls"):
+            twin = by[(v, f"{name}_noskip")]
+            assert float(twin["psnr"]) == float(by[(v, name)]["psnr"])  # the same pixels on either ray caster
+            assert float(twin["total_ms"]) > 0
+    s = json.loads((run["out"] / "summary.json").read_text())
+    rc = s["ray_casters"]
+    fast_recnn = min(rc["recnn_skip_ms"], rc["recnn_noskip_ms"])
+    fast_imls = min(rc["imls_skip_ms"], rc["imls_noskip_ms"])
+    assert rc["speedup_vs_fastest"] == pytest.approx(fast_recnn / fast_imls)
+    assert rc["speedup_vs_fastest_low"] <= rc["speedup_vs_fastest"] <= rc["speedup_vs_fastest_high"]
+    row = csv_row(read_summary(run["report"]))
+    assert row["speedup_vs_fastest"] == rc["speedup_vs_fastest"] and row["recnn_noskip_ms"] == rc["recnn_noskip_ms"]
+    assert "**The fastest baseline**" in run["report"].read_text()
+
+
+def test_a_fresh_trajectory_of_its_own_seed_is_what_the_evaluation_measures(run, tmp_path):
+    """trajectory_seed=N: the test views are the path model's views of seed N, rendered into a cache of their own;
+    the settings' validation views stay the training cache's."""
+    from data_gen.scene import build_scene
+    from data_gen.views import exploration_trajectory
+    from imls_lightning.evaluation import evaluate
+
+    cfg = _compose(*_args(run["ck"], "trajectory_seed=7", "orp=false", "shares=null", "mean_values=[0.1]", "grid_views=0",
+                          "las_searched=false", "both_ray_casters=false", "timed_views=1", f"output_dir={tmp_path / 'eval'}"))
+    report = evaluate(cfg)
+    s = json.loads((report.parent / "summary.json").read_text())
+    assert s["trajectory"]["seed"] == 7 and s["ray_casters"] is None
+    from data_gen.cache import ViewImageCache
+
+    cache = ViewImageCache.open(s["trajectory"]["cache"])
+    scene = build_scene(cfg.scene)
+    want = exploration_trajectory(int(cfg.data.test_views), scene.camera_distance, seed=7, lookat_jitter=float(cfg.data.lookat_jitter))
+    np.testing.assert_allclose(np.asarray(cache.views[cache.splits["test"]]), want.astype(np.float32))
+    assert "a fresh trajectory of seed 7" in report.read_text()
+
+
+@pytest.mark.parametrize("seed, needle", [
+    (0, "trajectory_seed=0: equals data.seed"),
+    (1, "trajectory_seed=1: equals a seed of the ORP's search views"),
+    (100, "trajectory_seed=100: equals the IMS's training data.seed"),
+])
+def test_exception_a_trajectory_seed_some_choice_read_is_one_line(run, seed, needle):
+    from imls_lightning.evaluation import evaluate
+
+    with pytest.raises(InputError, match=re.escape(needle)):
+        evaluate(_compose(*_args(run["ck"], f"trajectory_seed={seed}")))
+
+
+def test_exception_validation_views_whose_directions_the_ims_trained_on_are_refused(run):
+    """An IMS trained on views of the cache's own seed has seen the validation views' eye directions: choosing the
+    object floor on them is refused in one line (the module's IMS trained on seed 100: its run record says so)."""
+    from imls_lightning.evaluation.protocol import check_view_seeds, training_data_seed
+    from imls_lightning.evaluation.settings import parse_settings
+
+    assert training_data_seed(run["ck"]["ims_pim"]) == 100 and training_data_seed(run["ck"]["iml"]) == 0
+    s = parse_settings(_compose(*_args(run["ck"], "orp_object_floor=[0.0,0.1]")))
+    cfg = _compose(*_args(run["ck"]))
+    check_view_seeds(s, cfg, 100)  # passes
+    with pytest.raises(InputError, match=re.escape("checkpoints.ims: trained on views of data.seed=0, the seed of the validation views")):
+        check_view_seeds(s, cfg, 0)
+    check_view_seeds(parse_settings(_compose(*_args(run["ck"], "orp_object_floor=[]"))), cfg, 0)  # no floor: nothing read

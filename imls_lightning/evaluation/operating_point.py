@@ -27,16 +27,19 @@ def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report:
     """Record the ORP IML/S ran at beside the IMS checkpoint (``<ims.ckpt>.orp.json``, see
     :mod:`imls_lightning.inference.operating_point`), where renderers built from the checkpoint alone
     find it; a folder that cannot be written is a one-line warning (the report holds the point)."""
-    from ..inference.operating_point import OperatingPoint, write_operating_point
+    from ..inference.operating_point import SEARCH_TOLERANCE, OperatingPoint, write_operating_point
 
     opt = lambda k: None if orp.get(k) is None else float(orp[k])  # noqa: E731
     bands = orp.get("by_distance") if orp["found"] else None
+    # the share of C the search measured at each mean value it tried: the record's share is checked against it on read
+    points = [[float(p[0]), float(p[2])] for p in orp.get("points") or [] if p[0] is not None and p[2] is not None]
     point = OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
                            ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
                            scene=scene, report=str(Path(report).resolve()),
                            by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
                            sharpness=float(orp.get("sharpness", 1.0)),
-                           object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None)
+                           object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None,
+                           points=points or None, tolerance=SEARCH_TOLERANCE)
     try:
         path = write_operating_point(s.ims, point)
     except OSError as err:
@@ -95,10 +98,9 @@ def orp_search_views(s: Settings, cfg, cache, scene):
 def _search_paths(s: Settings, cfg, scene, n: int, seed: int) -> tuple[str, list[int]]:
     """``orp_paths`` exploratory paths of ``ceil(n / orp_paths)`` views each, seeds ``seed``, ``seed + 1``, ...,
     written (content-named, atomically) as a views file under the cache folder: ``(file, path label per view)``."""
-    import hashlib
-    import os
-
     from data_gen.views import exploration_trajectory
+
+    from .protocol import write_views_file
 
     if int(cfg.data.seed) in range(seed, seed + s.orp_paths):
         raise InputError(f"orp_views_seed={seed}: the search paths' seeds {seed}-{seed + s.orp_paths - 1} include "
@@ -106,14 +108,7 @@ def _search_paths(s: Settings, cfg, scene, n: int, seed: int) -> tuple[str, list
     per = -(-int(n) // s.orp_paths)
     views = np.concatenate([exploration_trajectory(per, scene.camera_distance, seed=seed + k,
                                                    lookat_jitter=float(cfg.data.lookat_jitter)) for k in range(s.orp_paths)])
-    views = np.ascontiguousarray(views, dtype=np.float64)
-    folder = Path(str(cfg.data.cache_dir)) / "orp_paths"
-    folder.mkdir(parents=True, exist_ok=True)
-    out = folder / f"{hashlib.sha256(views.tobytes()).hexdigest()[:16]}.npy"
-    if not out.is_file():
-        tmp = out.with_suffix(f".{os.getpid()}.tmp.npy")
-        np.save(tmp, views)
-        os.replace(tmp, out)
+    out = write_views_file(views, Path(str(cfg.data.cache_dir)) / "orp_paths")
     return str(out), [i // per for i in range(len(views))]
 
 

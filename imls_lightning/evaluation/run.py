@@ -21,6 +21,7 @@ from .. import report as rep
 from ..config import file_hash, settings_hash, to_plain
 from ..inference.pipeline import FullRayCast, IMLPlusRecNN, IMLSRenderer, LASMethod, Method, RecNNAlone, pick_device
 from ..models.iml import FillDecoder
+from ..report.names import TWIN_METHODS, ray_caster_twin
 from .baselines import blue_noise_method, equal_share, sparser_method
 from .measurement import measure_methods, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
@@ -28,7 +29,8 @@ from .operating_point import (borrowed_point, camera_distance, distance_means, g
                               product_path_orp, record_operating_point)
 from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
-from .speedup import speedup_intervals
+from .protocol import check_view_seeds, fresh_trajectory_data, training_data_seed, trajectory_note
+from .speedup import ray_casters, speedup_intervals
 from .sweeps import Sweeps, front_notes, options_sweep
 from .las_point import LASPoint, las_point, las_searched_method
 from .two_pass import TwoPassPoint, two_pass_method, two_pass_point
@@ -83,16 +85,23 @@ def output_dir(cfg: DictConfig, s: Settings, scene, rcfg: dict[str, Any], paths:
 
 
 def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
-    """The cache (rendered if missing), the rows of the evaluated split and the evaluated positions in it."""
+    """``(cache, evaluated cache, rows, positions)``: the networks' cache (rendered if missing; its validation views
+    choose the settings), the cache of the evaluated views (the same one, or with ``trajectory_seed`` the fresh
+    trajectory's own: :func:`~.protocol.fresh_trajectory_data`), the rows of the evaluated split in it and the
+    evaluated positions among them."""
     from data_gen.cache import ViewImageCache, ensure_cache
 
     cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
-    if cache.resolution != resolution:
-        raise InputError(f"data.resolution={resolution}: the cache {cache.path} holds {cache.resolution}^2 images")
-    rows_all = cache.splits[s.views]
+    evaluated = cache
+    if s.trajectory_seed is not None:  # rendered with the same renderer settings: the pixels do not depend on skipping
+        evaluated = ViewImageCache.open(ensure_cache(scene, fresh_trajectory_data(s, cfg, scene), cfg.renderer, progress=s.progress))
+    for c in (cache, evaluated):
+        if c.resolution != resolution:
+            raise InputError(f"data.resolution={resolution}: the cache {c.path} holds {c.resolution}^2 images")
+    rows_all = evaluated.splits[s.views]
     if len(rows_all) == 0:
-        raise InputError(f"views={s.views}: the cache {cache.path} has no {s.views} views")
-    return cache, rows_all, spaced(len(rows_all), s.max_views)
+        raise InputError(f"views={s.views}: the cache {evaluated.path} has no {s.views} views")
+    return cache, evaluated, rows_all, spaced(len(rows_all), s.max_views)
 
 
 def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer=None):
@@ -172,10 +181,13 @@ def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list
 
 def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
                   imls_mean: float | None, lift: bool, notes: list[str], by_distance=None,
-                  two_pass: TwoPassPoint | None = None, las: LASPoint | None = None) -> tuple[dict[str, Method], float | None]:
+                  two_pass: TwoPassPoint | None = None, las: LASPoint | None = None,
+                  other_renderer=None) -> tuple[dict[str, Method], float | None]:
     """Every method measured (the networks are shared between methods with the same options) and the
     IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance;
-    ``two_pass``: the two-pass sampler's operating point, ``las``: LAS's at the promise (None: not measured)."""
+    ``two_pass``: the two-pass sampler's operating point, ``las``: LAS's at the promise (None: not measured);
+    ``other_renderer``: the other ray caster (:func:`other_ray_caster`), on which the RecNN alone and IML/S are
+    timed too (their twins, :data:`~imls_lightning.report.names.TWIN_METHODS`)."""
     opts, pattern, ims = s.options, nets.ims_task.pattern, nets.ims_task
     imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift,
                         by_distance=by_distance)
@@ -210,7 +222,57 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
     if two_pass is not None:
         methods["two_pass"] = two_pass_method(two_pass, renderer, pattern, nets.recnn, opts)
         notes.append(two_pass.describe())
+    if other_renderer is not None:
+        methods.update(ray_caster_twins(methods, other_renderer))
+        notes.append(f"Both ray casters: the RecNN alone and IML/S are timed with empty-space skipping "
+                     f"{'off' if other_renderer.skip_empty is False else 'on'} too (the same pixels), interleaved with "
+                     "the other methods on every timed view; the speed-up that counts is IML/S's faster configuration "
+                     "against the faster RecNN alone (speedup_vs_fastest).")
     return methods, las_ipr_used
+
+
+def other_ray_caster(s: Settings, scene, rcfg: dict[str, Any], renderer, notes: list[str]):
+    """The ray caster with empty-space skipping flipped (``both_ray_casters``), or None: not asked for, or a
+    renderer without the switch (one line in the notes)."""
+    from data_gen.renderers import make_renderer
+
+    if not s.both_ray_casters:
+        return None
+    if not hasattr(renderer, "skip_empty"):
+        notes.append(f"Both ray casters: renderer={rcfg.get('name')} has no empty-space skipping switch; one ray caster timed.")
+        return None
+    return make_renderer(scene, {**rcfg, "skip_empty": not renderer.skip_empty})
+
+
+def ray_caster_twins(methods: dict[str, Method], other_renderer) -> dict[str, Method]:
+    """``recnn`` and ``imls`` on ``other_renderer``: shallow copies sharing their prepared networks (so the networks'
+    times are the same code and weights), only the ray caster swapped."""
+    import copy
+
+    twins = {}
+    for name in ("recnn", "imls"):
+        twin = copy.copy(methods[name])
+        twin.renderer = other_renderer
+        twins[ray_caster_twin(name, bool(other_renderer.skip_empty))] = twin
+    return twins
+
+
+def ray_casters_line(rc: dict[str, Any] | None) -> str | None:
+    """The report's line on the fastest baseline (:func:`~.speedup.ray_casters`), or None without both ray casters.
+
+    Example:
+        >>> print(ray_casters_line({"recnn_skip_ms": 180.0, "recnn_noskip_ms": 1900.0, "imls_skip_ms": 200.0,
+        ...     "imls_noskip_ms": 860.0, "fastest_recnn": "skip", "fastest_imls": "skip", "speedup_vs_fastest": 0.9,
+        ...     "speedup_vs_fastest_low": 0.85, "speedup_vs_fastest_high": 0.95, "speedup_noskip": 2.21, "views": 12}))
+        **The fastest baseline** (12 timed views): the RecNN alone takes 180 ms with empty-space skipping and 1900 ms marching every sample; IML/S + RecNN 200 and 860 ms. IML/S's faster configuration against the faster RecNN alone: **0.90x** (0.85-0.95); without skipping on either side: 2.21x.
+    """
+    if rc is None:
+        return None
+    return (f"**The fastest baseline** ({rc['views']} timed views): the RecNN alone takes {rc['recnn_skip_ms']:.0f} ms with "
+            f"empty-space skipping and {rc['recnn_noskip_ms']:.0f} ms marching every sample; IML/S + RecNN "
+            f"{rc['imls_skip_ms']:.0f} and {rc['imls_noskip_ms']:.0f} ms. IML/S's faster configuration against the faster "
+            f"RecNN alone: **{rc['speedup_vs_fastest']:.2f}x** ({rc['speedup_vs_fastest_low']:.2f}-"
+            f"{rc['speedup_vs_fastest_high']:.2f}); without skipping on either side: {rc['speedup_noskip']:.2f}x.")
 
 
 def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[str, Method], order: list[str],
@@ -240,11 +302,13 @@ def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[
         view, truth = np.asarray(cache.views[r], np.float64), np.asarray(cache.images[r])
         view_rows, view_sweep, view_grid = [], [], {"truth": truth} if p in grid_pos else None
         timed = p in timed_pos
+        # the other ray caster's twins only time: their images are their methods' (the same pixels)
+        view_order = order if timed else [n for n in order if n not in TWIN_METHODS]
         with rep.OtherLoad() as other:  # the cores other jobs keep busy while this view is timed
             # a timed view's methods in one schedule (s.timing: rounds, or each method's runs back to back)
-            measured = measure_methods({name: methods[name] for name in order}, view, truth, s.repeats if timed else 1,
+            measured = measure_methods({name: methods[name] for name in view_order}, view, truth, s.repeats if timed else 1,
                                        s.warmup if timed else 0, order=s.timing)
-            for name in order:
+            for name in view_order:
                 fields, image, info = measured[name]
                 if not timed:  # one untimed run: its image counts, its stage times do not
                     fields.update({k: None for k in fields if k.endswith("_ms")})
@@ -303,6 +367,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     resolution = int(cfg.data.resolution)
     paths = checkpoint_paths(s)
     check_trained_on(cfg, s)
+    check_view_seeds(s, cfg, training_data_seed(s.ims))  # settings on views nobody trained on; a fresh trajectory
     scene = build_scene(cfg.scene)
     rcfg = to_plain(cfg.renderer)
     # a point taken from another evaluation is checked against these networks before anything is loaded
@@ -320,10 +385,13 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     report_path.unlink(missing_ok=True)  # no report.md = no finished evaluation in this folder
 
-    cache, rows_all, positions = open_views(cfg, s, scene, resolution)
+    val_cache, cache, rows_all, positions = open_views(cfg, s, scene, resolution)
     renderer = make_renderer(scene, rcfg)
     device = pick_device(s.options.device)
     notes: list[str] = []
+    if s.trajectory_seed is not None:
+        notes.append(f"Test views: a fresh trajectory of seed {s.trajectory_seed} (the same path model and camera distances; "
+                     f"cache {cache.path}); the settings were chosen on other views.")
     grid_pos = set(int(positions[i]) for i in spaced(len(positions), s.grid_views)) if s.grid_views else set()
     sweep_pos = [int(positions[i]) for i in spaced(len(positions), s.sweep_views)]
     # latency on timed_views of the evaluated views (repeats runs each), quality on all of them; the sweep's
@@ -331,10 +399,11 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
     # what an interrupted run of these settings measured: its point and views are kept, the rest measured
     progress = EvaluationProgress(out, positions, timed_pos, resume=s.resume)
-    orp, imls_mean, lift, two_pass, las = find_point(s, cfg, cache, scene, nets, device, positions, notes, renderer,
+    orp, imls_mean, lift, two_pass, las = find_point(s, cfg, val_cache, scene, nets, device, positions, notes, renderer,
                                                      progress, borrowed)
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
-                                          by_distance=distance_means(orp), two_pass=two_pass, las=las)
+                                          by_distance=distance_means(orp), two_pass=two_pass, las=las,
+                                          other_renderer=other_ray_caster(s, scene, rcfg, renderer, notes))
     order = [k for k in rep.METHOD_ORDER if k in methods]
     if len(timed_pos) < len(positions):
         notes.append(f"Latency: stage times on {len(timed_pos)} of the {len(positions)} evaluated views (evenly spaced, "
@@ -345,6 +414,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
                                                  sweep_pos, progress)
     if (note := progress.note()) is not None:
         notes.append(note)
+    if (line := ray_casters_line(ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False))) is not None:
+        notes.append(line)
     load_summary = timing_load(load)
     if (note := load_note(load_summary)) is not None:
         notes.append(note)
@@ -406,7 +477,10 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "repeats": s.repeats, "methods": rep.summarize_rows(rows),
         "speedup_interval": speedup_intervals(rows),  # each method over the RecNN alone, the timed views resampled
         "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass,
-        **({"las_searched": las_searched} if las_searched is not None else {}), "timing_load": res.get("timing_load")},
+        **({"las_searched": las_searched} if las_searched is not None else {}), "timing_load": res.get("timing_load"),
+        # the fastest baseline: both ray casters timed in this run (both_ray_casters), and the fresh trajectory's seed
+        "ray_casters": ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False),
+        "trajectory": trajectory_note(s, cache)},
         indent=1, default=float))
     ctx = rep.ReportContext(
         out=out, scene=scene.name, recnn_name=nets.recnn_name, resolution=m, c_size=pattern.c_size,

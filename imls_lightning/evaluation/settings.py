@@ -124,6 +124,8 @@ class Settings:
     orp_from_sha256: str | None = None   # its summary.json's bytes (part of this run's identity)
     las_searched: bool = False           # also LAS at the product's promise: its IPR searched on the ORP's search views
     las_search_iprs: list[float] = field(default_factory=lambda: list(LAS_SEARCH_IPRS))  # the IPRs it is searched among
+    trajectory_seed: int | None = None   # a fresh test trajectory of this seed (evaluation.protocol); None: the cache's
+    both_ray_casters: bool = True        # the RecNN alone and IML/S timed on the other ray caster too (skipping on/off)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
@@ -154,6 +156,9 @@ class Settings:
             # the point taken from another evaluation: its summary's bytes (only when set)
             **({"orp_from": self.orp_from_sha256} if self.orp_from else {}),
             **({"las_searched": True, "las_search_iprs": self.las_search_iprs} if self.las_searched else {}),
+            # only when set: evaluations made before the keys existed keep their directories
+            **({"trajectory_seed": self.trajectory_seed} if self.trajectory_seed is not None else {}),
+            **({"both_ray_casters": True} if self.both_ray_casters else {}),
             **({"two_pass": {"base": self.two_pass_base, "floor": self.two_pass_floor,
                              # its share per band of camera distance, as the ORP's mean value (results changed with it)
                              **({"by_distance": True} if self.orp_by_distance else {})}}
@@ -202,7 +207,23 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
         ims_sharpness_views=_int(cfg, "ims_sharpness_views", 0) if OmegaConf.select(cfg, "ims_sharpness_views") is not None else 6,
         **_object_floor(cfg), **_orp_from(cfg), **_las_searched(cfg),
+        trajectory_seed=_trajectory_seed(cfg, views), both_ray_casters=_bool(cfg, "both_ray_casters", True),
     )
+
+
+def _trajectory_seed(cfg, views: str) -> int | None:
+    """``trajectory_seed``: an integer >= 0 (a fresh test trajectory of that seed), or null (the cache's own)."""
+    v = _int(cfg, "trajectory_seed", 0, allow_none=True)
+    if v is not None and views != "test":
+        raise InputError(f"trajectory_seed={v}: a fresh trajectory replaces the test views; it needs views=test (got {views})")
+    return v
+
+
+def _bool(cfg, key: str, default: bool) -> bool:
+    v = OmegaConf.select(cfg, key, default=default)
+    if not isinstance(v, bool):
+        raise InputError(f"{key}={v!r}: expected true or false")
+    return v
 
 
 def _las_searched(cfg) -> dict[str, Any]:

@@ -128,3 +128,48 @@ def speedup_intervals(rows: Sequence[Mapping[str, Any]], reference: str = "recnn
         if slow:
             out[m] = speedup_interval(slow, fast, confidence, resamples).to_dict()
     return out
+
+
+def ray_casters(rows: Sequence[Mapping[str, Any]], main_skip: bool, confidence: float = 0.95,
+                resamples: int = RESAMPLES) -> dict[str, Any] | None:
+    """``summary.json``'s ``ray_casters``: the RecNN alone and IML/S on both ray casters, timed in one run (the
+    evaluation's ``both_ray_casters``), and ``speedup_vs_fastest``, IML/S's faster configuration against the faster
+    RecNN alone, with its interval over the timed views. ``main_skip``: whether ``recnn`` / ``imls`` ran with
+    empty-space skipping (their twins, ``recnn_noskip`` / ``imls_noskip`` or ``recnn_skip`` / ``imls_skip``, on the
+    other). None when the twins were not timed.
+
+    Example:
+        >>> rows = [{"view": v, "method": m, "total_ms": t} for v in (0, 1) for m, t in
+        ...         (("recnn", 100.0), ("imls", 80.0), ("recnn_noskip", 400.0), ("imls_noskip", 180.0))]
+        >>> rc = ray_casters(rows, main_skip=True)
+        >>> rc["recnn_skip_ms"], rc["imls_noskip_ms"], rc["fastest_recnn"], round(rc["speedup_vs_fastest"], 2)
+        (100.0, 180.0, 'skip', 1.25)
+    """
+    from ..report.names import ray_caster_twin
+
+    names = {("recnn", main_skip): "recnn", ("imls", main_skip): "imls",
+             ("recnn", not main_skip): ray_caster_twin("recnn", not main_skip),
+             ("imls", not main_skip): ray_caster_twin("imls", not main_skip)}
+    timed = {str(r["method"]) for r in rows if math.isfinite(_total(r))}
+    if not all(n in timed for n in names.values()):
+        return None
+    # the four on the views where all four were timed, so the means compare like with like
+    per: dict[str, dict[int, float]] = {n: {} for n in names.values()}
+    for r in rows:
+        t = _total(r)
+        if str(r["method"]) in per and math.isfinite(t) and t > 0:
+            per[str(r["method"])][int(r["view"])] = t
+    views = sorted(set.intersection(*(set(d) for d in per.values())))
+    if not views:
+        return None
+    mean = {key: float(np.mean([per[n][v] for v in views])) for key, n in names.items()}
+    fast_recnn = min((True, False), key=lambda s: mean[("recnn", s)])
+    fast_imls = min((True, False), key=lambda s: mean[("imls", s)])
+    iv = speedup_interval([per[names[("recnn", fast_recnn)]][v] for v in views],
+                          [per[names[("imls", fast_imls)]][v] for v in views], confidence, resamples)
+    label = {True: "skip", False: "noskip"}
+    return {"recnn_skip_ms": mean[("recnn", True)], "recnn_noskip_ms": mean[("recnn", False)],
+            "imls_skip_ms": mean[("imls", True)], "imls_noskip_ms": mean[("imls", False)],
+            "fastest_recnn": label[fast_recnn], "fastest_imls": label[fast_imls],
+            "speedup_vs_fastest": iv.speedup, "speedup_vs_fastest_low": iv.low, "speedup_vs_fastest_high": iv.high,
+            "speedup_noskip": mean[("recnn", False)] / mean[("imls", False)], "views": len(views)}

@@ -47,9 +47,15 @@ ESTIMATE_INTERVAL_COLUMNS = ("estimated_low", "estimated_high")
 #: LAS at the product's promise (the evaluation's ``las_searched``): the IPR searched on validation views (its mean
 #: over the bands), its total and PSNR; empty: not measured. ``las_ms`` / ``las_psnr_db`` stay LAS at IML/S's IPR
 LAS_SEARCHED_COLUMNS = ("las_searched_ipr", "las_searched_ms", "las_searched_psnr_db")
+#: the fastest baseline (the evaluation's ``both_ray_casters``): the RecNN alone and IML/S with empty-space skipping
+#: on and off, timed in one run, and IML/S's faster configuration against the faster RecNN alone with its interval;
+#: ``trajectory_seed``: the fresh test trajectory the row was measured on (empty: the cache's own, seed data.seed).
+#: Empty where not measured (rows before it, or lost networks)
+FASTEST_COLUMNS = ("recnn_skip_ms", "recnn_noskip_ms", "imls_skip_ms", "imls_noskip_ms", "speedup_vs_fastest",
+                   "speedup_vs_fastest_low", "speedup_vs_fastest_high", "trajectory_seed")
 #: the groups of columns in the order they were appended to the table
 COLUMN_GROUPS = (LEGACY_COLUMNS, ESTIMATE_COLUMNS, RENDERER_COLUMNS, FLOOR_COLUMNS, LOAD_COLUMNS, INTERVAL_COLUMNS,
-                 ESTIMATE_INTERVAL_COLUMNS, LAS_SEARCHED_COLUMNS)
+                 ESTIMATE_INTERVAL_COLUMNS, LAS_SEARCHED_COLUMNS, FASTEST_COLUMNS)
 CSV_COLUMNS = sum(COLUMN_GROUPS, ())
 #: the tables written before each group of columns was appended, still read
 EARLIER_COLUMNS = tuple(sum(COLUMN_GROUPS[:n], ()) for n in range(1, len(COLUMN_GROUPS)))
@@ -155,7 +161,7 @@ def csv_row(summary: Mapping[str, Any], estimate: Mapping[str, Any] | None = Non
         "skip_empty": summary.get("skip_empty", True),
         "object_floor_margin": ((orp.get("object_floor") or {}).get("chosen") or {}).get("margin", "") if orp.get("found") else "",
         "timing_busy_cores": (summary.get("timing_load") or {}).get("max", ""),
-        **interval_cells(summary), **las_searched_cells(summary),
+        **interval_cells(summary), **las_searched_cells(summary), **fastest_cells(summary),
     }
     return {k: row[k] for k in CSV_COLUMNS}  # in the table's order (the estimate's interval comes last)
 
@@ -175,6 +181,23 @@ def las_searched_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
         return {k: "" for k in LAS_SEARCHED_COLUMNS}
     return {"las_searched_ipr": las.get("ipr", ""), "las_searched_ms": _total(summary["methods"], "las_searched"),
             "las_searched_psnr_db": las.get("psnr", "")}
+
+
+def fastest_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`FASTEST_COLUMNS` of a row from the summary's ``ray_casters`` and ``trajectory`` (empty where the
+    evaluation did not time both ray casters or read the cache's own trajectory).
+
+    Example:
+        >>> fastest_cells({"ray_casters": {"recnn_skip_ms": 180.0, "recnn_noskip_ms": 1900.0, "imls_skip_ms": 200.0,
+        ...     "imls_noskip_ms": 860.0, "speedup_vs_fastest": 0.9, "speedup_vs_fastest_low": 0.85,
+        ...     "speedup_vs_fastest_high": 0.95}, "trajectory": {"seed": 7}})["speedup_vs_fastest"]
+        0.9
+        >>> set(fastest_cells({}).values())
+        {''}
+    """
+    rc, traj = summary.get("ray_casters") or {}, summary.get("trajectory") or {}
+    cells = {k: rc.get(k, "") for k in FASTEST_COLUMNS if k != "trajectory_seed"}
+    return {**cells, "trajectory_seed": traj.get("seed", "")}
 
 
 def interval_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
@@ -254,7 +277,8 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
             raise InputError(f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; move it away to start a new table")
         # a table from before the estimate's columns: they stay empty until the pair is estimated; every row timed
         # before skip_empty existed was timed with empty-space skipping, and every row before the floor ran without one
-        return [{**{k: "" for k in ESTIMATE_COLUMNS + INTERVAL_COLUMNS + ESTIMATE_INTERVAL_COLUMNS}, "skip_empty": True, "object_floor_margin": "",
+        return [{**{k: "" for k in ESTIMATE_COLUMNS + INTERVAL_COLUMNS + ESTIMATE_INTERVAL_COLUMNS + LAS_SEARCHED_COLUMNS
+                    + FASTEST_COLUMNS}, "skip_empty": True, "object_floor_margin": "",
                  "timing_busy_cores": "", **dict(r)} for r in reader]
 
 

@@ -17,8 +17,27 @@ METHOD_LABELS = {
     "blue_noise": "blue noise + decoder + RecNN",
     "two_pass": "two passes + fill + RecNN (no IMS)",
     "iml_selective": "IML IM, selectively rendered",
+    # the same two methods timed on the other ray caster (the evaluation's both_ray_casters): the same pixels
+    "recnn_skip": "RecNN alone, empty-space skipping",
+    "recnn_noskip": "RecNN alone, every sample marched",
+    "imls_skip": "IML/S + RecNN, empty-space skipping",
+    "imls_noskip": "IML/S + RecNN, every sample marched",
 }
-METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "iml", "imls", "imls_fill", "blue_noise", "two_pass")
+#: the other ray caster's twins of the RecNN alone and IML/S: timed only, on the timed views (their images are the
+#: main methods'); :func:`ray_caster_twin` names them
+TWIN_METHODS = ("recnn_skip", "recnn_noskip", "imls_skip", "imls_noskip")
+METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "iml", "imls", "imls_fill", "blue_noise", "two_pass",
+                *TWIN_METHODS)
+
+
+def ray_caster_twin(method: str, skip_empty: bool) -> str:
+    """The key of ``method`` (``recnn`` or ``imls``) timed on the ray caster with ``skip_empty``.
+
+    Example:
+        >>> ray_caster_twin("recnn", False), ray_caster_twin("imls", True)
+        ('recnn_noskip', 'imls_skip')
+    """
+    return f"{method}_{'skip' if skip_empty else 'noskip'}"
 STAGE_LABELS = {
     "low_res_render": "low-res render",
     "render": "render",
@@ -38,7 +57,8 @@ STAGE_COLORS = {
 }
 METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "las_searched": "#98df8a", "iml": "#ff7f0e",
                  "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f",
-                 "two_pass": "#bcbd22"}
+                 "two_pass": "#bcbd22", "recnn_skip": "#aec7e8", "recnn_noskip": "#aec7e8", "imls_skip": "#ff9896",
+                 "imls_noskip": "#ff9896"}
 
 #: columns of metrics.csv, in order
 METRIC_COLUMNS = (

@@ -15,6 +15,30 @@ from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 from ..report.viz import image_grid, save_image
 
 
+#: the checkpoint key of the views a network trained on (:class:`TrainingViews`)
+TRAINING_VIEWS_KEY = "imls_training_views"
+
+
+class TrainingViews(L.Callback):
+    """Record, in every checkpoint, which views the network trained on: the cache's view ``seed`` and ``num_views``
+    (``checkpoint["imls_training_views"]``). An evaluation checks with it that the views it chooses settings on are
+    none the network trained on (:func:`imls_lightning.evaluation.protocol.check_view_seeds`), also for a checkpoint
+    copied out of its run folder.
+
+    Example:
+        >>> ckpt = {}
+        >>> TrainingViews(seed=100, num_views=1500).on_save_checkpoint(None, None, ckpt)
+        >>> ckpt["imls_training_views"]
+        {'seed': 100, 'num_views': 1500}
+    """
+
+    def __init__(self, seed: int, num_views: int):
+        self.views = {"seed": int(seed), "num_views": int(num_views)}
+
+    def on_save_checkpoint(self, trainer, pl_module, checkpoint) -> None:
+        checkpoint[TRAINING_VIEWS_KEY] = dict(self.views)
+
+
 class ChunkTimer(L.Callback):
     """Stop a fit at the end of the epoch after which the next one would overrun ``minutes`` of this
     process's wall time (training that outlives one sitting: ``chunk_minutes``).

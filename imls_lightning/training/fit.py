@@ -28,7 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.errors import InputError
 
-from .callbacks import ChunkTimer, ResumableCSVLogger, set_aside_metrics
+from .callbacks import ChunkTimer, ResumableCSVLogger, TrainingViews, set_aside_metrics
 from ..config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
@@ -281,7 +281,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         check_resume_checkpoint(resume, task)
     datamodule = build_datamodule(cfg, type(task))
     timer = ChunkTimer(chunk) if chunk is not None and not fast else None
-    trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg) + ([timer] if timer else []),
+    views = TrainingViews(OmegaConf.select(cfg, "data.seed", default=0) or 0,
+                          OmegaConf.select(cfg, "data.num_views", default=0) or 0)  # which views it trained on
+    trainer: L.Trainer = instantiate(cfg.trainer, callbacks=_callbacks(cfg) + [views] + ([timer] if timer else []),
                                      logger=_loggers(cfg) or False)
 
     if ckpt_path:
