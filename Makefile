@@ -10,7 +10,7 @@ PYTEST_ARGS ?=
 # workers nearly halve it (11.4 min); --dist loadfile keeps a file's module fixtures in one worker; TEST_WORKERS=0: serial
 TEST_WORKERS ?= 2
 
-.PHONY: setup test test-all test-browser demo web bench bench-paper size-search clean lint
+.PHONY: setup test test-all test-browser demo web bench bench-paper reproduce size-search clean lint
 
 setup: $(STAMP)
 
@@ -44,6 +44,12 @@ test-browser: setup
 	command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
 	  (apt-get update -qq && apt-get install -y -qq chromium chromium-driver || (sudo apt-get update -qq && sudo apt-get install -y -qq chromium chromium-driver))
 	$(PY) -m pytest -q tests/web $(PYTEST_ARGS)
+
+# re-measure a committed row (conf/row/<ROW>.yaml) from its committed networks on a fresh trajectory, choosing nothing:
+# about 15-20 minutes on 2 cores; the last line is the path of reproduce.json. make reproduce ROW=seed_whole [SEED=n]
+ROW ?= seed_whole
+reproduce: setup
+	$(PY) -m imls_lightning.reproduce row=$(ROW) $(if $(SEED),trajectory_seed=$(SEED),)
 
 bench: setup
 	$(PY) -m imls_lightning.bench

@@ -652,10 +652,12 @@ def borrowed_point(s: Settings, ck_hashes: dict[str, str], scene: str) -> dict[s
             raise InputError(f"{where}: its checkpoints.{key} is not this run's checkpoints.{key} (an operating point "
                              "belongs to the networks it was searched with)")
     fresh = ("test", "test_by_distance")  # measured again on this run's views
-    two_pass = summary.get("two_pass")
+    two_pass, las = summary.get("two_pass"), summary.get("las_searched")
     note = (f"Operating point: not searched here; the one the evaluation in {folder} searched on "
             f"{orp.get('where') or 'its validation views'}" + (f" (scene {summary.get('scene')})" if summary.get("scene") != scene else "")
             + " (orp_from), with the same IMS and RecNN checkpoints.")
     return {"orp": {k: v for k, v in orp.items() if k not in fresh}, "imls_mean": float(orp["mean"]),
             "lift": bool(orp.get("lift")), "notes": [note],
-            "two_pass": None if not isinstance(two_pass, dict) else {k: v for k, v in two_pass.items() if k not in fresh}}
+            "two_pass": None if not isinstance(two_pass, dict) else {k: v for k, v in two_pass.items() if k not in fresh},
+            # LAS at the promise: its searched IPRs travel with the point too (a reproduction chooses nothing again)
+            "las_searched": None if not isinstance(las, dict) else {k: v for k, v in las.items() if k not in fresh}}

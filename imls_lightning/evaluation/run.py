@@ -91,10 +91,14 @@ def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
     evaluated positions among them."""
     from data_gen.cache import ViewImageCache, ensure_cache
 
-    cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
-    evaluated = cache
+    evaluated = None
     if s.trajectory_seed is not None:  # rendered with the same renderer settings: the pixels do not depend on skipping
         evaluated = ViewImageCache.open(ensure_cache(scene, fresh_trajectory_data(s, cfg, scene), cfg.renderer, progress=s.progress))
+    if evaluated is not None and s.orp_from:  # a point taken, not chosen: no validation view is read (a reproduction)
+        cache = evaluated
+    else:
+        cache = ViewImageCache.open(ensure_cache(scene, cfg.data, cfg.renderer, progress=s.progress))
+    evaluated = evaluated if evaluated is not None else cache
     for c in (cache, evaluated):
         if c.resolution != resolution:
             raise InputError(f"data.resolution={resolution}: the cache {c.path} holds {c.resolution}^2 images")
@@ -146,8 +150,11 @@ def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions
     if not point and borrowed is not None:
         tp = borrowed["two_pass"]  # kept only for the same first pass and floor; else searched below
         same_sampler = tp is not None and (tp.get("base"), tp.get("floor")) == (s.two_pass_base, s.two_pass_floor)
+        las_b = borrowed.get("las_searched")  # kept only for the same IPRs searched among; else searched below
+        same_las = las_b is not None and s.las_searched and list(las_b.get("iprs") or s.las_search_iprs) == list(s.las_search_iprs)
         progress.save_point({"orp": borrowed["orp"], "imls_mean": borrowed["imls_mean"], "lift": borrowed["lift"],
-                             "notes": [*notes, *borrowed["notes"]], **({"two_pass": tp} if same_sampler else {})})
+                             "notes": [*notes, *borrowed["notes"]], **({"two_pass": tp} if same_sampler else {}),
+                             **({"las_searched": las_b} if same_las else {})})
         notes.clear()  # they come back from the point, as on a resumed run
         point = progress.point
     if point:

@@ -1,0 +1,30 @@
+"""``python -m imls_lightning.reproduce row=<name> [trajectory_seed=<int>] [views=<n>] [timed_views=<n>]``
+(``make reproduce ROW=<name>``): re-measure a committed row from a fresh clone on a fresh test trajectory, with the
+committed networks at the committed operating point, choosing nothing again
+(:mod:`imls_lightning.pipelines.reproduce`). The last line of stdout is the path of ``reproduce.json``."""
+from __future__ import annotations
+
+import hydra
+from omegaconf import DictConfig
+
+import data_gen  # noqa: F401  (registers the scene config resolvers)
+from data_gen.errors import checked_command_line, cli_errors
+
+from .config import register_resolvers
+from .pipelines.paths import CONF_DIR
+from .pipelines.reproduce import reproduce
+
+__all__ = ["main", "reproduce"]
+
+register_resolvers()
+
+
+@checked_command_line(CONF_DIR)
+@hydra.main(version_base="1.3", config_path="../conf", config_name="reproduce")
+@cli_errors
+def main(cfg: DictConfig) -> None:
+    print(reproduce(cfg), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,97 @@
+"""``python -m imls_lightning.reproduce``: a committed row re-measured on a fresh trajectory, choosing nothing again.
+
+The tiny checkpoints (conftest.py) play a committed row: copied into a row folder with their SHA-256, beside the
+operating point a finished evaluation chose (its summary.json and config.yaml)."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from omegaconf import OmegaConf
+
+from data_gen.errors import InputError
+from imls_lightning.config import file_hash
+from imls_lightning.pipelines.reproduce import RESULT_KEYS, reproduce
+
+ROOT = Path(__file__).resolve().parents[1]
+SETTINGS = ["orp_max_views=4", "orp_views=path", "orp_paths=2", "sweep_views=1", "mean_values=[0.1]", "las_iprs=[0.1]",
+            "front_shares=[0.5]", "grid_views=1", "warmup=0", "shares=null", "two_pass.base=null"]
+
+
+@pytest.fixture(scope="module")
+def row(tiny_checkpoints, tmp_path_factory):
+    """A row folder: the product's networks copied out of their runs, and the point an evaluation chose with them."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from imls_lightning.evaluation import evaluate
+
+    ck = tiny_checkpoints
+    folder = tmp_path_factory.mktemp("row")
+    files = {"ims": "ims.ckpt", "las": "las.ckpt"}
+    for key, name in files.items():
+        shutil.copyfile(ck["ims_pim" if key == "ims" else key], folder / name)
+    base = ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={ck['cache_dir']}", f"paths.runs_dir={ck['runs_dir']}",
+            "progress=false", "max_views=2", "timed_views=1", *SETTINGS]
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_reproduce"):
+        cfg = compose("evaluate", overrides=[*base, f"checkpoints.ims={folder / 'ims.ckpt'}", f"checkpoints.las={folder / 'las.ckpt'}",
+                                             f"output_dir={folder / 'chosen'}"])
+    report = evaluate(cfg)
+    (folder / "point").mkdir()
+    for f in ("summary.json", "config.yaml"):
+        shutil.copyfile(report.parent / f, folder / "point" / f)
+    spec = {"name": "tiny_row", "scene": "tiny", "data": "tiny", "dir": str(folder), "point": "point", "trajectory_seed": 7,
+            "views": 2, "timed_views": 1, "settings": SETTINGS,
+            "networks": {k: {"file": name, "sha256": file_hash(folder / name)} for k, name in files.items()}}
+    return {"spec": spec, "folder": folder, "ck": ck, "chosen": report.parent}
+
+
+def _cfg(row, tmp_path, **over):
+    base = {"row": row["spec"], "trajectory_seed": None, "views": None, "timed_views": None, "output_dir": str(tmp_path / "out"),
+            "runs_dir": str(tmp_path / "runs"), "cache_dir": str(row["ck"]["cache_dir"])}
+    return OmegaConf.create({**base, **over})
+
+
+def test_reproduce_measures_the_committed_point_on_a_fresh_trajectory(row, tmp_path):
+    path = reproduce(_cfg(row, tmp_path))
+    res = json.loads(path.read_text())
+    assert tuple(res) == RESULT_KEYS
+    assert res["row"] == "tiny_row" and res["trajectory_seed"] == 7 and res["views"] == 2 and res["timed_views"] == 1
+    chosen = json.loads((row["chosen"] / "summary.json").read_text())
+    summary = json.loads((path.parent / "summary.json").read_text())
+    assert summary["orp"]["mean"] == chosen["orp"]["mean"]  # the committed point, not searched again
+    assert summary["trajectory"]["seed"] == 7
+    # both ray casters in one run; the speed-up that counts is against the faster RecNN alone
+    assert res["speedup_vs_fastest"] == pytest.approx(min(res["recnn_skip_ms"], res["recnn_noskip_ms"])
+                                                      / min(res["imls_skip_ms"], res["imls_noskip_ms"]))
+    assert res["gap_db"] == pytest.approx(res["psnr_recnn_db"] - res["psnr_imls_db"])
+
+
+def test_exception_an_altered_or_missing_network_writes_nothing(row, tmp_path):
+    spec = json.loads(json.dumps(row["spec"]))
+    spec["networks"]["las"]["sha256"] = "0" * 64
+    with pytest.raises(InputError, match=r"row=tiny_row: .*las.ckpt has SHA-256 .* the file was altered"):
+        reproduce(_cfg({**row, "spec": spec}, tmp_path))
+    spec["networks"]["las"]["file"] = "gone.ckpt"
+    with pytest.raises(InputError, match=r"row=tiny_row: its network las \(.*gone.ckpt\) is missing"):
+        reproduce(_cfg({**row, "spec": spec}, tmp_path))
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("seed, needle", [(0, "equals data.seed"), (100, "equals the IMS's training data.seed"),
+                                          (1, "equals a seed of the ORP's search views")])
+def test_exception_a_trajectory_seed_a_choice_read_writes_nothing(row, tmp_path, seed, needle):
+    with pytest.raises(InputError, match=f"trajectory_seed={seed}: {needle}"):
+        reproduce(_cfg(row, tmp_path, trajectory_seed=seed))
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_unknown_row_is_one_line_with_status_2():
+    p = subprocess.run([sys.executable, "-m", "imls_lightning.reproduce", "row=no_such_row"], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "no_such_row" in p.stderr, p.stderr
