@@ -98,6 +98,8 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "curves": "every sharpness in one pass per view, a pixel set cast once",
         # only when set: the paper's masks alone hash as they did before the key
         **({"sharpness": _sharpness(cfg)} if _sharpness(cfg) != [1.0] else {}),
+        # the other ray caster timed too (the bound against the fastest RecNN alone); off: hashes as before the key
+        **({"both_ray_casters": True} if bool(cfg.get("both_ray_casters", True)) else {}),
     })
 
 
@@ -257,7 +259,10 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     lead = measure_lead(cfg, lead_cfg, recnn_net(cfg), pattern, train_frames, eval_frames, opts)
     needed = measure_needed_share(cfg, lead, renderer, pattern, framed_views, frames, mask_repeats)
     alone = c_render_ms + nets_t["recnn_ms"]
+    fastest = both_ray_casters(cfg, scene, renderer, pattern, views, measured, model, cost, c_render_ms, nets_ms,
+                               nets_t["recnn_ms"], needed, blur, density, mask_repeats)
     return {
+        "ray_casters": fastest,
         "candidates": candidates, "recnn_lead": lead.to_dict() if lead else None,
         "needed": needed.to_dict() if needed else None,
         "needed_share": needed.needed_share if needed else None,
@@ -295,6 +300,26 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
         "contact_sheet": str(sheet), "seconds": time.perf_counter() - t_start,
         "options": {"half": opts.half, "channels_last": opts.channels_last, "compile": opts.compile, "device": opts.device},
     }
+
+
+def both_ray_casters(cfg: DictConfig, scene, renderer, pattern, views, measured, model, cost, c_render_ms: float,
+                     nets_ms: float, recnn_ms: float, needed, blur: float, density: float, repeats: int) -> dict[str, Any] | None:
+    """The bound on both ray casters and against the fastest RecNN alone (``both_ray_casters``, default true;
+    :mod:`.ray_casters`); None when off or when the renderer has no empty-space skipping switch."""
+    from data_gen.renderers import make_renderer
+
+    from .ray_casters import fastest_bounds, other_ray_caster_curve
+
+    if not bool(cfg.get("both_ray_casters", True)) or not hasattr(renderer, "skip_empty"):
+        return None
+    other = make_renderer(scene, {**OmegaConf.to_container(cfg.renderer, resolve=True), "skip_empty": not renderer.skip_empty})
+    _say(f"the other ray caster (empty-space skipping {'off' if renderer.skip_empty else 'on'}): the same views and masks")
+    other_c, other_curve = other_ray_caster_curve(other, pattern, views, measured, SHARES, blur=blur, floor=density,
+                                                  repeats=repeats, fixed_ms=model.fixed_ms, progress=_say)
+    share = needed.needed_share if needed is not None else None
+    return fastest_bounds(bool(renderer.skip_empty), c_render_ms, cost, other_c, other_curve, nets_ms=nets_ms,
+                          recnn_ms=recnn_ms, shares=SHARES, needed_share=share,
+                          needed_render_ms=needed.render_at(share) if share is not None else None)
 
 
 def add_intervals(est: dict[str, Any]) -> dict[str, Any]:
@@ -481,6 +506,9 @@ def format_report(est: Mapping[str, Any]) -> str:
                      f"{c['bound_20']:.2f}x at 20% of C, {est['target']:g}x {reach}"
                      + (f"; its quick RecNN {quick['recnn_db']:.2f} dB, {quick['lead_db']:+.2f} dB over "
                         f"{est['upsampler']}" if quick else ""))
+    from .ray_casters import report_lines
+
+    lines += report_lines(est)
     s = est["share_for_target"]
     lines.append(f"  {est['target']:g}x is reachable up to {s:.0%} of C" if s is not None else
                  f"  {est['target']:g}x is out of reach at any share of C (best {est['bound'][0]['speedup']:.2f}x at 10%)")

@@ -271,6 +271,17 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     assert mid.speedup == pytest.approx(est["bound"][2]["speedup"], rel=1e-9)
     assert (est["bound_interval"][2]["low"], est["bound_interval"][2]["high"]) == (pytest.approx(mid.low), pytest.approx(mid.high))
     assert "95% interval over the 2 views resampled" in r.stdout
+    # both ray casters (both_ray_casters, default): the other one times the same pattern and masks; the bound against
+    # the faster RecNN alone takes the faster render on each side, share by share
+    rc = est["ray_casters"]
+    assert rc["fastest_recnn"] in ("skip", "noskip") and set(rc) >= {"skip", "noskip", "vs_fastest"}
+    assert rc["skip"]["c_render_ms"] == pytest.approx(est["c_render_ms"])  # the configured ray caster skips
+    fastest = min(rc["skip"]["c_render_ms"], rc["noskip"]["c_render_ms"]) + est["recnn_ms"]
+    for vs, sk, no, b in zip(rc["vs_fastest"], rc["skip"]["bound"], rc["noskip"]["bound"], est["bound"]):
+        assert sk["speedup"] == pytest.approx(b["speedup"], rel=1e-9)
+        renders = [(rc[k]["c_render_ms"] + est["recnn_ms"]) / x["speedup"] for k, x in (("skip", sk), ("noskip", no))]
+        assert vs["speedup"] == pytest.approx(fastest / min(renders), rel=1e-9)
+    assert "vs fastest" in r.stdout and "no skipping" in r.stdout
     table = tmp_path / "estimates.csv"
     again = _cli(tmp_path, f"table={table}")   # the same settings: reused, and its row goes into the table
     assert again.returncode == 0 and "reusing" in again.stderr
