@@ -1392,3 +1392,17 @@ def test_exception_validation_views_whose_directions_the_ims_trained_on_are_refu
     with pytest.raises(InputError, match=re.escape("checkpoints.ims: trained on views of data.seed=0, the seed of the validation views")):
         check_view_seeds(s, cfg, 0)
     check_view_seeds(parse_settings(_compose(*_args(run["ck"], "orp_object_floor=[]"))), cfg, 0)  # no floor: nothing read
+
+
+def test_summary_says_where_the_mask_put_its_pixels_on_object_and_background(run):
+    """summary.json's mask_density: the share of the C-Image's object and background pixels IML/S's mask kept, over the
+    evaluated views, and the object's share of the C-Image."""
+    s = json.loads((run["out"] / "summary.json").read_text())
+    d = s["mask_density"]
+    assert 0.0 <= d["object_fraction"] <= 1.0
+    for k in ("object_density", "background_density"):
+        assert d[k] is None or math.isnan(d[k]) or 0.0 <= d[k] <= 1.0
+    # the kept share of C is the two densities weighed by the object's share (per view; here on average, to rounding)
+    if all(math.isfinite(d[k]) for k in d):
+        share = d["object_fraction"] * d["object_density"] + (1 - d["object_fraction"]) * d["background_density"]
+        assert share == pytest.approx(s["methods"]["imls"]["c_share"], abs=0.1)

@@ -264,6 +264,22 @@ def ray_caster_twins(methods: dict[str, Method], other_renderer) -> dict[str, Me
     return twins
 
 
+def mask_density(im, pattern, truth: np.ndarray, background) -> dict[str, float]:
+    """The share of the C-Image's object pixels and of its background pixels an IM ``(n, n)`` keeps (the object: the
+    pattern's pixels whose true colour is not the background's). With empty-space skipping a background pixel is
+    nearly free, so what IML/S saves there is the object pixels it leaves out: ``{"object_density",
+    "background_density", "object_fraction"}`` (empty without an IM)."""
+    from ..estimate.measure import object_pixels
+
+    if im is None:
+        return {}
+    k = pattern.count
+    kept = np.asarray(im).reshape(-1)[:k].astype(bool)
+    on = object_pixels(np.asarray(truth).reshape(-1, 3)[pattern.indices.numpy()], background)
+    density = lambda sel: float(kept[sel].mean()) if sel.any() else float("nan")  # noqa: E731
+    return {"object_density": density(on), "background_density": density(~on), "object_fraction": float(on.mean())}
+
+
 def ray_casters_line(rc: dict[str, Any] | None) -> str | None:
     """The report's line on the fastest baseline (:func:`~.speedup.ray_casters`), or None without both ray casters.
 
@@ -315,6 +331,9 @@ def measure_views(s: Settings, scene, cache, rows_all, positions, methods: dict[
             # a timed view's methods in one schedule (s.timing: rounds, or each method's runs back to back)
             measured = measure_methods({name: methods[name] for name in view_order}, view, truth, s.repeats if timed else 1,
                                        s.warmup if timed else 0, order=s.timing)
+            if "imls" in measured:  # where the product's mask put its pixels: on the object or the background
+                fields = measured["imls"][0]
+                fields.update(mask_density(measured["imls"][2].get("im"), methods["imls"].pattern, truth, scene.background))
             for name in view_order:
                 fields, image, info = measured[name]
                 if not timed:  # one untimed run: its image counts, its stage times do not
@@ -487,6 +506,9 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         **({"las_searched": las_searched} if las_searched is not None else {}), "timing_load": res.get("timing_load"),
         # the fastest baseline: both ray casters timed in this run (both_ray_casters), and the fresh trajectory's seed
         "ray_casters": ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False),
+        # where IML/S's mask put its pixels, averaged over the evaluated views (the density on object and background)
+        "mask_density": {k: float(np.nanmean([r[k] for r in rows if r["method"] == "imls" and k in r] or [np.nan]))
+                         for k in ("object_density", "background_density", "object_fraction")},
         "trajectory": trajectory_note(s, cache)},
         indent=1, default=float))
     ctx = rep.ReportContext(

@@ -497,14 +497,9 @@ def report_markdown(rows: Sequence[Mapping[str, Any]], summaries: Sequence[Mappi
 def update_section(benchmarks_md: Path, text: str) -> Path:
     """Put ``text`` between :data:`SECTION_BEGIN` and :data:`SECTION_END` of ``benchmarks_md`` (appended
     when the markers are missing; the rest of the file is kept)."""
-    old = benchmarks_md.read_text(encoding="utf-8") if benchmarks_md.is_file() else ""
-    block = f"{SECTION_BEGIN}\n{text.rstrip()}\n{SECTION_END}"
-    if SECTION_BEGIN in old and SECTION_END in old:
-        head, rest = old.split(SECTION_BEGIN, 1)
-        new = head + block + rest.split(SECTION_END, 1)[1]
-    else:
-        new = old.rstrip() + ("\n\n" if old else "") + block + "\n"
-    return atomic_write_text(benchmarks_md, new)
+    from ..report.results_table import update_between
+
+    return update_between(benchmarks_md, SECTION_BEGIN, SECTION_END, text)
 
 
 def rows_beside(main: Sequence[Sequence[str]], extra: Mapping[tuple[str, str], Sequence[str]]) -> list[list[str]]:
@@ -678,6 +673,10 @@ def write_results(cfg: DictConfig, records: Mapping[str, Mapping[str, Any]], old
         commands={n: r["command"] for n, r in records.items()}))
     if cfg.get("benchmarks_md"):
         update_section(Path(str(cfg.benchmarks_md)), section_text(all_rows, partial, ad_rows))
+    if cfg.get("readme"):  # the README's results table, from the same rows
+        from ..report.results_table import README_BEGIN, README_END, results_table, update_between
+
+        update_between(Path(str(cfg.readme)), README_BEGIN, README_END, results_table(all_rows))
 
 
 def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: str = "") -> Path | None:

@@ -1,0 +1,92 @@
+"""The README's results table, written from ``benchmarks/paper_scale.csv`` between two markers (``make bench-paper``
+rewrites it; a test fails when the README disagrees with the CSV).
+
+Each row says where IML/S stands against **the fastest baseline**: the same RecNN on its own pattern with the ray
+caster's empty-space skipping on (DESIGN.md). Rows timed on both ray casters in one run give ``speedup_vs_fastest``;
+rows timed only with skipping give their speed-up against that (the faster) ray caster; rows timed only without
+skipping, whose networks are gone, say so and give no speed-up against the fastest.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from .metrics_csv import atomic_write_text, number
+from .tables import md_table
+
+README_BEGIN = "<!-- results:begin (written from benchmarks/paper_scale.csv by make bench-paper) -->"
+README_END = "<!-- results:end -->"
+COLUMNS = ["scene", "RecNN", "bilinear / RecNN alone", "share of C", "**vs the fastest RecNN alone**",
+           "vs the RecNN alone, no skipping", "gap", "test views"]
+
+
+def _x(v: float) -> str:
+    return f"{v:.2f}x" if math.isfinite(v) else "–"
+
+
+def vs_fastest_cell(row: Mapping[str, Any]) -> str:
+    """IML/S against the fastest RecNN alone.
+
+    Example:
+        >>> vs_fastest_cell({"speedup_vs_fastest": "0.91", "speedup_vs_fastest_low": "0.85", "speedup_vs_fastest_high": "0.97"})
+        '**0.91x** (0.85-0.97)'
+        >>> vs_fastest_cell({"speedup_vs_fastest": "", "skip_empty": "true", "speedup": "0.88"})
+        '0.88x (skipping only)'
+        >>> vs_fastest_cell({"speedup_vs_fastest": "", "skip_empty": "false", "speedup": "1.73"})
+        'not timed: networks lost'
+    """
+    v = number(row.get("speedup_vs_fastest"))
+    if math.isfinite(v):
+        lo, hi = number(row.get("speedup_vs_fastest_low")), number(row.get("speedup_vs_fastest_high"))
+        return f"**{v:.2f}x**" + (f" ({lo:.2f}-{hi:.2f})" if math.isfinite(lo) and math.isfinite(hi) else "")
+    if str(row.get("skip_empty", "true")).strip().lower() not in ("false", "0"):
+        return f"{_x(number(row.get('speedup')))} (skipping only)"
+    return "not timed: networks lost"
+
+
+def noskip_cell(row: Mapping[str, Any]) -> str:
+    """IML/S against the RecNN alone when both march every sample (the CUDA ``volumeRender`` sample's ray caster).
+
+    Example:
+        >>> noskip_cell({"recnn_noskip_ms": "1900", "imls_noskip_ms": "860"}), noskip_cell({"skip_empty": "true"})
+        ('2.21x', '–')
+    """
+    r, i = number(row.get("recnn_noskip_ms")), number(row.get("imls_noskip_ms"))
+    if math.isfinite(r) and math.isfinite(i) and i > 0:
+        return _x(r / i)
+    if str(row.get("skip_empty", "true")).strip().lower() in ("false", "0"):
+        return f"{_x(number(row.get('speedup')))} (old trajectory)"
+    return "–"
+
+
+def results_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The README's table of ``paper_scale.csv``'s rows (the newest measurement of each scene and RecNN)."""
+    body = []
+    for r in rows:
+        bil, rec = number(r.get("bilinear_db")), number(r.get("psnr_recnn_db"))
+        seed = str(r.get("trajectory_seed") or "").strip()
+        body.append([f"`{r['scene']}`", str(r["recnn"]), f"{bil:.1f} / {rec:.1f} dB" if math.isfinite(bil) else f"– / {rec:.1f} dB",
+                     f"{number(r.get('c_share')):.1%}", vs_fastest_cell(r), noskip_cell(r), f"{number(r.get('gap_db')):.2f} dB",
+                     f"fresh, seed {seed}" if seed else "seed 0 (read while designing)"])
+    return md_table(COLUMNS, body)
+
+
+def update_between(path: Path, begin: str, end: str, text: str) -> Path:
+    """Put ``text`` between the markers ``begin`` and ``end`` of ``path`` (appended with them when they are missing;
+    the rest of the file is kept), atomically."""
+    old = path.read_text(encoding="utf-8") if path.is_file() else ""
+    block = f"{begin}\n{text.rstrip()}\n{end}"
+    if begin in old and end in old:
+        head, rest = old.split(begin, 1)
+        new = head + block + rest.split(end, 1)[1]
+    else:
+        new = old.rstrip() + ("\n\n" if old else "") + block + "\n"
+    return atomic_write_text(path, new)
+
+
+def between(text: str, begin: str = README_BEGIN, end: str = README_END) -> str | None:
+    """What lies between the markers in ``text`` (None without them)."""
+    if begin not in text or end not in text:
+        return None
+    return text.split(begin, 1)[1].split(end, 1)[0].strip()
