@@ -95,3 +95,30 @@ def test_cli_unknown_row_is_one_line_with_status_2():
     p = subprocess.run([sys.executable, "-m", "imls_lightning.reproduce", "row=no_such_row"], cwd=ROOT, capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "no_such_row" in p.stderr, p.stderr
+
+
+def test_pack_row_commits_the_evaluated_weights_and_reproduce_reads_the_row(row, tmp_path):
+    """pack_row: the networks without their training-only state (the same weights), the point naming the packed
+    files, conf/row/<name>.yaml with their SHA-256; reproduce then takes that row as it is."""
+    import torch
+    import yaml
+
+    from imls_lightning.pipelines.pack_row import pack_row
+
+    dest = tmp_path / "rows" / "packed"
+    path = pack_row(row["chosen"], "packed", dest, data="tiny", trajectory_seed=7, settings=SETTINGS, views=2, timed_views=1,
+                    row_dir=tmp_path / "conf")
+    spec = yaml.safe_load(path.read_text())
+    assert set(spec["networks"]) == {"ims", "las"} and spec["trajectory_seed"] == 7
+    for key, net in spec["networks"].items():
+        packed = torch.load(dest / net["file"], weights_only=True)
+        original = torch.load(row["folder"] / f"{key}.ckpt", weights_only=True)
+        assert "optimizer_states" not in packed and packed["hyper_parameters"] == original["hyper_parameters"]
+        assert all(torch.equal(packed["state_dict"][k], v) for k, v in original["state_dict"].items())
+        assert net["sha256"] == file_hash(dest / net["file"])
+    point = json.loads((dest / "point" / "summary.json").read_text())
+    assert point["checkpoints_sha256"] == {k: v["sha256"] for k, v in spec["networks"].items()}
+    assert point["packed_from"]["ims"] == file_hash(row["folder"] / "ims.ckpt")
+    out = reproduce(OmegaConf.create({"row": spec, "trajectory_seed": 9, "views": None, "timed_views": None,
+                                      "output_dir": str(tmp_path / "out"), "runs_dir": str(tmp_path), "cache_dir": str(row["ck"]["cache_dir"])}))
+    assert json.loads(out.read_text())["trajectory_seed"] == 9

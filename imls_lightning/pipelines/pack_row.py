@@ -1,0 +1,84 @@
+"""Commit a row: the networks of a finished evaluation and the operating point it chose, packed for the repository
+(``python -m imls_lightning.pack_row evaluation=<folder> name=<row>``), and ``conf/row/<row>.yaml`` that
+``python -m imls_lightning.reproduce row=<row>`` reads.
+
+Packing keeps what inference needs and drops what only resuming a training needs (optimizer and scheduler states,
+loop and callback states): the weights are the same tensors, checked one by one, so the packed network is the
+evaluated one. The point's ``summary.json`` then names the packed files' SHA-256 (``checkpoints_sha256``) and keeps
+the evaluated files' under ``packed_from``; ``config.yaml`` names the packed files.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import torch
+from omegaconf import OmegaConf
+
+from data_gen.errors import InputError
+
+from .paths import ROOT, log
+
+#: a Lightning checkpoint's entries only a resumed training reads
+TRAINING_ONLY = ("optimizer_states", "lr_schedulers", "loops", "callbacks", "MixedPrecision", "native_amp_scaling_state")
+
+
+def pack_checkpoint(src: Path, dest: Path) -> None:
+    """``src`` without :data:`TRAINING_ONLY` entries, saved to ``dest`` (atomically); its weights checked equal."""
+    from data_gen.atomic import atomic_write
+
+    from ..config import load_checkpoint
+
+    ckpt = load_checkpoint(src, what=str(src))
+    packed = {k: v for k, v in ckpt.items() if k not in TRAINING_ONLY}
+    atomic_write(dest, lambda f: torch.save(packed, f))
+    again = load_checkpoint(dest, what=str(dest))["state_dict"]
+    if set(again) != set(ckpt["state_dict"]) or not all(torch.equal(again[k], ckpt["state_dict"][k]) for k in again):
+        dest.unlink(missing_ok=True)
+        raise InputError(f"{dest}: its weights differ from {src}'s after packing")
+
+
+def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_seed: int, settings: Sequence[str],
+             views: int = 60, timed_views: int = 6, row_dir: Path | None = None) -> Path:
+    """Pack the networks of the finished evaluation in ``evaluation`` (its ``config.yaml`` names them) into ``dest``,
+    its point into ``dest/point``, and write ``conf/row/<name>.yaml`` (returned)."""
+    from ..config import file_hash
+    from ..report import atomic_write_text
+
+    summary_path, config_path = evaluation / "summary.json", evaluation / "config.yaml"
+    if not (summary_path.is_file() and config_path.is_file() and (evaluation / "report.md").is_file()):
+        raise InputError(f"evaluation={evaluation}: expected a finished evaluation's folder (summary.json, config.yaml, report.md)")
+    summary = json.loads(summary_path.read_text())
+    config = OmegaConf.to_container(OmegaConf.load(config_path), resolve=True)
+    dest.mkdir(parents=True, exist_ok=True)
+    networks: dict[str, dict[str, str]] = {}
+    for key, path in (config.get("checkpoints") or {}).items():
+        if not path:
+            continue
+        src = Path(str(path)).expanduser()
+        if file_hash(src) != summary["checkpoints_sha256"].get(key):
+            raise InputError(f"evaluation={evaluation}: its checkpoints.{key} ({src}) changed since it was evaluated")
+        out = dest / f"{key}.ckpt"
+        pack_checkpoint(src, out)
+        networks[key] = {"file": out.name, "sha256": file_hash(out)}
+        log(f"[pack_row] {key}: {src} -> {out} ({out.stat().st_size / 2**20:.2f} MiB)")
+    point = dest / "point"
+    point.mkdir(exist_ok=True)
+    packed_summary = {**summary, "checkpoints_sha256": {k: v["sha256"] for k, v in networks.items()},
+                      "packed_from": summary["checkpoints_sha256"]}
+    atomic_write_text(point / "summary.json", json.dumps(packed_summary, indent=1))
+    config["checkpoints"] = {k: str((dest / v["file"]).relative_to(ROOT)) if dest.is_relative_to(ROOT) else str(dest / v["file"])
+                             for k, v in networks.items()}
+    atomic_write_text(point / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
+    row = {"name": name, "scene": summary["scene"], "recnn": summary["recnn"], "data": data,
+           "dir": str(dest.relative_to(ROOT)) if dest.is_relative_to(ROOT) else str(dest), "point": "point",
+           "trajectory_seed": int(trajectory_seed), "views": int(views), "timed_views": int(timed_views),
+           "settings": list(settings), "networks": networks}
+    out = (row_dir or ROOT / "conf" / "row") / f"{name}.yaml"
+    header = (f"# row {name}: written by python -m imls_lightning.pack_row from {evaluation.name}; re-measure it with\n"
+              f"# python -m imls_lightning.reproduce row={name} (networks under {row['dir']}, checked by SHA-256)\n")
+    atomic_write_text(out, header + OmegaConf.to_yaml(OmegaConf.create(row)))
+    total = sum((dest / v["file"]).stat().st_size for v in networks.values())
+    log(f"[pack_row] {name}: {len(networks)} networks, {total / 2**20:.1f} MiB in all -> {out}")
+    return out
