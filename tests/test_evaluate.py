@@ -41,6 +41,7 @@ METHOD_STAGES = {
     "recnn_sparser": {"selective_render", "recnn"},
     "las": {"low_res_render", "importance", "selective_render", "recnn"},
     "las_searched": {"low_res_render", "importance", "selective_render", "recnn"},
+    "las_equal": {"low_res_render", "importance", "selective_render", "recnn"},
     "iml": {"selective_render", "importance", "decoder", "recnn"},
     "imls": {"importance", "selective_render", "decoder", "recnn"},
     "imls_noskip": {"importance", "selective_render", "decoder", "recnn"},
@@ -1406,3 +1407,23 @@ def test_summary_says_where_the_mask_put_its_pixels_on_object_and_background(run
     if all(math.isfinite(d[k]) for k in d):
         share = d["object_fraction"] * d["object_density"] + (1 - d["object_fraction"]) * d["background_density"]
         assert share == pytest.approx(s["methods"]["imls"]["c_share"], abs=0.1)
+
+
+def test_las_at_equal_quality_runs_at_the_smallest_searched_ipr_within_0_1_db_of_imls(run):
+    """las_equal: of the IPRs LAS's promise search scored, the smallest whose mean gap on the search views is within
+    0.1 dB of IML/S's validation gap; its CSV cells beside LAS at the promise."""
+    from imls_lightning.evaluation.las_point import imls_validation_gap
+    from imls_lightning.pipelines.bench_paper import csv_row, read_summary
+
+    s = json.loads((run["out"] / "summary.json").read_text())
+    rows = sorted(s["las_searched"]["rows"], key=lambda r: r["ipr"])
+    target = imls_validation_gap(s["orp"]) + 0.1
+    ok = [r["ipr"] for r in rows if r["gap_db"] <= target]
+    want = ok[0] if ok else min(rows, key=lambda r: abs(r["gap_db"] - target))["ipr"]
+    _, metrics = _rows(run["out"] / "metrics.csv")
+    got = {round(float(r["ipr"]), 6) for r in metrics if r["method"] == "las_equal"}
+    las = [r for r in metrics if r["method"] == "las_equal"]
+    assert las and all(abs(float(r["ipr"]) - want) < 0.02 for r in las), (got, want)
+    row = csv_row(read_summary(run["report"]))
+    assert row["las_equal_psnr_db"] == pytest.approx(s["methods"]["las_equal"]["psnr"])
+    assert "LAS at equal quality: IPR" in run["report"].read_text()

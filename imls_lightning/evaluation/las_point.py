@@ -138,6 +138,48 @@ def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, 
                     epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
 
 
+#: "equal quality" with IML/S (issue 84): LAS's mean validation gap within this much of IML/S's
+EQUAL_QUALITY_DB = 0.1
+
+
+def imls_validation_gap(orp: dict[str, Any] | None) -> float | None:
+    """IML/S's mean gap to the RecNN alone on the validation views at its operating point: the object floor's chosen
+    record where there is one (the point IML/S runs at), else the ORP's; None without a found point.
+
+    Example:
+        >>> imls_validation_gap({"found": True, "gap_db": 0.4, "object_floor": {"chosen": {"gap_db": 0.21}}})
+        0.21
+        >>> imls_validation_gap({"found": True, "gap_db": 0.4}), imls_validation_gap({"found": False})
+        (0.4, None)
+    """
+    if not orp or not orp.get("found"):
+        return None
+    chosen = (orp.get("object_floor") or {}).get("chosen") or {}
+    gap = chosen.get("gap_db", orp.get("gap_db"))
+    return None if gap is None else float(gap)
+
+
+def equal_quality_point(searched: LASPoint, imls_gap_db: float, margin_db: float = EQUAL_QUALITY_DB) -> LASPoint:
+    """LAS at IML/S's quality: of the IPRs LAS's promise search scored (``searched.rows``, their mean gaps on the same
+    search views), the smallest whose mean gap is within ``margin_db`` of IML/S's validation gap (not better by a dB:
+    "equal quality" compares like with like). No new render: the search's gaps are reused. Where none is, the one
+    closest to that gap.
+
+    Example:
+        >>> pt = LASPoint(0.3, True, "views", 1.0, None, rows=[{"ipr": 0.05, "gap_db": 2.0}, {"ipr": 0.1, "gap_db": 0.5},
+        ...                                                   {"ipr": 0.2, "gap_db": 0.2}])
+        >>> equal_quality_point(pt, 0.45).ipr
+        0.1
+    """
+    rows = sorted(searched.rows, key=lambda r: float(r["ipr"]))
+    target = float(imls_gap_db) + float(margin_db)
+    ok = [r for r in rows if float(r["gap_db"]) <= target]
+    pick = ok[0] if ok else min(rows, key=lambda r: abs(float(r["gap_db"]) - target))
+    return LASPoint(ipr=float(pick["ipr"]), found=bool(ok), where=searched.where, epsilon_db=target,
+                    record={"gap_db": float(pick["gap_db"]), "imls_gap_db": float(imls_gap_db), "margin_db": float(margin_db)},
+                    rows=list(rows))
+
+
 def las_searched_method(point: LASPoint, renderer, las_task, fr_size: int, opts):
     """The method the evaluation measures at ``point`` (key ``las_searched``)."""
     from ..inference.pipeline import LASMethod
@@ -148,4 +190,4 @@ def las_searched_method(point: LASPoint, renderer, las_task, fr_size: int, opts)
     return method
 
 
-__all__ = ["LASPoint", "las_gaps", "las_point", "las_searched_method"]
+__all__ = ["LASPoint", "equal_quality_point", "imls_validation_gap", "las_gaps", "las_point", "las_searched_method"]

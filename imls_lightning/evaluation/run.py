@@ -186,10 +186,20 @@ def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list
         return [float(imls.predict_im(view_tensor(cache.views[rows_all[p]], device)).sum()) for p in positions]
 
 
+def las_equal_point(las: LASPoint | None, orp: dict[str, Any] | None) -> LASPoint | None:
+    """LAS at equal quality (:func:`~.las_point.equal_quality_point`), from its promise search; None without one."""
+    from .las_point import equal_quality_point, imls_validation_gap
+
+    gap = imls_validation_gap(orp)
+    if las is None or gap is None or not las.rows:
+        return None
+    return equal_quality_point(las, gap)
+
+
 def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
                   imls_mean: float | None, lift: bool, notes: list[str], by_distance=None,
                   two_pass: TwoPassPoint | None = None, las: LASPoint | None = None,
-                  other_renderer=None) -> tuple[dict[str, Method], float | None]:
+                  other_renderer=None, orp: dict[str, Any] | None = None) -> tuple[dict[str, Method], float | None]:
     """Every method measured (the networks are shared between methods with the same options) and the
     IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance;
     ``two_pass``: the two-pass sampler's operating point, ``las``: LAS's at the promise (None: not measured);
@@ -221,6 +231,13 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
         if las is not None:
             methods["las_searched"] = las_searched_method(las, renderer, nets.las_task, m, opts)
             notes.append(las.describe())
+            if (equal := las_equal_point(las, orp)) is not None:  # LAS at IML/S's quality (within 0.1 dB)
+                methods["las_equal"] = las_searched_method(equal, renderer, nets.las_task, m, opts)
+                methods["las_equal"].name = "las_equal"
+                notes.append(f"LAS at equal quality: IPR {equal.ipr:.1%}, the smallest searched whose mean gap on "
+                             f"{equal.where} ({equal.record['gap_db']:.2f} dB) is within {equal.record['margin_db']:g} dB "
+                             f"of IML/S's validation gap ({equal.record['imls_gap_db']:.2f} dB)"
+                             + ("" if equal.found else ": none was, so the closest") + ".")
     else:
         notes.append("LAS skipped: no LAS checkpoint (checkpoints.las=<LAS .ckpt>, trained with python -m imls_lightning.train model=las).")
     if nets.blue is not None:
@@ -428,7 +445,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     orp, imls_mean, lift, two_pass, las = find_point(s, cfg, val_cache, scene, nets, device, positions, notes, renderer,
                                                      progress, borrowed)
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
-                                          by_distance=distance_means(orp), two_pass=two_pass, las=las,
+                                          by_distance=distance_means(orp), two_pass=two_pass, las=las, orp=orp,
                                           other_renderer=other_ray_caster(s, scene, rcfg, renderer, notes))
     order = [k for k in rep.METHOD_ORDER if k in methods]
     if len(timed_pos) < len(positions):

@@ -52,7 +52,9 @@ LAS_SEARCHED_COLUMNS = ("las_searched_ipr", "las_searched_ms", "las_searched_psn
 #: ``trajectory_seed``: the fresh test trajectory the row was measured on (empty: the cache's own, seed data.seed).
 #: Empty where not measured (rows before it, or lost networks)
 FASTEST_COLUMNS = ("recnn_skip_ms", "recnn_noskip_ms", "imls_skip_ms", "imls_noskip_ms", "speedup_vs_fastest",
-                   "speedup_vs_fastest_low", "speedup_vs_fastest_high", "trajectory_seed")
+                   "speedup_vs_fastest_low", "speedup_vs_fastest_high", "trajectory_seed",
+                   # LAS at equal quality (within 0.1 dB of IML/S's validation gap; evaluation.las_point.equal_quality_point)
+                   "las_equal_ipr", "las_equal_ms", "las_equal_psnr_db")
 #: the groups of columns in the order they were appended to the table
 COLUMN_GROUPS = (LEGACY_COLUMNS, ESTIMATE_COLUMNS, RENDERER_COLUMNS, FLOOR_COLUMNS, LOAD_COLUMNS, INTERVAL_COLUMNS,
                  ESTIMATE_INTERVAL_COLUMNS, LAS_SEARCHED_COLUMNS, FASTEST_COLUMNS)
@@ -196,8 +198,10 @@ def fastest_cells(summary: Mapping[str, Any]) -> dict[str, Any]:
         {''}
     """
     rc, traj = summary.get("ray_casters") or {}, summary.get("trajectory") or {}
-    cells = {k: rc.get(k, "") for k in FASTEST_COLUMNS if k != "trajectory_seed"}
-    return {**cells, "trajectory_seed": traj.get("seed", "")}
+    cells = {k: rc.get(k, "") for k in FASTEST_COLUMNS if not k.startswith(("trajectory", "las_equal"))}
+    las = (summary.get("methods") or {}).get("las_equal") or {}
+    return {**cells, "trajectory_seed": traj.get("seed", ""), "las_equal_ipr": las.get("ipr", ""),
+            "las_equal_ms": _total(summary["methods"], "las_equal") if las else "", "las_equal_psnr_db": las.get("psnr", "")}
 
 
 def interval_cells(summary: Mapping[str, Any]) -> dict[str, Any]:

@@ -11,6 +11,7 @@ METHOD_LABELS = {
     "recnn_sparser": "RecNN alone, sparser pattern",
     "las": "LAS",
     "las_searched": "LAS at the promise (its IPR searched)",
+    "las_equal": "LAS at equal quality (within 0.1 dB of IML/S)",
     "iml": "IML + RecNN",
     "imls": "IML/S + RecNN",
     "imls_fill": "IML/S mask + fill + RecNN",
@@ -26,7 +27,7 @@ METHOD_LABELS = {
 #: the other ray caster's twins of the RecNN alone and IML/S: timed only, on the timed views (their images are the
 #: main methods'); :func:`ray_caster_twin` names them
 TWIN_METHODS = ("recnn_skip", "recnn_noskip", "imls_skip", "imls_noskip")
-METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "iml", "imls", "imls_fill", "blue_noise", "two_pass",
+METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "las_equal", "iml", "imls", "imls_fill", "blue_noise", "two_pass",
                 *TWIN_METHODS)
 
 
@@ -55,7 +56,7 @@ STAGE_COLORS = {
     "decoder": "#9467bd",
     "recnn": "#d62728",
 }
-METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "las_searched": "#98df8a", "iml": "#ff7f0e",
+METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "las_searched": "#98df8a", "las_equal": "#c5e8b0", "iml": "#ff7f0e",
                  "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f",
                  "two_pass": "#bcbd22", "recnn_skip": "#aec7e8", "recnn_noskip": "#aec7e8", "imls_skip": "#ff9896",
                  "imls_noskip": "#ff9896"}
