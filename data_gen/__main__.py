@@ -25,7 +25,7 @@ from data_gen.errors import cli_errors, checked_command_line
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
 
-@checked_command_line(CONF_DIR)
+@checked_command_line(CONF_DIR, "data_gen")
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="data_gen")
 @cli_errors
 def main(cfg: DictConfig) -> None:

@@ -28,7 +28,8 @@ import numpy as np
 
 from .errors import InputError, boolean, finite_number
 
-__all__ = ["check_integer", "check_number", "check_numbers", "check_mapping", "expected", "shown", "finite_number",
+__all__ = ["check_integer", "check_number", "check_numbers", "check_mapping", "check_frame_memory", "memory_bytes",
+           "expected", "shown", "finite_number",
            "boolean"]
 
 
@@ -249,3 +250,60 @@ def check_mapping(cfg: Any, key: str, what: str = "a mapping of settings") -> di
     if not isinstance(cfg, Mapping):
         raise InputError(f"{key}: expected {what}, got {type(cfg).__name__}")
     return dict(cfg)
+
+
+def memory_bytes() -> int | None:
+    """The memory this process may use: the machine's physical memory, or the cgroup's limit (a container's) where
+    that is smaller; ``None`` where neither can be read.
+
+    Example:
+        >>> memory_bytes() is None or memory_bytes() > 0
+        True
+    """
+    import os
+
+    try:
+        total = int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        total = None
+    for limit in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = open(limit).read().strip()
+        except OSError:
+            continue
+        if text.isdigit() and int(text) > 0:
+            total = int(text) if total is None else min(total, int(text))
+        break
+    return total
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2 ** 30:.1f} GiB" if n < 2 ** 40 else f"{n / 2 ** 40:.1f} TiB"
+
+
+def check_frame_memory(side: int, key: str, bytes_per_pixel: float, what: str, *, total: int | None = None) -> int:
+    """Refuse, before anything is allocated, a frame side whose buffers cannot fit in this machine's memory: ``side``
+    squared pixels at (at least) ``bytes_per_pixel`` bytes each, against :func:`memory_bytes` (``total`` replaces it).
+
+    Returns:
+        ``side``.
+
+    Raises:
+        InputError: ``key=side: <what> at side^2 take at least N GiB, more than the M GiB of memory here; expected at
+        most <largest side that fits>`` (one line).
+
+    Example:
+        >>> check_frame_memory(512, "resolution", 256, "the frames", total=2 ** 33)
+        512
+        >>> check_frame_memory(100000, "resolution", 256, "the frames", total=2 ** 33)
+        Traceback (most recent call last):
+        ...
+        data_gen.errors.InputError: resolution=100000: the frames at 100000^2 take at least 2.3 TiB, more than the 8.0 GiB of memory here; expected at most 5792
+    """
+    total = memory_bytes() if total is None else total
+    need = float(side) * float(side) * float(bytes_per_pixel)
+    if total is not None and need > total:
+        largest = int((total / bytes_per_pixel) ** 0.5)
+        raise InputError(f"{key}={side}: {what} at {side}^2 take at least {_gib(need)}, more than the {_gib(total)} of "
+                         f"memory here; expected at most {largest}")
+    return side

@@ -43,7 +43,7 @@ import time
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import cli_errors
+from data_gen.errors import checked_command_line, cli_errors
 
 from .pipelines.bench import bench
 from .pipelines.paths import CONF_DIR, log
@@ -58,6 +58,7 @@ def main() -> None:
     point gets them through its closure (no module state)."""
     sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
 
+    @checked_command_line(f"{CONF_DIR}/pipelines", "bench")
     @hydra.main(version_base="1.3", config_path=f"{CONF_DIR}/pipelines", config_name="bench")
     @cli_errors
     def _main(cfg: DictConfig) -> None:

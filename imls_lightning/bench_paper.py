@@ -29,7 +29,7 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import cli_errors
+from data_gen.errors import checked_command_line, cli_errors
 
 from .pipelines.bench_paper import bench_paper
 from .pipelines.paths import CONF_DIR
@@ -44,6 +44,7 @@ def main() -> None:
     closure (no module state)."""
     sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
 
+    @checked_command_line(f"{CONF_DIR}/pipelines", "bench_paper")
     @hydra.main(version_base="1.3", config_path=f"{CONF_DIR}/pipelines", config_name="bench_paper")
     @cli_errors
     def _main(cfg: DictConfig) -> None:

@@ -42,7 +42,7 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import cli_errors
+from data_gen.errors import checked_command_line, cli_errors
 
 from .pipelines.demo import demo
 from .pipelines.paths import CONF_DIR
@@ -57,6 +57,7 @@ def main() -> None:
     Hydra entry point gets them through its closure (no module state)."""
     sys.argv[1:], scene_overrides = split_scene_overrides(sys.argv[1:])
 
+    @checked_command_line(f"{CONF_DIR}/pipelines", "demo")
     @hydra.main(version_base="1.3", config_path=f"{CONF_DIR}/pipelines", config_name="demo")
     @cli_errors
     def _main(cfg: DictConfig) -> None:

@@ -34,9 +34,16 @@ __all__ = ["evaluate", "summary", "main"]
 register_resolvers()
 
 
-@checked_command_line(CONF_DIR)
+def kept_when_interrupted(cfg: DictConfig) -> str:
+    """What an evaluation stopped by Ctrl-C keeps, and how to resume (:mod:`imls_lightning.evaluation.resume`)."""
+    again = "run the same command again" if cfg.get("resume", True) is not False else "run it again with resume=true"
+    return ("the caches rendered, the operating point once searched and every view measured are kept (partial/ in "
+            f"the evaluation's output folder); {again} to continue from them")
+
+
+@checked_command_line(CONF_DIR, "evaluate")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
-@cli_errors
+@cli_errors(interrupted=kept_when_interrupted)
 def main(cfg: DictConfig) -> None:
     path = evaluate(cfg)
     print(path, flush=True)

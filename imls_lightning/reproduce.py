@@ -19,9 +19,16 @@ __all__ = ["main", "reproduce"]
 register_resolvers()
 
 
-@checked_command_line(CONF_DIR)
+def kept_when_interrupted(cfg: DictConfig) -> str:
+    """What a reproduction stopped by Ctrl-C keeps (its evaluation runs with reuse=true in a folder of its settings)."""
+    where = cfg.get("output_dir") or f"{cfg.get('runs_dir')}/reproduce/"
+    return (f"the caches rendered and the views measured so far are kept (the evaluation's partial/ under {where}); "
+            "run the same command again to continue from them")
+
+
+@checked_command_line(CONF_DIR, "reproduce")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="reproduce")
-@cli_errors
+@cli_errors(interrupted=kept_when_interrupted)
 def main(cfg: DictConfig) -> None:
     print(reproduce(cfg), flush=True)
 

@@ -28,7 +28,7 @@ from .training.fit import (  # noqa: F401  (re-exported: the train CLI's body, b
 )
 
 
-@checked_command_line(Path(__file__).resolve().parents[1] / "conf")
+@checked_command_line(Path(__file__).resolve().parents[1] / "conf", "train")
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @cli_errors
 def main(cfg: DictConfig) -> float | dict | None:

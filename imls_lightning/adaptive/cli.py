@@ -382,7 +382,7 @@ def _command() -> str:
     return hydra_command("imls_lightning.adaptive", "run_adaptive(cfg) through the Python API")
 
 
-@checked_command_line(CONF_DIR)
+@checked_command_line(CONF_DIR, "adaptive")
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="adaptive")
 @cli_errors
 def main(cfg: DictConfig) -> None:

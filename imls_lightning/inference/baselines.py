@@ -34,6 +34,7 @@ import torch
 from data_gen.errors import InputError
 
 from ..models.pull_push import fill_c_image
+from .operating_point import SEARCH_TOLERANCE
 from ..core.metrics import psnr_per_image
 from ..tasks.iml import background_mask
 
@@ -249,7 +250,7 @@ def product_point(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Modu
 
 
 def product_orp(mask_head: Any, decoder: torch.nn.Module, recnn: torch.nn.Module, batches: Sequence[Mapping[str, torch.Tensor]],
-                epsilon_db: float = 1.0, tolerance: float = 0.05, device: torch.device | str = "cpu",
+                epsilon_db: float = 1.0, tolerance: float = SEARCH_TOLERANCE, device: torch.device | str = "cpu",
                 confidence: float = 0.5, lift: bool = False, future_views: int | None = None,
                 strata: Sequence[int] | None = None, passes: Sequence[int] | None = None, paths: int = 1):
     """The ORP on the product path: the smallest mean value ``u`` whose IML/S + RecNN (IMS mask from

@@ -4,10 +4,16 @@
 whose IML/S + RecNN stays within ``epsilon_db`` of the RecNN alone on the validation views) and runs
 IML/S there. :func:`write_operating_point` records that point in a sidecar file next to the IMS
 checkpoint, ``<ims.ckpt>.orp.json`` (beside the file a symbolic link points to), so that a user who
-has only the checkpoint finds it; its content names the checkpoint by the SHA-256 of its bytes.
-:func:`read_operating_point` reads and checks it: a sidecar of another checkpoint (a retrained or
-replaced file), an unreadable one or one of another format is ignored with a one-line warning,
-never trusted.
+has only the checkpoint finds it; its content names the checkpoint by the SHA-256 of its bytes and
+carries a digest of itself keyed with that hash (:func:`record_digest`: SHA-256 over its canonical JSON,
+without the digest, then the checkpoint's hash), so that an edit of any number shows.
+:func:`read_operating_point` reads and checks it, and trusts it only when it is what the evaluation
+wrote: a sidecar of another checkpoint (a retrained or replaced file), an unreadable one, one of another
+format, one without a digest (written before records carried one) or whose digest does not match, one
+whose share of C is not what its own search measured at its mean value (within the search's recorded
+relative ``tolerance``), and one that disagrees with its evaluation's ``summary.json`` (beside the
+``report`` it names, when that file is at hand) is ignored with a one-line warning, never trusted; the
+trained mean is used, and ``mean=<u>`` runs at a point of the user's choice.
 
 Every consumer reads it the same way (:func:`mean_to_run`, through
 :func:`~imls_lightning.inference.checkpoints.load_product`) and runs at the recorded point by default; an
@@ -26,22 +32,32 @@ Example:
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from data_gen.errors import InputError
 
 from ..core.importance import check_object_floor, check_sharpness
 
-__all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run"]
+__all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run",
+           "record_digest", "SEARCH_TOLERANCE"]
 
 #: appended to the checkpoint's file name
 SUFFIX = ".orp.json"
 KIND = "imls-operating-point"
 VERSION = 1
+#: the record's field holding :func:`record_digest` (records written before it have none: not trusted)
+DIGEST = "digest"
+#: the ORP search's relative tolerance on the mean value (:func:`~imls_lightning.inference.baselines.product_orp`):
+#: a record's share of C may differ from the share its search measured at its mean value by this fraction
+SEARCH_TOLERANCE = 0.05
 
 
 def _log(msg: str) -> None:
@@ -77,6 +93,10 @@ class OperatingPoint:
             With ``band_margins`` (``orp_object_floor_by_band``) each band of ``by_distance`` has its own margin
             (``None``: no floor there), which :meth:`distance_means` carries; ``margin`` is then the largest, for
             consumers that take one.
+        points: ``[u, c_share]`` of every mean value the search tried (the share of C it measured there), so the record
+            says which share its ``mean`` implies; ``None``: not recorded (then that check is skipped).
+        tolerance: the search's relative tolerance (``SEARCH_TOLERANCE``): how far ``c_share`` may be from the share
+            ``points`` imply at ``mean``.
     """
 
     mean: float | None
@@ -91,6 +111,8 @@ class OperatingPoint:
     by_distance: dict | None = None
     sharpness: float = 1.0
     object_floor: dict | None = None
+    points: list | None = None
+    tolerance: float = SEARCH_TOLERANCE
 
     @property
     def found(self) -> bool:
@@ -155,25 +177,56 @@ def _checkpoint_hash(ims_checkpoint: str | Path) -> str:
     return file_hash(Path(ims_checkpoint).expanduser(), length=64)
 
 
+def _canonical(record: Any) -> bytes:
+    """The record's canonical JSON (sorted keys, compact separators), its digest left out."""
+    body = {k: v for k, v in record.items() if k != DIGEST}
+    return json.dumps(body, sort_keys=True, separators=(",", ":"), default=str).encode()
+
+
+def record_digest(record: Any, checkpoint_sha256: str) -> str:
+    """The digest an operating-point record carries: SHA-256 over its canonical JSON (sorted keys, compact separators,
+    without the ``digest`` field) followed by the IMS checkpoint's SHA-256 (hex), so an edit of any number, or the
+    record moved to another checkpoint, breaks it. Not a signature: it tells what the evaluation wrote from an edit.
+
+    Example:
+        >>> rec = {"kind": KIND, "version": VERSION, "mean": 0.5}
+        >>> record_digest(rec, "ab" * 32) == record_digest({**rec, DIGEST: "x"}, "ab" * 32) != record_digest(rec, "cd" * 32)
+        True
+    """
+    h = hashlib.sha256(_canonical(record))
+    h.update(str(checkpoint_sha256).encode())
+    return h.hexdigest()
+
+
 def write_operating_point(ims_checkpoint: str | Path, point: OperatingPoint) -> Path:
-    """Record ``point`` for ``ims_checkpoint`` in its sidecar (atomically; replaces an older one).
+    """Record ``point`` for ``ims_checkpoint`` in its sidecar (atomically; replaces an older one), with its
+    :func:`record_digest`.
 
     Returns the sidecar's path. Raises ``OSError`` where the checkpoint's folder is not writable.
     """
     from data_gen.atomic import atomic_json
 
+    sha = _checkpoint_hash(ims_checkpoint)
     record = {"kind": KIND, "version": VERSION, "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
-              "ims_checkpoint_sha256": _checkpoint_hash(ims_checkpoint), **asdict(point)}
+              "ims_checkpoint_sha256": sha, **asdict(point)}
+    record = json.loads(json.dumps(record, default=str))  # as it reads back (tuples as lists, NumPy numbers as text)
+    record[DIGEST] = record_digest(record, sha)
     return atomic_json(sidecar_path(ims_checkpoint), record)
 
 
 def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
-    """``(point, None)`` for a record of this checkpoint, else ``(None, why)``."""
+    """``(point, None)`` for a record of this checkpoint, as the evaluation wrote it, else ``(None, why)``."""
     if not isinstance(record, dict) or record.get("kind") != KIND or record.get("version") != VERSION:
         return None, "not an operating-point record of this version"
     if record.get("ims_checkpoint_sha256") != sha:
         return None, (f"it belongs to another checkpoint (SHA-256 {str(record.get('ims_checkpoint_sha256'))[:12]}..., "
                       f"this one is {sha[:12]}...)")
+    if DIGEST not in record:
+        return None, ("it carries no digest of its content (written before records carried one, or by hand), so "
+                      "whether the evaluation wrote these numbers cannot be told; python -m imls_lightning.evaluate "
+                      "records it again")
+    if record[DIGEST] != record_digest(record, sha):
+        return None, "its digest does not match its content (it was edited after the evaluation wrote it)"
     try:
         mean = record["mean"]
         mean = None if mean is None else float(mean)
@@ -185,13 +238,103 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
                                scene=opt("scene", str), report=opt("report", str),
                                by_distance=_by_distance(record.get("by_distance")),
                                sharpness=check_sharpness(record.get("sharpness", 1.0)),
-                               object_floor=_object_floor(record.get("object_floor")))
+                               object_floor=_object_floor(record.get("object_floor")),
+                               points=_points(record.get("points")),
+                               tolerance=float(record.get("tolerance", SEARCH_TOLERANCE)))
         if (point.object_floor or {}).get("band_margins") is not None and not point.by_distance:
             raise ValueError("object_floor.band_margins without by_distance bands to hold them")
+        if not 0.0 <= point.tolerance <= 1.0:
+            raise ValueError(f"tolerance={point.tolerance} outside [0, 1]")
         point.distance_means()  # the bands are checked as a renderer will read them
     except (KeyError, TypeError, ValueError, InputError) as err:
         return None, f"malformed ({type(err).__name__}: {err})"
-    return point, None
+    why = _inconsistency(point)
+    return (None, why) if why else (point, None)
+
+
+def _points(value: Any) -> list | None:
+    """A record's ``points``: ``[u, c_share]`` pairs as floats (``None`` stays ``None``)."""
+    if value is None:
+        return None
+    out = [[float(u), float(c)] for u, c in value]
+    if any(not (math.isfinite(u) and math.isfinite(c)) for u, c in out):
+        raise ValueError("points: expected finite [u, c_share] pairs")
+    return out
+
+
+def _inconsistency(point: OperatingPoint) -> str | None:
+    """Why ``point``'s share of C is not the one its mean value implies (the share its search measured there,
+    interpolated between the mean values it tried), beyond its relative tolerance; ``None`` when it is, or when the
+    record does not say (no ``points``, no share, no point found)."""
+    if not point.found or point.c_share is None or not point.points:
+        return None
+    pts = sorted(point.points)
+    us, shares = [u for u, _ in pts], [c for _, c in pts]
+    tol = point.tolerance
+    if not us[0] * (1 - tol) <= point.mean <= us[-1] * (1 + tol):
+        return (f"not self-consistent: u = {point.mean:.3f} lies outside the mean values its search tried "
+                f"({us[0]:.3f}-{us[-1]:.3f})")
+    implied = float(np.interp(point.mean, us, shares))
+    if abs(point.c_share - implied) > tol * max(implied, 1e-3) + 1e-9:
+        return (f"not self-consistent: {100 * point.c_share:.1f} % of C at u = {point.mean:.3f}, where its search "
+                f"measured {100 * implied:.1f} % (tolerance {tol:.0%})")
+    return None
+
+
+def _summary_disagreement(point: OperatingPoint, sha: str) -> str | None:
+    """Why ``point`` is not what its evaluation's ``summary.json`` (beside the report it names) says, or ``None``: it
+    agrees, or that file is not at hand (an evaluation folder moved or deleted, a record written without a report)."""
+    if not point.report:
+        return None
+    path = Path(point.report).expanduser().parent / "summary.json"
+    if not path.is_file():
+        return None
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+        orp = summary["orp"]
+        if not isinstance(orp, dict):
+            raise TypeError("orp is not a mapping")
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        return f"its evaluation's {path} is unreadable or has no operating point ({type(err).__name__})"
+    theirs = (summary.get("checkpoints_sha256") or {}).get("ims") if isinstance(summary.get("checkpoints_sha256"), dict) else None
+    if theirs and not sha.startswith(str(theirs)):
+        return f"its evaluation's {path} evaluated another IMS checkpoint (SHA-256 {str(theirs)[:12]}...)"
+    ours: dict[str, Any] = {"found": point.found, "mean": point.mean, "lift": point.lift, "c_share": point.c_share,
+                            "ipr": point.ipr, "epsilon_db": point.epsilon_db, "gap_db": point.gap_db,
+                            "sharpness": point.sharpness}
+    there: dict[str, Any] = {"found": bool(orp.get("found")), "mean": orp.get("mean") if orp.get("found") else None,
+                             "lift": bool(orp.get("lift")), "c_share": orp.get("c_share"), "ipr": orp.get("ipr"),
+                             "epsilon_db": orp.get("epsilon_db"), "gap_db": orp.get("gap_db"),
+                             "sharpness": orp.get("sharpness", 1.0)}
+    if point.by_distance:
+        bands = orp.get("by_distance") or {}
+        for key in ("means", "edges"):
+            ours[f"by_distance.{key}"], there[f"by_distance.{key}"] = point.by_distance.get(key), bands.get(key)
+    if point.object_floor:
+        chosen = (orp.get("object_floor") or {}).get("chosen") or {}
+        for key in ("margin", "tau"):
+            ours[f"object_floor.{key}"], there[f"object_floor.{key}"] = point.object_floor.get(key), chosen.get(key)
+    for key, mine in ours.items():
+        if not _same(mine, there[key]):
+            return f"it disagrees with its evaluation's {path} ({key} {_shown(mine)} here, {_shown(there[key])} there)"
+    return None
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal values, numbers (and lists of them) to a relative 1e-6."""
+    if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)):
+        return (isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b)
+                and all(_same(x, y) for x, y in zip(a, b)))
+    if isinstance(a, bool) or isinstance(b, bool) or a is None or b is None:
+        return a == b
+    try:
+        return math.isclose(float(a), float(b), rel_tol=1e-6, abs_tol=1e-9)
+    except (TypeError, ValueError):
+        return a == b
+
+
+def _shown(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
 def _object_floor(value: Any) -> dict | None:
@@ -231,27 +374,37 @@ def _by_distance(value: Any) -> dict | None:
 
 
 def read_operating_point(ims_checkpoint: str | Path, trained_mean: float | None = None, *,
-                         log: Callable[[str], None] | None = _log) -> OperatingPoint | None:
-    """The operating point recorded for ``ims_checkpoint`` (checked against its bytes), or ``None``.
+                         log: Callable[[str], None] | None = _log, warn: Any = "log") -> OperatingPoint | None:
+    """The operating point recorded for ``ims_checkpoint`` (checked against its bytes, its digest, its own search
+    and its evaluation's ``summary.json``), or ``None``; every consumer reads the record through this function.
 
     Says in one line (``log``, by default stderr; ``None``: silent) which point a renderer built from
     the checkpoint runs at: the recorded one, or the trained mean ``trained_mean`` because there is
-    no sidecar, the sidecar is ignored (another checkpoint's, unreadable, another format: a
-    warning) or the evaluation found no ORP. ``None`` is returned in each of those cases.
+    no sidecar or the evaluation found no ORP. A sidecar that is ignored (another checkpoint's, unreadable, another
+    format, without or with a wrong digest, not self-consistent, disagreeing with its evaluation's summary) is one
+    warning line saying why on ``warn`` (by default ``log``, and stderr where ``log`` is silent; ``None``: silent).
+    ``None`` is returned in each of those cases.
     """
     say = log or (lambda _msg: None)
+    if warn == "log":
+        warn = log or _log
+    warn = warn or (lambda _msg: None)
     side = sidecar_path(ims_checkpoint)
     fallback = "the trained mean" + ("" if trained_mean is None else f" u = {float(trained_mean):.3f}")
     if not side.is_file():
         say(f"no recorded operating point for {ims_checkpoint} (python -m imls_lightning.evaluate records one "
             f"in {side.name}): running at {fallback}")
         return None
+    sha = _checkpoint_hash(ims_checkpoint)
     try:
-        point, why = _check(json.loads(side.read_text()), _checkpoint_hash(ims_checkpoint))
+        point, why = _check(json.loads(side.read_text()), sha)
     except (OSError, ValueError) as err:
         point, why = None, f"unreadable ({type(err).__name__})"
+    if point is not None:
+        why = _summary_disagreement(point, sha)
+        point = None if why else point
     if point is None:
-        say(f"warning: {side} ignored: {why}; running at {fallback}")
+        warn(f"warning: {side} ignored: {why}; running at {fallback}")
         return None
     if not point.found:
         say(f"{side.name}: the evaluation found {point.describe()}; running at {fallback}")

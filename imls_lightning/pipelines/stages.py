@@ -10,6 +10,7 @@ import codecs
 import os
 import re
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -18,7 +19,7 @@ from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
+from data_gen.errors import HYDRA_FLAGS_WITH_VALUE, INTERRUPTED_EXIT, PIPELINE_STAGE_ENV, InputError, exit_interrupted
 from data_gen.overrides import quote_override_value
 
 from ..orp.overrides import override_key
@@ -38,8 +39,6 @@ class StageUnfinished(RuntimeError):
 # ------------------------------------------------------------------------------------------------
 # scene overrides: the pipelines take every scene override python -m data_gen takes
 
-#: Hydra flags whose value is the next argument (that argument is never a scene override)
-_FLAGS_WITH_VALUE = frozenset({"--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun"})
 #: ``scene.<key>=...`` with Hydra's prefixes (``+`` add, ``++`` force-add, ``~`` delete)
 _SCENE_OVERRIDE = re.compile(r"(?:\+\+|\+|~)?scene\.[A-Za-z_]")
 
@@ -61,7 +60,7 @@ def split_scene_overrides(argv: Sequence[str]) -> tuple[list[str], list[str]]:
     for a in argv:
         if value_of_flag or not _SCENE_OVERRIDE.match(a):
             own.append(a)
-            value_of_flag = not value_of_flag and a in _FLAGS_WITH_VALUE
+            value_of_flag = not value_of_flag and a in HYDRA_FLAGS_WITH_VALUE
         else:
             scene.append(a)
     return own, scene
@@ -95,11 +94,14 @@ def run_stage(name: str, args: Sequence[str], log=sys.stderr, tag: str = "demo")
     cmd = [sys.executable, *args]
     print(f"\n[{tag}] {name}: {' '.join(args)}", file=log, flush=True)
     t0 = time.perf_counter()
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    # a stage stopped by Ctrl-C exits 130 without a line of its own: the pipeline says what was kept (run_pipeline)
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **{PIPELINE_STAGE_ENV: "1"})
     with subprocess.Popen(cmd, cwd=os.getcwd(), env=env, stdout=subprocess.PIPE) as proc:
         assert proc.stdout is not None
         last = _echo(proc.stdout, log)
         code = proc.wait()
+    if code in (INTERRUPTED_EXIT, -signal.SIGINT):  # the stage alone was stopped by Ctrl-C: so is the pipeline
+        raise KeyboardInterrupt
     if code == StageUnfinished.EXIT_CODE:
         raise StageUnfinished(f"{tag} stage '{name}' trained one chunk of its schedule; run the same command again to continue")
     if code != 0:
@@ -260,12 +262,19 @@ def evaluation_lift(report: Path) -> bool:
     return bool((read_summary(report).get("orp") or {}).get("lift", False))
 
 
+#: what a pipeline keeps when Ctrl-C stops it (:func:`run_pipeline`)
+PIPELINE_KEPT = ("the stages that finished are kept (each command reuses its finished run; a training continues from its "
+                 "last.ckpt, an evaluation from its partial results); run the same command again to continue")
+
+
 def run_pipeline(body) -> None:
     """A pipeline CLI's body: run ``body()``; a failed stage exits 1 with its one-line message, a stage
-    that trained one chunk exits 3 (run again to continue), and the result (a report's path, None on a
-    dry run) is the last line of stdout."""
+    that trained one chunk exits 3 (run again to continue), Ctrl-C exits 130 with one line saying what was kept
+    (:data:`PIPELINE_KEPT`), and the result (a report's path, None on a dry run) is the last line of stdout."""
     try:
         result = body()
+    except KeyboardInterrupt:
+        exit_interrupted(PIPELINE_KEPT)
     except StageUnfinished as err:
         print(f"[pipeline] {err}", file=sys.stderr, flush=True)
         sys.exit(StageUnfinished.EXIT_CODE)

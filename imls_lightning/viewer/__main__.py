@@ -15,7 +15,7 @@ from .run import viewer
 CONF = Path(__file__).resolve().parents[2] / "conf"
 
 
-@checked_command_line(CONF)
+@checked_command_line(CONF, "viewer")
 @hydra.main(version_base="1.3", config_path="../../conf", config_name="viewer")
 @cli_errors
 def main(cfg: DictConfig) -> None:

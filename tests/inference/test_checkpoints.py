@@ -32,6 +32,17 @@ DOWN4 = {"kind": "downsample", "factor": 4}
 P32 = build_pattern(DOWN2, 32)
 
 
+def sealed(record: dict, ckpt) -> str:
+    """``record`` as JSON with the digest the evaluation would give it for ``ckpt`` (a test's edit, re-sealed, so that
+    the check behind the digest is the one tested)."""
+    import json
+
+    from imls_lightning.config import file_hash
+    from imls_lightning.inference.operating_point import record_digest
+
+    return json.dumps({**record, "digest": record_digest(record, file_hash(ckpt, length=64))})
+
+
 def hp(pattern=DOWN2, fr_size=32, **kw):
     return {"pattern": pattern, "fr_size": fr_size, **kw}
 
@@ -280,7 +291,7 @@ def test_a_point_by_camera_distance_travels_with_the_checkpoint(tiny_checkpoints
     assert fixed.by_distance is None and "mean" not in fixed.run(far).info
     capsys.readouterr()
     rec = json.loads(sidecar_path(ck).read_text())
-    sidecar_path(ck).write_text(json.dumps({**rec, "by_distance": {**bands, "edges": [4.0, 3.5]}}))
+    sidecar_path(ck).write_text(sealed({**rec, "by_distance": {**bands, "edges": [4.0, 3.5]}}, ck))
     assert load_product(str(ck)).by_distance is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: by_distance: band edges [4.0, 3.5]" in err[0]
@@ -306,10 +317,10 @@ def test_a_sharpened_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_pat
     plain = load_ims_nets(str(ck)).head
     assert torch.equal(r.predict_im(view), plain.with_sharpness(2.0)(view, 0.4, True))
     rec = json.loads(sidecar_path(ck).read_text())
-    sidecar_path(ck).write_text(json.dumps({k: v for k, v in rec.items() if k != "sharpness"}))
+    sidecar_path(ck).write_text(sealed({k: v for k, v in rec.items() if k != "sharpness"}, ck))
     assert read_operating_point(ck, log=None).sharpness == 1.0 and load_product(str(ck)).nets.head.sharpness == 1.0
     capsys.readouterr()
-    sidecar_path(ck).write_text(json.dumps({**rec, "sharpness": 0.5}))
+    sidecar_path(ck).write_text(sealed({**rec, "sharpness": 0.5}, ck))
     assert load_product(str(ck)).operating_point is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: sharpness=0.5: expected a number in [1, 8]" in err[0]
@@ -340,10 +351,10 @@ def test_a_floored_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_path,
     assert torch.equal(r.predict_im(view), plain.with_object_floor(0.12, 0.2)(view, 0.3, True))
     assert load_product(str(ck), mean=0.5).nets.head.object_floor is None  # an explicit mean: nothing is read
     rec = json.loads(sidecar_path(ck).read_text())
-    sidecar_path(ck).write_text(json.dumps({k: v for k, v in rec.items() if k != "object_floor"}))
+    sidecar_path(ck).write_text(sealed({k: v for k, v in rec.items() if k != "object_floor"}, ck))
     assert read_operating_point(ck, log=None).object_floor is None and load_product(str(ck)).nets.head.object_floor is None
     capsys.readouterr()
-    sidecar_path(ck).write_text(json.dumps({**rec, "object_floor": {"margin": 1.5, "tau": 0.2}}))
+    sidecar_path(ck).write_text(sealed({**rec, "object_floor": {"margin": 1.5, "tau": 0.2}}, ck))
     assert load_product(str(ck)).operating_point is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: object_floor.margin=1.5: expected a share of the C-Image" in err[0]
@@ -380,7 +391,7 @@ def test_a_point_floored_per_band_travels_with_the_checkpoint(tiny_checkpoints, 
     for bad, msg in (({**rec, "by_distance": None}, "object_floor.band_margins without by_distance bands"),
                      ({**rec, "object_floor": {**floor, "band_margins": [0.3]}}, "floor_margins=[0.3]: expected 2 margins")):
         capsys.readouterr()
-        sidecar_path(ck).write_text(json.dumps(bad))
+        sidecar_path(ck).write_text(sealed(bad, ck))
         assert load_product(str(ck)).operating_point is None
         err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
         assert len(err) == 1 and "ignored: malformed" in err[0] and msg in err[0], err
