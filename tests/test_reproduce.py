@@ -83,6 +83,13 @@ def test_exception_an_altered_or_missing_network_writes_nothing(row, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_exception_an_edited_point_writes_nothing(row, tmp_path):
+    spec = {**row["spec"], "point_sha256": "0" * 64}
+    with pytest.raises(InputError, match=r"row=tiny_row: .*summary.json is not the record the row committed"):
+        reproduce(_cfg({**row, "spec": spec}, tmp_path))
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("seed, needle", [(0, "equals data.seed"), (100, "equals the IMS's training data.seed"),
                                           (1, "equals a seed of the ORP's search views")])
 def test_exception_a_trajectory_seed_a_choice_read_writes_nothing(row, tmp_path, seed, needle):
@@ -119,6 +126,7 @@ def test_pack_row_commits_the_evaluated_weights_and_reproduce_reads_the_row(row,
     point = json.loads((dest / "point" / "summary.json").read_text())
     assert point["checkpoints_sha256"] == {k: v["sha256"] for k, v in spec["networks"].items()}
     assert point["packed_from"]["ims"] == file_hash(row["folder"] / "ims.ckpt")
+    assert spec["point_sha256"] == file_hash(dest / "point" / "summary.json")
     out = reproduce(OmegaConf.create({"row": spec, "trajectory_seed": 9, "views": None, "timed_views": None,
                                       "output_dir": str(tmp_path / "out"), "runs_dir": str(tmp_path), "cache_dir": str(row["ck"]["cache_dir"])}))
     assert json.loads(out.read_text())["trajectory_seed"] == 9

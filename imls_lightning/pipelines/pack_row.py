@@ -74,7 +74,9 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
     row = {"name": name, "scene": summary["scene"], "recnn": summary["recnn"], "data": data,
            "dir": str(dest.relative_to(ROOT)) if dest.is_relative_to(ROOT) else str(dest), "point": "point",
            "trajectory_seed": int(trajectory_seed), "views": int(views), "timed_views": int(timed_views),
-           "settings": list(settings), "networks": networks}
+           "settings": list(settings), "networks": networks,
+           # the point's record by content: an edited summary.json is refused like an altered network
+           "point_sha256": file_hash(point / "summary.json")}
     out = (row_dir or ROOT / "conf" / "row") / f"{name}.yaml"
     header = (f"# row {name}: written by python -m imls_lightning.pack_row from {evaluation.name}; re-measure it with\n"
               f"# python -m imls_lightning.reproduce row={name} (networks under {row['dir']}, checked by SHA-256)\n")

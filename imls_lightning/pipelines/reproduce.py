@@ -61,6 +61,10 @@ def row_files(row: Mapping[str, Any]) -> tuple[Path, dict[str, Path], Path]:
     for f in ("summary.json", "config.yaml"):
         if not (point / f).is_file():
             raise InputError(f"row={name}: its operating point's {point / f} is missing")
+    want = row.get("point_sha256")
+    if want and file_hash(point / "summary.json") != str(want):
+        raise InputError(f"row={name}: {point / 'summary.json'} is not the record the row committed (SHA-256 differs): "
+                         "the operating point was edited")
     return folder, files, point
 
 
