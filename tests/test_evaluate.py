@@ -1345,6 +1345,10 @@ def test_both_ray_casters_are_timed_in_one_run_and_the_speedup_counts_against_th
     row = csv_row(read_summary(run["report"]))
     assert row["speedup_vs_fastest"] == rc["speedup_vs_fastest"] and row["recnn_noskip_ms"] == rc["recnn_noskip_ms"]
     assert "**The fastest baseline**" in run["report"].read_text()
+    # the report's last line: whether it pays against the fastest, and where it does (make reproduce)
+    last = run["report"].read_text().rstrip().splitlines()[-1]
+    assert last.startswith("**Verdict: IML/S ") and f"{rc['speedup_vs_fastest']:.2f}x the fastest RecNN alone" in last
+    assert "make reproduce ROW=seed_whole" in last
 
 
 def test_a_fresh_trajectory_of_its_own_seed_is_what_the_evaluation_measures(run, tmp_path):

@@ -21,6 +21,7 @@ from .. import report as rep
 from ..config import file_hash, settings_hash, to_plain
 from ..inference.pipeline import FullRayCast, IMLPlusRecNN, IMLSRenderer, LASMethod, Method, RecNNAlone, pick_device
 from ..models.iml import FillDecoder
+from ..report.document import verdict_line
 from ..report.names import TWIN_METHODS, ray_caster_twin
 from .baselines import blue_noise_method, equal_share, sparser_method
 from .measurement import measure_methods, progress_bar, spaced, view_tensor
@@ -537,6 +538,8 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         sweep_positions=sweep_pos, grid=res["grid"], pattern_obj=pattern, notes=res["notes"], las_ipr=res["las_ipr"],
         machine=rep.machine_info(str(device)), command=command or command_line(), cache=str(cache.path),
         orp=orp, equal_share=res["equal_share"], front=front, two_pass=two_pass,
+        verdict=verdict_line(ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False),
+                             (paired_gap(rows, "recnn", "imls") or {}).get("gap_db"), s.epsilon_db),
     )
     report = rep.write_report(ctx)
     if orp is not None and not s.orp_from:  # after the report: only a finished search records its point

@@ -69,6 +69,8 @@ class ReportContext:
     front: list[dict[str, Any]] = field(default_factory=list)
     #: the two-pass sampler's search and its gap on the evaluated views (``summary.json``'s ``two_pass``; None: not measured)
     two_pass: dict[str, Any] | None = None
+    #: the report's last line: whether IML/S pays here against the fastest RecNN alone (:func:`verdict_line`)
+    verdict: str | None = None
 
 
 def _latency_points(ctx: ReportContext, summ, points) -> tuple[dict, dict, float | None]:
@@ -178,7 +180,29 @@ def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figu
 
     L.extend(_sweep_and_option_lines(ctx, points))
     L.extend(_notes_lines(ctx, figures))
+    if ctx.verdict:
+        L += ["", ctx.verdict]
     return "\n".join(L)
+
+
+def verdict_line(rc: dict[str, Any] | None, gap_db: float | None, epsilon_db: float = 1.0) -> str | None:
+    """One line: does IML/S pay on this scene against the fastest RecNN alone (``summary.json``'s ``ray_casters``), and
+    where to see a scene where it does (``make reproduce``). None without both ray casters timed.
+
+    Example:
+        >>> verdict_line({"speedup_vs_fastest": 0.8, "speedup_noskip": 1.9, "fastest_recnn": "skip"}, 0.4).split("**")[1]
+        '**Verdict: IML/S does not pay here**'
+    """
+    if not rc:
+        return None
+    vs, noskip = float(rc["speedup_vs_fastest"]), float(rc["speedup_noskip"])
+    within = gap_db is not None and gap_db <= epsilon_db
+    pays = vs > 1.0 and within
+    head = "**Verdict: IML/S pays here**" if pays else "**Verdict: IML/S does not pay here**"
+    fastest = "empty-space skipping" if rc.get("fastest_recnn") == "skip" else "every sample marched"
+    return (f"{head}: {vs:.2f}x the fastest RecNN alone (its ray caster: {fastest}) at a {gap_db if gap_db is not None else float('nan'):.2f} dB "
+            f"gap; {noskip:.2f}x where both march every sample. The scene where it pays most is re-measured from "
+            "committed networks by `make reproduce ROW=seed_whole` (README, \"Results\").")
 
 
 def _header_lines(ctx: ReportContext) -> list[str]:
