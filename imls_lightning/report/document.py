@@ -191,7 +191,7 @@ def verdict_line(rc: dict[str, Any] | None, gap_db: float | None, epsilon_db: fl
 
     Example:
         >>> verdict_line({"speedup_vs_fastest": 0.8, "speedup_noskip": 1.9, "fastest_recnn": "skip"}, 0.4).split("**")[1]
-        '**Verdict: IML/S does not pay here**'
+        'Verdict: IML/S does not pay here'
     """
     if not rc:
         return None
