@@ -677,10 +677,20 @@ def write_results(cfg: DictConfig, records: Mapping[str, Mapping[str, Any]], old
         commands={n: r["command"] for n, r in records.items()}))
     if cfg.get("benchmarks_md"):
         update_section(Path(str(cfg.benchmarks_md)), section_text(all_rows, partial, ad_rows))
-    if cfg.get("readme"):  # the README's results table, from the same rows
-        from ..report.results_table import README_BEGIN, README_END, results_table, update_between
+    write_current_results(cfg, all_rows, out_dir)
 
-        update_between(Path(str(cfg.readme)), README_BEGIN, README_END, results_table(all_rows))
+
+def write_current_results(cfg: DictConfig, rows: Sequence[Mapping[str, Any]], out_dir: Path) -> None:
+    """The current result per row, where a reader looks first: the table at the top of the README and of BENCHMARKS.md
+    (between the results markers) and its plot, ``paper_scale_results.png``."""
+    from ..report.results_table import README_BEGIN, README_END, plot_results, results_table, update_between
+
+    table = results_table(rows)
+    plot_results(rows, out_dir / "paper_scale_results.png")
+    if cfg.get("readme"):
+        update_between(Path(str(cfg.readme)), README_BEGIN, README_END, table)
+    if cfg.get("benchmarks_md"):
+        update_between(Path(str(cfg.benchmarks_md)), README_BEGIN, README_END, table)
 
 
 def bench_paper(cfg: DictConfig, scene_overrides: Sequence[str] = (), command: str = "") -> Path | None:

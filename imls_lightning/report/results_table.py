@@ -90,3 +90,40 @@ def between(text: str, begin: str = README_BEGIN, end: str = README_END) -> str 
     if begin not in text or end not in text:
         return None
     return text.split(begin, 1)[1].split(end, 1)[0].strip()
+
+
+def plot_results(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+    """``paper_scale_results.png``: per row, IML/S against the fastest RecNN alone (or, timed on the skipping ray caster
+    alone, against that) and against the RecNN alone without skipping; the 1x line is where it stops paying."""
+    import numpy as np
+
+    from .plots import new_figure, save_figure
+
+    labels = [f"{r['scene']}\n{r['recnn']}" for r in rows]
+    fastest = []
+    for r in rows:
+        v = number(r.get("speedup_vs_fastest"))
+        skip_only = str(r.get("skip_empty", "true")).strip().lower() not in ("false", "0")
+        fastest.append(v if math.isfinite(v) else (number(r.get("speedup")) if skip_only else math.nan))
+    noskip = []
+    for r in rows:
+        a, b = number(r.get("recnn_noskip_ms")), number(r.get("imls_noskip_ms"))
+        skip_only = str(r.get("skip_empty", "true")).strip().lower() not in ("false", "0")
+        noskip.append(a / b if math.isfinite(a) and math.isfinite(b) and b > 0 else
+                      (math.nan if skip_only else number(r.get("speedup"))))
+    fig = new_figure(max(7.0, 0.9 * len(rows)), 4.0)
+    ax = fig.add_subplot(111)
+    x = np.arange(len(rows))
+    ax.bar(x - 0.2, [0 if not math.isfinite(v) else v for v in fastest], 0.4, color="#d62728",
+           label="vs the fastest RecNN alone (empty-space skipping)")
+    ax.bar(x + 0.2, [0 if not math.isfinite(v) else v for v in noskip], 0.4, color="#aaaaaa",
+           label="vs the RecNN alone, both marching every sample")
+    for i, v in enumerate(fastest):
+        if not math.isfinite(v):
+            ax.text(x[i] - 0.2, 0.05, "lost", rotation=90, ha="center", va="bottom", fontsize=7)
+    ax.axhline(1.0, color="black", lw=0.8)
+    ax.set_xticks(x, labels, fontsize=7, rotation=30, ha="right")
+    ax.set_ylabel("IML/S + RecNN speed-up")
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("Where IML/S pays, and against which ray caster (benchmarks/paper_scale.csv)", fontsize=9)
+    return save_figure(fig, path)
