@@ -281,7 +281,9 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
         assert sk["speedup"] == pytest.approx(b["speedup"], rel=1e-9)
         renders = [(rc[k]["c_render_ms"] + est["recnn_ms"]) / x["speedup"] for k, x in (("skip", sk), ("noskip", no))]
         assert vs["speedup"] == pytest.approx(fastest / min(renders), rel=1e-9)
-    assert "vs fastest" in r.stdout and "no skipping" in r.stdout
+    for free, vs in zip(rc["free_networks_vs_fastest"], rc["vs_fastest"]):
+        assert free["speedup"] >= vs["speedup"]  # free networks can only be faster
+    assert "vs fastest" in r.stdout and "no skipping" in r.stdout and "free IMS+dec" in r.stdout
     table = tmp_path / "estimates.csv"
     again = _cli(tmp_path, f"table={table}")   # the same settings: reused, and its row goes into the table
     assert again.returncode == 0 and "reusing" in again.stderr
