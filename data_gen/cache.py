@@ -34,7 +34,8 @@ Trust. The tool writes only into a directory it created (one with its ``manifest
 ``.imls-cache`` marker) or an empty one; any other existing directory is refused in one line, before
 anything (not even a lock file) is written into it. Every view's pixels are checked against the
 CRC-32 logged when they were written, each time a cache is opened or rendered (a CRC-32 costs about
-0.4 ms per 512x512 view, over 1000x less than rendering it: ``scripts/measure_pixel_check.py``): a rendering run
+0.4 ms per 512x512 view, over 1000x less than rendering it: ``scripts/measure_pixel_check.py``, removed after its result
+was committed: ``git show 97cc83f:scripts/measure_pixel_check.py``): a rendering run
 re-renders the views that fail, with a one-line warning; :meth:`ViewImageCache.open` refuses them in
 one line. A truncated ``images.npy`` is extended (the views whose pixels were lost fail their check
 and are re-rendered) and a truncated or deleted ``views.npy`` / ``splits.json`` is rewritten from the

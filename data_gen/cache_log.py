@@ -74,7 +74,8 @@ def bad_views(images: np.ndarray, rows, crc: np.ndarray) -> np.ndarray:
     """Rows of ``images`` (``(N, m, m, 3)``, e.g. memory-mapped) whose CRC-32 is not ``crc[row]``.
 
     One CRC-32 per view: about 0.4 ms for a 512x512 view in the page cache, over 1000x less than
-    rendering it (0.45-0.55 s for the tiny scene on 2 CPU cores; ``scripts/measure_pixel_check.py``).
+    rendering it (0.45-0.55 s for the tiny scene on 2 CPU cores; ``scripts/measure_pixel_check.py``, removed after its
+    result was committed: ``git show 97cc83f:scripts/measure_pixel_check.py``).
     """
     bad = [int(i) for i in np.asarray(rows, np.int64)
            if zlib.crc32(np.ascontiguousarray(images[i])) & 0xFFFFFFFF != int(crc[i])]

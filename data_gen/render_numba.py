@@ -34,7 +34,8 @@ Scene model (the conventions of VTK's fixed-point mapper, read from its source):
   (:func:`skip_distance`) lets a ray jump over a whole block of them to the next sample on the same
   grid, so skipping never changes a pixel. Precomputed once per renderer: a few kB.
 
-Agreement with VTK (``scripts/bench_selective.py`` reports it): 52-56 dB PSNR on ``ct_head``, mean
+Agreement with VTK (measured by a script removed after its result was committed,
+``git show 97cc83f:scripts/bench_selective.py``): 52-56 dB PSNR on ``ct_head``, mean
 absolute error ~0.25/255; the residue is VTK's 15-bit fixed-point arithmetic (its roundings are
 biased up) and its quantized normals, plus a handful of pixels on the box's silhouette that VTK's
 row bounds skip.

@@ -254,6 +254,39 @@ def _script_imports() -> dict[str, set[str]]:
     return out
 
 
+#: the most lines a file of ``scripts/`` may have (issue 87, 5: a longer one becomes a package command or leaves)
+SCRIPT_LINES = 150
+
+
+def _script_breaches(folder: Path) -> list[str]:
+    """What a ``scripts/`` folder breaks: a file over :data:`SCRIPT_LINES` lines, or a Python file that calls
+    ``sys.path.insert`` (a script imports the installed package as any user's code does, or it is a package command)."""
+    found = []
+    paths = sorted(p for p in folder.rglob("*") if p.is_file() and "__pycache__" not in p.parts) if folder.is_dir() else []
+    for path in paths:
+        text = path.read_text(errors="replace")
+        if (n := len(text.splitlines())) > SCRIPT_LINES:
+            found.append(f"{path.relative_to(folder.parent)}: {n} lines")
+        if path.suffix == ".py" and any(
+                isinstance(c, ast.Call) and ast.unparse(c.func) == "sys.path.insert" for c in ast.walk(ast.parse(text, str(path)))):
+            found.append(f"{path.relative_to(folder.parent)}: calls sys.path.insert")
+    return found
+
+
+def test_scripts_follow_the_package_rules(tmp_path):
+    """``scripts/``, where it exists, holds no file over :data:`SCRIPT_LINES` lines and none that calls
+    ``sys.path.insert``; what a user runs again is a package command (``python -m imls_lightning...``) with tests."""
+    folder = tmp_path / "scripts"
+    folder.mkdir()
+    (folder / "ok.py").write_text("import sys\nprint(sys.path[0])\n")
+    (folder / "hack.py").write_text("import sys\nsys.path.insert(0, '..')\n")
+    (folder / "long.sh").write_text("echo\n" * (SCRIPT_LINES + 1))
+    assert _script_breaches(folder) == ["scripts/hack.py: calls sys.path.insert", f"scripts/long.sh: {SCRIPT_LINES + 1} lines"]
+    assert _script_breaches(tmp_path / "none") == []
+    found = _script_breaches(ROOT / "scripts")
+    assert found == [], "scripts/ breaks the package's rules (make it a package command or delete it):\n" + "\n".join(found)
+
+
 def test_entry_points_are_thin():
     """An entry point parses its config and calls a package: at most :data:`ENTRY_POINT_LINES` lines."""
     long = {p.name: n for p in _entry_points() if (n := len(p.read_text().splitlines())) > ENTRY_POINT_LINES}

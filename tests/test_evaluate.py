@@ -195,9 +195,12 @@ def test_report_has_the_paper_tables(run):
     lines = table.splitlines()
     assert lines[0].startswith("| Method | IPR |") and "RecNN (ms)" in lines[0] and "decoder (ms)" in lines[0]
     assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["Full ray cast", "RecNN alone", "RecNN alone, sparser pattern", "LAS",
-                                                              "LAS at the promise (its IPR searched)", "IML + RecNN", "IML/S + RecNN",
-                                                              "IML/S mask + fill + RecNN", "blue noise + decoder + RecNN",
-                                                              "two passes + fill + RecNN (no IMS)"]
+                                                              "LAS at the promise (its IPR searched)",
+                                                              "LAS at equal quality (within 0.1 dB of IML/S)", "IML + RecNN",
+                                                              "IML/S + RecNN", "IML/S mask + fill + RecNN",
+                                                              "blue noise + decoder + RecNN", "two passes + fill + RecNN (no IMS)",
+                                                              "RecNN alone, every sample marched",
+                                                              "IML/S + RecNN, every sample marched"]
     # the speed-up over the RecNN alone is its total over IML/S's total
     s = summary(run["out"] / "metrics.csv")
     ratio = s["recnn"]["latency_ms"]["total"] / s["imls"]["latency_ms"]["total"]
@@ -217,7 +220,8 @@ def test_the_speedup_comes_with_its_interval_over_the_timed_views(run):
     again = speedup_intervals(rows)
     assert list(summ["speedup_interval"]) == list(again)
     for method, iv in again.items():
-        assert summ["speedup_interval"][method] == pytest.approx(iv, rel=1e-6), method
+        # metrics.csv keeps 6 significant digits: a bootstrap quantile on them moves by a few parts in a million
+        assert summ["speedup_interval"][method] == pytest.approx(iv, rel=1e-4), method
     imls = summ["speedup_interval"]["imls"]
     s = summary(run["out"] / "metrics.csv")
     assert imls["speedup"] == pytest.approx(s["recnn"]["latency_ms"]["total"] / s["imls"]["latency_ms"]["total"])
@@ -689,39 +693,6 @@ def test_object_floor_without_validation_views_is_a_one_line_error():
     cache = SimpleNamespace(splits={"val": np.array([], dtype=np.int64)}, path="cache/x")
     with pytest.raises(InputError, match=re.escape("orp_object_floor: the cache cache/x has no validation views")):
         object_floor_point(SimpleNamespace(orp_object_floor=[0.1]), cache, None, None, "cpu", None, 2)
-
-
-@pytest.mark.slow  # a benchmark script (three ORP searches); the by-distance search itself is tested above
-def test_orp_promise_script_tests_each_searched_point_on_the_evaluated_views(run, tmp_path, capsys):
-    """scripts/orp_promise.py re-searches a finished evaluation's ORP (its own settings first, then each variant,
-    a by-distance one included) and scores each point on the evaluated views: its first row reproduces the
-    evaluation's measured gap."""
-    import importlib.util
-    import json
-
-    spec = importlib.util.spec_from_file_location("orp_promise", ROOT / "scripts" / "orp_promise.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    assert mod.parse_variant("orp_strata=2,orp_by_distance=true") == {"orp_strata": 2, "orp_by_distance": True}
-    with pytest.raises(SystemExit, match="'orp_step' is not one of"):
-        mod.parse_variant("orp_step=2")
-    out = tmp_path / "rows.json"
-    assert mod.main([str(run["out"]), "--variant", "orp_strata=2,orp_by_distance=true", "--json", str(out)]) == 0
-    own, banded = json.loads(out.read_text())
-    assert own["variant"] == "the evaluation's own" and own["found"] and own["test_views"] == 2
-    assert own["test_gap_db"] == pytest.approx(own["evaluation_test_gap_db"], abs=0.1)  # cached pixels, float32
-    assert banded["orp_strata"] == 2 and len(banded["by_distance"]["means"]) == 2 and math.isfinite(banded["test_gap_db"])
-    table = capsys.readouterr().out
-    assert " / ".join(f"{u:.3f}" for u in banded["by_distance"]["means"]) in table
-    # --two-pass: the sampler's share searched as the evaluation searches it, tested on the same cached views
-    assert mod.main([str(run["out"]), "--variant", "orp_strata=2,orp_by_distance=true,orp_confidence=0.5", "--two-pass",
-                     "--json", str(out)]) == 0
-    own, banded = json.loads(out.read_text())
-    assert own["two_pass"]["shares"] == [own["two_pass"]["share"]] and len(banded["two_pass"]["shares"]) in (1, 2)
-    assert all(math.isfinite(r["two_pass"]["test_gap_db"]) for r in (own, banded))
-    # its one share on the cached pixels is the evaluation's selective ray cast (float32, the same masks)
-    assert own["two_pass"]["test_gap_one_share_db"] == pytest.approx(own["evaluation_two_pass_test_gap_db"], abs=0.1)
-    assert "The two-pass sampler, its share searched as the evaluation searches it" in capsys.readouterr().out
 
 
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):

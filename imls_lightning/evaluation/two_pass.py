@@ -75,7 +75,7 @@ class TwoPassPoint:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "TwoPassPoint":
-        """The point :meth:`to_dict` wrote (``summary.json``'s ``two_pass``, ``scripts/orp_promise.py``'s rows)."""
+        """The point :meth:`to_dict` wrote (``summary.json``'s ``two_pass``)."""
         return cls(base=float(d["base"]), floor=float(d["floor"]), share=float(d["share"]), found=bool(d.get("found", True)),
                    where=str(d.get("where", "")), epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"),
                    rows=list(d.get("rows", [])), by_distance=d.get("by_distance"))

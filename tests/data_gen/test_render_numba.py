@@ -4,8 +4,9 @@ Agreement threshold (``MIN_PSNR_VS_VTK = 45`` dB): on these scenes the caster ma
 fixed-point mapper at 50-66 dB (mean absolute error < 0.3/255; VTK's 15-bit roundings are biased up
 and its normals quantized). Every modelling slip met while building it fell below 45 dB: dropping
 VTK's ambient term (37 dB), VTK's display resampling of its ray-cast image (38-42 dB), ignoring the
-0.01-voxel ray inset at the box faces (35 dB on ct_head). No timing is asserted here: performance is
-measured by ``scripts/bench_selective.py``.
+0.01-voxel ray inset at the box faces (35 dB on ct_head). No timing is asserted here: performance was
+measured by ``scripts/bench_selective.py``, removed after its result was committed
+(``git show 97cc83f:scripts/bench_selective.py``; BENCHMARKS.md).
 """
 from __future__ import annotations
 

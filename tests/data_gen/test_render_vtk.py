@@ -1,6 +1,7 @@
 """The VTK renderer of record: determinism, the scene model it must honour, pixel subsets, errors.
 
-No timing is asserted here: performance is measured by ``scripts/bench_selective.py``.
+No timing is asserted here: performance was measured by ``scripts/bench_selective.py``, removed after its result was
+committed (``git show 97cc83f:scripts/bench_selective.py``; BENCHMARKS.md).
 """
 from __future__ import annotations
 

@@ -1,20 +1,13 @@
-"""imls_lightning.evaluation.speedup: the speed-up's bootstrap interval over the timed views, and the script that
-gives the rows measured before it their interval (scripts/speedup_intervals.py)."""
+"""imls_lightning.evaluation.speedup: the speed-up's bootstrap interval over the timed views."""
 from __future__ import annotations
 
-import csv
-import importlib.util
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from data_gen.errors import InputError
 from imls_lightning.evaluation.speedup import RESAMPLES, SpeedupInterval, paired_totals, speedup_interval, speedup_intervals
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _direct(slow, fast, confidence, resamples, seed):
@@ -107,43 +100,6 @@ def test_paired_totals_and_every_methods_interval_over_the_recnn():
     assert out["imls"]["speedup"] == pytest.approx(1200.0 / 590.0) and out["imls"]["views"] == 3
     assert out["las"]["speedup"] == pytest.approx(820.0 / 600.0) and out["las"]["views"] == 2
     assert RESAMPLES >= 10_000
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("speedup_intervals_script", ROOT / "scripts" / "speedup_intervals.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def _write_metrics(path: Path, rows) -> Path:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["view", "method", "total_ms"])
-        w.writeheader()
-        w.writerows(rows)
-    return path
-
-
-def test_the_script_gives_a_row_its_interval_only_from_the_metrics_of_that_rows_run(tmp_path, capsys):
-    records = tmp_path / "pairs.json"
-    summary = {"scene": "s", "recnn": "enhancenet",
-               "methods": {"recnn": {"latency_ms": {"total": 400.0}}, "imls": {"latency_ms": {"total": 590.0 / 3}}}}
-    records.write_text(json.dumps({"s, enhancenet": {"summary": summary, "minutes": 1, "settings": {}, "command": "x"}}))
-    good = _write_metrics(tmp_path / "metrics.csv", _rows())
-    other = _write_metrics(tmp_path / "other.csv", [{**r, "total_ms": str(2 * float(r["total_ms"]))} if r["total_ms"] else r
-                                                    for r in _rows()])
-    script = _script()
-    assert script.main([f"s:enhancenet={other}", "--records", str(records)]) == 2
-    assert "recnn's mean total over its timed views is 800.00 ms, the pair's record says 400.00 ms" in capsys.readouterr().err
-    assert "speedup_interval" not in json.loads(records.read_text())["s, enhancenet"]["summary"]  # nothing written
-    assert script.main(["s:enhancenet", "--records", str(records)]) == 2
-    assert "expected SCENE:RECNN=METRICS_CSV" in capsys.readouterr().err
-    assert script.main([f"t:enhancenet={good}", "--records", str(records)]) == 2
-    assert "no pair 't, enhancenet'" in capsys.readouterr().err
-    assert script.main([f"s:enhancenet={good}", "--records", str(records)]) == 0
-    assert "s, enhancenet: IML/S 2.034x, 95% interval" in capsys.readouterr().out
-    iv = json.loads(records.read_text())["s, enhancenet"]["summary"]["speedup_interval"]
-    assert iv["imls"] == speedup_intervals(_rows())["imls"]
 
 
 def test_the_gap_by_camera_distance_carries_each_bins_speedup_over_its_timed_views():
