@@ -151,3 +151,27 @@ def test_large_flame_reads_its_volume_memory_mapped(tmp_path):
     flame = build_scene(_resolve(_compose(["scene=flame"])).scene, volume=scene.volume)
     np.testing.assert_array_equal(scene.transfer_function.color, flame.transfer_function.color)
     np.testing.assert_array_equal(scene.transfer_function.opacity, flame.transfer_function.opacity)
+
+
+def test_the_seed_whole_fastest_row_config_issues_the_row_scripts_commands(tmp_path):
+    """conf/pipelines/experiment/seed_whole_fastest.yaml is the row script's command as a config: both dry runs print
+    the same stage commands (the same run hashes, so the trained networks are found either way). The script runs from
+    a copy of its folder whose .venv/bin/activate only puts this interpreter first on PATH."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    (tmp_path / "benchmarks" / "seed_whole").mkdir(parents=True)
+    for name in ("whole_scene_row.sh", "row_protocol.sh", "seed_whole/row.sh"):
+        shutil.copyfile(ROOT / "benchmarks" / name, tmp_path / "benchmarks" / name)
+    (tmp_path / ".venv" / "bin").mkdir(parents=True)
+    (tmp_path / ".venv" / "bin" / "activate").write_text(f'export PATH="{Path(sys.executable).parent}:$PATH"\n')
+    env = {**os.environ, "FLOOR_BY_BAND": "1", "EVAL_EXTRA": "las_searched=true trajectory_seed=1207"}
+    script = subprocess.run(["bash", str(tmp_path / "benchmarks" / "seed_whole" / "row.sh"), "dry_run=true"], cwd=tmp_path,
+                            env=env, capture_output=True, text=True, timeout=300)
+    config = subprocess.run([sys.executable, "-m", "imls_lightning.bench_paper", "+experiment=seed_whole_fastest", "dry_run=true"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert script.returncode == 0 and config.returncode == 0, script.stderr[-2000:] + config.stderr[-2000:]
+    commands = lambda out: [ln for ln in out.splitlines() if ln.startswith("python -m")]  # noqa: E731
+    assert commands(config.stdout) and commands(config.stdout) == commands(script.stdout)
