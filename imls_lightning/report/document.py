@@ -202,7 +202,7 @@ def verdict_line(rc: dict[str, Any] | None, gap_db: float | None, epsilon_db: fl
     fastest = "empty-space skipping" if rc.get("fastest_recnn") == "skip" else "every sample marched"
     return (f"{head}: {vs:.2f}x the fastest RecNN alone (its ray caster: {fastest}) at a {gap_db if gap_db is not None else float('nan'):.2f} dB "
             f"gap; {noskip:.2f}x where both march every sample. The scene where it pays most is re-measured from "
-            "committed networks by `make reproduce ROW=seed_whole` (README, \"Results\").")
+            "committed networks by `make reproduce ROW=seed_whole` (README, \"Where it pays\").")
 
 
 def _header_lines(ctx: ReportContext) -> list[str]:
