@@ -61,11 +61,12 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
             raise InputError(f"evaluation={evaluation}: its checkpoints.{key} ({src}) changed since it was evaluated")
         out = dest / f"{key}.ckpt"
         pack_checkpoint(src, out)
-        networks[key] = {"file": out.name, "sha256": file_hash(out)}
+        networks[key] = {"file": out.name, "sha256": file_hash(out, length=64)}
         log(f"[pack_row] {key}: {src} -> {out} ({out.stat().st_size / 2**20:.2f} MiB)")
     point = dest / "point"
     point.mkdir(exist_ok=True)
-    packed_summary = {**summary, "checkpoints_sha256": {k: v["sha256"] for k, v in networks.items()},
+    # the point's own record names the packed files as the evaluation names checkpoints (file_hash's 16 hex digits)
+    packed_summary = {**summary, "checkpoints_sha256": {k: file_hash(dest / v["file"]) for k, v in networks.items()},
                       "packed_from": summary["checkpoints_sha256"]}
     atomic_write_text(point / "summary.json", json.dumps(packed_summary, indent=1))
     config["checkpoints"] = {k: str((dest / v["file"]).relative_to(ROOT)) if dest.is_relative_to(ROOT) else str(dest / v["file"])
@@ -76,7 +77,7 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
            "trajectory_seed": int(trajectory_seed), "views": int(views), "timed_views": int(timed_views),
            "settings": list(settings), "networks": networks,
            # the point's record by content: an edited summary.json is refused like an altered network
-           "point_sha256": file_hash(point / "summary.json")}
+           "point_sha256": file_hash(point / "summary.json", length=64)}
     out = (row_dir or ROOT / "conf" / "row") / f"{name}.yaml"
     header = (f"# row {name}: written by python -m imls_lightning.pack_row from {evaluation.name}; re-measure it with\n"
               f"# python -m imls_lightning.reproduce row={name} (networks under {row['dir']}, checked by SHA-256)\n")

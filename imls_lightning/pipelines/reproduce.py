@@ -50,7 +50,7 @@ def row_files(row: Mapping[str, Any]) -> tuple[Path, dict[str, Path], Path]:
         path = folder / str(net["file"])
         if not path.is_file():
             raise InputError(f"row={name}: its network {key} ({path}) is missing; git checkout it, or retrain the row")
-        got = file_hash(path)
+        got = file_hash(path, length=64)
         if got != str(net["sha256"]):
             raise InputError(f"row={name}: {path} has SHA-256 {got[:12]}..., the row records {str(net['sha256'])[:12]}...: "
                              "the file was altered")
@@ -62,7 +62,7 @@ def row_files(row: Mapping[str, Any]) -> tuple[Path, dict[str, Path], Path]:
         if not (point / f).is_file():
             raise InputError(f"row={name}: its operating point's {point / f} is missing")
     want = row.get("point_sha256")
-    if want and file_hash(point / "summary.json") != str(want):
+    if want and file_hash(point / "summary.json", length=64) != str(want):
         raise InputError(f"row={name}: {point / 'summary.json'} is not the record the row committed (SHA-256 differs): "
                          "the operating point was edited")
     return folder, files, point
