@@ -58,6 +58,11 @@ def run_in_process(module: str, args: Sequence[str]) -> CliRun:
     finally:
         sys.argv = argv
         GlobalHydra.instance().clear()
+        # the run's HydraConfig (its overrides) outlives the run too: code that asks whether it runs under Hydra
+        # (report.machine.hydra_command) would read the last in-process command's
+        from hydra.core.hydra_config import HydraConfig
+
+        HydraConfig.instance().cfg = None
         for h in root.handlers:
             if h not in handlers:
                 h.close()

@@ -97,8 +97,11 @@ def test_reproduce_says_what_it_kept():
 def test_the_estimate_stops_on_ctrl_c_in_one_line(tmp_path):
     """A real SIGINT while the estimate times its views: one line, exit 130, nothing of the estimate left."""
     out = tmp_path / "estimate"
+    # SIGINT as a terminal delivers it: a pytest-xdist worker ignores SIGINT, and an ignored signal stays ignored in a child
+    restore = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # noqa: E731
     p = subprocess.Popen([sys.executable, "-m", "imls_lightning.estimate", "scene=tiny", "resolution=64", "views=3",
-                          "frame_views=1", f"output_dir={out}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                          "frame_views=1", f"output_dir={out}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=restore)
     seen, t0 = [], time.time()
     try:
         while time.time() - t0 < 240:
