@@ -60,16 +60,35 @@ def noskip_cell(row: Mapping[str, Any]) -> str:
     return "–"
 
 
-def results_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The README's table of ``paper_scale.csv``'s rows (the newest measurement of each scene and RecNN)."""
+def is_current(row: Mapping[str, Any]) -> bool:
+    """Whether a row was measured on a fresh trajectory against both ray casters (its networks committed, so
+    ``make reproduce`` re-measures it): the rows the README cites. The others stay in BENCHMARKS.md's table.
+
+    Example:
+        >>> is_current({"trajectory_seed": "1207", "speedup_vs_fastest": "0.84"}), is_current({"trajectory_seed": ""})
+        (True, False)
+    """
+    return bool(str(row.get("trajectory_seed") or "").strip()) and math.isfinite(number(row.get("speedup_vs_fastest")))
+
+
+def results_table(rows: Sequence[Mapping[str, Any]], current_only: bool = False) -> str:
+    """The table of ``paper_scale.csv``'s rows (the newest measurement of each scene and RecNN); ``current_only``: only
+    the rows :func:`is_current` keeps (the README's), with one line on how many older rows BENCHMARKS.md keeps."""
+    kept = [r for r in rows if is_current(r)] if current_only else list(rows)
     body = []
-    for r in rows:
+    for r in kept:
         bil, rec = number(r.get("bilinear_db")), number(r.get("psnr_recnn_db"))
         seed = str(r.get("trajectory_seed") or "").strip()
         body.append([f"`{r['scene']}`", str(r["recnn"]), f"{bil:.1f} / {rec:.1f} dB" if math.isfinite(bil) else f"– / {rec:.1f} dB",
                      f"{number(r.get('c_share')):.1%}", vs_fastest_cell(r), noskip_cell(r), f"{number(r.get('gap_db')):.2f} dB",
                      f"fresh, seed {seed}" if seed else "seed 0 (read while designing)"])
-    return md_table(COLUMNS, body)
+    table = md_table(COLUMNS, body)
+    if current_only and len(kept) < len(rows):
+        old_rows = [f"`{r['scene']}` {r['recnn']}" for r in rows if not is_current(r)]
+        table += (f"\n\n{len(rows) - len(kept)} older rows ({', '.join(old_rows)}) were measured on the test trajectory their "
+                  "design read, most without the fastest baseline beside them, and their networks were not kept: they are "
+                  "left out here, and BENCHMARKS.md keeps them as history.")
+    return table
 
 
 def update_between(path: Path, begin: str, end: str, text: str) -> Path:
