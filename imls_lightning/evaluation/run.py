@@ -152,7 +152,8 @@ def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions
         tp = borrowed["two_pass"]  # kept only for the same first pass and floor; else searched below
         same_sampler = tp is not None and (tp.get("base"), tp.get("floor")) == (s.two_pass_base, s.two_pass_floor)
         las_b = borrowed.get("las_searched")  # kept only for the same IPRs searched among; else searched below
-        same_las = las_b is not None and s.las_searched and list(las_b.get("iprs") or s.las_search_iprs) == list(s.las_search_iprs)
+        same_las = (las_b is not None and s.las_searched
+                    and sorted(float(r["ipr"]) for r in las_b.get("rows", [])) == sorted(s.las_search_iprs))
         progress.save_point({"orp": borrowed["orp"], "imls_mean": borrowed["imls_mean"], "lift": borrowed["lift"],
                              "notes": [*notes, *borrowed["notes"]], **({"two_pass": tp} if same_sampler else {}),
                              **({"las_searched": las_b} if same_las else {})})
@@ -458,7 +459,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
                                                  sweep_pos, progress)
     if (note := progress.note()) is not None:
         notes.append(note)
-    if (line := ray_casters_line(ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False))) is not None:
+    both = ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False)  # the fastest baseline, once
+    if (line := ray_casters_line(both)) is not None:
         notes.append(line)
     load_summary = timing_load(load)
     if (note := load_note(load_summary)) is not None:
@@ -480,7 +482,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
                    methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp=orp,
                    equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass,
-                   las_searched=las, timing_load=load_summary)
+                   las_searched=las, timing_load=load_summary, ray_casters=both)
     report = write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
     progress.finish()
     return report
@@ -523,7 +525,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         "equal_share": res["equal_share"], "front": front, "front_views": [int(p) for p in sweep_pos], "two_pass": two_pass,
         **({"las_searched": las_searched} if las_searched is not None else {}), "timing_load": res.get("timing_load"),
         # the fastest baseline: both ray casters timed in this run (both_ray_casters), and the fresh trajectory's seed
-        "ray_casters": ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False),
+        "ray_casters": res.get("ray_casters"),
         # where IML/S's mask put its pixels, averaged over the evaluated views (the density on object and background)
         "mask_density": {k: float(np.nanmean([r[k] for r in rows if r["method"] == "imls" and k in r] or [np.nan]))
                          for k in ("object_density", "background_density", "object_fraction")},
@@ -538,7 +540,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
         sweep_positions=sweep_pos, grid=res["grid"], pattern_obj=pattern, notes=res["notes"], las_ipr=res["las_ipr"],
         machine=rep.machine_info(str(device)), command=command or command_line(), cache=str(cache.path),
         orp=orp, equal_share=res["equal_share"], front=front, two_pass=two_pass,
-        verdict=verdict_line(ray_casters(rows, main_skip=rcfg.get("skip_empty", True) is not False),
+        verdict=verdict_line(res.get("ray_casters"),
                              (paired_gap(rows, "recnn", "imls") or {}).get("gap_db"), s.epsilon_db),
     )
     report = rep.write_report(ctx)

@@ -101,15 +101,21 @@ def _total(row: Mapping[str, Any]) -> float:
         return math.nan
 
 
-def paired_totals(rows: Iterable[Mapping[str, Any]], slow: str, fast: str) -> tuple[list[float], list[float]]:
-    """The per-view totals of methods ``slow`` and ``fast`` on the views where both were timed, in view order.
-
-    ``rows``: metric rows (``metrics.csv``'s: ``view``, ``method``, ``total_ms``; untimed views have no total)."""
+def timed_totals(rows: Iterable[Mapping[str, Any]]) -> dict[tuple[str, int], float]:
+    """``{(method, view): total_ms}`` of the rows with a finite, positive total (the timed views)."""
     by: dict[tuple[str, int], float] = {}
     for r in rows:
         t = _total(r)
         if math.isfinite(t) and t > 0:
             by[(str(r["method"]), int(r["view"]))] = t
+    return by
+
+
+def paired_totals(rows: Iterable[Mapping[str, Any]], slow: str, fast: str) -> tuple[list[float], list[float]]:
+    """The per-view totals of methods ``slow`` and ``fast`` on the views where both were timed, in view order.
+
+    ``rows``: metric rows (``metrics.csv``'s: ``view``, ``method``, ``total_ms``; untimed views have no total)."""
+    by = timed_totals(rows)
     views = sorted(v for (m, v) in by if m == slow and (fast, v) in by)
     return [by[(slow, v)] for v in views], [by[(fast, v)] for v in views]
 
@@ -150,15 +156,11 @@ def ray_casters(rows: Sequence[Mapping[str, Any]], main_skip: bool, confidence: 
     names = {("recnn", main_skip): "recnn", ("imls", main_skip): "imls",
              ("recnn", not main_skip): ray_caster_twin("recnn", not main_skip),
              ("imls", not main_skip): ray_caster_twin("imls", not main_skip)}
-    timed = {str(r["method"]) for r in rows if math.isfinite(_total(r))}
-    if not all(n in timed for n in names.values()):
-        return None
     # the four on the views where all four were timed, so the means compare like with like
     per: dict[str, dict[int, float]] = {n: {} for n in names.values()}
-    for r in rows:
-        t = _total(r)
-        if str(r["method"]) in per and math.isfinite(t) and t > 0:
-            per[str(r["method"])][int(r["view"])] = t
+    for (method, view), t in timed_totals(rows).items():
+        if method in per:
+            per[method][view] = t
     views = sorted(set.intersection(*(set(d) for d in per.values())))
     if not views:
         return None

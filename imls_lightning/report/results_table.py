@@ -25,6 +25,29 @@ def _x(v: float) -> str:
     return f"{v:.2f}x" if math.isfinite(v) else "–"
 
 
+def _skip_timed(row: Mapping[str, Any]) -> bool:
+    """Whether the row's own times were taken with empty-space skipping (``skip_empty``; rows before it: true)."""
+    return str(row.get("skip_empty", "true")).strip().lower() not in ("false", "0")
+
+
+def vs_fastest_value(row: Mapping[str, Any]) -> float:
+    """IML/S against the fastest RecNN alone: ``speedup_vs_fastest``, else the speed-up of a row timed with skipping
+    only (the faster ray caster), else NaN (a row timed only without skipping)."""
+    v = number(row.get("speedup_vs_fastest"))
+    if math.isfinite(v):
+        return v
+    return number(row.get("speedup")) if _skip_timed(row) else math.nan
+
+
+def noskip_value(row: Mapping[str, Any]) -> float:
+    """IML/S against the RecNN alone when both march every sample: from the twins' times, else the speed-up of a row
+    timed only without skipping, else NaN."""
+    r, i = number(row.get("recnn_noskip_ms")), number(row.get("imls_noskip_ms"))
+    if math.isfinite(r) and math.isfinite(i) and i > 0:
+        return r / i
+    return math.nan if _skip_timed(row) else number(row.get("speedup"))
+
+
 def vs_fastest_cell(row: Mapping[str, Any]) -> str:
     """IML/S against the fastest RecNN alone.
 
@@ -36,13 +59,11 @@ def vs_fastest_cell(row: Mapping[str, Any]) -> str:
         >>> vs_fastest_cell({"speedup_vs_fastest": "", "skip_empty": "false", "speedup": "1.73"})
         'not timed: networks lost'
     """
-    v = number(row.get("speedup_vs_fastest"))
-    if math.isfinite(v):
+    v = vs_fastest_value(row)
+    if math.isfinite(number(row.get("speedup_vs_fastest"))):
         lo, hi = number(row.get("speedup_vs_fastest_low")), number(row.get("speedup_vs_fastest_high"))
         return f"**{v:.2f}x**" + (f" ({lo:.2f}-{hi:.2f})" if math.isfinite(lo) and math.isfinite(hi) else "")
-    if str(row.get("skip_empty", "true")).strip().lower() not in ("false", "0"):
-        return f"{_x(number(row.get('speedup')))} (skipping only)"
-    return "not timed: networks lost"
+    return f"{_x(v)} (skipping only)" if math.isfinite(v) else "not timed: networks lost"
 
 
 def noskip_cell(row: Mapping[str, Any]) -> str:
@@ -52,12 +73,10 @@ def noskip_cell(row: Mapping[str, Any]) -> str:
         >>> noskip_cell({"recnn_noskip_ms": "1900", "imls_noskip_ms": "860"}), noskip_cell({"skip_empty": "true"})
         ('2.21x', '–')
     """
-    r, i = number(row.get("recnn_noskip_ms")), number(row.get("imls_noskip_ms"))
-    if math.isfinite(r) and math.isfinite(i) and i > 0:
-        return _x(r / i)
-    if str(row.get("skip_empty", "true")).strip().lower() in ("false", "0"):
-        return f"{_x(number(row.get('speedup')))} (old trajectory)"
-    return "–"
+    v = noskip_value(row)
+    if math.isfinite(number(row.get("imls_noskip_ms"))) or not math.isfinite(v):
+        return _x(v)
+    return f"{_x(v)} (old trajectory)"
 
 
 def is_current(row: Mapping[str, Any]) -> bool:
@@ -119,17 +138,8 @@ def plot_results(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     from .plots import new_figure, save_figure
 
     labels = [f"{r['scene']}\n{r['recnn']}" for r in rows]
-    fastest = []
-    for r in rows:
-        v = number(r.get("speedup_vs_fastest"))
-        skip_only = str(r.get("skip_empty", "true")).strip().lower() not in ("false", "0")
-        fastest.append(v if math.isfinite(v) else (number(r.get("speedup")) if skip_only else math.nan))
-    noskip = []
-    for r in rows:
-        a, b = number(r.get("recnn_noskip_ms")), number(r.get("imls_noskip_ms"))
-        skip_only = str(r.get("skip_empty", "true")).strip().lower() not in ("false", "0")
-        noskip.append(a / b if math.isfinite(a) and math.isfinite(b) and b > 0 else
-                      (math.nan if skip_only else number(r.get("speedup"))))
+    fastest = [vs_fastest_value(r) for r in rows]
+    noskip = [noskip_value(r) for r in rows]
     fig = new_figure(max(7.0, 0.9 * len(rows)), 4.0)
     ax = fig.add_subplot(111)
     x = np.arange(len(rows))
