@@ -20,7 +20,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import cli_errors, checked_command_line
+from imls_lightning.base.errors import cli_errors, checked_command_line
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 

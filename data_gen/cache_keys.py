@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from imls_lightning.base.errors import InputError
 from .renderers import renderer_pixel_settings
 from .scene import Scene
-from .validate import check_integer, check_mapping
+from imls_lightning.base.validate import check_integer, check_mapping
 from .views import (
     check_lookat_jitter,
     check_val_fraction,
@@ -186,7 +186,7 @@ def check_train_pixels(pixels, resolution: int) -> np.ndarray | None:
         >>> check_train_pixels([2, 1], 3)
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: train_pixels: expected strictly ascending flat pixel indices in [0, 9) of the 3x3 image (got 2 values from 1 to 2)
+        imls_lightning.base.errors.InputError: train_pixels: expected strictly ascending flat pixel indices in [0, 9) of the 3x3 image (got 2 values from 1 to 2)
     """
     if pixels is None:
         return None

@@ -16,7 +16,7 @@ import numpy as np
 
 from .cache_keys import IMAGES, MANIFEST, SPLITS, VIEWS, jsonable, scene_key, views_digest
 from .cache_log import bad_views, checked_already, read_logs, remember_checked
-from .errors import InputError
+from imls_lightning.base.errors import InputError
 from .renderers import make_renderer
 from .scene import Scene
 

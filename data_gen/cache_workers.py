@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from .cache_log import write_view
-from .errors import InputError
-from .orphans import exit_when_orphaned
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.orphans import exit_when_orphaned
 from .renderers import make_renderer, render_image
 from .scene import Scene
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
-from .validate import check_integer
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer
 
 VIEW_FIELDS = ("eye_x", "eye_y", "eye_z", "lookat_x", "lookat_y", "lookat_z", "up_x", "up_y", "up_z")
 

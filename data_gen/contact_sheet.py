@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
-from .errors import InputError
+from imls_lightning.base.atomic import atomic_write
+from imls_lightning.base.errors import InputError
 
 
 def pick_views(splits: dict[str, np.ndarray], num: int, seed: int = 0) -> list[tuple[int, str]]:

@@ -52,9 +52,9 @@ from typing import Callable
 
 import numpy as np
 
-from .atomic import atomic_write
-from .errors import InputError
-from .orphans import exit_when_orphaned
+from imls_lightning.base.atomic import atomic_write
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.orphans import exit_when_orphaned
 from .volume import Volume
 
 F32 = np.float32

@@ -55,9 +55,9 @@ import numpy as np
 from numba import njit, prange
 
 from .camera import camera_basis, render_request
-from .errors import InputError
+from imls_lightning.base.errors import InputError
 from .scene import Scene
-from .validate import check_integer
+from imls_lightning.base.validate import check_integer
 
 #: entries of the transfer-function lookup table over normalized scalars [0, 1]
 LUT_SIZE = 4096

@@ -42,7 +42,7 @@ import time
 import numpy as np
 
 from .camera import render_request
-from .errors import InputError
+from imls_lightning.base.errors import InputError
 from .scene import Scene
 
 # Prefer a headless EGL window; VTK otherwise tries X first and warns when there is no display.

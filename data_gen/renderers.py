@@ -23,9 +23,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import InputError
+from imls_lightning.base.errors import InputError
 from .scene import Scene
-from .validate import check_integer, check_mapping
+from imls_lightning.base.validate import check_integer, check_mapping
 
 # keys of the renderer node that never change the pixels (how fast, not what)
 NON_PIXEL_KEYS = frozenset({"threads", "skip_empty"})

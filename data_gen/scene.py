@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
-from .validate import check_mapping
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_mapping
 from .volume import Volume
 
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import validate_view
-from .errors import InputError
-from .validate import check_integer, check_number, check_numbers, expected
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer, check_number, check_numbers, expected
 
 # Independent random streams derived from the one user seed.
 _STREAM_TRAIN, _STREAM_SPLIT, _STREAM_TEST = 0, 1, 2

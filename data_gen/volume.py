@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from imls_lightning.base.errors import InputError
 
 
 @dataclass

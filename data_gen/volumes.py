@@ -40,8 +40,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import InputError
-from .validate import check_numbers
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_numbers
 from .volume import Volume
 
 #: dtype names of the Open SciVis ``.raw`` convention -> little-endian numpy dtypes

@@ -43,7 +43,7 @@ import time
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import checked_command_line, cli_errors
+from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .pipelines.bench import bench
 from .pipelines.paths import CONF_DIR, log

@@ -29,7 +29,7 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import checked_command_line, cli_errors
+from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .pipelines.bench_paper import bench_paper
 from .pipelines.paths import CONF_DIR

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 # Keys that never change a trained result (where things go, how many loader processes, ...):
 # left out of run hashes so that e.g. more render workers still find the same run.

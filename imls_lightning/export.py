@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from data_gen.errors import InputError, cli_errors
+from imls_lightning.base.errors import InputError, cli_errors
 
 from .inference.export import META, export_renderer
 

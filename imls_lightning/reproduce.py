@@ -8,7 +8,7 @@ import hydra
 from omegaconf import DictConfig
 
 import data_gen  # noqa: F401  (registers the scene config resolvers)
-from data_gen.errors import checked_command_line, cli_errors
+from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .config import register_resolvers
 from .pipelines.paths import CONF_DIR

@@ -34,7 +34,7 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import cli_errors
+from imls_lightning.base.errors import cli_errors
 
 from .pipelines.paths import CONF_DIR
 from .pipelines.size_search import size_job, summarize

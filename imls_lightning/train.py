@@ -14,7 +14,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from data_gen.errors import checked_command_line, cli_errors
+from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .orp import orp_main
 from .training.fit import (  # noqa: F401  (re-exported: the train CLI's body, by its old names)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.pipelines import bench_paper as bp
 
 ROOT = Path(__file__).resolve().parents[1]

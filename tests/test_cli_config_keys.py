@@ -1,5 +1,5 @@
-"""Every command meets the README's one-line rule for config mistakes (:func:`data_gen.errors.check_config_keys`, run by
-:func:`data_gen.errors.checked_command_line` before Hydra composes anything): a typo'd key, an unknown key, or a ``+key``
+"""Every command meets the README's one-line rule for config mistakes (:func:`imls_lightning.base.errors.check_config_keys`, run by
+:func:`imls_lightning.base.errors.checked_command_line` before Hydra composes anything): a typo'd key, an unknown key, or a ``+key``
 that no config or schema reads is one line naming the key and the closest valid one, exit status 2; a ``+key`` that a
 config reads still works (``--cfg job`` prints the composed config without running the command)."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import InputError, check_config_keys
+from imls_lightning.base.errors import InputError, check_config_keys
 from tests.cli import run_in_process
 
 ROOT = Path(__file__).resolve().parents[1]

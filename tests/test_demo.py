@@ -233,7 +233,7 @@ def test_smoke_demo_on_your_own_nifti_file(tmp_path):
 def test_sparser_overrides_train_the_recnn_the_same_way_on_a_quarter_of_c():
     from omegaconf import OmegaConf
 
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.pipelines import sparser_overrides
 
     cfg = OmegaConf.create({"recnn": "fovolnet", "scene": "ct_head",

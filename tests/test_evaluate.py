@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import yaml
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.inference.pipeline import STAGES
 from imls_lightning.report import METHOD_ORDER as ALL_METHODS, summary
 

@@ -18,7 +18,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.renderers import make_renderer
 from data_gen.scene import build_scene
 from data_gen.views import sample_training_views

@@ -1,5 +1,5 @@
 """Long commands stop cleanly: on Ctrl-C ``estimate``, ``evaluate``, ``demo``, ``bench_paper`` and ``reproduce`` print one
-line saying what was kept and how to resume, then exit 130, with no traceback (:func:`data_gen.errors.exit_interrupted`);
+line saying what was kept and how to resume, then exit 130, with no traceback (:func:`imls_lightning.base.errors.exit_interrupted`);
 a pipeline's stage leaves that line to its pipeline. And the estimate refuses a resource-absurd resolution before
 anything is allocated, naming the setting the user typed."""
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import INTERRUPTED_EXIT, PIPELINE_STAGE_ENV, InputError, cli_errors, exit_interrupted
+from imls_lightning.base.errors import INTERRUPTED_EXIT, PIPELINE_STAGE_ENV, InputError, cli_errors, exit_interrupted
 from tests.cli import run_in_process
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -140,7 +140,7 @@ def test_exception_the_estimate_refuses_a_resolution_before_anything_is_allocate
 
 
 def test_check_frame_memory():
-    from data_gen.validate import check_frame_memory
+    from imls_lightning.base.validate import check_frame_memory
 
     assert check_frame_memory(512, "data.resolution", 256, "frames", total=2 ** 33) == 512
     with pytest.raises(InputError, match=r"^data.resolution=8192: frames at 8192\^2 take at least 16.0 GiB, more than the "

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.config import file_hash
 from imls_lightning.pipelines.reproduce import RESULT_KEYS, reproduce
 

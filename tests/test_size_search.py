@@ -15,7 +15,7 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.pipelines import size_search as ss
 from imls_lightning.pipelines import stage_overrides
 

@@ -227,7 +227,7 @@ def test_exception_resume_text_or_truncated_file(recnn_ckpt, tmp_path):
     """resume=<a text file> ended in a traceback (issue 17, 11); in process (the CLI path is the test above)."""
     from omegaconf import OmegaConf
 
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.inference.checkpoints import load_task
     from imls_lightning.tasks.iml import IMLTask
     from imls_lightning.training.fit import _resume_path

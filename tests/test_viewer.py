@@ -179,7 +179,7 @@ def test_exception_no_display_without_screenshot(tiny_checkpoints):
                                        ("azimuth=abc", "azimuth"), ("screenshot=out.jpg", "screenshot"),
                                        ("mask=maybe", "mask")])
 def test_exception_bad_arguments_fail_before_loading(tmp_path, arg, name):
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.viewer import viewer
 
     args = [f"ims_checkpoint={tmp_path / 'never_read.ckpt'}", arg]
@@ -193,7 +193,7 @@ def test_exception_bad_arguments_fail_before_loading(tmp_path, arg, name):
 
 def test_exception_unwritable_screenshot_path_fails_before_loading(tmp_path):
     """An unwritable screenshot= path failed with a PermissionError after all the work (issue 17, 12)."""
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.viewer import viewer
 
     (tmp_path / "a_file").write_text("x")
@@ -208,7 +208,7 @@ def test_exception_unwritable_screenshot_path_fails_before_loading(tmp_path):
 
 
 def test_exception_viewer_distance_outside_scene_range(renderer):
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.viewer import Viewer, orbit_view
 
     hi = renderer.renderer.scene.camera_distance[1]

@@ -108,7 +108,7 @@ class ORPSweeper(Sweeper):
 
     # -- entry point ----------------------------------------------------------------------------
     def sweep(self, arguments: List[str]) -> Any:
-        from data_gen.errors import InputError
+        from imls_lightning.base.errors import InputError
 
         try:
             return self._sweep(list(arguments))
@@ -124,7 +124,7 @@ class ORPSweeper(Sweeper):
         """The sweep's overrides every job repeats: single values, without ``param``/``orp_job``."""
         from hydra.core.override_parser.overrides_parser import OverridesParser
 
-        from data_gen.errors import InputError
+        from imls_lightning.base.errors import InputError
 
         assert self.hydra_context is not None
         parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)
@@ -143,7 +143,7 @@ class ORPSweeper(Sweeper):
         return base
 
     def _launch(self, batch: list[list[str]]) -> Sequence[JobReturn]:
-        from data_gen.errors import InputError
+        from imls_lightning.base.errors import InputError
 
         assert self.launcher is not None
         try:
@@ -186,7 +186,7 @@ class ORPSweeper(Sweeper):
         """``recnn.checkpoint`` when set, else train (or reuse) the RecNN in one preparatory job."""
         from imls_lightning.orp import quote_override_value
 
-        from data_gen.errors import InputError
+        from imls_lightning.base.errors import InputError
 
         assert self.config is not None
         given = OmegaConf.select(self.config, "recnn.checkpoint", default=None)
@@ -218,7 +218,7 @@ class ORPSweeper(Sweeper):
     def _sweep(self, arguments: list[str]) -> dict[str, Any]:
         from imls_lightning.orp import ORPSettings, format_table, orp_report, quote_override_value
 
-        from data_gen.errors import InputError
+        from imls_lightning.base.errors import InputError
 
         assert self.config is not None and self.launcher is not None
         settings = ORPSettings.from_mapping({k: v for k, v in self.knobs.items() if v is not None}, prefix="sweeper.")

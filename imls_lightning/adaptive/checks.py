@@ -1,13 +1,13 @@
 """Validation helpers shared by the modules of :mod:`imls_lightning.adaptive`.
 
-``check_integer`` is :func:`data_gen.validate.check_integer` (the generic validators' one home),
+``check_integer`` is :func:`imls_lightning.base.validate.check_integer` (the generic validators' one home),
 re-exported here for the modules of the package.
 """
 from __future__ import annotations
 
 from typing import Any
 
-from data_gen.validate import check_integer, check_number
+from imls_lightning.base.validate import check_integer, check_number
 
 from ..core.importance import MEAN_RANGE
 

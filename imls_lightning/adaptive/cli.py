@@ -18,7 +18,7 @@ import torch
 from omegaconf import DictConfig
 
 import data_gen  # noqa: F401  (registers the scene config resolvers)
-from data_gen.errors import InputError, checked_command_line, cli_errors
+from imls_lightning.base.errors import InputError, checked_command_line, cli_errors
 
 from ..config import register_resolvers
 from ..core.importance import MEAN_RANGE

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from data_gen.errors import InputError, finite_number
+from imls_lightning.base.errors import InputError, finite_number
 
 from ..core.importance import MEAN_RANGE, normalize_importance
 from ..core.metrics import psnr_per_image
@@ -179,7 +179,7 @@ class MeanLabels:
 
     def save(self, path: str | Path) -> Path:
         """Write atomically (temporary name + rename)."""
-        from data_gen.atomic import atomic_write
+        from imls_lightning.base.atomic import atomic_write
 
         return atomic_write(path, lambda f: np.savez(
             f, rows=self.rows, views=self.views, u=self.u, met=self.met, gap_db=self.gap_db, psnr_ref=self.psnr_ref,

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from data_gen.errors import InputError, finite_number
+from imls_lightning.base.errors import InputError, finite_number
 
 from ..core.importance import MEAN_RANGE
 from .checks import check_integer, clamp_mean
@@ -107,7 +107,7 @@ class MeanPredictor(nn.Module):
 
     def save(self, path: str | Path) -> Path:
         """State dict + hyperparameters, loadable with ``torch.load(weights_only=True)``; atomic."""
-        from data_gen.atomic import atomic_write
+        from imls_lightning.base.atomic import atomic_write
 
         return atomic_write(path, lambda f: torch.save({"hparams": self.hparams(), "state_dict": self.state_dict()}, f), unique=True)
 

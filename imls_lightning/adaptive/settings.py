@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from data_gen.errors import InputError, finite_number
+from imls_lightning.base.errors import InputError, finite_number
 
 from ..inference.pipeline import NetOptions
 from .checks import check_epsilon, check_integer
@@ -75,7 +75,7 @@ def parse_settings(cfg) -> Settings:
         ...     s = parse_settings(OmegaConf.create({"ims_checkpoint": ckpt.name, "epsilon_db": 0.5}))
         ...     parse_settings(OmegaConf.create({"ims_checkpoint": ckpt.name, "views": "train"}))
         Traceback (most recent call last):
-        data_gen.errors.InputError: views=train: expected 'test' (the trajectory) or 'val'
+        imls_lightning.base.errors.InputError: views=train: expected 'test' (the trajectory) or 'val'
         >>> s.epsilon_db, s.reference, s.orp_path, s.predictor["hidden"]
         (0.5, 'recnn', 'product', 64)
     """

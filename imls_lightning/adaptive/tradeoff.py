@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.importance import MEAN_RANGE
 from ..core.metrics import psnr_per_image

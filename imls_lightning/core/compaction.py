@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 __all__ = ["compact", "decompact", "Compaction", "Decompaction"]
 

@@ -29,8 +29,8 @@ from typing import Any, Optional
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
-from data_gen.validate import check_number
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_number
 
 __all__ = [
     "check_mean",

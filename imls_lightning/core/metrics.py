@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torchmetrics.functional.image import structural_similarity_index_measure
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 __all__ = ["psnr_from_mse", "psnr", "psnr_per_image", "ssim_metric"]
 

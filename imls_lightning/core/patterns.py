@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from data_gen.errors import InputError
-from data_gen.validate import check_integer, check_number
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer, check_number
 
 from .rank_patterns import PLASTIC_G, blue_noise, blue_noise_ranks, plastic_rank_pattern
 

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 import torch
 
-from data_gen.validate import check_integer
+from imls_lightning.base.validate import check_integer
 
 __all__ = ["blue_noise", "blue_noise_ranks", "plastic_rank_pattern", "PLASTIC_G"]
 

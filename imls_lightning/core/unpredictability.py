@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import torch
 
-from data_gen.errors import InputError
-from data_gen.validate import check_number
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_number
 
 from ..models.pull_push import fill_c_image
 from .importance import lift_to_share, lifted_mask, normalize_importance, sharpen_importance

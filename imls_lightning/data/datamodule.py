@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.compaction import compact
 from ..config import to_plain

@@ -46,8 +46,8 @@ from typing import Any, Iterator
 import numpy as np
 import torch
 
-from data_gen.atomic import atomic_json, fsync_dir
-from data_gen.errors import InputError
+from imls_lightning.base.atomic import atomic_json, fsync_dir
+from imls_lightning.base.errors import InputError
 
 from ..core.compaction import compact
 from ..config import file_hash

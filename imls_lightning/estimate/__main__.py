@@ -10,8 +10,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import InputError, checked_command_line, cli_errors
-from data_gen.validate import check_frame_memory, check_integer
+from imls_lightning.base.errors import InputError, checked_command_line, cli_errors
+from imls_lightning.base.validate import check_frame_memory, check_integer
 
 from .run import run_estimate
 
@@ -28,7 +28,7 @@ KEPT = ("nothing of this estimate is kept (it is measured in one sitting; a part
 
 def check_resolution(cfg: DictConfig) -> int:
     """``resolution``, named as the user types it, before anything is allocated: an integer >= 1 whose frames fit in
-    this machine's memory (:func:`~data_gen.validate.check_frame_memory`) and, on a super-resolution pattern, a
+    this machine's memory (:func:`~imls_lightning.base.validate.check_frame_memory`) and, on a super-resolution pattern, a
     multiple of its factor (the message names both settings).
 
     Raises:

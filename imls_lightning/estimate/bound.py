@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 #: the shares of C at which the bound is tabulated (issue 31: 0.1, 0.2, ..., 1.0)
 SHARES = tuple(round(0.1 * i, 1) for i in range(1, 11))

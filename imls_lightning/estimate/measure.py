@@ -17,7 +17,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..config import decoder_fill_for
 from ..core.compaction import compact, decompact

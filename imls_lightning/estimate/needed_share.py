@@ -32,8 +32,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import torch
 
-from data_gen.errors import InputError
-from data_gen.validate import check_number
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_number
 
 from ..core.compaction import compact
 from ..core.metrics import psnr_per_image

@@ -17,10 +17,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.atomic import atomic_json, atomic_write
+from imls_lightning.base.atomic import atomic_json, atomic_write
 from data_gen.cache_keys import jsonable, settings_hash
-from data_gen.errors import InputError
-from data_gen.validate import check_integer, check_number
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer, check_number
 from data_gen.views import camera_distance
 
 from ..core.patterns import build_pattern

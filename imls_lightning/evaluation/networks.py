@@ -8,7 +8,7 @@ from typing import Any
 import torch
 from omegaconf import DictConfig
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..config import load_checkpoint
 from ..inference.checkpoints import check_resolution, check_same_pattern, load_recnn, load_task, require_recnn

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.views import camera_distance as view_distance
 
 from ..inference.baselines import product_orp

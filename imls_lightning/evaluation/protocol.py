@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 
 def training_data_seed(checkpoint: str | os.PathLike) -> int | None:

@@ -33,7 +33,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from data_gen.atomic import atomic_json, atomic_write, fsync_dir
+from imls_lightning.base.atomic import atomic_json, atomic_write, fsync_dir
 
 #: the record's layout; a record of another is started over
 FORMAT = 1

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from .. import report as rep
 from ..config import file_hash, settings_hash, to_plain

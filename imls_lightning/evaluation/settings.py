@@ -1,5 +1,5 @@
 """The evaluation's settings: the keys of ``conf/evaluate.yaml`` validated into :class:`Settings`
-(:func:`parse_settings`); a bad value is a one-line :class:`~data_gen.errors.InputError`."""
+(:func:`parse_settings`); a bad value is a one-line :class:`~imls_lightning.base.errors.InputError`."""
 from __future__ import annotations
 
 import math
@@ -9,7 +9,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..config import to_plain
 from ..core.importance import check_sharpnesses
@@ -264,7 +264,7 @@ def _object_floor(cfg) -> dict[str, Any]:
     (PIM' above ``orp_object_floor_tau``, in (0, 1)) plus the margin, chosen after the search on the cache's
     validation views (null or []: no floor). Needs the IMS's ``target=pim``; meant for lifted masks (``ims_lift``), whose u
     is their share of C."""
-    from data_gen.validate import check_number
+    from imls_lightning.base.validate import check_number
 
     v = to_plain(OmegaConf.select(cfg, "orp_object_floor", default=None))
     tau = check_number(OmegaConf.select(cfg, "orp_object_floor_tau", default=0.2), "orp_object_floor_tau", 0.0, 1.0,
@@ -341,7 +341,7 @@ def _orp_views(cfg) -> str:
 
 def _confidence(cfg) -> float:
     """``orp_confidence``: the one-sided confidence of the ORP's bound on the mean validation gap, in [0.5, 1)."""
-    from data_gen.validate import check_number
+    from imls_lightning.base.validate import check_number
 
     return check_number(OmegaConf.select(cfg, "orp_confidence", default=0.95), "orp_confidence", 0.5, 1.0, hi_open=True,
                         what="a confidence in [0.5, 1) (0.5: the mean gap itself)")

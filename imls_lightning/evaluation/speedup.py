@@ -16,7 +16,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 #: resamples of the timed views; 10,000 put the 2.5% and 97.5% quantiles within ~0.002x of their limit
 RESAMPLES = 10_000

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, LASMethod, Method, NetOptions
 from .baselines import blue_noise_method, ims_mask_at_share

@@ -31,7 +31,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..models.pull_push import fill_c_image
 from .operating_point import SEARCH_TOLERANCE

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from data_gen.camera import validate_view
-from data_gen.errors import InputError, finite_number
+from imls_lightning.base.errors import InputError, finite_number
 from data_gen.views import orthogonal_up, unit_vectors
 
 MAX_ELEVATION = 89.0           # degrees; at 90 the +z up vector would be parallel to the view

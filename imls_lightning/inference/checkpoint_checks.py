@@ -4,7 +4,7 @@ their one home.
 A network trained by this project is only meaningful with the sampling pattern, resolution, scene
 and renderer it was trained on; a RecNN, IML, IMS or LAS checkpoint handed to another run, to the
 evaluation, the exporter, the viewer or the ORP search is checked here, before anything is rendered
-or trained. Every check raises a one-line :class:`~data_gen.errors.InputError` that names the
+or trained. Every check raises a one-line :class:`~imls_lightning.base.errors.InputError` that names the
 setting the checkpoint came from (``key``, and its path where known), what disagrees, and what to
 pass instead.
 
@@ -21,14 +21,14 @@ Example:
     >>> check_resolution({"fr_size": 16}, 8, key="checkpoints.las", network="LAS")
     Traceback (most recent call last):
     ...
-    data_gen.errors.InputError: checkpoints.las: the LAS was trained at data.resolution=16, this run uses 8; pass data.resolution=16 (and the data group it was trained with)
+    imls_lightning.base.errors.InputError: checkpoints.las: the LAS was trained at data.resolution=16, this run uses 8; pass data.resolution=16 (and the data group it was trained with)
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Mapping
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..config import to_plain
 from ..core.patterns import SamplingPattern, build_pattern
@@ -136,7 +136,7 @@ def require_pim_target(hp: Mapping, *, key: str = "ims_checkpoint", path: Any = 
         >>> require_pim_target({"target": "im"}, what="the adaptive mean")
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: ims_checkpoint: its IMS was trained with model.target=im; the adaptive mean needs an IMS trained with model.target=pim
+        imls_lightning.base.errors.InputError: ims_checkpoint: its IMS was trained with model.target=im; the adaptive mean needs an IMS trained with model.target=pim
     """
     target = hp.get("target")
     if target != "pim":

@@ -18,7 +18,7 @@ Example:
     >>> task_class("Net")
     Traceback (most recent call last):
     ...
-    data_gen.errors.InputError: checkpoint names task 'Net': expected one of ['IMLTask', 'IMSTask', 'LASTask', 'RecNNTask']
+    imls_lightning.base.errors.InputError: checkpoint names task 'Net': expected one of ['IMLTask', 'IMSTask', 'LASTask', 'RecNNTask']
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from typing import Any, Mapping
 
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..config import load_checkpoint, to_plain
 from ..core.importance import check_mean

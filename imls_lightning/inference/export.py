@@ -55,7 +55,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.patterns import SamplingPattern
 from ..models.ims import MaskAt

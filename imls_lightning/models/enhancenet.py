@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 __all__ = ["EnhanceNet", "bicubic_matrix", "bicubic_upsample", "regular_grid", "prime_factors"]
 

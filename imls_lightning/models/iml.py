@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.importance import ImportanceNormalization, RejectionSampling, delegated
 from imls_lightning.models.pull_push import fill_c_image, pull_push_inpaint
 from imls_lightning.models.unet import UNet

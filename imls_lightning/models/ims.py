@@ -39,7 +39,7 @@ from typing import Optional
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.importance import (check_object_floor, check_sharpness, floored_mean, lift_to_share, lifted_mask, object_fraction,
                                sharpen_importance)
@@ -480,7 +480,7 @@ def check_band_margins(margins, bands: int | None = None, name: str = "floor_mar
         >>> check_band_margins([0.1, None, "0"], 3)
         [0.1, None, 0.0]
     """
-    from data_gen.validate import check_number
+    from imls_lightning.base.validate import check_number
 
     items = list(margins) if isinstance(margins, (list, tuple)) else None
     if not items or (bands is not None and len(items) != bands):

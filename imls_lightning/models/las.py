@@ -82,8 +82,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
-from data_gen.validate import check_integer
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer
 from imls_lightning.core.importance import (
     ImportanceNormalization,
     check_alpha,

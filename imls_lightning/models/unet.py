@@ -8,7 +8,7 @@ concatenation and the level's double conv; a 1x1 conv gives ``out_channels`` wit
 
 Sizes. An input of any ``H, W >= 2**(depth-1)`` works: it is padded (replicate, bottom/right) to a
 multiple of ``2**(depth-1)`` and the output is cropped back to ``H x W``. Smaller inputs are refused
-with an :class:`~data_gen.errors.InputError` (the bottom level would be empty); e.g. 16x16 is the
+with an :class:`~imls_lightning.base.errors.InputError` (the bottom level would be empty); e.g. 16x16 is the
 smallest input at depth 5 (bottom level 1x1).
 
 Normalization. GroupNorm by default: it does not depend on the batch (IML trains and infers at batch
@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 __all__ = ["UNet", "DoubleConv", "make_norm"]
 

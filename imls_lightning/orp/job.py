@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from data_gen.atomic import atomic_json
-from data_gen.errors import InputError
+from imls_lightning.base.atomic import atomic_json
+from imls_lightning.base.errors import InputError
 
 from .overrides import ims_overrides_for
 from .search import DEFAULTS, ORPJobError, ORPSettings, describe_error

@@ -1,11 +1,11 @@
 """Hydra override lines: the key a line sets, and the overrides of the IMS training an ORP job runs
 on its IML (torch-free, used by the sweeper plugin). Values are quoted by
-:func:`~data_gen.overrides.quote_override_value`, re-exported here."""
+:func:`~imls_lightning.base.overrides.quote_override_value`, re-exported here."""
 from __future__ import annotations
 
 from typing import Sequence
 
-from data_gen.overrides import quote_override_value
+from imls_lightning.base.overrides import quote_override_value
 
 __all__ = ["quote_override_value", "override_key", "ims_overrides_for"]
 

@@ -13,8 +13,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
-from data_gen.errors import InputError, boolean, finite_number
-from data_gen.validate import check_integer, check_number
+from imls_lightning.base.errors import InputError, boolean, finite_number
+from imls_lightning.base.validate import check_integer, check_number
 
 # the paper's range of the mean value (== imls_lightning.core.importance.MEAN_RANGE; not imported, to
 # keep this module free of torch for the Hydra plugin scan)

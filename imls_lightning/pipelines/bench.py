@@ -13,8 +13,8 @@ from typing import Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
-from data_gen.overrides import quote_override_value
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.overrides import quote_override_value
 
 from ..report import atomic_write_text as atomic_write
 from ..report.tables import fmt, md_table

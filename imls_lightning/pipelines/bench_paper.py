@@ -14,7 +14,7 @@ from typing import Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..estimate import estimate_interval, read_estimate, speedup_from_estimate
 from ..orp.overrides import override_key

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 import torch
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from .paths import ROOT, log
 
@@ -26,7 +26,7 @@ TRAINING_ONLY = ("optimizer_states", "lr_schedulers", "loops", "callbacks", "Mix
 
 def pack_checkpoint(src: Path, dest: Path) -> None:
     """``src`` without :data:`TRAINING_ONLY` entries, saved to ``dest`` (atomically); its weights checked equal."""
-    from data_gen.atomic import atomic_write
+    from imls_lightning.base.atomic import atomic_write
 
     from ..config import load_checkpoint
 

@@ -23,8 +23,8 @@ from typing import Any, Mapping
 
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
-from data_gen.validate import check_integer
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer
 
 from .paths import CONF_DIR, ROOT, log
 

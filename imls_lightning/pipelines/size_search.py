@@ -15,8 +15,8 @@ from typing import Any, Mapping, Sequence
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.atomic import atomic_write_text
-from data_gen.errors import InputError
+from imls_lightning.base.atomic import atomic_write_text
+from imls_lightning.base.errors import InputError
 
 from ..orp.overrides import override_key
 from .bench_paper import csv_row

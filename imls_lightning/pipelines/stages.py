@@ -19,8 +19,8 @@ from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import HYDRA_FLAGS_WITH_VALUE, INTERRUPTED_EXIT, PIPELINE_STAGE_ENV, InputError, exit_interrupted
-from data_gen.overrides import quote_override_value
+from imls_lightning.base.errors import HYDRA_FLAGS_WITH_VALUE, INTERRUPTED_EXIT, PIPELINE_STAGE_ENV, InputError, exit_interrupted
+from imls_lightning.base.overrides import quote_override_value
 
 from ..orp.overrides import override_key
 

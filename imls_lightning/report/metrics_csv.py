@@ -8,7 +8,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from data_gen.atomic import atomic_write_text  # noqa: F401  (the report's writer; its one home is data_gen.atomic)
+from imls_lightning.base.atomic import atomic_write_text  # noqa: F401  (the report's writer; its one home is imls_lightning.base.atomic)
 
 from ..inference.pipeline import STAGES
 from .names import METHOD_LABELS, METRIC_COLUMNS
@@ -42,7 +42,7 @@ def read_csv(path: str | Path) -> list[dict[str, Any]]:
     """Rows of a CSV written here; numeric cells as float (empty -> NaN), text cells as str."""
     p = Path(path)
     if not p.is_file():
-        from data_gen.errors import InputError
+        from imls_lightning.base.errors import InputError
 
         raise InputError(f"metrics_csv={path}: file not found")
     out = []

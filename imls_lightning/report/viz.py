@@ -75,6 +75,6 @@ def image_grid(
 
 def save_image(img: Image.Image, path: str | Path) -> Path:
     """Save atomically (temp file + rename) and return the path."""
-    from data_gen.atomic import atomic_write
+    from imls_lightning.base.atomic import atomic_write
 
     return atomic_write(path, lambda f: img.save(f, format="PNG"))

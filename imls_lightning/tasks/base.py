@@ -13,7 +13,7 @@ from typing import Any, Mapping
 import lightning as L
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..config import load_checkpoint
 from ..core.metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
@@ -30,7 +30,7 @@ def checkpoint_task_name(ckpt: Mapping[str, Any], path: str | Path, *, expect: s
         >>> checkpoint_task_name({"imls_task": "IMLTask"}, "iml.ckpt", expect="RecNNTask", what="recnn.checkpoint")
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: recnn.checkpoint=iml.ckpt: is a IMLTask checkpoint, expected a RecNNTask checkpoint
+        imls_lightning.base.errors.InputError: recnn.checkpoint=iml.ckpt: is a IMLTask checkpoint, expected a RecNNTask checkpoint
     """
     name = ckpt.get("imls_task")
     if name is None:

@@ -25,7 +25,7 @@ from typing import Any, Mapping
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError, config_keys
+from imls_lightning.base.errors import InputError, config_keys
 
 from ..config import to_plain
 from ..models.iml import IMLNet, build_decoder

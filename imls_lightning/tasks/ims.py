@@ -84,8 +84,8 @@ from typing import Any, Mapping, Optional
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
-from data_gen.errors import InputError, config_keys
-from data_gen.validate import check_number
+from imls_lightning.base.errors import InputError, config_keys
+from imls_lightning.base.validate import check_number
 
 from ..models.backbones import BACKBONES, VGG16_LAYERS
 from ..inference.checkpoint_checks import check_same_pattern

@@ -19,8 +19,8 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError
-from data_gen.validate import check_integer, check_number
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_integer, check_number
 
 from ..core.importance import check_alpha, check_mean, hard_rejection_sample
 from ..models.las import LASNet, LASOutput, las_loss

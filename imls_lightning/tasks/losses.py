@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from ..models.backbones import BACKBONES, VGG16_LAYERS, load_vgg16, to_rgb01
 from imls_lightning.core.metrics import psnr  # noqa: F401  (public here too: the one PSNR lives in imls_lightning.core.metrics)
 

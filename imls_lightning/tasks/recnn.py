@@ -6,7 +6,7 @@ from typing import Any, Mapping
 import torch
 from hydra.utils import instantiate
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from ..core.compaction import decompact
 from ..config import to_plain

@@ -26,7 +26,7 @@ import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from .callbacks import ChunkTimer, ResumableCSVLogger, TrainingViews, set_aside_metrics
 from ..config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
@@ -260,7 +260,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             if not result.get("unfinished"):
                 # from here the record is a run in progress: interrupted, it must continue from last.ckpt, not be
                 # judged by a best checkpoint the continuation may replace (it was trained again from the start)
-                from data_gen.atomic import atomic_json
+                from imls_lightning.base.atomic import atomic_json
 
                 atomic_json(result_file, {**result, "unfinished": True, "stopped_by": "continuing"}, indent=2, sort_keys=False)
         else:
@@ -330,7 +330,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         "caches": datamodule.cache_keys(),
     }
     if trainer.is_global_zero and not fast:
-        from data_gen.atomic import atomic_json
+        from imls_lightning.base.atomic import atomic_json
 
         atomic_json(result_file, result, indent=2, sort_keys=False)
     if unfinished:

@@ -8,7 +8,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from data_gen.errors import checked_command_line, cli_errors
+from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .run import viewer
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError, boolean, finite_number
+from imls_lightning.base.errors import InputError, boolean, finite_number
 
 from ..inference.camera import orbit_view
 from ..inference.pipeline import IMLSRenderer, NetOptions

@@ -10,7 +10,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from data_gen.errors import InputError, finite_number
+from imls_lightning.base.errors import InputError, finite_number
 
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.pipeline import FullRayCast, IMLSRenderer, RenderResult
@@ -333,7 +333,7 @@ class Viewer(OrbitCamera):
             raise InputError(f"screenshot={path}: expected a .png path")
         if out.is_dir():
             raise InputError(f"screenshot={path}: is a directory, expected a .png file path")
-        from data_gen.atomic import atomic_write
+        from imls_lightning.base.atomic import atomic_write
 
         return atomic_write(out, lambda f: self.fig.savefig(f, format="png", dpi=self.fig.dpi), unique=True)
 

@@ -6,8 +6,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.errors import InputError, checked_command_line, cli_errors
-from data_gen.validate import check_integer
+from imls_lightning.base.errors import InputError, checked_command_line, cli_errors
+from imls_lightning.base.validate import check_integer
 
 from ..inference.pipeline import NetOptions
 

@@ -13,7 +13,7 @@ import math
 import sys
 from typing import Any, Callable
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 from .session import METHODS, STAGES, Frame, ViewerSession, png_data_url
 

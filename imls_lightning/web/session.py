@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from data_gen.errors import InputError, finite_number
+from imls_lightning.base.errors import InputError, finite_number
 
 from ..core.patterns import c_pixels_to_fr
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.adaptive import bisect_mean, check_epsilon
 from imls_lightning.adaptive.checks import MEAN_RANGE, clamp_mean
 

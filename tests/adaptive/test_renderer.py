@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.adaptive import AdaptiveIMLPlusRecNN, AdaptiveIMLSRenderer, ConstantMean, scaled_pim_im
 from imls_lightning.inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions
 from imls_lightning.inference.checkpoints import load_task

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[2]
 

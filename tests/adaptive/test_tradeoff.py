@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.adaptive import mean_for_ipr, quality_at_means, tradeoff
 
 

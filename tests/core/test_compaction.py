@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.compaction import Compaction, Decompaction, compact, decompact
 from imls_lightning.core.patterns import SamplingPattern, downsample_pattern, foveal_pattern
 

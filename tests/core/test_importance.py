@@ -7,7 +7,7 @@ import re
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.importance import (
     ImportanceNormalization,
     LiftToShare,

@@ -10,7 +10,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core import patterns as pat
 from imls_lightning.core.compaction import compact, decompact
 from imls_lightning.core.patterns import (

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
 from imls_lightning.core.rank_patterns import blue_noise
 from imls_lightning.core.unpredictability import base_unpredictability, importance_mask, two_pass_mask, unpredictability

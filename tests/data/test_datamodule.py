@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.data import ImlsDataModule
 from imls_lightning.core.patterns import downsample_pattern
 ROOT = Path(__file__).resolve().parents[2]
@@ -105,7 +105,7 @@ def test_smoke_datamodule_yields_every_field(tmp_path):
 
 
 def test_exception_datamodule_bad_fields_and_batch_size(tmp_path):
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.data import ImlsDataModule
 
     with pytest.raises(InputError, match="data fields"):
@@ -116,7 +116,7 @@ def test_exception_datamodule_bad_fields_and_batch_size(tmp_path):
 
 def test_exception_resolution_too_small_names_the_smallest_that_works():
     """data.resolution=2 ended in a traceback from SSIM (issue 17, 9)."""
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.data import ImlsDataModule
 
     for m in (1, 2, 5):

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 
 import imls_lightning.data.labels as labels_mod
 from data_gen.cache import ViewImageCache, ensure_cache
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.scene import build_scene
 from imls_lightning.core.compaction import compact
 from imls_lightning.data import ImlsDataModule

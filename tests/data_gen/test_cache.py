@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 import data_gen  # noqa: F401
 from data_gen.cache import LOG, ViewImageCache, cache_path_for, read_log, render_cache
 from data_gen.cache_log import forget_checked
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.renderers import make_renderer
 from data_gen.scene import build_scene
 from tests.data_gen.helpers import VTK

@@ -22,7 +22,7 @@ from data_gen.cache_keys import (
     shard_log_name,
     views_digest,
 )
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 
 def test_data_settings_fill_defaults_and_canonical_types():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from data_gen.cache import ViewImageCache, render_cache
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from tests.data_gen.helpers import VTK
 from tests.data_gen.helpers import cache_data as _data
 

@@ -13,7 +13,7 @@ import pytest
 from filelock import FileLock
 
 from data_gen.cache import LOG, ViewImageCache, parse_shard, read_log, render_cache
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[2]
 NUMBA = {"name": "numba", "threads": 1}

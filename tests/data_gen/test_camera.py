@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from data_gen.camera import validate_pixels
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 
 
 # ---- pixel sets (data_gen.camera.validate_pixels) -------------------------------------------------

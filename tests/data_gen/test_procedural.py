@@ -7,7 +7,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.procedural import (
     PROCEDURAL_GENERATORS,
     RT_PLUMES,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from data_gen.camera import pixel_rays, ray_box_hits
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.scene import Scene, Shading, TransferFunction
 from data_gen.volume import Volume
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.scene import Scene, Shading
 
 from .helpers import SAMPLE_DISTANCE_VIEWS, check_images_alike_across_sample_distances, psnr

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.render_numba import NumbaRenderer
 from data_gen.render_vtk import VTKRenderer
 from data_gen.renderers import RENDERER_REVISION, make_renderer, renderer_pixel_settings, renderer_version

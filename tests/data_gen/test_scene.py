@@ -8,7 +8,7 @@ import pytest
 from omegaconf import OmegaConf
 
 import data_gen  # noqa: F401  (registers the OmegaConf resolvers)
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.scene import (Scene, auto_transfer_function, build_scene, default_volumes_dir, resolve_sample_distance,
                             voxel_size)
 from data_gen.volume import Volume

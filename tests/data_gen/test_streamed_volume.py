@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.procedural import make_procedural, raw_matches, raw_name, write_procedural_raw
 from data_gen.volumes import load_volume
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from data_gen.camera import validate_view
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from data_gen.views import exploration_trajectory, load_views_file, sample_training_views, split_train_val
 
 SHELL = (2.5, 4.0)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.estimate import (SHARES, RenderCost, bound_table, share_for_speedup, speedup_at,
                                      speedup_from_estimate)
 

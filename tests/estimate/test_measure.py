@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
 from imls_lightning.estimate.measure import (ViewMeasurement, gaussian_blur, object_pixels, render_cost, silhouette_mask,
                                              upsample_c_image)
@@ -363,7 +363,7 @@ def test_cli_a_recnn_net_override_wins_over_the_default_sizes(tmp_path):
 
 
 def test_exception_update_table_refuses_a_foreign_csv(tmp_path):
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.estimate.run import update_table
 
     f = tmp_path / "other.csv"

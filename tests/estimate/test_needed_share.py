@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern
 from imls_lightning.estimate.measure import upsample_c_image
 from imls_lightning.estimate.needed_share import (NEEDED_SHARES, first_share_within, needed_share, share_gaps,

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.evaluation.speedup import RESAMPLES, SpeedupInterval, paired_totals, speedup_interval, speedup_intervals
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.inference.baselines import (
     equal_share_rows,
     mask_at_share,

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.inference.camera import MAX_ELEVATION, frame_psnr, orbit_view, turned, zoomed
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.inference.checkpoints import (
     check_resolution,
     check_same_pattern,

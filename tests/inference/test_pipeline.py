@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.inference.pipeline import (
     FullRayCast,
     IMLPlusRecNN,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.compaction import compact
 from imls_lightning.core.unpredictability import base_unpredictability, two_pass_mask
 from imls_lightning.inference.pipeline import NetOptions, RecNNAlone

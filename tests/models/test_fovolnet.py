@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.compaction import decompact
 from imls_lightning.models.fovolnet import FoVolNet, apply_pixel_kernels, masked_downsample
 from imls_lightning.core.patterns import SamplingPattern

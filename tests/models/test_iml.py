@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.importance import normalize_importance
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.fovolnet import FoVolNet

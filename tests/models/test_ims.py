@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.ims import (IMSDiscriminator, IMSGenerator, IMSMaskHead, MaskAt, generator_plan, im_to_target,
                                       output_to_im)
 from tests.models.helpers import reference_ims_mask, reference_lift_to_share, reference_lifted_mask

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.las import LASImportanceNet, LASNet, LASReconstructionNet, downsample_low_res, las_loss
 
 LOW, FR = 8, 32

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.unet import UNet, make_norm
 
 

@@ -9,7 +9,7 @@ from imls_lightning.orp.overrides import ims_overrides_for, override_key, quote_
 
 def test_values_are_quoted_by_the_one_quoting_function():
     """Tested against Hydra's parser in ``tests/data_gen/test_overrides.py``."""
-    from data_gen import overrides
+    from imls_lightning.base import overrides
 
     assert quote_override_value is overrides.quote_override_value
     flag = {"stage": "recnn", "path": "it's a\\", "views": [1, "a,b"], "device": None}

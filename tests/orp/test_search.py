@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning import orp
 from imls_lightning.orp import ORPSearch, ORPSettings, batched, evaluation_from
 

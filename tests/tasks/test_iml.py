@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.iml import PlainDecoder, RefineDecoder
 from imls_lightning.tasks.iml import IMLTask, background_mask, iml_net_from_hparams
 
@@ -115,7 +115,7 @@ def test_exception_bad_options(kw, needle):
 
 def test_exception_iml_errors_name_the_users_keys():
     """Errors named internal keys (depth=, alpha=) instead of the key the user typed (issue 17, minor)."""
-    from data_gen.errors import InputError
+    from imls_lightning.base.errors import InputError
     from imls_lightning.tasks.iml import IMLTask
 
     for kw, key in (({"depth": 0}, "model.depth=0"), ({"alpha": -1.0}, "model.alpha=-1"), ({"mean": 2.0}, "model.mean=2")):

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.core.compaction import compact
 from imls_lightning.core.importance import hard_rejection_sample, normalize_importance
 from imls_lightning.tasks.losses import discriminator_loss, generator_loss, im_bce_loss

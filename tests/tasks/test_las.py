@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.las import las_loss
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.base import psnr_per_image

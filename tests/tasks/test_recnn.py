@@ -5,7 +5,7 @@ import pytest
 import torch
 from torchmetrics.functional.image import structural_similarity_index_measure
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.core.patterns import downsample_pattern
 from imls_lightning.tasks.recnn import build_recnn, reconstruction_loss

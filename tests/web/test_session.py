@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_gen.errors import InputError
+from imls_lightning.base.errors import InputError
 from imls_lightning.inference.pipeline import NetOptions
 from imls_lightning.web.session import ViewerSession, png_data_url
 

@@ -1,4 +1,4 @@
-"""data_gen.atomic: atomic writes (temporary sibling, fsync, rename) leave the old file or the new one."""
+"""imls_lightning.base.atomic: atomic writes (temporary sibling, fsync, rename) leave the old file or the new one."""
 from __future__ import annotations
 
 import json
@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from data_gen.atomic import atomic_json, atomic_npy, atomic_write, atomic_write_text
+from imls_lightning.base.atomic import atomic_json, atomic_npy, atomic_write, atomic_write_text
 
 
 def test_atomic_write_text_and_json_contents(tmp_path):

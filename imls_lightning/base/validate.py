@@ -2,12 +2,12 @@
 number / triple of numbers" checks.
 
 Every validator returns the value in its canonical type (``int``, ``float``, a tuple) or raises a
-one-line :class:`~data_gen.errors.InputError` of the form ``key=value: expected what``, naming the
+one-line :class:`~imls_lightning.base.errors.InputError` of the form ``key=value: expected what``, naming the
 setting and what was expected, e.g. ``data.resolution=0: expected an integer >= 1``. Checks that
 belong to one domain object (a view, a volume file, a pattern) stay with it and call these.
 
-:func:`~data_gen.errors.finite_number` and :func:`~data_gen.errors.boolean` live in
-:mod:`data_gen.errors` (which this module builds on) and are re-exported here.
+:func:`~imls_lightning.base.errors.finite_number` and :func:`~imls_lightning.base.errors.boolean` live in
+:mod:`imls_lightning.base.errors` (which this module builds on) and are re-exported here.
 
 Example:
     >>> check_integer(3.0, "steps", 1, 60)
@@ -65,7 +65,7 @@ def expected(key: str, value: Any, what: str) -> InputError:
         what: what was expected, e.g. ``"an integer >= 1"``.
 
     Returns:
-        An :class:`~data_gen.errors.InputError` (not raised).
+        An :class:`~imls_lightning.base.errors.InputError` (not raised).
 
     Example:
         >>> str(expected("data.num_views", 0, "an integer >= 1"))
@@ -115,7 +115,7 @@ def check_integer(value: Any, key: str, lo: int | None = None, hi: int | None = 
         >>> check_integer(3.0, "resolution", 1, strict=True)
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: resolution=3.0: expected an integer >= 1
+        imls_lightning.base.errors.InputError: resolution=3.0: expected an integer >= 1
     """
     what = what or _range_text("an integer", lo, hi)
     if strict:
@@ -155,7 +155,7 @@ def check_number(value: Any, key: str, lo: float | None = None, hi: float | None
         >>> check_number(1, "data.val_fraction", 0, 1, hi_open=True)
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: data.val_fraction=1: expected a number in [0, 1)
+        imls_lightning.base.errors.InputError: data.val_fraction=1: expected a number in [0, 1)
     """
     what = what or (_range_text("a number", lo, hi, lo_open, hi_open) if lo is not None or hi is not None
                     else "a finite number")
@@ -191,7 +191,7 @@ def check_numbers(value: Any, key: str, length: int, *, lo: float | None = None,
         >>> check_numbers([1, 2], "scene.volume.dims", 3)
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: scene.volume.dims=[1, 2]: expected 3 numbers
+        imls_lightning.base.errors.InputError: scene.volume.dims=[1, 2]: expected 3 numbers
     """
     noun = f"{length} integers" if integer else f"{length} numbers"
     what = what or (_range_text(noun + ", each", lo, None, lo_open) if lo is not None else noun)
@@ -238,7 +238,7 @@ def check_mapping(cfg: Any, key: str, what: str = "a mapping of settings") -> di
         >>> check_mapping([1], "renderer")
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: renderer: expected a mapping of settings, got list
+        imls_lightning.base.errors.InputError: renderer: expected a mapping of settings, got list
     """
     try:
         from omegaconf import DictConfig, OmegaConf
@@ -298,7 +298,7 @@ def check_frame_memory(side: int, key: str, bytes_per_pixel: float, what: str, *
         >>> check_frame_memory(100000, "resolution", 256, "the frames", total=2 ** 33)
         Traceback (most recent call last):
         ...
-        data_gen.errors.InputError: resolution=100000: the frames at 100000^2 take at least 2.3 TiB, more than the 8.0 GiB of memory here; expected at most 5792
+        imls_lightning.base.errors.InputError: resolution=100000: the frames at 100000^2 take at least 2.3 TiB, more than the 8.0 GiB of memory here; expected at most 5792
     """
     total = memory_bytes() if total is None else total
     need = float(side) * float(side) * float(bytes_per_pixel)

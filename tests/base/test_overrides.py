@@ -1,4 +1,4 @@
-"""The one quoting function for Hydra overrides (:mod:`data_gen.overrides`), checked against Hydra's
+"""The one quoting function for Hydra overrides (:mod:`imls_lightning.base.overrides`), checked against Hydra's
 own override parser: every value reads back unchanged."""
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import doctest
 import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
-from data_gen import overrides
-from data_gen.errors import quote_non_ascii
-from data_gen.overrides import quote_override_value
+from imls_lightning.base import overrides
+from imls_lightning.base.errors import quote_non_ascii
+from imls_lightning.base.overrides import quote_override_value
 
 STRINGS = [
     "plain", "/runs/a-1/checkpoints/last.ckpt", "cache_dir", "a.b.c", "-a", "+a", "..", "",

@@ -137,7 +137,7 @@ _HYDRA_SPECIAL = set("[]{}(),'\"$\\=")
 def quote_non_ascii(argv: Sequence[str]) -> list[str]:
     """Hydra's override parser takes non-ASCII characters only inside quotes: quote the value of
     ``key=value`` when it has some (``scene.volume.path=/data/volumes_é/x.raw`` ->
-    ``scene.volume.path='/data/volumes_é/x.raw'``, :func:`~data_gen.overrides.quote_override_value`). A value that also holds Hydra's own syntax
+    ``scene.volume.path='/data/volumes_é/x.raw'``, :func:`~imls_lightning.base.overrides.quote_override_value`). A value that also holds Hydra's own syntax
     (lists, sweeps, quotes, interpolations) is not guessed at: one-line :class:`InputError` showing
     how to quote it."""
     out = []

@@ -1,6 +1,6 @@
 r"""Values written into Hydra override lines (``key=value``): :func:`quote_override_value`, the one
 quoting function of the project's commands (the ORP sweeper's jobs, ``python -m imls_lightning.bench``
-and the non-ASCII values of every command line, :func:`data_gen.errors.quote_non_ascii`).
+and the non-ASCII values of every command line, :func:`imls_lightning.base.errors.quote_non_ascii`).
 
 Hydra's override grammar reads a bare word as a number, a boolean or ``null`` where it can, stops
 at its own syntax (``=``, ``,``, brackets, quotes, spaces) and takes non-ASCII characters only

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from data_gen.errors import InputError, check_group_choices, config_keys, quote_non_ascii
+from imls_lightning.base.errors import InputError, check_group_choices, config_keys, quote_non_ascii
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 

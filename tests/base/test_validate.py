@@ -1,4 +1,4 @@
-"""Generic validators (:mod:`data_gen.validate`): values accepted, canonical types, one-line errors."""
+"""Generic validators (:mod:`imls_lightning.base.validate`): values accepted, canonical types, one-line errors."""
 from __future__ import annotations
 
 import doctest
@@ -6,11 +6,11 @@ import doctest
 import numpy as np
 import pytest
 
-from data_gen import validate
-from data_gen.errors import InputError
+from imls_lightning.base import validate
+from imls_lightning.base.errors import InputError
 from omegaconf import OmegaConf
 
-from data_gen.validate import check_integer, check_mapping, check_number, check_numbers, expected, shown
+from imls_lightning.base.validate import check_integer, check_mapping, check_number, check_numbers, expected, shown
 
 
 def test_doctests():

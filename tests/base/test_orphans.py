@@ -1,4 +1,4 @@
-"""data_gen.orphans: workers that never outlive their parent, and what a killed writer leaves behind."""
+"""imls_lightning.base.orphans: workers that never outlive their parent, and what a killed writer leaves behind."""
 from __future__ import annotations
 
 import doctest
@@ -9,9 +9,9 @@ import sys
 import time
 from pathlib import Path
 
-from data_gen import orphans
-from data_gen.atomic import atomic_write_text
-from data_gen.orphans import pid_alive, remove_stale_temporaries
+from imls_lightning.base import orphans
+from imls_lightning.base.atomic import atomic_write_text
+from imls_lightning.base.orphans import pid_alive, remove_stale_temporaries
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -45,7 +45,7 @@ def pid_alive(pid: int) -> bool:
 
 def remove_stale_temporaries(path: str | Path) -> list[Path]:
     """Remove ``.<name>.<pid>.tmp`` siblings of ``path`` whose writer ``pid`` is dead (a killed
-    :func:`~data_gen.atomic.atomic_write` with ``unique=True``: half-written, never renamed); returns them."""
+    :func:`~imls_lightning.base.atomic.atomic_write` with ``unique=True``: half-written, never renamed); returns them."""
     p = Path(path)
     gone = []
     prefix = f".{p.name}."
