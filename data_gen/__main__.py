@@ -30,7 +30,7 @@ CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 @cli_errors
 def main(cfg: DictConfig) -> None:
     from data_gen.cache import ViewImageCache, render_cache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
 
     scene = build_scene(cfg.scene)
     report = render_cache(scene, cfg.data, cfg.renderer, progress=bool(cfg.get("progress", True)))

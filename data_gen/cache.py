@@ -111,8 +111,8 @@ from .cache_log import CompletionLog, bad_views, read_log, read_logs, remember_c
 from .cache_reader import ViewImageCache
 from .cache_workers import run_workers
 from imls_lightning.base.errors import InputError
-from .renderers import make_renderer, render_image, renderer_pixel_settings, renderer_version
-from .scene import Scene, voxel_size
+from imls_lightning.render import make_renderer, render_image, renderer_pixel_settings, renderer_version
+from imls_lightning.render.scene import Scene, voxel_size
 from imls_lightning.base.validate import check_mapping
 
 

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from imls_lightning.base.errors import InputError
-from .renderers import renderer_pixel_settings
-from .scene import Scene
+from imls_lightning.render import renderer_pixel_settings
+from imls_lightning.render.scene import Scene
 from imls_lightning.base.validate import check_integer, check_mapping
 from .views import (
     check_lookat_jitter,

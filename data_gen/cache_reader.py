@@ -17,8 +17,8 @@ import numpy as np
 from .cache_keys import IMAGES, MANIFEST, SPLITS, VIEWS, jsonable, scene_key, views_digest
 from .cache_log import bad_views, checked_already, read_logs, remember_checked
 from imls_lightning.base.errors import InputError
-from .renderers import make_renderer
-from .scene import Scene
+from imls_lightning.render import make_renderer
+from imls_lightning.render.scene import Scene
 
 
 @dataclass
@@ -126,7 +126,7 @@ class ViewImageCache:
 
     def scene(self) -> Scene:
         """Rebuild the scene from the manifest (volume from its recorded config, checked against its fingerprint)."""
-        from .scene import build_scene
+        from data_gen.scenes import build_scene
 
         cfg = self.manifest.get("scene_config")
         if not cfg:

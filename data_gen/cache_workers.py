@@ -18,8 +18,8 @@ import numpy as np
 from .cache_log import write_view
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.orphans import exit_when_orphaned
-from .renderers import make_renderer, render_image
-from .scene import Scene
+from imls_lightning.render import make_renderer, render_image
+from imls_lightning.render.scene import Scene
 
 def _memmap_ref(a: np.ndarray) -> dict[str, Any] | None:
     """``(file, offset, dtype, shape)`` of a C-contiguous read-only view into a file mapping, or None."""
@@ -118,7 +118,7 @@ def worker_main(setup, parent_pid, tasks, results):
 def run_workers(scene, rcfg, threads, images_path, offset, m, views, todo, workers, fsync, log, bar, report,
                 pixels=None, sparse=None):
     """Render rows ``todo`` of ``views`` in ``workers`` spawned processes of ``threads`` threads each
-    (rows ``i`` with ``sparse[i]`` only at ``pixels``: :func:`~data_gen.renderers.render_image`).
+    (rows ``i`` with ``sparse[i]`` only at ``pixels``: :func:`~imls_lightning.render.render_image`).
 
     Each worker writes its views' pixels in place into ``images_path`` (data at ``offset``); this
     process logs every finished view to ``log`` (a :class:`~data_gen.cache_log.CompletionLog`),

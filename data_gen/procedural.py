@@ -30,7 +30,7 @@ evaluate any z-slab of the volume on its own: its random parameters come from ``
 slab is bit-identical to the same slab of the whole volume. That is what lets
 :func:`write_procedural_raw` stream paper-scale volumes (e.g. 1024^3) to disk slab by slab.
 
-Field coordinates follow the normalized space of :class:`~data_gen.volume.Volume` with unit
+Field coordinates follow the normalized space of :class:`~imls_lightning.render.volume.Volume` with unit
 spacing: voxels are centred, the longest axis spans [-1, 1], the others keep their aspect.
 
 Example:
@@ -55,7 +55,7 @@ import numpy as np
 from imls_lightning.base.atomic import atomic_write
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.orphans import exit_when_orphaned
-from .volume import Volume
+from imls_lightning.render.volume import Volume
 
 F32 = np.float32
 

@@ -1,7 +1,7 @@
 """View sets: random training views on a spherical shell and the 120-view test trajectory.
 
 Every view is 9 floats ``(eye_xyz, lookAt_xyz, up_xyz)`` in the normalized space (the volume is
-centred at the origin, longest axis spanning [-1, 1]); see :mod:`data_gen.camera`.
+centred at the origin, longest axis spanning [-1, 1]); see :mod:`imls_lightning.render.camera`.
 
 * Training views (paper: 2000 per volume, split 9:1 into train/val): eyes uniformly distributed
   over directions, radius uniform in ``camera_distance = (r_min, r_max)``; the look-at point is
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera import validate_view
+from imls_lightning.render.camera import validate_view
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_integer, check_number, check_numbers, expected
 
@@ -78,7 +78,7 @@ def sample_training_views(
             few views). The directions and look-at points are drawn as without it.
 
     Returns:
-        ``(N, 9)`` float64 views; each passes :func:`data_gen.camera.validate_view`, and the up
+        ``(N, 9)`` float64 views; each passes :func:`imls_lightning.render.camera.validate_view`, and the up
         vector is a unit vector orthogonal to ``lookAt - eye``.
 
     Example:

@@ -22,7 +22,7 @@ reads the whole file into VTK memory. VTK stays as the fallback for the rare mul
 Every reader returns ``(data, spacing, info)``: ``data`` is ``(Z, Y, X)`` C-contiguous in the file's
 dtype (native byte order), ``spacing`` is ``(sx, sy, sz)``. :func:`load_volume` then scans the
 values in chunks (finite min/max, NaN/Inf count) without making a float copy, optionally clips the
-value range to percentiles, and builds the :class:`~data_gen.volume.Volume`.
+value range to percentiles, and builds the :class:`~imls_lightning.render.volume.Volume`.
 
 Example:
     >>> vol = load_volume({"kind": "file", "path": "ct_head_256x256x108_int16.raw",
@@ -42,7 +42,7 @@ import numpy as np
 
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_numbers
-from .volume import Volume
+from imls_lightning.render.volume import Volume
 
 #: dtype names of the Open SciVis ``.raw`` convention -> little-endian numpy dtypes
 RAW_DTYPES: dict[str, np.dtype] = {

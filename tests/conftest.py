@@ -22,7 +22,7 @@ def volumes_dir() -> Path:
 @pytest.fixture(scope="session")
 def blob_volume():
     """A small anisotropic analytic volume (no reader or generator involved)."""
-    from data_gen.volume import Volume
+    from imls_lightning.render.volume import Volume
 
     z, y, x = np.mgrid[-1:1:24j, -1:1:32j, -1:1:40j]
     d = np.exp(-3 * (x * x + y * y + z * z)) + 0.25 * np.sin(6 * x) * np.cos(5 * y)
@@ -32,7 +32,7 @@ def blob_volume():
 
 @pytest.fixture(scope="session")
 def blob_scene(blob_volume):
-    from data_gen.scene import Scene, TransferFunction
+    from imls_lightning.render.scene import Scene, TransferFunction
 
     tf = TransferFunction(
         [[0.0, 0.1, 0.2, 0.9], [0.5, 1.0, 0.6, 0.1], [1.0, 1.0, 1.0, 1.0]],

@@ -8,7 +8,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from data_gen.scene import register_resolvers as register_scene_resolvers
+from data_gen.scenes import register_resolvers as register_scene_resolvers
 from imls_lightning.config import register_resolvers, settings_hash
 
 ROOT = Path(__file__).resolve().parents[1]

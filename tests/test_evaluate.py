@@ -327,7 +327,7 @@ def test_orp_search_views_path_are_exploratory_paths_of_their_own_seeds(run):
     """orp_views=path: the views of orp_paths exploratory paths drawn like the test trajectory, from seeds 1, 2, ...,
     never the evaluated cache's test trajectory (seed 0); each row's path label says which."""
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from data_gen.views import exploration_trajectory
     from imls_lightning.evaluation import orp_search_views, parse_settings
 
@@ -360,7 +360,7 @@ def test_exception_orp_paths(run, args, message):
 
 def test_exception_orp_paths_seeds_must_not_include_the_test_trajectorys(run):
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import orp_search_views, parse_settings
 
     cfg = _compose(*_args(run["ck"], "orp_views=path", "orp_paths=2", "orp_views_seed=0"))
@@ -375,7 +375,7 @@ def test_orp_strata_judges_the_bound_in_each_band_of_camera_distance(run):
     """orp_strata=2: the ORP's bound must hold in both distance bands of the search views, so it is never a lower
     mean value than the bound over all of them; the record keeps each band's mean gap."""
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.operating_point import product_path_orp
 
@@ -404,7 +404,7 @@ def test_orp_on_path_views_counts_passes_and_the_report_says_so(run):
     """orp_views=path: the search's bound counts passes (here each of the 2 paths is one pass), the summary records
     how many, and the report's rule names them instead of the per-view bound."""
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp
     from imls_lightning.report.document import _orp_lines
@@ -429,7 +429,7 @@ def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
     own search views (never above the value that held in every band); IML/S then runs each view at its band's, the
     summary and the record carry the bands. It needs orp_strata >= 2 (a one-line error)."""
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.operating_point import distance_means, orp_summary, product_path_orp
 
@@ -472,7 +472,7 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
     import shutil
 
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.operating_point import operating_share, orp_summary, product_path_orp, record_operating_point
     from imls_lightning.inference.checkpoints import load_product
@@ -517,8 +517,8 @@ def test_mask_sharpness_candidates_timed_on_the_search_views_the_fastest_kept(ru
     decoder, RecNN) are timed interleaved on ims_sharpness_views search views and the fastest is kept; the report
     says so. ims_sharpness_views=0 keeps the smallest share (the rule without a renderer)."""
     from data_gen.cache import ViewImageCache
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp
     from imls_lightning.report.document import _orp_lines
@@ -557,7 +557,7 @@ def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run,
     import shutil
 
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp, record_operating_point
     from imls_lightning.inference.checkpoints import load_product
@@ -697,7 +697,7 @@ def test_object_floor_without_validation_views_is_a_one_line_error():
 
 def test_orp_search_views_heldout_are_none_of_the_caches_views(run):
     from data_gen.cache import ViewImageCache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import orp_search_views, parse_settings
 
     cfg = _compose(*_args(run["ck"]))
@@ -957,7 +957,7 @@ def _orp_views(ck: dict) -> list:
     import numpy as np
 
     from data_gen.cache import ViewImageCache, ensure_cache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import orp_search_views, parse_settings
 
     cfg = _compose(*_args(ck))
@@ -1131,7 +1131,7 @@ def test_two_pass_sampler_by_distance_gives_each_band_its_own_share(run):
     """orp_by_distance=true: the two-pass sampler's share is searched per band of camera distance as the ORP's mean
     value is (never above the share that held in every band), from the gaps its search measured; its method runs each
     view at its band's share, and the settings hash changes with it (its results do)."""
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.two_pass import two_pass_method, two_pass_point
 
@@ -1198,8 +1198,8 @@ def test_las_at_the_promise_runs_at_an_ipr_searched_on_the_orps_views_and_report
 def test_las_search_gap_is_the_gap_the_method_measures_on_the_same_view(run):
     """las_gaps (the search) and LASMethod (the measured method) agree on a view: the same low-res render, the same
     bisected mask, the cached FR pixels the ray caster returns; so the gap searched is the gap LAS runs at."""
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
     from imls_lightning.core.metrics import psnr_per_image
     from imls_lightning.estimate.measure import frame_tensor
     from imls_lightning.evaluation import load_networks, parse_settings
@@ -1230,8 +1230,8 @@ def test_las_search_gap_is_the_gap_the_method_measures_on_the_same_view(run):
 def test_las_at_the_promise_by_distance_gives_each_band_its_own_ipr(run):
     """orp_by_distance=true: LAS's IPR is searched per band of camera distance (never above the IPR that held in
     every band); its method runs each view at its band's IPR."""
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
     from imls_lightning.evaluation.las_point import LASPoint, las_point, las_searched_method
 
@@ -1325,7 +1325,7 @@ def test_both_ray_casters_are_timed_in_one_run_and_the_speedup_counts_against_th
 def test_a_fresh_trajectory_of_its_own_seed_is_what_the_evaluation_measures(run, tmp_path):
     """trajectory_seed=N: the test views are the path model's views of seed N, rendered into a cache of their own;
     the settings' validation views stay the training cache's."""
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from data_gen.views import exploration_trajectory
     from imls_lightning.evaluation import evaluate
 

@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import get_class
 from omegaconf import DictConfig, OmegaConf
 
-from data_gen.scene import register_resolvers as register_scene_resolvers
+from data_gen.scenes import register_resolvers as register_scene_resolvers
 from imls_lightning.config import register_resolvers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,7 +132,7 @@ def test_large_flame_reads_its_volume_memory_mapped(tmp_path):
     """The preset names the Flame-size file; a small file of the same generator, given as
     scene.volume.path, builds a scene whose voxels are a read-only memmap of that file."""
     from data_gen.procedural import make_procedural, write_procedural_raw
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
     from data_gen.volumes import parse_raw_name
 
     cfg = _resolve(_compose(["experiment=large_flame"]))

@@ -19,8 +19,8 @@ import torch
 from omegaconf import OmegaConf
 
 from imls_lightning.base.errors import InputError
-from data_gen.renderers import make_renderer
-from data_gen.scene import build_scene
+from imls_lightning.render import make_renderer
+from data_gen.scenes import build_scene
 from data_gen.views import sample_training_views
 from imls_lightning.export import parse_args
 from imls_lightning.inference.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available

@@ -60,7 +60,7 @@ def test_render_killed_at_many_points_resumes_without_loss_or_rework(tmp_path):
     from omegaconf import OmegaConf
 
     from data_gen.cache import ViewImageCache, read_log, render_cache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
 
     cache_dir = tmp_path / "cache"
     args = ["data_gen", "scene=tiny", f"data.num_views={VIEWS}", f"data.test_views={TEST_VIEWS}", f"data.resolution={RES}",

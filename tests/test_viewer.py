@@ -62,7 +62,7 @@ def _key(v, key):
 
 
 def test_smoke_orbit_view_camera_conventions():
-    from data_gen.camera import camera_basis
+    from imls_lightning.render.camera import camera_basis
     from imls_lightning.viewer import orbit_view
 
     v = orbit_view(90, 30, 3.0)

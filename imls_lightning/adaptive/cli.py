@@ -66,7 +66,7 @@ BANDS_SETTING = "by camera distance (the evaluation's bands)"
 def run_adaptive(cfg, command: str | None = None) -> Path:
     """The CLI's body: labels -> predictor -> comparison on the test trajectory; returns ``adaptive.md``."""
     from data_gen.cache import ViewImageCache, ensure_cache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
 
     from ..config import file_hash, settings_hash
     from ..report import atomic_write_text
@@ -221,7 +221,7 @@ def compared_methods(s, cfg, scene, ev: MeanLabels, nets, predictor, u_orp: floa
     """Step 3's methods on the evaluated views: the RecNN alone, IML/S and IML + RecNN at the trained,
     ORP, IPR-matched, predicted and oracle means; with the views as a tensor, the predicted means, the
     matched mean and the adaptive IPR the IMS alone estimates."""
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     from ..config import to_plain
     from ..inference.pipeline import RecNNAlone

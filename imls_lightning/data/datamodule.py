@@ -238,7 +238,7 @@ class ImlsDataModule(L.LightningDataModule):
         finished run records, and what its reuse is checked against. Once the caches are ensured, their manifests'
         keys; before, computed from the settings and the volume's content without rendering."""
         from data_gen.cache_keys import MANIFEST, cache_key
-        from data_gen.scene import build_scene
+        from data_gen.scenes import build_scene
 
         ensured = [p for p in (self.cache_path, self.low_res_path) if p is not None]
         if self.cache_path is not None and all((p / MANIFEST).is_file() for p in ensured):
@@ -252,7 +252,7 @@ class ImlsDataModule(L.LightningDataModule):
 
     def _ensure(self) -> None:
         from data_gen.cache import ensure_cache
-        from data_gen.scene import build_scene
+        from data_gen.scenes import build_scene
 
         scene = build_scene(self.scene_cfg)
         pixels = self.pattern.indices.numpy() if self.train_pixels == "pattern" else None

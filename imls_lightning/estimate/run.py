@@ -71,7 +71,7 @@ def recnn_net(cfg: DictConfig) -> dict[str, Any]:
 
 def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) -> dict[str, Any]:
     """What decides the numbers (hashed into the output directory's name). ``volume_fingerprint``: the
-    volume's content (:meth:`~data_gen.volume.Volume.fingerprint`), so that a volume replaced at the same
+    volume's content (:meth:`~imls_lightning.render.volume.Volume.fingerprint`), so that a volume replaced at the same
     path, or a procedural generator that changed, is measured again instead of reusing its old estimate."""
     scene = OmegaConf.to_container(cfg.scene, resolve=True)
     return jsonable({
@@ -188,8 +188,8 @@ def estimate_views(scene, count: int, seed: int) -> list:
 def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     """Run every measurement and return the estimate's content (also writes the contact sheet).
     ``scene``: the built scene (built here from ``cfg.scene`` when None)."""
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene, register_resolvers
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene, register_resolvers
 
     register_resolvers()
     n_views = check_integer(cfg.views, "views", 1)
@@ -306,7 +306,7 @@ def both_ray_casters(cfg: DictConfig, scene, renderer, pattern, views, measured,
                      nets_ms: float, recnn_ms: float, needed, blur: float, density: float, repeats: int) -> dict[str, Any] | None:
     """The bound on both ray casters and against the fastest RecNN alone (``both_ray_casters``, default true;
     :mod:`.ray_casters`); None when off or when the renderer has no empty-space skipping switch."""
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     from .ray_casters import fastest_bounds, other_ray_caster_curve
 
@@ -566,7 +566,7 @@ def update_table(path: Path, row: Mapping[str, Any]) -> Path:
 def run_estimate(cfg: DictConfig) -> Path:
     """Measure (or reuse) and write ``<output_dir>/estimate.json``; returns its path. The scene is built first:
     an estimate is reused only for the same volume content."""
-    from data_gen.scene import build_scene, register_resolvers
+    from data_gen.scenes import build_scene, register_resolvers
 
     register_resolvers()
     scene = build_scene(cfg.scene)

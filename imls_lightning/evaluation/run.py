@@ -41,8 +41,8 @@ CHECKPOINT_KEYS = ("ims", "las", "recnn", "iml", "blue_noise", "recnn_sparser")
 
 
 def sample_distance_voxels(scene, renderer_cfg) -> float | None:
-    """The scene's ray-marching step in voxels (:func:`data_gen.scene.voxel_size`), for the reports."""
-    from data_gen.scene import voxel_size
+    """The scene's ray-marching step in voxels (:func:`imls_lightning.render.scene.voxel_size`), for the reports."""
+    from imls_lightning.render.scene import voxel_size
 
     try:
         return float(scene.sample_distance) / float(voxel_size(scene.volume))
@@ -74,7 +74,7 @@ def checkpoint_hashes(paths: dict[str, str]) -> dict[str, str]:
 def output_dir(cfg: DictConfig, s: Settings, scene, rcfg: dict[str, Any], paths: dict[str, str]) -> Path:
     """The evaluation's folder: ``output_dir``, else ``<runs_dir>/eval/<scene>-<recnn>-<hash>``, the hash of
     the checkpoints' bytes and every setting that changes the results (no network is built)."""
-    from data_gen.renderers import renderer_pixel_settings
+    from imls_lightning.render import renderer_pixel_settings
 
     ck_hashes = checkpoint_hashes(paths)
     # renderer.skip_empty=false changes no pixel but every time: such an evaluation is a run of its own
@@ -260,7 +260,7 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
 def other_ray_caster(s: Settings, scene, rcfg: dict[str, Any], renderer, notes: list[str]):
     """The ray caster with empty-space skipping flipped (``both_ray_casters``), or None: not asked for, or a
     renderer without the switch (one line in the notes)."""
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     if not s.both_ray_casters:
         return None
@@ -405,8 +405,8 @@ def load_note(tl: dict[str, Any] | None) -> str | None:
 
 def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     """Run the evaluation described by ``cfg`` (``conf/evaluate.yaml``); returns ``report.md``'s path."""
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
 
     s = parse_settings(cfg)
     resolution = int(cfg.data.resolution)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import torch
 
-from data_gen.camera import validate_view
+from imls_lightning.render.camera import validate_view
 from imls_lightning.base.errors import InputError, finite_number
 from data_gen.views import orthogonal_up, unit_vectors
 

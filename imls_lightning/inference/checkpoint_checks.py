@@ -188,7 +188,7 @@ def check_trained_on(hp: Mapping, scene: Any, renderer: Any, *, key: str, path: 
     Raises:
         InputError: ``key=path: trained on scene=A, this run uses scene=B (scene differs in ...); pass scene=A``.
     """
-    from data_gen.renderers import renderer_pixel_settings
+    from imls_lightning.render import renderer_pixel_settings
 
     tail = f", {escape}" if escape else ""
     trained_scene, trained_renderer = hp.get("scene"), hp.get("renderer")

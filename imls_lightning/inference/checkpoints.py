@@ -268,14 +268,14 @@ def renderer_for(hparams: Mapping[str, Any], scene=None, renderer=None, renderer
     if renderer is not None:
         return renderer
     if scene is None and hparams.get("scene"):
-        from data_gen.scene import build_scene
+        from data_gen.scenes import build_scene
 
         scene = build_scene(hparams["scene"])
         if renderer_cfg is None:
             renderer_cfg = hparams.get("renderer")
     if scene is None:
         raise InputError("ims_checkpoint stores no scene (trained before scenes were recorded): pass scene= or renderer=")
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     return make_renderer(scene, renderer_cfg)
 

@@ -380,7 +380,7 @@ class ExportedIMLSRenderer(IMLSRenderer):
         if renderer is None:
             if scene is None:
                 raise InputError("ExportedIMLSRenderer.load needs a renderer or a scene")
-            from data_gen.renderers import make_renderer
+            from imls_lightning.render import make_renderer
 
             renderer = make_renderer(scene, renderer_cfg)
         r = cls(renderer, pattern, mods["im"], UnpackedDecoder(mods["decoder"]), mods["recnn"], NetOptions(device=str(dev)))

@@ -59,7 +59,7 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
-from data_gen.camera import validate_view
+from imls_lightning.render.camera import validate_view
 from imls_lightning.base.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn

@@ -318,8 +318,8 @@ def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, i
     import numpy as np
     import torch
 
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
 
     from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone, time_method
 

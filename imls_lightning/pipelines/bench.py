@@ -402,7 +402,7 @@ def scene_label(scene: str, scene_overrides: Sequence[str]) -> str:
         >>> scene_label("file", ["scene.volume.path=/d/engine_256x256x128_uint8.raw"]), scene_label("ct_head", [])
         ('engine', 'ct_head')
     """
-    from data_gen.scene import volume_name
+    from data_gen.scenes import volume_name
 
     given = {}
     for o in scene_overrides:

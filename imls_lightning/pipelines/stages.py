@@ -75,7 +75,7 @@ def check_scene_overrides(scene: str, overrides: Sequence[str]) -> None:
     """
     if not overrides:
         return
-    from data_gen.scene import preset_config
+    from data_gen.scenes import preset_config
 
     preset_config(scene, overrides, context=f"scene overrides {' '.join(overrides)} (scene={scene})")
 

@@ -510,7 +510,7 @@ class IMSTask(ImlsTask):
         recnn_hparams, recnn_state, source = _input_recnn(cfg, iml_task, pattern)
         # the labels themselves are made by the DataModule (datamodule_kwargs); here only their provenance
         from data_gen.cache import cache_path_for
-        from data_gen.scene import build_scene
+        from data_gen.scenes import build_scene
 
         from ..data.labels import labels_path_for
 

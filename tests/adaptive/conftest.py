@@ -32,7 +32,7 @@ def tiny_cache(tiny_checkpoints):
     from hydra.core.global_hydra import GlobalHydra
 
     from data_gen.cache import ViewImageCache, ensure_cache
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="tiny_cache"):
@@ -51,7 +51,7 @@ def pim_task(pim_ckpt):
 
 @pytest.fixture(scope="module")
 def renderer(pim_task):
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
 
     return make_renderer(build_scene(pim_task.hparams["scene"]), pim_task.hparams["renderer"])

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 import imls_lightning.data.labels as labels_mod
 from data_gen.cache import ViewImageCache, ensure_cache
 from imls_lightning.base.errors import InputError
-from data_gen.scene import build_scene
+from data_gen.scenes import build_scene
 from imls_lightning.core.compaction import compact
 from imls_lightning.data import ImlsDataModule
 from imls_lightning.core.importance import normalize_importance

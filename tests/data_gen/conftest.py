@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from data_gen.scene import build_scene
+from data_gen.scenes import build_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -1,4 +1,4 @@
-"""Settings and checks shared by the data_gen test modules (one home: cache, reader, workers, contact
+"""Settings and checks shared by the data_gen and render test modules (one home: cache, reader, workers, contact
 sheet, both renderers)."""
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def check_images_alike_across_sample_distances(renderer_cls, view) -> None:
     correction they clearly do not (so the check can fail)."""
     from omegaconf import OmegaConf
 
-    from data_gen.scene import build_scene
+    from data_gen.scenes import build_scene
 
     cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf" / "scene" / "tiny.yaml")
     half = build_scene(OmegaConf.merge(cfg, {"sample_distance_voxels": 0.5}))

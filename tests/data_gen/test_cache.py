@@ -18,8 +18,8 @@ import data_gen  # noqa: F401
 from data_gen.cache import LOG, ViewImageCache, cache_path_for, read_log, render_cache
 from data_gen.cache_log import forget_checked
 from imls_lightning.base.errors import InputError
-from data_gen.renderers import make_renderer
-from data_gen.scene import build_scene
+from imls_lightning.render import make_renderer
+from data_gen.scenes import build_scene
 from tests.data_gen.helpers import VTK
 from tests.data_gen.helpers import cache_data as _data
 
@@ -98,7 +98,7 @@ def test_cache_key_is_the_manifests_and_follows_the_volumes_content(tmp_path, ti
     """``cache_key`` (what a training run records) is the key render_cache names the cache by, computed without
     rendering, and it changes when only the volume's voxels do (same name, same settings)."""
     from data_gen.cache_keys import cache_key
-    from data_gen.volume import Volume
+    from imls_lightning.render.volume import Volume
 
     d = _data(tmp_path)
     report = render_cache(tiny_scene, d, VTK, progress=False)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_gen.camera import validate_view
+from imls_lightning.render.camera import validate_view
 from imls_lightning.base.errors import InputError
 from data_gen.views import exploration_trajectory, load_views_file, sample_training_views, split_train_val
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from imls_lightning.base.errors import InputError
-from data_gen.volume import Volume
+from imls_lightning.render.volume import Volume
 from data_gen.volumes import (
     RAW_DTYPES,
     SUPPORTED_EXTENSIONS,

@@ -620,8 +620,8 @@ def test_exception_cli_mask_repeats_must_be_positive(tmp_path):
 def _tiny_scene_and_renderer():
     from hydra import compose, initialize_config_dir
 
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene, register_resolvers
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene, register_resolvers
 
     register_resolvers()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):

@@ -43,8 +43,8 @@ def env(tiny_checkpoints):
     from hydra.core.global_hydra import GlobalHydra
 
     from data_gen.cache import ViewImageCache, ensure_cache
-    from data_gen.renderers import make_renderer
-    from data_gen.scene import build_scene
+    from imls_lightning.render import make_renderer
+    from data_gen.scenes import build_scene
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_pipeline"):

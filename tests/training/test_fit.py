@@ -16,7 +16,7 @@ from hydra.utils import get_class
 from omegaconf import OmegaConf, open_dict
 
 from imls_lightning.base.errors import InputError
-from data_gen.scene import register_resolvers as register_scene_resolvers
+from data_gen.scenes import register_resolvers as register_scene_resolvers
 from imls_lightning.config import is_checkpoint_key, register_resolvers
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask

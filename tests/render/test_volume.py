@@ -1,4 +1,4 @@
-"""data_gen.volume: Volume geometry in the normalized space and scalar normalization, against direct
+"""imls_lightning.render.volume: Volume geometry in the normalized space and scalar normalization, against direct
 computations; invalid volumes are refused with one-line InputErrors."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from imls_lightning.base.errors import InputError
-from data_gen.volume import Volume
+from imls_lightning.render.volume import Volume
 
 
 def _volume(shape=(4, 6, 11), spacing=(0.5, 1.0, 2.0), value_range=(10.0, 20.0), data=None) -> Volume:

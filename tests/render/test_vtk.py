@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from imls_lightning.base.errors import InputError
-from data_gen.scene import Scene, Shading
+from imls_lightning.render.scene import Scene, Shading
 
-from .helpers import SAMPLE_DISTANCE_VIEWS, check_images_alike_across_sample_distances, psnr
+from tests.data_gen.helpers import SAMPLE_DISTANCE_VIEWS, check_images_alike_across_sample_distances, psnr
 
 VIEW = [0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
 OBLIQUE = [2.5, 1.0, 1.2, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0]
@@ -21,7 +21,7 @@ OBLIQUE = [2.5, 1.0, 1.2, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0]
 
 @pytest.fixture(scope="module")
 def vtk_renderer(blob_scene):
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     return VTKRenderer(blob_scene)
 
@@ -51,7 +51,7 @@ def test_smoke_resolution_changes(vtk_renderer):
 def test_ambient_term_is_honoured(blob_scene):
     """VTK's automatic light has a black ambient colour; ours is white, so ambient=1 alone gives
     the unshaded colours (D = 1 everywhere) instead of a black image."""
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     amb = VTKRenderer(_with(blob_scene, shading=Shading(True, 1.0, 0.0, 0.0, 10.0))).render(OBLIQUE, 40)
     flat = VTKRenderer(_with(blob_scene, shading=Shading(enabled=False))).render(OBLIQUE, 40)
@@ -62,7 +62,7 @@ def test_ambient_term_is_honoured(blob_scene):
 def test_thread_count_does_not_change_pixels(blob_scene):
     """VTK computes normals in one z slab per thread with one-sided differences at every slab
     boundary; the renderer computes them single-threaded, so the picture is thread-independent."""
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     one = VTKRenderer(blob_scene, threads=1).render(OBLIQUE, 40)
     three = VTKRenderer(blob_scene, threads=3).render(OBLIQUE, 40)
@@ -72,7 +72,7 @@ def test_thread_count_does_not_change_pixels(blob_scene):
 def test_exact_pixels_versus_displayed_window(blob_scene):
     """The ray-cast image (one ray per pixel centre) is what VTK shows, up to VTK's texture
     resampling: close, not equal; both agree exactly on the background far from the volume."""
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     bg = (0.2, 0.4, 0.6)
     scene = _with(blob_scene, background=bg)
@@ -88,8 +88,8 @@ def test_exact_pixels_versus_displayed_window(blob_scene):
 def test_volume_outside_the_view_gives_background(blob_scene, away):
     """VTK culls the volume (or gives up on the frame) and keeps its previous ray-cast image;
     the renderer must return the background, not that stale frame."""
-    from data_gen.render_numba import NumbaRenderer
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.numba import NumbaRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     bg = (0.1, 0.2, 0.3)
     scene = _with(blob_scene, background=bg)
@@ -104,7 +104,7 @@ def test_volume_outside_the_view_gives_background(blob_scene, away):
 def test_render_pixels_equal_full_frame(vtk_renderer, blob_scene):
     """Requested rays are cast exactly as in the full frame (observed: bit-identical); the
     tolerance only guards against VTK versions that change the pipeline."""
-    from data_gen.render_numba import ray_hit_mask
+    from imls_lightning.render.numba import ray_hit_mask
 
     m = 48
     full = vtk_renderer.render(OBLIQUE, m).reshape(-1, 3)
@@ -145,7 +145,7 @@ def test_exception_invalid_resolution(vtk_renderer, resolution):
 
 
 def test_exception_unknown_mapper(blob_scene):
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     with pytest.raises(InputError, match="renderer.mapper"):
         VTKRenderer(blob_scene, mapper="magic")
@@ -153,6 +153,6 @@ def test_exception_unknown_mapper(blob_scene):
 
 @pytest.mark.parametrize("view", SAMPLE_DISTANCE_VIEWS)
 def test_images_alike_across_sample_distances(view):
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     check_images_alike_across_sample_distances(VTKRenderer, view)

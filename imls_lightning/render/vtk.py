@@ -1,17 +1,17 @@
-"""Offscreen VTK ray casting of a :class:`~data_gen.scene.Scene` (the renderer of record).
+"""Offscreen VTK ray casting of a :class:`~imls_lightning.render.scene.Scene` (the renderer of record).
 
 The pipeline (image data, transfer functions, mapper, render window) is built once per scene and
 reused for every view: only the camera changes between renders.
 
 Details that make the pixels a function of the scene and the view alone (all found by reading
-VTK's fixed-point mapper and comparing with our own caster, :mod:`data_gen.render_numba`):
+VTK's fixed-point mapper and comparing with our own caster, :mod:`imls_lightning.render.numba`):
 
 * the light is an explicit headlight whose *ambient* colour is white. VTK's automatic light has a
   black ambient colour, so the fixed-point mapper silently dropped ``scene.shading.ambient``;
 * the per-voxel normals are computed single-threaded (first render). VTK computes them in one z
   slab per thread with one-sided differences at every slab boundary, so the picture depended on
   the number of threads (61 dB between 1 and 2 threads, 46 dB for 3 on ct_head);
-* the sample distance is the scene's resolved one (:func:`data_gen.scene.resolve_sample_distance`;
+* the sample distance is the scene's resolved one (:func:`imls_lightning.render.scene.resolve_sample_distance`;
   ``auto`` is half the smallest voxel spacing, after VTK's ``LockSampleDistanceToInputSpacing``), set
   explicitly with VTK's own locking and automatic adjustment off, so both renderers step alike; the opacity is
   corrected for it through ``ScalarOpacityUnitDistance`` (``scene.opacity_unit_distance``);
@@ -41,7 +41,7 @@ import time
 
 import numpy as np
 
-from .camera import render_request
+from .camera import camera_basis, render_request
 from imls_lightning.base.errors import InputError
 from .scene import Scene
 
@@ -72,7 +72,7 @@ class VTKRenderer:
     name = "vtk"
 
     def __init__(self, scene: Scene, mapper: str = "fixed_point", threads: int = 0, exact_pixels: bool = True):
-        import vtk  # heavy import kept local: importing data_gen must stay cheap
+        import vtk  # heavy import kept local: importing the ray casters must stay cheap
         from vtk.util import numpy_support as ns
 
         self.scene = scene
@@ -186,7 +186,7 @@ class VTKRenderer:
 
     def _set_camera(self, view, resolution) -> np.ndarray:
         v, m, _ = render_request(view, resolution)
-        from .render_numba import clipping_range
+        from .numba import clipping_range
 
         w = m + 2 * self._margin
         if self._size != m:
@@ -334,8 +334,6 @@ class VTKRenderer:
         A quad spans the pixel *edges* of its run, on the plane at view depth ``depth``, so it covers
         exactly the centres of the run's pixels (0.5 pixel from every edge: no rasterization ties).
         """
-        from .camera import camera_basis
-
         m = self._size
         pad = np.zeros((m, m + 2), np.int8)
         pad[:, 1:-1] = block.reshape(m, m)
@@ -364,7 +362,7 @@ class VTKRenderer:
         ``last_render_seconds`` is the time of VTK's render call; ``last_blocked_pixels`` the number
         of pixels covered. An empty ``pixels`` costs nothing.
         """
-        from .render_numba import ray_hit_mask
+        from .numba import ray_hit_mask
 
         if self._mapper_kind != "fixed_point":
             raise InputError("renderer.mapper=gpu: render_pixels needs the fixed_point mapper (or renderer=numba)")

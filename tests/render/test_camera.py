@@ -1,14 +1,14 @@
-"""data_gen.camera: pixel-set validation."""
+"""imls_lightning.render.camera: pixel-set validation."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from data_gen.camera import validate_pixels
+from imls_lightning.render.camera import validate_pixels
 from imls_lightning.base.errors import InputError
 
 
-# ---- pixel sets (data_gen.camera.validate_pixels) -------------------------------------------------
+# ---- pixel sets (imls_lightning.render.camera.validate_pixels) -------------------------------------------------
 def test_validate_pixels_keeps_order_and_duplicates():
     out = validate_pixels(np.array([5, 0, 5, 15], np.uint16), 4)
     assert out.dtype == np.int64 and out.tolist() == [5, 0, 5, 15]

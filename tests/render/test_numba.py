@@ -15,12 +15,12 @@ import math
 import numpy as np
 import pytest
 
-from data_gen.camera import pixel_rays, ray_box_hits
+from imls_lightning.render.camera import pixel_rays, ray_box_hits
 from imls_lightning.base.errors import InputError
-from data_gen.scene import Scene, Shading, TransferFunction
-from data_gen.volume import Volume
+from imls_lightning.render.scene import Scene, Shading, TransferFunction
+from imls_lightning.render.volume import Volume
 
-from .helpers import SAMPLE_DISTANCE_VIEWS, check_images_alike_across_sample_distances, psnr
+from tests.data_gen.helpers import SAMPLE_DISTANCE_VIEWS, check_images_alike_across_sample_distances, psnr
 
 MIN_PSNR_VS_VTK = 45.0
 VIEWS = [
@@ -33,7 +33,7 @@ VIEWS = [
 
 @pytest.fixture(scope="module")
 def numba_renderer(blob_scene):
-    from data_gen.render_numba import NumbaRenderer
+    from imls_lightning.render.numba import NumbaRenderer
 
     return NumbaRenderer(blob_scene)  # compiles (or loads numba's cache) once for the module
 
@@ -57,7 +57,7 @@ def test_smoke_full_frame_deterministic(numba_renderer, blob_scene):
 
 
 def test_smoke_threads_do_not_change_pixels(blob_scene, numba_renderer):
-    from data_gen.render_numba import NumbaRenderer
+    from imls_lightning.render.numba import NumbaRenderer
 
     one = NumbaRenderer(blob_scene, threads=1).render(VIEWS[1], 36)
     assert np.array_equal(one, numba_renderer.render(VIEWS[1], 36))
@@ -67,8 +67,8 @@ def test_smoke_threads_do_not_change_pixels(blob_scene, numba_renderer):
 @pytest.mark.parametrize("shading", [Shading(), Shading(enabled=False), Shading(ambient=0.0, diffuse=0.3, specular=0.9, specular_power=20.0)])
 @pytest.mark.parametrize("background", [(0.0, 0.0, 0.0), (0.3, 0.5, 0.7)])
 def test_against_vtk_blob(blob_volume, shading, background):
-    from data_gen.render_numba import NumbaRenderer
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.numba import NumbaRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     scene = _scene(blob_volume, shading, background)
     rv, rn = VTKRenderer(scene), NumbaRenderer(scene)
@@ -83,8 +83,8 @@ def test_against_vtk_blob(blob_volume, shading, background):
 @pytest.mark.parametrize("dtype", [np.uint8, np.int16])
 def test_against_vtk_integer_data(blob_volume, dtype):
     """Small-range integer data take VTK's integer table index (emulated by the caster)."""
-    from data_gen.render_numba import NumbaRenderer
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.numba import NumbaRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     d = blob_volume.data
     q = np.round((d - d.min()) / (d.max() - d.min()) * 200).astype(dtype)
@@ -97,8 +97,8 @@ def test_against_vtk_integer_data(blob_volume, dtype):
 
 def test_against_vtk_ct_head(volumes_dir):
     """Real CT data (int16, anisotropic), the ct_head preset's transfer function, 128^2."""
-    from data_gen.render_numba import NumbaRenderer
-    from data_gen.render_vtk import VTKRenderer
+    from imls_lightning.render.numba import NumbaRenderer
+    from imls_lightning.render.vtk import VTKRenderer
 
     raw = np.memmap(volumes_dir / "ct_head_256x256x108_int16.raw", np.int16, "r", shape=(108, 256, 256))
     vol = Volume(raw, (0.957, 0.957, 1.5), (-1024.0, 2986.0), "ct_head", "test:ct_head")
@@ -115,8 +115,8 @@ def test_against_vtk_ct_head(volumes_dir):
 
 # ---- direct reimplementations --------------------------------------------------------------------
 def test_ray_directions_equal_camera_pixel_rays():
-    from data_gen.camera import camera_basis
-    from data_gen.render_numba import _ray_dir
+    from imls_lightning.render.camera import camera_basis
+    from imls_lightning.render.numba import _ray_dir
 
     view, m, angle = VIEWS[1], 17, 30.0
     eye, f, r, u = camera_basis(view)
@@ -131,7 +131,7 @@ def test_clipping_range_equals_vtk(blob_scene, view):
     """Our copy of vtkRenderer::ResetCameraClippingRange(bounds) gives VTK's numbers."""
     import vtk
 
-    from data_gen.render_numba import clipping_range
+    from imls_lightning.render.numba import clipping_range
 
     ren = vtk.vtkRenderer()
     win = vtk.vtkRenderWindow()
@@ -184,7 +184,7 @@ def test_background_rays_are_not_marched(blob_scene, numba_renderer):
 
 def test_empty_space_skipping_is_exact(blob_scene, numba_renderer):
     """renderer.skip_empty=false marches every brick (a ray caster without empty-space skipping): the same pixels."""
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     assert 0.0 < numba_renderer.transparent_brick_fraction < 1.0  # the test does exercise skipping
     marching = make_renderer(blob_scene, {"name": "numba", "skip_empty": False})
@@ -196,7 +196,7 @@ def test_empty_space_skipping_is_exact(blob_scene, numba_renderer):
 
 
 def test_exception_skip_empty_is_a_boolean(blob_scene):
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     with pytest.raises(InputError, match=r"renderer.skip_empty='no': expected true or false \(empty-space skipping\)") as e:
         make_renderer(blob_scene, {"name": "numba", "skip_empty": "no"})
@@ -204,7 +204,7 @@ def test_exception_skip_empty_is_a_boolean(blob_scene):
 
 
 def test_skip_distance_against_brute_force():
-    from data_gen.render_numba import skip_distance
+    from imls_lightning.render.numba import skip_distance
 
     rng = np.random.default_rng(0)
     transparent = (rng.random((5, 6, 7)) > 0.1).astype(np.uint8)
@@ -216,7 +216,7 @@ def test_skip_distance_against_brute_force():
 
 
 def test_memory_mapped_volume_is_not_copied(tmp_path, blob_volume, numba_renderer):
-    from data_gen.render_numba import NumbaRenderer
+    from imls_lightning.render.numba import NumbaRenderer
 
     path = tmp_path / "blob_40x32x24_float32.raw"
     blob_volume.data.astype("<f4").tofile(path)
@@ -251,7 +251,7 @@ def test_exception_invalid_resolution(numba_renderer, resolution):
 
 
 def test_exception_invalid_threads_and_dtype(blob_scene, blob_volume):
-    from data_gen.render_numba import NumbaRenderer
+    from imls_lightning.render.numba import NumbaRenderer
 
     with pytest.raises(InputError, match="threads"):
         NumbaRenderer(blob_scene, threads=-1, warmup=False)
@@ -267,6 +267,6 @@ def test_exception_degenerate_view(numba_renderer):
 
 @pytest.mark.parametrize("view", SAMPLE_DISTANCE_VIEWS)
 def test_images_alike_across_sample_distances(view):
-    from data_gen.render_numba import NumbaRenderer
+    from imls_lightning.render.numba import NumbaRenderer
 
     check_images_alike_across_sample_distances(NumbaRenderer, view)

@@ -1,19 +1,19 @@
 """The project's own compiled ray caster (numba): full frames and arbitrary pixel subsets.
 
 :class:`NumbaRenderer` implements the scene model of the renderer of record
-(:class:`~data_gen.render_vtk.VTKRenderer`, VTK's ``vtkFixedPointVolumeRayCastMapper``) so that the
+(:class:`~imls_lightning.render.vtk.VTKRenderer`, VTK's ``vtkFixedPointVolumeRayCastMapper``) so that the
 cache and the selective renderer of a run can use it interchangeably with VTK. Every ray is
 independent, so ``render_pixels(view, m, pixels)`` is *exactly* ``render(view, m)`` at those pixels
 and its cost is linear in the number of pixels.
 
 Scene model (the conventions of VTK's fixed-point mapper, read from its source):
 
-* **Rays** through pixel centres (:func:`data_gen.camera.pixel_rays`). Rays that miss the volume's
+* **Rays** through pixel centres (:func:`imls_lightning.render.camera.pixel_rays`). Rays that miss the volume's
   box ``[origin, origin + (dims - 1) * spacing]`` get the background and are never marched.
 * **Samples** every ``scene.sample_distance`` along the ray (normalized units, resolved by
-  :func:`data_gen.scene.resolve_sample_distance`: ``auto`` is half a voxel), on a grid anchored
+  :func:`imls_lightning.render.scene.resolve_sample_distance`: ``auto`` is half a voxel), on a grid anchored
   at the near clipping plane that VTK's ``vtkRenderer::ResetCameraClippingRange`` gives for the
-  volume's box (:func:`clipping_range`; :class:`~data_gen.render_vtk.VTKRenderer` sets the same
+  volume's box (:func:`clipping_range`; :class:`~imls_lightning.render.vtk.VTKRenderer` sets the same
   planes). As VTK does, the ray is clipped to the box inset by 0.01 voxel, the segment is shortened
   by 0.1% at each end, and the first sample is the first grid point strictly after its start.
 * **Scalars**: trilinear interpolation of the raw volume in its native dtype, normalized on the fly

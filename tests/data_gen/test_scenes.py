@@ -9,9 +9,9 @@ from omegaconf import OmegaConf
 
 import data_gen  # noqa: F401  (registers the OmegaConf resolvers)
 from imls_lightning.base.errors import InputError
-from data_gen.scene import (Scene, auto_transfer_function, build_scene, default_volumes_dir, resolve_sample_distance,
-                            voxel_size)
-from data_gen.volume import Volume
+from data_gen.scenes import auto_transfer_function, build_scene, default_volumes_dir
+from imls_lightning.render.scene import Scene, resolve_sample_distance, voxel_size
+from imls_lightning.render.volume import Volume
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "scene"
 PROCEDURAL = ["tiny", "marschner_lobb", "mixing_layer", "flame", "rayleigh_taylor", "flame_sheets", "seed_shell", "rt_plumes"]
@@ -58,7 +58,7 @@ def test_smoke_procedural_presets_build(name, tmp_path):
 def test_flame_whole_is_flame_sheets_framed_from_twice_as_far():
     """flame_whole extends flame_sheets through Hydra's defaults list: the same volume, transfer function and
     shading, only the name and the camera's distance differ (BENCHMARKS.md, "The whole flame in view")."""
-    from data_gen.scene import preset_config
+    from data_gen.scenes import preset_config
 
     whole = OmegaConf.to_container(preset_config("flame_whole"))
     sheets = OmegaConf.to_container(preset_config("flame_sheets"))
@@ -71,7 +71,7 @@ def test_flame_whole_is_flame_sheets_framed_from_twice_as_far():
 def test_seed_whole_is_seed_shell_framed_from_farther():
     """seed_whole extends seed_shell through Hydra's defaults list: the same volume, transfer function and shading, only
     the name and the camera's distance (about 1.5x as far) differ (BENCHMARKS.md, "seed_whole: the seed framed whole")."""
-    from data_gen.scene import preset_config
+    from data_gen.scenes import preset_config
 
     whole = OmegaConf.to_container(preset_config("seed_whole"))
     shell = OmegaConf.to_container(preset_config("seed_shell"))
@@ -81,7 +81,7 @@ def test_seed_whole_is_seed_shell_framed_from_farther():
 
 
 def test_exception_preset_config_names_the_preset():
-    from data_gen.scene import preset_config
+    from data_gen.scenes import preset_config
 
     with pytest.raises(InputError, match=r"scene='flame_hole': no conf/scene/flame_hole.yaml; expected one of .*flame_whole"):
         preset_config("flame_hole")
@@ -205,7 +205,7 @@ def _half_voxel(dims_xyz, spacing_xyz) -> float:
 
 
 def test_every_scene_preset_defaults_to_auto_sample_distance():
-    from data_gen.scene import preset_config
+    from data_gen.scenes import preset_config
 
     for p in sorted(CONF.glob("*.yaml")):
         cfg = preset_config(p.stem)
@@ -284,7 +284,7 @@ def test_exception_sample_distance_given_twice(blob_volume):
 
 # ---- a real VTK render ----------------------------------------------------------------------
 def test_smoke_vtk_render_tiny_nonempty_deterministic():
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     scene = build_scene(_preset("tiny"))
     view = _front_view(scene, scene.camera_distance[0])
@@ -298,7 +298,7 @@ def test_smoke_vtk_render_tiny_nonempty_deterministic():
 
 @pytest.mark.real_volume
 def test_smoke_vtk_render_ct_head_fills_frame(volumes_dir):
-    from data_gen.renderers import make_renderer
+    from imls_lightning.render import make_renderer
 
     scene = build_scene(_preset("ct_head", **{"volume.path": str(volumes_dir / REAL["ct_head"])}))
     img = make_renderer(scene, {"name": "vtk"}).render(_front_view(scene), 64)

@@ -1,4 +1,8 @@
-"""Renderer selection: ``make_renderer(scene, renderer_cfg)`` for the ``renderer`` config group.
+"""The ray casters, the product's foundation below the data: what they render (:mod:`.volume`: a Volume in
+the normalized space; :mod:`.scene`: volume + transfer function + shading + sampling), the camera's ray geometry
+(:mod:`.camera`), VTK's ray caster (:mod:`.vtk`, the renderer of record) and the project's own compiled one
+(:mod:`.numba`), and here the renderer selection: ``make_renderer(scene, renderer_cfg)`` for the ``renderer``
+config group. Nothing here reads a config file or a volume file (``data_gen`` does, and builds the scene).
 
 One renderer (``renderer=vtk`` or ``renderer=numba``) serves both the cache and the selective
 rendering of a run. Every renderer has ``render(view, resolution) -> (m, m, 3) uint8``,
@@ -24,8 +28,9 @@ from typing import Any, Callable
 import numpy as np
 
 from imls_lightning.base.errors import InputError
-from .scene import Scene
 from imls_lightning.base.validate import check_integer, check_mapping
+
+from .scene import Scene
 
 # keys of the renderer node that never change the pixels (how fast, not what)
 NON_PIXEL_KEYS = frozenset({"threads", "skip_empty"})
@@ -43,7 +48,7 @@ def _threads(cfg: Mapping[str, Any], threads: int | None) -> int:
 
 
 def _make_vtk(scene: Scene, cfg: Mapping[str, Any], threads: int):
-    from .render_vtk import VTKRenderer
+    from .vtk import VTKRenderer
 
     mapper = cfg.get("mapper", "fixed_point")
     if mapper not in ("fixed_point", "gpu"):
@@ -53,7 +58,7 @@ def _make_vtk(scene: Scene, cfg: Mapping[str, Any], threads: int):
 
 def _make_numba(scene: Scene, cfg: Mapping[str, Any], threads: int):
     # the project's own compiled ray caster (VTK's scene model; casts any pixel subset)
-    from .render_numba import NumbaRenderer
+    from .numba import NumbaRenderer
 
     return NumbaRenderer(scene, threads=threads, skip_empty=cfg.get("skip_empty", True))
 

@@ -1,13 +1,13 @@
-"""data_gen.renderers: the renderer named by the config is built; the pixel settings hashed into cache
+"""imls_lightning.render: the renderer named by the config is built; the pixel settings hashed into cache
 keys fill defaults and drop what cannot change pixels; bad settings are one-line InputErrors."""
 from __future__ import annotations
 
 import pytest
 
 from imls_lightning.base.errors import InputError
-from data_gen.render_numba import NumbaRenderer
-from data_gen.render_vtk import VTKRenderer
-from data_gen.renderers import RENDERER_REVISION, make_renderer, renderer_pixel_settings, renderer_version
+from imls_lightning.render.numba import NumbaRenderer
+from imls_lightning.render.vtk import VTKRenderer
+from imls_lightning.render import RENDERER_REVISION, make_renderer, renderer_pixel_settings, renderer_version
 
 
 def test_make_renderer_builds_the_named_renderer(blob_scene):
