@@ -25,7 +25,7 @@ from omegaconf import DictConfig
 import data_gen  # noqa: F401  (registers the scene config resolvers)
 from imls_lightning.base.errors import checked_command_line, cli_errors
 
-from .config import register_resolvers
+from imls_lightning.base.config import register_resolvers
 from .evaluation import evaluate, summary  # noqa: F401  (public: evaluate(cfg) -> report.md, summary(metrics_csv) -> dict)
 from .pipelines.paths import CONF_DIR
 

@@ -980,7 +980,7 @@ def _orp_lines(capsys) -> list[str]:
 def test_the_evaluation_records_its_orp_beside_the_ims_checkpoint(run):
     import json
 
-    from imls_lightning.config import file_hash
+    from imls_lightning.base.config import file_hash
     from imls_lightning.inference.operating_point import read_operating_point, sidecar_path
 
     ims = run["ck"]["ims_pim"]
@@ -1033,7 +1033,7 @@ def test_the_record_is_checked_by_the_checkpoints_bytes(run, tmp_path, capsys):
     import json
     import shutil
 
-    from imls_lightning.config import file_hash
+    from imls_lightning.base.config import file_hash
     from imls_lightning.inference.operating_point import sidecar_path
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 

@@ -12,7 +12,7 @@ from hydra.utils import get_class
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.scenes import register_resolvers as register_scene_resolvers
-from imls_lightning.config import register_resolvers
+from imls_lightning.base.config import register_resolvers
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"

@@ -140,7 +140,7 @@ def test_training_killed_at_several_epochs_resumes_from_the_newest_saved_one(tmp
                 os.killpg(proc.pid, signal.SIGKILL)
             out, err = proc.communicate(timeout=60)
         last = next((tmp_path / "runs").glob("*/checkpoints/last.ckpt"))
-        from imls_lightning.config import checkpoint_problem
+        from imls_lightning.base.config import checkpoint_problem
 
         if checkpoint_problem(last) is None:
             seen_epochs.append(int(torch.load(last, map_location="cpu", weights_only=True)["epoch"]))

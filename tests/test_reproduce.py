@@ -14,7 +14,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from imls_lightning.base.errors import InputError
-from imls_lightning.config import file_hash
+from imls_lightning.base.config import file_hash
 from imls_lightning.pipelines.reproduce import RESULT_KEYS, reproduce
 
 ROOT = Path(__file__).resolve().parents[1]

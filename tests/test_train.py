@@ -199,7 +199,7 @@ def test_truncated_best_checkpoint_of_finished_run_is_not_trusted(work, recnn_ck
     p = _run(["model=recnn", "recnn=enhancenet", "trainer.max_epochs=2", "recnn.net.channels=8", "recnn.net.blocks=2"], tmp_path)
     assert "already finished" not in p.stdout
     assert any(ln.startswith("warning:") and "training it again" in ln for ln in p.stderr.splitlines()), p.stderr[-2000:]
-    from imls_lightning.config import checkpoint_problem
+    from imls_lightning.base.config import checkpoint_problem
 
     assert checkpoint_problem(_last_line(p)) is None
 

@@ -20,7 +20,7 @@ from omegaconf import DictConfig
 import data_gen  # noqa: F401  (registers the scene config resolvers)
 from imls_lightning.base.errors import InputError, checked_command_line, cli_errors
 
-from ..config import register_resolvers
+from ..base.config import register_resolvers
 from ..core.importance import MEAN_RANGE
 from ..inference.checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
 from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, pick_device
@@ -68,7 +68,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     from data_gen.cache import ViewImageCache, ensure_cache
     from data_gen.scenes import build_scene
 
-    from ..config import file_hash, settings_hash
+    from ..base.config import file_hash, settings_hash
     from ..report import atomic_write_text
 
     s = parse_settings(cfg)
@@ -223,7 +223,7 @@ def compared_methods(s, cfg, scene, ev: MeanLabels, nets, predictor, u_orp: floa
     matched mean and the adaptive IPR the IMS alone estimates."""
     from imls_lightning.render import make_renderer
 
-    from ..config import to_plain
+    from ..base.config import to_plain
     from ..inference.pipeline import RecNNAlone
 
     ims, iml, recnn, device, pattern, lift, opts = nets.ims, nets.iml, nets.recnn, nets.device, nets.pattern, nets.lift, s.options
@@ -361,7 +361,7 @@ def write_results(out: Path, s, cfg, summ, trade, timing, hist, u_train: float, 
     """``adaptive.json`` (the summary, the trade-off, the timing, the means) and ``config.yaml``."""
     from omegaconf import OmegaConf
 
-    from ..config import to_plain
+    from ..base.config import to_plain
     from ..report import atomic_write_text
 
     trade_json = None if trade is None else {"curve": trade["curve"], "points": [

@@ -81,7 +81,7 @@ def parse_settings(cfg) -> Settings:
     """
     from omegaconf import OmegaConf
 
-    from ..config import to_plain
+    from ..base.config import to_plain
 
     ims = OmegaConf.select(cfg, "ims_checkpoint", default=None) if not OmegaConf.is_missing(cfg, "ims_checkpoint") else None
     if not ims:

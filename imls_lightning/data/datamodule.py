@@ -35,7 +35,7 @@ from torch.utils.data import DataLoader, Dataset
 from imls_lightning.base.errors import InputError
 
 from ..core.compaction import compact
-from ..config import to_plain
+from ..base.config import to_plain
 from ..core.patterns import SamplingPattern, build_pattern, crop_pattern
 
 ALL_FIELDS = ("view", "fr", "pr", "c")

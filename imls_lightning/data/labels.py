@@ -50,7 +50,7 @@ from imls_lightning.base.atomic import atomic_json, fsync_dir
 from imls_lightning.base.errors import InputError
 
 from ..core.compaction import compact
-from ..config import file_hash
+from ..base.config import file_hash
 
 __all__ = ["ensure_labels", "labels_path_for", "ImportanceLabels", "LABELS_FORMAT", "label_iml"]
 

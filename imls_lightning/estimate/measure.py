@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from imls_lightning.base.errors import InputError
 
-from ..config import decoder_fill_for
+from ..base.config import decoder_fill_for
 from ..core.compaction import compact, decompact
 from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern, crop_pattern, plastic_rank_pattern

@@ -10,7 +10,7 @@ from omegaconf import DictConfig
 
 from imls_lightning.base.errors import InputError
 
-from ..config import load_checkpoint
+from ..base.config import load_checkpoint
 from ..inference.checkpoints import check_resolution, check_same_pattern, load_recnn, load_task, require_recnn
 from ..inference.checkpoints import check_trained_on as checkpoint_trained_on
 from .settings import Settings

@@ -619,13 +619,13 @@ def borrowed_point(s: Settings, ck_hashes: dict[str, str], scene: str) -> dict[s
 
     The point belongs to its networks: the IMS and RecNN checkpoints of that evaluation (the hashes its
     ``summary.json`` records, else the files its ``config.yaml`` names) must be byte for byte this run's
-    (``ck_hashes``, :func:`~imls_lightning.config.file_hash` by checkpoint key). The scene may differ: that is how an
+    (``ck_hashes``, :func:`~imls_lightning.base.config.file_hash` by checkpoint key). The scene may differ: that is how an
     operating point is tried on a volume nobody tuned it for. Its gaps on the new views are measured afresh; what the
     summary says of its own test views is dropped. Anything else is a one-line :class:`InputError`.
     """
     import json
 
-    from ..config import file_hash
+    from ..base.config import file_hash
 
     folder = Path(str(s.orp_from))
     where = f"orp_from={s.orp_from}"

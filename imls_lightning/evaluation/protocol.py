@@ -31,7 +31,7 @@ def training_data_seed(checkpoint: str | os.PathLike) -> int | None:
     """``data.seed`` of the views ``checkpoint`` trained on: recorded in the checkpoint
     (:class:`~imls_lightning.training.callbacks.TrainingViews`), else in its run's ``result.json`` (the folder of
     ``checkpoints/``); None where neither says (then nothing can be checked)."""
-    from ..config import load_checkpoint
+    from ..base.config import load_checkpoint
     from ..training.callbacks import TRAINING_VIEWS_KEY
 
     seed = (load_checkpoint(checkpoint, what="checkpoints.ims").get(TRAINING_VIEWS_KEY) or {}).get("seed")

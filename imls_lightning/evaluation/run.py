@@ -18,7 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError
 
 from .. import report as rep
-from ..config import file_hash, settings_hash, to_plain
+from ..base.config import file_hash, settings_hash, to_plain
 from ..inference.pipeline import FullRayCast, IMLPlusRecNN, IMLSRenderer, LASMethod, Method, RecNNAlone, pick_device
 from ..models.iml import FillDecoder
 from ..report.document import verdict_line

@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from imls_lightning.base.errors import InputError
 
-from ..config import to_plain
+from ..base.config import to_plain
 from ..core.importance import check_sharpnesses
 from ..inference.pipeline import NetOptions
 
@@ -245,7 +245,7 @@ def _orp_from(cfg) -> dict[str, Any]:
     """``orp_from``: a finished evaluation's folder (its ``summary.json`` and ``config.yaml``); this run uses the
     operating point that evaluation searched on its validation views instead of searching again (null: search).
     The folder must hold both files; whether its networks are this run's is checked when they are loaded."""
-    from ..config import file_hash
+    from ..base.config import file_hash
 
     v = OmegaConf.select(cfg, "orp_from", default=None)
     if v is None or v == "":

@@ -9,7 +9,7 @@ setting the checkpoint came from (``key``, and its path where known), what disag
 pass instead.
 
 Checks take the checkpoint's *hyperparameters* (``task.hparams`` or the ``hyper_parameters`` of
-:func:`~imls_lightning.config.load_checkpoint`), so they also run where no network is built (a
+:func:`~imls_lightning.base.config.load_checkpoint`), so they also run where no network is built (a
 task's constructor, a report that only reads the checkpoint). They import no task: the tasks use
 them, and :mod:`~imls_lightning.inference.checkpoints`, which loads the tasks, re-exports them.
 
@@ -30,7 +30,7 @@ from typing import Any, Mapping
 
 from imls_lightning.base.errors import InputError
 
-from ..config import to_plain
+from ..base.config import to_plain
 from ..core.patterns import SamplingPattern, build_pattern
 
 __all__ = ["same_pattern", "check_same_pattern", "check_resolution", "check_trained_on", "require_recnn",

@@ -33,7 +33,7 @@ from torch import nn
 
 from imls_lightning.base.errors import InputError
 
-from ..config import load_checkpoint, to_plain
+from ..base.config import load_checkpoint, to_plain
 from ..core.importance import check_mean
 from ..core.patterns import SamplingPattern, build_pattern
 from ..models.ims import IMSMaskHead

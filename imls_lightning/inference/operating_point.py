@@ -172,7 +172,7 @@ def sidecar_path(ims_checkpoint: str | Path) -> Path:
 
 
 def _checkpoint_hash(ims_checkpoint: str | Path) -> str:
-    from ..config import file_hash
+    from ..base.config import file_hash
 
     return file_hash(Path(ims_checkpoint).expanduser(), length=64)
 

@@ -28,7 +28,7 @@ def pack_checkpoint(src: Path, dest: Path) -> None:
     """``src`` without :data:`TRAINING_ONLY` entries, saved to ``dest`` (atomically); its weights checked equal."""
     from imls_lightning.base.atomic import atomic_write
 
-    from ..config import load_checkpoint
+    from ..base.config import load_checkpoint
 
     ckpt = load_checkpoint(src, what=str(src))
     packed = {k: v for k, v in ckpt.items() if k not in TRAINING_ONLY}
@@ -43,7 +43,7 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
              views: int = 60, timed_views: int = 6, row_dir: Path | None = None) -> Path:
     """Pack the networks of the finished evaluation in ``evaluation`` (its ``config.yaml`` names them) into ``dest``,
     its point into ``dest/point``, and write ``conf/row/<name>.yaml`` (returned)."""
-    from ..config import file_hash
+    from ..base.config import file_hash
     from ..report import atomic_write_text
 
     summary_path, config_path = evaluation / "summary.json", evaluation / "config.yaml"

@@ -40,7 +40,7 @@ def row_files(row: Mapping[str, Any]) -> tuple[Path, dict[str, Path], Path]:
     Raises:
         InputError: a missing network file, or one whose bytes are not the recorded ones.
     """
-    from ..config import file_hash
+    from ..base.config import file_hash
 
     name = row.get("name", "?")
     folder = Path(str(row["dir"]))

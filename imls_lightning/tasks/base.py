@@ -15,7 +15,7 @@ import torch
 
 from imls_lightning.base.errors import InputError
 
-from ..config import load_checkpoint
+from ..base.config import load_checkpoint
 from ..core.metrics import psnr_per_image, ssim_metric  # psnr_per_image: public here too, by its old name
 
 

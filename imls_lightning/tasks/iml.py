@@ -27,7 +27,7 @@ import torch.nn.functional as F
 
 from imls_lightning.base.errors import InputError, config_keys
 
-from ..config import to_plain
+from ..base.config import to_plain
 from ..models.iml import IMLNet, build_decoder
 from ..models.pull_push import fill_c_image
 from ..core.patterns import build_pattern, plastic_rank_pattern
@@ -136,7 +136,7 @@ class IMLTask(ImlsTask):
         importance: ``"learned"`` or ``"uniform"`` (the blue-noise mask baseline, decoder only).
         straight_through: train on hard masks with the soft mask's gradient.
         mean_range: ``None`` or ``[lo, hi]``: a random mean value per training batch.
-        fill: where the refine decoder's fill runs, ``"c"`` or ``"fr"`` (:data:`FILLS`; the config default: :func:`imls_lightning.config.decoder_fill_for`).
+        fill: where the refine decoder's fill runs, ``"c"`` or ``"fr"`` (:data:`FILLS`; the config default: :func:`imls_lightning.base.config.decoder_fill_for`).
         recnn_hparams: hyperparameters of the RecNN task (end-to-end only; taken from its checkpoint).
         finetune_recnn: train the RecNN's weights too.
         pretrained: ``{"recnn": state dict}``: the trained RecNN's weights (not a hyperparameter).

@@ -89,7 +89,7 @@ from imls_lightning.base.validate import check_number
 
 from ..models.backbones import BACKBONES, VGG16_LAYERS
 from ..inference.checkpoint_checks import check_same_pattern
-from ..config import to_plain
+from ..base.config import to_plain
 from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet
 from ..models.ims import TARGETS, IMSDiscriminator, IMSGenerator, IMSMaskHead, generator_plan, im_to_target

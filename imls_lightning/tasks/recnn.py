@@ -9,7 +9,7 @@ from hydra.utils import instantiate
 from imls_lightning.base.errors import InputError
 
 from ..core.compaction import decompact
-from ..config import to_plain
+from ..base.config import to_plain
 from ..core.patterns import build_pattern
 from .base import ImlsTask
 

@@ -29,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError
 
 from .callbacks import ChunkTimer, ResumableCSVLogger, TrainingViews, set_aside_metrics
-from ..config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
+from ..base.config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
 

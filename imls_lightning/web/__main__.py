@@ -17,10 +17,10 @@ LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 def checkpoints(cfg: DictConfig) -> tuple[str, str | None, str | None]:
     """``(ims, recnn, las)`` checkpoints: the settings, or those of ``from_report`` (an evaluation's
     ``report.md``, whose ``config.yaml`` beside it names them); explicit settings win. Each file is checked to be
-    there and intact (:func:`~imls_lightning.config.checkpoint_problem`), and so is ``adaptive_predictor``, before
+    there and intact (:func:`~imls_lightning.base.config.checkpoint_problem`), and so is ``adaptive_predictor``, before
     the page is served: a missing or damaged one is a one-line :class:`InputError` naming the setting it came from
     (a checkpoint of the wrong kind shows its message in the page, which loads them)."""
-    from ..config import checkpoint_problem
+    from ..base.config import checkpoint_problem
 
     given = {"ims": cfg.ims_checkpoint, "recnn": cfg.recnn_checkpoint, "las": cfg.las_checkpoint}
     keys = {k: f"{k}_checkpoint" for k in given}

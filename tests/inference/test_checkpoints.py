@@ -37,7 +37,7 @@ def sealed(record: dict, ckpt) -> str:
     the check behind the digest is the one tested)."""
     import json
 
-    from imls_lightning.config import file_hash
+    from imls_lightning.base.config import file_hash
     from imls_lightning.inference.operating_point import record_digest
 
     return json.dumps({**record, "digest": record_digest(record, file_hash(ckpt, length=64))})

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from imls_lightning.config import file_hash
+from imls_lightning.base.config import file_hash
 from imls_lightning.inference.operating_point import (SEARCH_TOLERANCE, OperatingPoint, read_operating_point, record_digest,
                                                       sidecar_path, write_operating_point)
 

@@ -17,7 +17,7 @@ from omegaconf import OmegaConf, open_dict
 
 from imls_lightning.base.errors import InputError
 from data_gen.scenes import register_resolvers as register_scene_resolvers
-from imls_lightning.config import is_checkpoint_key, register_resolvers
+from imls_lightning.base.config import is_checkpoint_key, register_resolvers
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
 from imls_lightning.tasks.ims import IMSTask

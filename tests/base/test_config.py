@@ -9,9 +9,9 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from data_gen.scenes import register_resolvers as register_scene_resolvers
-from imls_lightning.config import register_resolvers, settings_hash
+from imls_lightning.base.config import register_resolvers, settings_hash
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 register_resolvers()
 register_scene_resolvers()
 
@@ -54,7 +54,7 @@ def test_settings_hash_checkpoint_keys(tmp_path):
                                           ("val/im_accuracy", "max"), ("val/im_error", "min"), ("val/loss", "min"),
                                           ("val/ipr_error", "min"), ("val/mse", "min")])
 def test_monitor_mode_follows_the_metric(metric, mode):
-    from imls_lightning.config import monitor_mode
+    from imls_lightning.base.config import monitor_mode
 
     assert monitor_mode(metric) == mode
 
