@@ -24,7 +24,6 @@ convention), before any job runs.
 # no `from __future__ import annotations`: Hydra execs this module before it is in sys.modules,
 # and dataclasses then cannot resolve string annotations
 import logging
-import os
 import sys
 import time
 from dataclasses import dataclass
@@ -290,16 +289,9 @@ def _key(text: str) -> str:
 
 
 def _write_yaml(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` as YAML atomically (temporary file in the same folder, then rename)."""
+    """Write ``data`` as YAML atomically (:func:`~imls_lightning.base.atomic.atomic_write_text`)."""
     import yaml
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w") as f:
-            yaml.safe_dump(data, f, sort_keys=False, default_flow_style=None, width=120)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    from imls_lightning.base.atomic import atomic_write_text
+
+    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120), unique=True)

@@ -78,8 +78,8 @@ def atomic_json(path: str | Path, obj: Any, default: Callable[[Any], Any] | None
     return atomic_write_text(path, json.dumps(obj, indent=indent, sort_keys=sort_keys, default=default) + "\n")
 
 
-def atomic_npy(path: str | Path, arr: Any) -> Path:
+def atomic_npy(path: str | Path, arr: Any, unique: bool = False) -> Path:
     """:func:`atomic_write` of a NumPy array in ``.npy`` format (no pickles)."""
     import numpy as np
 
-    return atomic_write(path, lambda f: np.save(f, arr, allow_pickle=False))
+    return atomic_write(path, lambda f: np.save(f, arr, allow_pickle=False), unique=unique)

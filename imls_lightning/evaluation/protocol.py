@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
+from imls_lightning.base.atomic import atomic_npy
 from imls_lightning.base.errors import InputError
 
 
@@ -105,9 +106,7 @@ def write_views_file(views: np.ndarray, folder: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     out = folder / f"{hashlib.sha256(views.tobytes()).hexdigest()[:16]}.npy"
     if not out.is_file():
-        tmp = out.with_suffix(f".{os.getpid()}.tmp.npy")
-        np.save(tmp, views)
-        os.replace(tmp, out)
+        atomic_npy(out, views, unique=True)  # several sittings may write the same views at once
     return out
 
 
