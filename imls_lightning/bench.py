@@ -46,7 +46,7 @@ from omegaconf import DictConfig
 from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .pipelines.bench import bench
-from .pipelines.paths import CONF_DIR, log
+from .base.paths import CONF_DIR, log
 from .pipelines.stages import StageFailed, split_scene_overrides
 
 __all__ = ["main"]

@@ -45,7 +45,7 @@ from omegaconf import DictConfig
 from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .pipelines.demo import demo
-from .pipelines.paths import CONF_DIR
+from .base.paths import CONF_DIR
 from .pipelines.stages import run_pipeline, split_scene_overrides
 
 __all__ = ["main"]

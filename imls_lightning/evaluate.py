@@ -27,7 +27,7 @@ from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from imls_lightning.base.config import register_resolvers
 from .evaluation import evaluate, summary  # noqa: F401  (public: evaluate(cfg) -> report.md, summary(metrics_csv) -> dict)
-from .pipelines.paths import CONF_DIR
+from .base.paths import CONF_DIR
 
 __all__ = ["evaluate", "summary", "main"]
 

@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from .pipelines.pack_row import pack_row
-from .pipelines.paths import CONF_DIR, ROOT
+from .base.paths import CONF_DIR, ROOT
 
 __all__ = ["main"]
 

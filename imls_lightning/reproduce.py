@@ -11,7 +11,7 @@ import data_gen  # noqa: F401  (registers the scene config resolvers)
 from imls_lightning.base.errors import checked_command_line, cli_errors
 
 from imls_lightning.base.config import register_resolvers
-from .pipelines.paths import CONF_DIR
+from .base.paths import CONF_DIR
 from .pipelines.reproduce import reproduce
 
 __all__ = ["main", "reproduce"]

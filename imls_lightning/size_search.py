@@ -36,7 +36,7 @@ from omegaconf import DictConfig
 
 from imls_lightning.base.errors import cli_errors
 
-from .pipelines.paths import CONF_DIR
+from .base.paths import CONF_DIR
 from .pipelines.size_search import size_job, summarize
 from .pipelines.stages import run_pipeline, split_scene_overrides
 

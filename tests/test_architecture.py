@@ -6,7 +6,9 @@
 * no module imports another module's private ``_name``: what is shared has a public name in its one
   home. Only the package is checked; tests may reach private names;
 * no module imports the top-level package ``imls_lightning`` (its lazy public API, see
-  ``tests/test_public_api.py``).
+  ``tests/test_public_api.py``);
+* packages form layers that point one way (issue 87, :data:`LAYERS`): no module imports a module of a higher
+  layer, at module level or inside a function.
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("imls_lightning", "data_gen")
+PACKAGES = ("imls_lightning", "data_gen", "hydra_plugins")
 
 
 def _modules() -> dict[str, Path]:
@@ -165,6 +167,77 @@ def test_modules_loaded_by_name_count_as_imports():
     edges, _ = _scan()
     assert {"imls_lightning.tasks.ims", "imls_lightning.tasks.las"} <= edges["imls_lightning.inference.checkpoints"]
     assert "imls_lightning.tasks.ims" in edges["imls_lightning"]  # the lazy public API (HOMES)
+
+
+# ------------------------------------------------------------------------------------------------
+# layers (issue 87): the package graph points one way
+
+#: the layers, lowest first; a package may import its own layer and those below it, never one above. ``entry points``
+#: are the modules directly under ``imls_lightning/`` (the CLIs, thin) and ``imls_lightning`` is the lazy public API.
+LAYERS = (
+    ("base",),                                   # errors, validation, override quoting, atomic files, settings hashes
+    ("render",),                                 # the ray casters and what they render (volume, scene, camera rays)
+    ("data_gen",),                               # volume readers, procedural volumes, scenes from config, views, cache
+    ("core",),                                   # the method's formulas (patterns, compaction, importance, metrics, fill)
+    ("models",),                                 # the networks
+    ("tasks", "training", "data"),               # training them (LightningModules, the fit, the data module, labels)
+    ("inference",),                              # the product: trained networks run, checkpoints loaded by task name
+    ("report",),                                 # the one writer of tables, plots and documents the measurements call
+    ("evaluation", "estimate", "orp", "adaptive"),  # the measurements
+    ("pipelines",),                              # the CLIs chained (demo, bench, bench_paper, size_search, reproduce)
+    ("entry points", "viewer", "web", "hydra_plugins", "imls_lightning"),
+)
+
+
+def _package(module: str) -> str:
+    """The package a module belongs to: ``imls_lightning.<pkg>.*`` -> ``<pkg>``, a module directly under
+    ``imls_lightning/`` -> ``entry points``, ``data_gen.*`` -> ``data_gen``."""
+    parts = module.split(".")
+    if parts[0] != "imls_lightning" or len(parts) == 1:
+        return parts[0]
+    if (ROOT / "imls_lightning" / parts[1]).is_dir():
+        return parts[1]
+    return "entry points"
+
+
+def _arrows_up(edges: dict[str, set[str]], layers=LAYERS) -> list[str]:
+    """Every import from a lower layer's module of a higher layer's module, as
+    ``importer (package) imports imported (package)``; a module of no layer is reported too."""
+    rank = {pkg: i for i, layer in enumerate(layers) for pkg in layer}
+    out = []
+    for mod in sorted(edges):
+        a = _package(mod)
+        if a not in rank:
+            out.append(f"{mod}: package {a!r} is in no layer of LAYERS")
+            continue
+        for dep in sorted(edges[mod]):
+            b = _package(dep)
+            if b in rank and rank[b] > rank[a]:
+                out.append(f"{mod} ({a}) imports {dep} ({b}): an arrow up")
+    return out
+
+
+def test_layers_point_one_way():
+    """The package graph, drawn from every import of every module (module level and inside functions, and the
+    modules loaded by name), has no arrow up: a lower package never imports a higher one."""
+    assert _arrows_up({"imls_lightning.core.x": {"imls_lightning.models.y", "imls_lightning.base.errors"},
+                       "imls_lightning.models.y": {"imls_lightning.core.x"}}) == [
+        "imls_lightning.core.x (core) imports imls_lightning.models.y (models): an arrow up"]
+    assert _package("imls_lightning.train") == "entry points" and _package("data_gen.cache") == "data_gen"
+    edges, _ = _scan()
+    assert {"imls_lightning.render.vtk", "imls_lightning.base.errors", "hydra_plugins.orp_sweeper.orp_sweeper"} <= set(edges)
+    found = _arrows_up(edges)
+    assert found == [], "\n".join(found)
+
+
+def test_render_and_base_stand_alone():
+    """The ray casters import only the foundation, and the foundation none of the project."""
+    edges, _ = _scan()
+    for mod, deps in edges.items():
+        if _package(mod) == "render":
+            assert {_package(d) for d in deps} <= {"render", "base"}, (mod, deps)
+        if _package(mod) == "base":
+            assert {_package(d) for d in deps} <= {"base"}, (mod, deps)
 
 
 def test_cycle_finder_finds_a_cycle():

@@ -212,7 +212,7 @@ def test_report_has_the_paper_tables(run):
 def test_the_speedup_comes_with_its_interval_over_the_timed_views(run):
     """summary.json's ``speedup_interval``: every timed method over the RecNN alone, from the per-view totals of
     metrics.csv; the report's speed-up table shows IML/S's, with the number of views it resampled."""
-    from imls_lightning.evaluation.speedup import speedup_intervals
+    from imls_lightning.report.speedup import speedup_intervals
 
     summ = json.loads((run["out"] / "summary.json").read_text())
     with open(run["out"] / "metrics.csv", newline="") as f:

@@ -24,7 +24,7 @@ from ..base.config import register_resolvers
 from ..core.importance import MEAN_RANGE
 from ..inference.checkpoints import check_resolution, check_trained_on, load_ims_and_recnn, require_pim_target, require_recnn
 from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, pick_device
-from ..pipelines.paths import CONF_DIR  # the Hydra configs: an absolute path
+from ..base.paths import CONF_DIR  # the Hydra configs: an absolute path
 from .checks import clamp_mean
 from .labels import MeanLabels, compute_labels
 from .predictor import ConstantMean, TableMean, train_predictor
@@ -195,7 +195,7 @@ def fixed_mean_orp(s, cache, nets, bracket):
         # the RecNN): its "IML/S, fixed u (ORP)" row is then the evaluation's ORP, not the IML bound's u
         from torch.utils.data import DataLoader
 
-        from ..inference.baselines import product_orp
+        from ..orp.product import product_orp
 
         with torch.inference_mode():
             batches = list(DataLoader(orp_ds, batch_size=s.batch_size, shuffle=False, num_workers=0))

@@ -29,7 +29,7 @@ import torch
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_number
 
-from ..models.pull_push import fill_c_image
+from .pull_push import fill_c_image
 from .importance import lift_to_share, lifted_mask, normalize_importance, sharpen_importance
 from .patterns import SamplingPattern, plastic_rank_pattern
 from .rank_patterns import blue_noise
@@ -52,7 +52,7 @@ def unpredictability(c: torch.Tensor, pattern: SamplingPattern, seed: int = 0) -
     ``(B, 1, n, n)``, the absolute error summed over the channels.
 
     The pixels of the half ``H`` (blue noise below 0.5) are filled from the others and the others from
-    ``H`` (:func:`~imls_lightning.models.pull_push.fill_c_image`, the product's untrained fill), so every
+    ``H`` (:func:`~imls_lightning.core.pull_push.fill_c_image`, the product's untrained fill), so every
     pixel is scored by how well its neighbours predict it. Pixels past the pattern's ``K`` score 0.
     """
     n = pattern.c_size

@@ -51,6 +51,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.compaction import compact
 from ..base.config import file_hash
+from ..tasks.checkpoint_checks import check_resolution
 
 __all__ = ["ensure_labels", "labels_path_for", "ImportanceLabels", "LABELS_FORMAT", "label_iml"]
 
@@ -166,7 +167,6 @@ def ensure_labels(
     """
     from data_gen.cache import ViewImageCache
 
-    from ..inference.checkpoint_checks import check_resolution
     from ..tasks.iml import IMLTask
 
     if not (isinstance(batch_size, int) and batch_size >= 1):

@@ -218,10 +218,10 @@ def estimate_interval(estimate: dict[str, Any], share: float, sharpness: float =
     in ``by_sharpness``). A resample draws the views with replacement and makes the same means, the slower of that
     curve and the per-pixel model at each share (:func:`slower_render`; the model and the network times stay as
     measured), then the bound at ``share``. It says how far the views drawn move the estimate, as
-    :func:`~imls_lightning.evaluation.speedup.speedup_interval` says it of a row; not a sitting's machine speed.
+    :func:`~imls_lightning.report.speedup.speedup_interval` says it of a row; not a sitting's machine speed.
 
     Returns:
-        :class:`~imls_lightning.evaluation.speedup.SpeedupInterval` or None.
+        :class:`~imls_lightning.report.speedup.SpeedupInterval` or None.
 
     Example:
         >>> est = {"c_render_ms": 150.0, "nets_ms": 10.0, "recnn_ms": 10.0, "background_density": 0.25,
@@ -233,7 +233,7 @@ def estimate_interval(estimate: dict[str, Any], share: float, sharpness: float =
         >>> round(iv.speedup, 3), iv.views, iv.low <= iv.speedup <= iv.high
         (2.462, 2, True)
     """
-    from ..evaluation.speedup import SpeedupInterval
+    from ..report.speedup import SpeedupInterval
 
     bounds = _resampled_bounds(estimate, (share,), sharpness, resamples, seed)
     if bounds is None:

@@ -26,7 +26,7 @@ from ..core.patterns import SamplingPattern, crop_pattern, plastic_rank_pattern
 from ..inference.pipeline import NetOptions, pick_device, prepare_net
 from ..models.ims import IMSGenerator, IMSMaskHead
 from ..models.iml import IMLNet
-from ..models.pull_push import pull_push_inpaint
+from ..core.pull_push import pull_push_inpaint
 from .bound import RenderCost, RenderCurve
 
 #: a C pixel counts as background when no channel differs from the background colour by more than this (of 255)

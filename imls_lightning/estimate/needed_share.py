@@ -39,7 +39,7 @@ from ..core.compaction import compact
 from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern
 from ..core.unpredictability import base_unpredictability, importance_mask, two_pass_mask, unpredictability
-from ..models.pull_push import fill_c_image
+from ..core.pull_push import fill_c_image
 from .measure import PassTimer, frame_tensor, median_ms, on_own_patterns
 
 #: the shares of C at which the needed share is searched (a finer grid than the bound's)

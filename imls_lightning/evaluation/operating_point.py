@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 from imls_lightning.base.errors import InputError
 from data_gen.views import camera_distance as view_distance
 
-from ..inference.baselines import product_orp
+from ..orp.product import product_orp, product_point
 from .measurement import spaced, view_loader
 from .networks import Networks
 from .settings import Settings
@@ -150,7 +150,7 @@ def judged(v: SearchViews, future_views: int | None) -> str:
 
 def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, device, future_views: int | None = None,
                      renderer=None):
-    """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.inference.baselines.product_orp`);
+    """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.orp.product.product_orp`);
     its bound is for the mean gap of ``future_views`` new views (the evaluated ones).
 
     With several ``ims_sharpness`` candidates the whole search (and the bands' own values) runs at each. The point
@@ -216,7 +216,6 @@ def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, resu
     Raises:
         InputError: the cache has no validation views.
     """
-    from ..inference.baselines import product_point
     from ..orp import strata_by_rank
 
     rows = cache.splits["val"]
@@ -407,8 +406,6 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
     ``gaps_db``, ``bounds_db``, ``views`` and the distance range ``lo`` / ``hi`` of its search views (with
     ``passes``, path views' pass labels, each band's bound counts its passes); ``None``
     (one line says so) where the views' distances do not separate the bands."""
-    from ..inference.baselines import product_orp, product_point
-
     bands = split_bands(strata, future_views, passes)
     out: dict[str, list] = {k: [] for k in ("means", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
     for band in bands:
@@ -573,7 +570,7 @@ def gap_by_distance(rows: Sequence[dict[str, Any]], distance: Callable[[int], fl
         >>> [(b["speedup"], b["timed_views"]) for b in gap_by_distance(rows, lambda r: 2.0 + r, bins=2)]
         [(None, 0), (None, 0)]
     """
-    from .speedup import paired_totals
+    from ..report.speedup import paired_totals
 
     ref, got, views = _paired(rows, reference, method)
     if not views:

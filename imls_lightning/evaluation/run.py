@@ -31,7 +31,7 @@ from .operating_point import (borrowed_point, camera_distance, distance_means, g
 from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
 from .protocol import check_view_seeds, fresh_trajectory_data, training_data_seed, trajectory_note
-from .speedup import ray_casters, speedup_intervals
+from ..report.speedup import ray_casters, speedup_intervals
 from .sweeps import Sweeps, front_notes, options_sweep
 from .las_point import LASPoint, las_point, las_searched_method
 from .two_pass import TwoPassPoint, two_pass_method, two_pass_point

@@ -5,7 +5,7 @@ network the task class builds from the saved hyperparameters, no task built), th
 (:func:`load_product`: those networks at the operating point recorded for the checkpoint, which
 :meth:`IMLSRenderer.from_checkpoints <imls_lightning.inference.pipeline.IMLSRenderer.from_checkpoints>`
 composes with a ray caster). Every checkpoint is read with ``weights_only=True``. The cross-checks of
-:mod:`~imls_lightning.inference.checkpoint_checks` ("does this checkpoint fit what it is used with")
+:mod:`~imls_lightning.tasks.checkpoint_checks` ("does this checkpoint fit what it is used with")
 are re-exported here.
 
 This module sits above the tasks: it loads them by name (:data:`TASKS`), and no task imports it. A
@@ -38,7 +38,7 @@ from ..core.importance import check_mean
 from ..core.patterns import SamplingPattern, build_pattern
 from ..models.ims import IMSMaskHead
 from ..tasks.base import checkpoint_task_name
-from .checkpoint_checks import (
+from ..tasks.checkpoint_checks import (
     check_resolution,
     check_same_pattern,
     check_trained_on,

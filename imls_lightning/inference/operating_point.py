@@ -55,7 +55,7 @@ KIND = "imls-operating-point"
 VERSION = 1
 #: the record's field holding :func:`record_digest` (records written before it have none: not trusted)
 DIGEST = "digest"
-#: the ORP search's relative tolerance on the mean value (:func:`~imls_lightning.inference.baselines.product_orp`):
+#: the ORP search's relative tolerance on the mean value (:func:`~imls_lightning.orp.product.product_orp`):
 #: a record's share of C may differ from the share its search measured at its mean value by this fraction
 SEARCH_TOLERANCE = 0.05
 

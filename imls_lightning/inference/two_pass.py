@@ -24,7 +24,7 @@ import torch
 from imls_lightning.base.errors import InputError
 
 from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
-from ..models.pull_push import fill_c_image
+from ..core.pull_push import fill_c_image
 from .pipeline import NetOptions, RenderResult, StageTimer, PatternMethod, prepare_net, to_uint8_image
 
 

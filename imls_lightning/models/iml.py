@@ -36,7 +36,7 @@ from torch import nn
 
 from imls_lightning.base.errors import InputError
 from imls_lightning.core.importance import ImportanceNormalization, RejectionSampling, delegated
-from imls_lightning.models.pull_push import fill_c_image, pull_push_inpaint
+from imls_lightning.core.pull_push import fill_c_image, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
 __all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "RefineDecoder", "PlainDecoder", "FillDecoder", "build_decoder",
@@ -56,7 +56,7 @@ def _mask_like(mask: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
 
 class FillDecoder(nn.Module):
     """The untrained baseline decoder: pull-push fill of the sampled pixels (no parameters); with a
-    foveal ``pattern``, at their FR positions (:func:`~imls_lightning.models.pull_push.fill_c_image`).
+    foveal ``pattern``, at their FR positions (:func:`~imls_lightning.core.pull_push.fill_c_image`).
 
     ``forward(values (B, 3, n, n), mask (B, 1, n, n)) -> (B, 3, n, n)``; ``values`` only matter
     where ``mask > 0`` (pass the C-Image or the PR-C-Image alike); sampled pixels are kept.
@@ -88,7 +88,7 @@ class RefineDecoder(nn.Module):
     Args:
         depth, base_channels, max_channels, norm: the U-Net's size (see :class:`UNet`).
         fill_pattern: a foveal :class:`~imls_lightning.core.patterns.SamplingPattern`: the fill runs at the
-            samples' FR positions (:func:`~imls_lightning.models.pull_push.fill_c_image`), so the correction starts
+            samples' FR positions (:func:`~imls_lightning.core.pull_push.fill_c_image`), so the correction starts
             from the fair fill (on ct_head's FoVolNet pair 28-33 dB, the C-Image layout's 15-22 dB). ``None`` (and
             on a grid pattern, where both are the same): the fill runs in the C-Image's layout, as the runs trained
             before it did (``model.fill=c``).

@@ -94,7 +94,7 @@ from imls_lightning.core.importance import (
     normalize_importance,
     soft_rejection_sample,
 )
-from imls_lightning.models.pull_push import PullPushInpaint, pull_push_inpaint
+from imls_lightning.core.pull_push import PullPushInpaint, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 from imls_lightning.core.patterns import plastic_rank_pattern
 

@@ -13,18 +13,17 @@ command                               what                                      
 ====================================  =====================================================  ==================
 
 What they share lives in :mod:`.stages` (running a stage's command, the arguments every stage
-shares, the scene overrides, the evaluation's summary) and :mod:`.paths` (the repository's root and
-config folder, the progress line). No pipeline imports an entry point, and no entry point another.
+shares, the scene overrides, the evaluation's summary); the repository's root, its config folder and the
+progress line are the foundation's (:mod:`imls_lightning.base.paths`). No pipeline imports an entry point, and no entry point another.
 """
 from __future__ import annotations
 
-from .paths import CONF_DIR, ROOT, log
 from .stages import (SPARSER_PATTERN, StageFailed, StageUnfinished, check_scene_overrides, dry_stage, evaluation_lift,
                      ims_decoder_overrides, ims_finetune_overrides, override_list, read_summary, run_pipeline, run_stage, sparser_overrides,
                      split_scene_overrides, stage_args, stage_overrides)
 
 __all__ = [
-    "ROOT", "CONF_DIR", "log", "SPARSER_PATTERN", "StageFailed", "StageUnfinished", "check_scene_overrides", "dry_stage",
+    "SPARSER_PATTERN", "StageFailed", "StageUnfinished", "check_scene_overrides", "dry_stage",
     "evaluation_lift", "ims_decoder_overrides", "ims_finetune_overrides", "override_list", "read_summary", "run_pipeline", "run_stage",
     "sparser_overrides", "split_scene_overrides", "stage_args", "stage_overrides",
 ]

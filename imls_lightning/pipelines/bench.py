@@ -20,7 +20,7 @@ from ..report import atomic_write_text as atomic_write
 from ..report.tables import fmt, md_table
 from ..report.tables import fmt_pct as pct
 from ..report.tables import speedup as ratio
-from .paths import CONF_DIR, log
+from ..base.paths import CONF_DIR, log
 from .stages import StageFailed, check_scene_overrides, dry_stage, override_list, run_stage, stage_args
 
 TIMES_FILE = "bench_times.json"

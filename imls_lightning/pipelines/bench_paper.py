@@ -21,7 +21,7 @@ from ..orp.overrides import override_key
 from ..report import atomic_write_text, md_table, shared_cores_warning
 from ..report.tables import equal_share_markdown, fmt, fmt_pct, speedup
 from .demo import demo
-from .paths import log
+from ..base.paths import log
 from .stages import dry_stage, override_list, read_summary, run_stage
 
 

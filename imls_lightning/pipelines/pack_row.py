@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 
 from imls_lightning.base.errors import InputError
 
-from .paths import ROOT, log
+from ..base.paths import ROOT, log
 
 #: a Lightning checkpoint's entries only a resumed training reads
 TRAINING_ONLY = ("optimizer_states", "lr_schedulers", "loops", "callbacks", "MixedPrecision", "native_amp_scaling_state")

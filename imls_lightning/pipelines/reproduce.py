@@ -26,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_integer
 
-from .paths import CONF_DIR, ROOT, log
+from ..base.paths import CONF_DIR, ROOT, log
 
 #: the keys of ``reproduce.json`` (issue 85), all from the evaluation's summary (:func:`result`)
 RESULT_KEYS = ("row", "trajectory_seed", "views", "timed_views", "c_share", "gap_db", "psnr_recnn_db", "psnr_imls_db",

@@ -21,7 +21,7 @@ from imls_lightning.base.errors import InputError
 from ..orp.overrides import override_key
 from .bench_paper import csv_row
 from .demo import demo
-from .paths import ROOT, log
+from ..base.paths import ROOT, log
 from .stages import dry_stage, override_list, read_summary, run_stage, stage_args, stage_overrides
 
 

@@ -10,6 +10,7 @@ import numpy as np
 from ..inference.pipeline import STAGES
 from .metrics_csv import number, summarize_rows
 from .names import MASK_LABELS, METHOD_LABELS, STAGE_LABELS
+from .speedup import paired_totals, speedup_interval
 
 
 def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]], align: str | None = None) -> str:
@@ -150,8 +151,7 @@ def speedup_table(summ: Mapping[str, Mapping[str, Any]], target: str = "imls",
                   rows: Sequence[Mapping[str, Any]] | None = None) -> str:
     """Speed-up of ``target`` (IML/S + RecNN) over each baseline: ``their total / its total`` and the PSNR change;
     with the metric ``rows``, also its 95% bootstrap interval over the timed views
-    (:func:`~imls_lightning.evaluation.speedup.speedup_interval`)."""
-    from ..evaluation.speedup import paired_totals, speedup_interval
+    (:func:`~imls_lightning.report.speedup.speedup_interval`)."""
 
     t = summ[target]
     t_ms = t["latency_ms"].get("total", math.nan)

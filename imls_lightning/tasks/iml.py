@@ -29,10 +29,10 @@ from imls_lightning.base.errors import InputError, config_keys
 
 from ..base.config import to_plain
 from ..models.iml import IMLNet, build_decoder
-from ..models.pull_push import fill_c_image
+from ..core.pull_push import fill_c_image
 from ..core.patterns import build_pattern, plastic_rank_pattern
 from ..core.metrics import psnr_per_image
-from ..inference.checkpoint_checks import check_same_pattern
+from .checkpoint_checks import check_same_pattern
 from .base import ImlsTask
 from .recnn import RecNNTask
 

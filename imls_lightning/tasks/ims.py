@@ -88,7 +88,7 @@ from imls_lightning.base.errors import InputError, config_keys
 from imls_lightning.base.validate import check_number
 
 from ..models.backbones import BACKBONES, VGG16_LAYERS
-from ..inference.checkpoint_checks import check_same_pattern
+from .checkpoint_checks import check_same_pattern
 from ..base.config import to_plain
 from .losses import IMLoss, discriminator_loss, generator_loss
 from ..models.iml import IMLNet

@@ -12,7 +12,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 
-from ..report.viz import image_grid, save_image
+from ..base.images import image_grid, save_image
 
 
 #: the checkpoint key of the views a network trained on (:class:`TrainingViews`)

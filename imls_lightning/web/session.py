@@ -27,7 +27,7 @@ from ..core.patterns import c_pixels_to_fr
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
 from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, view_tensor
-from ..report.viz import error_map, to_uint8
+from ..base.images import error_map, to_uint8
 
 #: the methods a user can pick, with their labels
 METHODS = {"imls": "IML/S + RecNN (the product)", "adaptive": "IML/S + RecNN, adaptive mean", "recnn": "RecNN alone",

@@ -31,7 +31,7 @@ def _direct_product_orp(pim_ckpt, cache) -> float:
 
     from imls_lightning.core.importance import MEAN_RANGE
     from imls_lightning.data.datamodule import ViewImageDataset
-    from imls_lightning.inference.baselines import product_orp
+    from imls_lightning.orp.product import product_orp
     from imls_lightning.inference.checkpoints import load_task
 
     ims = load_task(pim_ckpt, expect="IMSTask").eval()

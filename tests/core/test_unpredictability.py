@@ -8,7 +8,7 @@ from imls_lightning.base.errors import InputError
 from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
 from imls_lightning.core.rank_patterns import blue_noise
 from imls_lightning.core.unpredictability import base_unpredictability, importance_mask, two_pass_mask, unpredictability
-from imls_lightning.models.pull_push import pull_push_inpaint
+from imls_lightning.core.pull_push import pull_push_inpaint
 
 
 def test_unpredictability_is_the_fill_error_from_the_other_half():

@@ -10,7 +10,7 @@ import importlib
 import pytest
 
 
-@pytest.mark.parametrize("module", [".operating_point", ".speedup"])
+@pytest.mark.parametrize("module", [".operating_point"])
 def test_module_doctests(module):
     result = doctest.testmod(importlib.import_module(f"imls_lightning.evaluation{module}"))
     assert result.attempted > 0 and result.failed == 0, result

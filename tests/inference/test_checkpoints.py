@@ -167,7 +167,8 @@ def test_exception_load_task(tiny_checkpoints, tmp_path):
 def test_a_task_loads_its_own_class_without_the_registry(tiny_checkpoints):
     """Tasks load the tasks they build on by class (``from_checkpoint``): no task imports this module,
     which loads the tasks by name (``tests/test_architecture.py``)."""
-    from imls_lightning.inference import checkpoint_checks, checkpoints
+    from imls_lightning.inference import checkpoints
+    from imls_lightning.tasks import checkpoint_checks
     from imls_lightning.tasks.iml import IMLTask
     from imls_lightning.tasks.recnn import RecNNTask
 

@@ -13,7 +13,7 @@ from imls_lightning.core.compaction import compact
 from imls_lightning.core.unpredictability import base_unpredictability, two_pass_mask
 from imls_lightning.inference.pipeline import NetOptions, RecNNAlone
 from imls_lightning.inference.two_pass import TwoPassFill
-from imls_lightning.models.pull_push import fill_c_image
+from imls_lightning.core.pull_push import fill_c_image
 
 from .test_pipeline import RecordingRenderer, env  # noqa: F401  (the module's fixture)
 

@@ -11,7 +11,7 @@ from imls_lightning.core.importance import normalize_importance
 from imls_lightning.models.enhancenet import EnhanceNet
 from imls_lightning.models.fovolnet import FoVolNet
 from imls_lightning.models.iml import FillDecoder, IMLNet, IMLRecNN, PlainDecoder, RefineDecoder, c_share, ipr
-from imls_lightning.models.pull_push import pull_push_inpaint
+from imls_lightning.core.pull_push import pull_push_inpaint
 from imls_lightning.core.patterns import SamplingPattern
 
 N = 16
@@ -242,7 +242,7 @@ def test_fill_decoder_with_a_foveal_pattern_fills_at_the_fr_positions():
     """The evaluation's "IML/S mask + fill" decoder: a foveal C-Image is filled where its pixels sit in the
     picture (fill_c_image), not among its neighbours in memory; a grid pattern is the plain fill."""
     from imls_lightning.core.patterns import downsample_pattern, foveal_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     c = torch.rand(1, 3, N, N)
     m = (torch.rand(1, 1, N, N) > 0.6).float()
@@ -264,7 +264,7 @@ def test_refine_decoder_filling_at_the_fr_positions_starts_at_the_fair_fill():
     (the untrained baseline it must beat), the sampled pixels pass through, and without a fill pattern it is the
     C-layout fill the earlier runs were trained on."""
     from imls_lightning.core.patterns import foveal_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     fov = foveal_pattern(3 * N, N, None)
     c, m = torch.rand(2, 3, N, N), (torch.rand(2, 1, N, N) > 0.6).float()

@@ -23,7 +23,7 @@ from imls_lightning.models.las import las_loss
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.base import psnr_per_image
 from imls_lightning.tasks.las import LASTask, check_low_res
-from imls_lightning.report.viz import image_grid
+from imls_lightning.base.images import image_grid
 
 ROOT = Path(__file__).resolve().parents[2]
 LOW, FR = 8, 32

@@ -10,8 +10,8 @@ pass instead.
 
 Checks take the checkpoint's *hyperparameters* (``task.hparams`` or the ``hyper_parameters`` of
 :func:`~imls_lightning.base.config.load_checkpoint`), so they also run where no network is built (a
-task's constructor, a report that only reads the checkpoint). They import no task: the tasks use
-them, and :mod:`~imls_lightning.inference.checkpoints`, which loads the tasks, re-exports them.
+task's constructor, a report that only reads the checkpoint). They import no task: the tasks and the data
+module's labels use them, and :mod:`~imls_lightning.inference.checkpoints`, which loads the tasks, re-exports them.
 
 Example:
     >>> from imls_lightning.core.patterns import build_pattern
@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from imls_lightning.base.errors import InputError
+from imls_lightning.render import renderer_pixel_settings
 
 from ..base.config import to_plain
 from ..core.patterns import SamplingPattern, build_pattern
@@ -188,8 +189,6 @@ def check_trained_on(hp: Mapping, scene: Any, renderer: Any, *, key: str, path: 
     Raises:
         InputError: ``key=path: trained on scene=A, this run uses scene=B (scene differs in ...); pass scene=A``.
     """
-    from imls_lightning.render import renderer_pixel_settings
-
     tail = f", {escape}" if escape else ""
     trained_scene, trained_renderer = hp.get("scene"), hp.get("renderer")
     if trained_scene:

@@ -1,4 +1,5 @@
-"""Pictures: image grids of tensors (PIL), for training logs, reports and contact sheets."""
+"""Pictures: uint8 conversion, error maps and image grids of tensors (PIL), for training logs and the viewers.
+They know nothing of the method, so every layer may show them."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,6 +8,8 @@ from typing import Sequence
 import numpy as np
 import torch
 from PIL import Image, ImageDraw
+
+from .atomic import atomic_write
 
 _TILE_BG = (24, 24, 24)
 
@@ -75,6 +78,4 @@ def image_grid(
 
 def save_image(img: Image.Image, path: str | Path) -> Path:
     """Save atomically (temp file + rename) and return the path."""
-    from imls_lightning.base.atomic import atomic_write
-
     return atomic_write(path, lambda f: img.save(f, format="PNG"))

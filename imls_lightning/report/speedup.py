@@ -18,6 +18,8 @@ import numpy as np
 
 from imls_lightning.base.errors import InputError
 
+from .names import ray_caster_twin
+
 #: resamples of the timed views; 10,000 put the 2.5% and 97.5% quantiles within ~0.002x of their limit
 RESAMPLES = 10_000
 
@@ -151,8 +153,6 @@ def ray_casters(rows: Sequence[Mapping[str, Any]], main_skip: bool, confidence: 
         >>> rc["recnn_skip_ms"], rc["imls_noskip_ms"], rc["fastest_recnn"], round(rc["speedup_vs_fastest"], 2)
         (100.0, 180.0, 'skip', 1.25)
     """
-    from ..report.names import ray_caster_twin
-
     names = {("recnn", main_skip): "recnn", ("imls", main_skip): "imls",
              ("recnn", not main_skip): ray_caster_twin("recnn", not main_skip),
              ("imls", not main_skip): ray_caster_twin("imls", not main_skip)}

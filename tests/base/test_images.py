@@ -1,11 +1,11 @@
-"""imls_lightning.report.viz: uint8 conversion, error map and image grid against direct computations."""
+"""imls_lightning.base.images: uint8 conversion, error map and image grid against direct computations."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 from PIL import Image
 
-from imls_lightning.report.viz import error_map, image_grid, save_image, to_uint8
+from imls_lightning.base.images import error_map, image_grid, save_image, to_uint8
 
 
 def test_to_uint8_against_direct_rounding():

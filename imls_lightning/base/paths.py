@@ -1,5 +1,5 @@
-"""Where the pipelines find the repository (:data:`ROOT`, its Hydra configs :data:`CONF_DIR`) and how
-they print a progress line (:func:`log`)."""
+"""Where the commands find the repository (:data:`ROOT`, its Hydra configs :data:`CONF_DIR`) and how a
+long one prints a progress line (:func:`log`): the entry points, the pipelines and the adaptive command share them."""
 from __future__ import annotations
 
 import sys

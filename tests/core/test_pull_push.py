@@ -1,4 +1,4 @@
-"""imls_lightning.models.pull_push: pull-push inpainting against direct loops, gradcheck."""
+"""imls_lightning.core.pull_push: pull-push inpainting against direct loops, gradcheck."""
 from __future__ import annotations
 
 import math
@@ -93,7 +93,7 @@ def _smooth_fr(m: int) -> torch.Tensor:
 
 def test_fill_c_image_grid_pattern_is_the_plain_fill():
     from imls_lightning.core.patterns import downsample_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     v, m = torch.rand(2, 3, 8, 8), (torch.rand(2, 1, 8, 8) > 0.6).float()
     for pattern in (None, downsample_pattern(16, 2)):
@@ -103,7 +103,7 @@ def test_fill_c_image_grid_pattern_is_the_plain_fill():
 def test_fill_c_image_foveal_against_a_direct_scatter_fill_gather():
     """A foveal C-Image is filled at its samples' FR positions: against a direct loop over the pattern's pixels."""
     from imls_lightning.core.patterns import foveal_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     p = foveal_pattern(24, 8, None)
     k, n, fr = p.count, p.c_size, p.fr_size
@@ -131,7 +131,7 @@ def test_fill_c_image_foveal_beats_the_fill_in_memory_order():
     picture neighbours, and filling among them is several times worse."""
     from imls_lightning.core.compaction import compact
     from imls_lightning.core.patterns import foveal_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     p = foveal_pattern(64, 24, None)
     c = compact(_smooth_fr(p.fr_size), p.indices, p.c_size)
@@ -145,7 +145,7 @@ def test_fill_c_image_foveal_beats_the_fill_in_memory_order():
 
 def test_fill_c_image_gradcheck():
     from imls_lightning.core.patterns import foveal_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     p = foveal_pattern(12, 5, None)
     v = torch.rand(1, 2, 5, 5, dtype=torch.float64, requires_grad=True)
@@ -155,7 +155,7 @@ def test_fill_c_image_gradcheck():
 
 def test_exception_fill_c_image_mask_shape():
     from imls_lightning.core.patterns import foveal_pattern
-    from imls_lightning.models.pull_push import fill_c_image
+    from imls_lightning.core.pull_push import fill_c_image
 
     p = foveal_pattern(12, 5, None)
     with pytest.raises((ValueError, RuntimeError)):

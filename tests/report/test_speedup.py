@@ -1,4 +1,4 @@
-"""imls_lightning.evaluation.speedup: the speed-up's bootstrap interval over the timed views."""
+"""imls_lightning.report.speedup: the speed-up's bootstrap interval over the timed views."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from imls_lightning.base.errors import InputError
-from imls_lightning.evaluation.speedup import RESAMPLES, SpeedupInterval, paired_totals, speedup_interval, speedup_intervals
+from imls_lightning.report.speedup import RESAMPLES, SpeedupInterval, paired_totals, speedup_interval, speedup_intervals
 
 
 def _direct(slow, fast, confidence, resamples, seed):
