@@ -5,6 +5,8 @@ The hyperparameter checks run on plain dicts; loading runs on the session's real
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -396,3 +398,20 @@ def test_a_point_floored_per_band_travels_with_the_checkpoint(tiny_checkpoints, 
         assert load_product(str(ck)).operating_point is None
         err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
         assert len(err) == 1 and "ignored: malformed" in err[0] and msg in err[0], err
+
+
+# ---- checkpoints written before a module moved --------------------------------------------------
+ROW = Path(__file__).resolve().parents[2] / "benchmarks" / "rows" / "seed_whole"
+
+
+@pytest.mark.parametrize("name, task", [("recnn.ckpt", "RecNNTask"), ("recnn_sparser.ckpt", "RecNNTask"),
+                                        ("iml.ckpt", "IMLTask"), ("blue_noise.ckpt", "IMLTask"),
+                                        ("ims.ckpt", "IMSTask"), ("las.ckpt", "LASTask")])
+def test_committed_row_checkpoints_still_load(name, task):
+    """The row's committed checkpoints were saved before the ray casters, the fill and the checks changed rooms
+    (issue 87): a checkpoint names its task by class name and its RecNN by ``_target_``, never a moved module, so
+    each loads as the task it names, and the IMS checkpoint gives the product's bare networks."""
+    assert type(load_task(ROW / name, expect=task)).__name__ == task
+    if name == "ims.ckpt":
+        nets = load_ims_nets(ROW / name)
+        assert nets.head is not None and nets.decoder is not None and nets.recnn is not None
