@@ -81,6 +81,11 @@ from typing import Any
 import numpy as np
 
 from imls_lightning.base.atomic import atomic_json, atomic_npy
+from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import check_mapping
+from imls_lightning.render import make_renderer, render_image, renderer_pixel_settings, renderer_version
+from imls_lightning.render.scene import Scene, voxel_size
+
 from .cache_keys import (
     DATA_DEFAULTS,
     FORMAT_VERSION,
@@ -110,10 +115,6 @@ from .cache_keys import (
 from .cache_log import CompletionLog, bad_views, read_log, read_logs, remember_checked, write_view
 from .cache_reader import ViewImageCache
 from .cache_workers import run_workers
-from imls_lightning.base.errors import InputError
-from imls_lightning.render import make_renderer, render_image, renderer_pixel_settings, renderer_version
-from imls_lightning.render.scene import Scene, voxel_size
-from imls_lightning.base.validate import check_mapping
 
 
 def _atomic_json(path: Path, obj: Any) -> None:

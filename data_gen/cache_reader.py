@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from .cache_keys import IMAGES, MANIFEST, SPLITS, VIEWS, jsonable, scene_key, views_digest
-from .cache_log import bad_views, checked_already, read_logs, remember_checked
 from imls_lightning.base.errors import InputError
 from imls_lightning.render import make_renderer
 from imls_lightning.render.scene import Scene
+
+from .cache_keys import IMAGES, MANIFEST, SPLITS, VIEWS, jsonable, scene_key, views_digest
+from .cache_log import bad_views, checked_already, read_logs, remember_checked
 
 
 @dataclass

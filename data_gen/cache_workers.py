@@ -15,11 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from .cache_log import write_view
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.orphans import exit_when_orphaned
 from imls_lightning.render import make_renderer, render_image
 from imls_lightning.render.scene import Scene
+
+from .cache_log import write_view
 
 def _memmap_ref(a: np.ndarray) -> dict[str, Any] | None:
     """``(file, offset, dtype, shape)`` of a C-contiguous read-only view into a file mapping, or None."""

@@ -54,10 +54,11 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .camera import camera_basis, render_request
 from imls_lightning.base.errors import InputError
-from .scene import Scene
 from imls_lightning.base.validate import check_integer
+
+from .camera import camera_basis, render_request
+from .scene import Scene
 
 #: entries of the transfer-function lookup table over normalized scalars [0, 1]
 LUT_SIZE = 4096

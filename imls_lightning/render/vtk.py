@@ -41,8 +41,9 @@ import time
 
 import numpy as np
 
-from .camera import camera_basis, render_request
 from imls_lightning.base.errors import InputError
+
+from .camera import camera_basis, render_request
 from .scene import Scene
 
 # Prefer a headless EGL window; VTK otherwise tries X first and warns when there is no display.
