@@ -8,7 +8,7 @@ from imls_lightning.orp.overrides import ims_overrides_for, override_key, quote_
 
 
 def test_values_are_quoted_by_the_one_quoting_function():
-    """Tested against Hydra's parser in ``tests/data_gen/test_overrides.py``."""
+    """Tested against Hydra's parser in ``tests/base/test_overrides.py``."""
     from imls_lightning.base import overrides
 
     assert quote_override_value is overrides.quote_override_value
