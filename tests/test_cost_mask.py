@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cfg(spec, tmp_path, **over):
-    base = {"row": spec, "views": 1, "seed": 2026, "iml_means": [0.3], "epsilon_db": 1.0,
+    base = {"row": spec, "views": 1, "seed": 2026, "iml_means": [0.3], "epsilon_db": 1.0, "times": "row",
             "options": {"half": False, "channels_last": False, "compile": False},
             "output_dir": str(tmp_path / "out"), "runs_dir": str(tmp_path / "runs")}
     return OmegaConf.create({**base, **over})
@@ -46,6 +46,10 @@ def test_cost_masks_report_every_mask_kind(spec_with_iml, tmp_path):
     assert path.name == "cost_mask.json" and r["row"] == "tiny_row" and r["views"] == 1
     assert set(r["masks"]) == {"product", "iml", "oracle_alpha0", "oracle_alpha0.5", "oracle_alpha1", "oracle_alpha2"}
     assert 0.0 <= r["object_cost"] <= 1.0 and r["alone_ms"] > 0 and set(r["needed_for"]) == {"1x", "1.5x"}
+    # the ceilings take the row's own evaluation's stage times; this run's are reported beside them
+    point = json.loads((Path(spec_with_iml["dir"]) / "point" / "summary.json").read_text())
+    assert r["pattern_ms"] == pytest.approx(point["methods"]["recnn"]["latency_ms"]["selective_render"])
+    assert r["times"].startswith("the row's evaluation") and r["measured_here"]["pattern_ms"] > 0
     for f in ("cost_mask.md", "cost_mask.png"):
         assert (path.parent / f).stat().st_size > 0
     md = (path.parent / "cost_mask.md").read_text()

@@ -202,15 +202,26 @@ def measure_view(v: int, view, truth: np.ndarray, alone, product, iml_methods: d
     return out
 
 
-def summarize(views: Sequence[ViewCosts], epsilon_db: float = 1.0) -> dict[str, Any]:
+def stage_medians(views: Sequence[ViewCosts]) -> dict[str, float]:
+    """The stage times measured with the masks (ms, medians over the views): the whole pattern's ray cast, the
+    RecNN, and the IMS + decoder the product adds."""
+    med = lambda key, part: 1000 * float(np.median([getattr(v, part)[key] for v in views]))  # noqa: E731
+    return {"pattern_ms": med("selective_render", "alone_ms"), "recnn_ms": med("recnn", "alone_ms"),
+            "nets_ms": med("importance", "product_ms") + med("decoder", "product_ms")}
+
+
+def summarize(views: Sequence[ViewCosts], epsilon_db: float = 1.0, times: dict[str, float] | None = None) -> dict[str, Any]:
     """Per mask kind: its mean curve (cost kept, gap, densities per setting) and the cost it must keep within
-    ``epsilon_db``; the stage medians; the fit of render time to cost; the ceilings at that cost."""
+    ``epsilon_db``; the stage medians; the fit of render time to cost; the ceilings at that cost.
+
+    ``times``: ``{pattern_ms, recnn_ms, nets_ms}`` the ceilings use (e.g. the row's own evaluation, timed on a quiet
+    machine with 10 runs a view); None: the medians measured here (:func:`stage_medians`), reported either way."""
     eps = check_number(epsilon_db, "epsilon_db", 0.0, lo_open=True, what="a positive PSNR tolerance in dB")
     if not views:
         raise InputError("cost masks: no views measured")
-    med = lambda key, part: 1000 * float(np.median([getattr(v, part)[key] for v in views]))  # noqa: E731
-    pattern_ms, recnn_ms = med("selective_render", "alone_ms"), med("recnn", "alone_ms")
-    nets_ms = med("importance", "product_ms") + med("decoder", "product_ms")
+    here = stage_medians(views)
+    t = here if times is None else times
+    pattern_ms, recnn_ms, nets_ms = (float(t[k]) for k in ("pattern_ms", "recnn_ms", "nets_ms"))
     alone = pattern_ms + recnn_ms
     kinds: dict[str, Any] = {}
     for kind in dict.fromkeys(r["mask"] for v in views for r in v.rows):
@@ -231,6 +242,7 @@ def summarize(views: Sequence[ViewCosts], epsilon_db: float = 1.0) -> dict[str, 
              if r["render_ms"] == r["render_ms"]]
     fit = cost_fit([c for c, _ in timed], [ms for _, ms in timed])
     return {"epsilon_db": eps, "views": len(views), "pattern_ms": pattern_ms, "recnn_ms": recnn_ms, "nets_ms": nets_ms,
+            "times": "measured here" if times is None else str(times.get("source", "given")), "measured_here": here,
             "alone_ms": alone, "object_share": float(np.mean([v.object_share for v in views])),
             "object_cost": float(np.mean([v.object_cost for v in views])), "render_fit": fit, "masks": kinds,
             "needed_for": {f"{t:g}x": needed_cost(t, alone, pattern_ms, recnn_ms, nets_ms) for t in (1.0, 1.5)},
@@ -261,4 +273,4 @@ def measure_all(views: Sequence, truths: Callable[[int], np.ndarray], alone, pro
 
 
 __all__ = ["ORACLE_SHARES", "ALPHAS", "ray_costs", "cost_aware_score", "cost_on_grid", "cost_kept", "speedup_ceiling",
-           "cost_at_gap", "cost_fit", "needed_cost", "ViewCosts", "measure_view", "measure_all", "summarize"]
+           "cost_at_gap", "cost_fit", "needed_cost", "ViewCosts", "measure_view", "measure_all", "stage_medians", "summarize"]

@@ -37,6 +37,20 @@ def check_seed(seed: int, trained: Mapping[str, int | None]) -> None:
             raise InputError(f"seed={seed}: the {key} network trained on views of that seed; choose another")
 
 
+def row_times(summary: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The stage times of the row's own evaluation (its ``summary.json``: medians of 10 runs on each timed view, on
+    the ray caster it was evaluated with), for the ceilings; None when it lacks them (then this run's are used)."""
+    methods = summary.get("methods") or {}
+    alone, product = (methods.get(m, {}).get("latency_ms") or {} for m in ("recnn", "imls"))
+    try:
+        return {"pattern_ms": float(alone["selective_render"]), "recnn_ms": float(alone["recnn"]),
+                "nets_ms": float(product["importance"]) + float(product["decoder"]),
+                "source": f"the row's evaluation ({summary.get('timed_views')} timed views, "
+                          f"{'skipping' if summary.get('skip_empty', True) else 'every sample marched'})"}
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def cost_masks(cfg: DictConfig) -> Path:
     """Measure ``cfg.row`` (module docstring); returns ``cost_mask.json``'s path."""
     from ..evaluation.cost_mask import measure_all, summarize
@@ -74,7 +88,8 @@ def cost_masks(cfg: DictConfig) -> Path:
     log(f"cost masks: row {name}, {views_n} views of seed {seed}, point {point.describe()}")
     measured = measure_all(views, lambda i: ray.render(views[i], nets.pattern.fr_size), alone, product, iml_methods,
                            progress=log)
-    result = {"row": name, "seed": seed, "point": point.describe(), **summarize(measured, float(cfg.epsilon_db)),
+    result = {"row": name, "seed": seed, "point": point.describe(),
+              **summarize(measured, float(cfg.epsilon_db), row_times(summary) if cfg.get("times", "row") == "row" else None),
               "per_view": [{"view": v.view, "recnn_db": v.recnn_db, "object_share": v.object_share,
                             "object_cost": v.object_cost, "rows": v.rows} for v in measured]}
     out.mkdir(parents=True, exist_ok=True)
@@ -85,4 +100,4 @@ def cost_masks(cfg: DictConfig) -> Path:
     return atomic_json(out / "cost_mask.json", result)
 
 
-__all__ = ["cost_masks", "check_seed"]
+__all__ = ["cost_masks", "check_seed", "row_times"]

@@ -29,8 +29,11 @@ def cost_mask_markdown(r: Mapping[str, Any]) -> str:
     lines = [f"# Cost-aware masks: {r['row']} ({r['views']} views of seed {r['seed']}, the fastest ray caster)", "",
              f"Operating point: {r['point']}.", "",
              f"The object (C-pixels whose ray interpolated a sample) is {r['object_share']:.1%} of C and carries "
-             f"{r['object_cost']:.1%} of the pattern's render cost. Medians: pattern {r['pattern_ms']:.1f} ms, RecNN "
-             f"{r['recnn_ms']:.1f} ms (RecNN alone {r['alone_ms']:.1f} ms), IMS + decoder {r['nets_ms']:.1f} ms.", "",
+             f"{r['object_cost']:.1%} of the pattern's render cost. Times ({r.get('times', 'measured here')}): pattern "
+             f"{r['pattern_ms']:.1f} ms, RecNN {r['recnn_ms']:.1f} ms (RecNN alone {r['alone_ms']:.1f} ms), IMS + decoder "
+             f"{r['nets_ms']:.1f} ms" + ("" if "measured_here" not in r else
+             " (here, one run each: pattern {pattern_ms:.1f}, RecNN {recnn_ms:.1f}, IMS + decoder {nets_ms:.1f} ms)".format(
+                 **r["measured_here"])) + ".", "",
              f"To run 1x the RecNN alone a mask may keep {r['needed_for']['1x']:.0%} of the pattern's cost, 1.5x "
              f"{r['needed_for']['1.5x']:.0%}; with free networks 1.5x allows {r['needed_for_free_networks']['1.5x']:.0%}. "
              f"Render time against cost: {r['render_fit']['fixed_ms']:.1f} ms + {r['render_fit']['per_unit_ms']:.2f} x c, "
