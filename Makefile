@@ -10,7 +10,7 @@ PYTEST_ARGS ?=
 # workers nearly halve it (11.4 min); --dist loadfile keeps a file's module fixtures in one worker; TEST_WORKERS=0: serial
 TEST_WORKERS ?= 2
 
-.PHONY: setup test test-all test-browser demo web bench bench-paper reproduce size-search clean lint
+.PHONY: setup test test-all test-browser demo web bench bench-paper reproduce cost-mask size-search clean lint
 
 setup: $(STAMP)
 
@@ -50,6 +50,11 @@ test-browser: setup
 ROW ?= seed_whole
 reproduce: setup
 	$(PY) -m imls_lightning.reproduce row=$(ROW) $(if $(SEED),trajectory_seed=$(SEED),)
+
+# how much of the render cost must a mask keep within 1 dB on a committed row (the fastest ray caster)? The product's,
+# the IML's and a cost-aware oracle's masks, about 3 minutes for 12 views; make cost-mask ROW=seed_whole [VIEWS=n]
+cost-mask: setup
+	$(PY) -m imls_lightning.cost_mask row=$(ROW) $(if $(VIEWS),views=$(VIEWS),)
 
 bench: setup
 	$(PY) -m imls_lightning.bench

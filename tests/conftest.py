@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -91,3 +92,40 @@ def tiny_checkpoints(tmp_path_factory) -> dict:
                       "model.recon_channels=4", "model.recon_blocks=1"])
     return {"recnn": recnn, "iml": iml, "ims": ims, "ims_pim": ims_pim, "blue": blue, "las": las, "recnn_sparser": recnn_sparser,
             "cache_dir": base / "cache", "runs_dir": base / "runs"}
+
+
+#: the evaluation settings of the tiny row (fast: few views, one mean value, no sweeps)
+ROW_SETTINGS = ["orp_max_views=4", "orp_views=path", "orp_paths=2", "sweep_views=1", "mean_values=[0.1]", "las_iprs=[0.1]",
+                "front_shares=[0.5]", "grid_views=1", "warmup=0", "shares=null", "two_pass.base=null"]
+
+
+@pytest.fixture(scope="session")
+def row(tiny_checkpoints, tmp_path_factory):
+    """A committed row (conf/row/<name>.yaml) played by the tiny checkpoints: the product's networks copied into a row
+    folder with their SHA-256, beside the operating point a finished evaluation chose with them (its summary.json and
+    config.yaml). ``{"spec": the row mapping, "folder", "ck": tiny_checkpoints, "chosen": that evaluation's folder}``."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from imls_lightning.base.config import file_hash
+    from imls_lightning.evaluation import evaluate
+
+    ck = tiny_checkpoints
+    folder = tmp_path_factory.mktemp("row")
+    files = {"ims": "ims.ckpt", "las": "las.ckpt"}
+    for key, name in files.items():
+        shutil.copyfile(ck["ims_pim" if key == "ims" else key], folder / name)
+    base = ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={ck['cache_dir']}", f"paths.runs_dir={ck['runs_dir']}",
+            "progress=false", "max_views=2", "timed_views=1", *ROW_SETTINGS]
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_reproduce"):
+        cfg = compose("evaluate", overrides=[*base, f"checkpoints.ims={folder / 'ims.ckpt'}", f"checkpoints.las={folder / 'las.ckpt'}",
+                                             f"output_dir={folder / 'chosen'}"])
+    report = evaluate(cfg)
+    (folder / "point").mkdir()
+    for f in ("summary.json", "config.yaml"):
+        shutil.copyfile(report.parent / f, folder / "point" / f)
+    spec = {"name": "tiny_row", "scene": "tiny", "data": "tiny", "dir": str(folder), "point": "point", "trajectory_seed": 7,
+            "views": 2, "timed_views": 1, "settings": ROW_SETTINGS,
+            "networks": {k: {"file": name, "sha256": file_hash(folder / name, length=64)} for k, name in files.items()}}
+    return {"spec": spec, "folder": folder, "ck": ck, "chosen": report.parent}

@@ -88,6 +88,13 @@ def test_exception_reproduce_checks_its_keys_too(tmp_path):
     assert line.startswith("error: ") and "row" in line
 
 
+def test_exception_cost_mask_checks_its_keys_too():
+    """``cost_mask`` composes a committed row (conf/row/seed_whole.yaml): a typo in its own keys is one line, before
+    any network loads."""
+    assert _one_line(run_in_process("imls_lightning.cost_mask", ["row=seed_whole", "view=3"])) == \
+        "error: view=3: no such setting; did you mean views?"
+
+
 def test_exception_a_typo_is_one_line_in_a_real_subprocess():
     p = subprocess.run([sys.executable, "-m", "imls_lightning.train", "data.resolutoin=32"], cwd=ROOT, capture_output=True,
                        text=True, timeout=120)

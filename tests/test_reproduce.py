@@ -16,41 +16,9 @@ from omegaconf import OmegaConf
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.config import file_hash
 from imls_lightning.pipelines.reproduce import RESULT_KEYS, reproduce
+from tests.conftest import ROW_SETTINGS as SETTINGS
 
 ROOT = Path(__file__).resolve().parents[1]
-SETTINGS = ["orp_max_views=4", "orp_views=path", "orp_paths=2", "sweep_views=1", "mean_values=[0.1]", "las_iprs=[0.1]",
-            "front_shares=[0.5]", "grid_views=1", "warmup=0", "shares=null", "two_pass.base=null"]
-
-
-@pytest.fixture(scope="module")
-def row(tiny_checkpoints, tmp_path_factory):
-    """A row folder: the product's networks copied out of their runs, and the point an evaluation chose with them."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    from imls_lightning.evaluation import evaluate
-
-    ck = tiny_checkpoints
-    folder = tmp_path_factory.mktemp("row")
-    files = {"ims": "ims.ckpt", "las": "las.ckpt"}
-    for key, name in files.items():
-        shutil.copyfile(ck["ims_pim" if key == "ims" else key], folder / name)
-    base = ["scene=tiny", "data=tiny", "renderer=numba", f"data.cache_dir={ck['cache_dir']}", f"paths.runs_dir={ck['runs_dir']}",
-            "progress=false", "max_views=2", "timed_views=1", *SETTINGS]
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3", job_name="test_reproduce"):
-        cfg = compose("evaluate", overrides=[*base, f"checkpoints.ims={folder / 'ims.ckpt'}", f"checkpoints.las={folder / 'las.ckpt'}",
-                                             f"output_dir={folder / 'chosen'}"])
-    report = evaluate(cfg)
-    (folder / "point").mkdir()
-    for f in ("summary.json", "config.yaml"):
-        shutil.copyfile(report.parent / f, folder / "point" / f)
-    spec = {"name": "tiny_row", "scene": "tiny", "data": "tiny", "dir": str(folder), "point": "point", "trajectory_seed": 7,
-            "views": 2, "timed_views": 1, "settings": SETTINGS,
-            "networks": {k: {"file": name, "sha256": file_hash(folder / name, length=64)} for k, name in files.items()}}
-    return {"spec": spec, "folder": folder, "ck": ck, "chosen": report.parent}
-
-
 def _cfg(row, tmp_path, **over):
     base = {"row": row["spec"], "trajectory_seed": None, "views": None, "timed_views": None, "output_dir": str(tmp_path / "out"),
             "runs_dir": str(tmp_path / "runs"), "cache_dir": str(row["ck"]["cache_dir"])}

@@ -69,6 +69,29 @@ def recnn_net(cfg: DictConfig) -> dict[str, Any]:
     return {**net, **{k: v for k, v in sizes.items() if k not in explicit}}
 
 
+def background_density(cfg: DictConfig) -> float:
+    """The mask's density on the background relative to the object's: ``cfg.background_density``, a number, or an
+    evaluation of trained networks (its ``summary.json``, or the folder holding it, e.g. a committed row's
+    ``benchmarks/rows/<name>/point``) whose ``mask_density`` measured it at its operating point.
+
+    Raises:
+        InputError: a number outside (0, 1], or an evaluation whose summary is unreadable or has no mask density.
+    """
+    value = cfg.get("background_density", 0.25)
+    if isinstance(value, str):
+        path = Path(value).expanduser()
+        path = path / "summary.json" if path.is_dir() else path
+        try:
+            md = json.loads(path.read_text(encoding="utf-8")).get("mask_density") or {}
+            return check_number(float(md["background_density"]) / max(float(md["object_density"]), 1e-6),
+                                "background_density", 0.0, 1.0, lo_open=True)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            raise InputError(f"background_density={value}: expected a number in (0, 1] or an evaluation's summary.json "
+                             "(or its folder) with a mask_density (python -m imls_lightning.evaluate writes it)") from None
+    return check_number(value, "background_density", 0.0, 1.0, lo_open=True,
+                        what="a density relative to the object's in (0, 1], or an evaluation's summary.json")
+
+
 def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) -> dict[str, Any]:
     """What decides the numbers (hashed into the output directory's name). ``volume_fingerprint``: the
     volume's content (:meth:`~imls_lightning.render.volume.Volume.fingerprint`), so that a volume replaced at the same
@@ -85,7 +108,7 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
         "frame_views": min(check_integer(cfg.get("frame_views", cfg.views), "frame_views", 1),
                            check_integer(cfg.views, "views", 1)),
         "repeats": int(cfg.repeats), "options": OmegaConf.to_container(cfg.options, resolve=True),
-        "background_density": float(cfg.background_density), "target": cfg.target,
+        "background_density": background_density(cfg), "target": cfg.target,
         "needed_share": bool(cfg.get("needed_share", True)), "epsilon_db": cfg.get("epsilon_db", 1.0),
         "silhouette_blur": cfg.get("silhouette_blur", 4.0), "render_bound": "slower of silhouette (each view a fraction of its pattern) and per-pixel model",
         "ims_timing": "the product's mask head: sharpened, rescaled, lifted",
@@ -234,7 +257,7 @@ def measure(cfg: DictConfig, out_dir: Path, scene=None) -> dict[str, Any]:
     model = render_cost(measured)
     c_render_ms = mean_c_render_ms(measured)  # the mean, as the render curves and a row's speed-up average views
     nets_ms = nets_t["ims_ms"] + nets_t["decoder_ms"]
-    density = float(cfg.background_density)
+    density = background_density(cfg)
     # the render of exactly the pixels of a mask of a trained IMS's shape at each share, and the per-pixel model:
     # the bound takes the slower at each share (each misses a cost the other sees; bound.slower_render)
     fractions_by: dict[float, list[list[float]]] = {}
@@ -409,7 +432,7 @@ def measure_needed_share(cfg: DictConfig, lead: RecNNLead | None, renderer, patt
         name = upsampler_name(pattern)
     # 20 masks on every view, each rendered mask_repeats times (no warm-up: the renderer is warm)
     ns = needed_share(rebuild, name, pattern, renderer, views, [v.fr for v in measured],
-                      epsilon_db=cfg.get("epsilon_db", 1.0), floor=float(cfg.background_density),
+                      epsilon_db=cfg.get("epsilon_db", 1.0), floor=background_density(cfg),
                       repeats=mask_repeats, warmup=0, seed=int(cfg.seed), progress=_say,
                       c_render_ms=[v.c_render_ms for v in measured])
     where = f"{ns.needed_share:.0%} of C" if ns.needed_share is not None else "no share"
@@ -519,7 +542,11 @@ def format_report(est: Mapping[str, Any]) -> str:
 TABLE_COLUMNS = ("scene", "recnn", "volume_dims", "full_frame_ms", "c_render_ms", "object_fraction", "ims_ms", "decoder_ms",
                  "nets_ms", "recnn_ms", "render_to_nets", "bilinear_db", "half", "bound_10", "bound_20", "bound_40",
                  "limit_20", "target", "share_for_target", "recnn_lead_db", "needed_share", "speedup_at_needed",
-                 "seconds", "path")
+                 "seconds", "path",
+                 # against the fastest RecNN alone (both_ray_casters): the other ray caster's pattern, the bound at the
+                 # needed share, the best share, and the same with the IMS and decoder free (issue 84's scene-by-scene bound)
+                 "c_render_noskip_ms", "vs_fastest_at_needed", "vs_fastest_best", "vs_fastest_best_share",
+                 "free_networks_vs_fastest_at_needed", "free_networks_vs_fastest_best")
 
 
 def _sig(v: Any) -> Any:
@@ -538,7 +565,24 @@ def table_row(est: Mapping[str, Any], path: Path) -> dict[str, Any]:
                share_for_target=est["share_for_target"] if est["share_for_target"] is not None else "", path=str(path),
                needed_share=_sig(est.get("needed_share")) if est.get("needed_share") is not None else "",
                speedup_at_needed=_sig(est.get("speedup_at_needed")) if est.get("speedup_at_needed") is not None else "")
+    row.update(fastest_columns(est))
     return row
+
+
+def fastest_columns(est: Mapping[str, Any]) -> dict[str, Any]:
+    """The estimate against the fastest RecNN alone as table columns (empty without ``ray_casters``)."""
+    rc = est.get("ray_casters") or {}
+    if not rc:
+        return {}
+    vs, free = rc["vs_fastest"], rc["free_networks_vs_fastest"]
+    best = max(vs, key=lambda r: r["speedup"])
+    need = est.get("needed_share")
+    at = lambda curve: _sig(float(np.interp(need, [r["share"] for r in curve], [r["speedup"] for r in curve])))  # noqa: E731
+    return {"c_render_noskip_ms": _sig(float((rc.get("noskip") or {}).get("c_render_ms", float("nan")))),
+            "vs_fastest_at_needed": _sig(rc["speedup_vs_fastest_at_needed"]) if rc.get("speedup_vs_fastest_at_needed") is not None else "",
+            "vs_fastest_best": _sig(best["speedup"]), "vs_fastest_best_share": best["share"],
+            "free_networks_vs_fastest_at_needed": at(free) if need is not None else "",
+            "free_networks_vs_fastest_best": _sig(max(r["speedup"] for r in free))}
 
 
 def update_table(path: Path, row: Mapping[str, Any]) -> Path:

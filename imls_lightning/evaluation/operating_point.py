@@ -23,23 +23,31 @@ from .networks import Networks
 from .settings import Settings
 
 
-def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report: Path, views: int) -> None:
-    """Record the ORP IML/S ran at beside the IMS checkpoint (``<ims.ckpt>.orp.json``, see
-    :mod:`imls_lightning.inference.operating_point`), where renderers built from the checkpoint alone
-    find it; a folder that cannot be written is a one-line warning (the report holds the point)."""
-    from ..inference.operating_point import SEARCH_TOLERANCE, OperatingPoint, write_operating_point
+def point_from_orp(orp: dict[str, Any], *, scene: str | None = None, report: str | None = None, views: int | None = None):
+    """The :class:`~imls_lightning.inference.operating_point.OperatingPoint` of an evaluation's ``orp`` summary (its
+    ``summary.json``'s ``orp``): what is recorded beside the IMS checkpoint, and what a committed row runs at."""
+    from ..inference.operating_point import SEARCH_TOLERANCE, OperatingPoint
 
     opt = lambda k: None if orp.get(k) is None else float(orp[k])  # noqa: E731
     bands = orp.get("by_distance") if orp["found"] else None
     # the share of C the search measured at each mean value it tried: the record's share is checked against it on read
     points = [[float(p[0]), float(p[2])] for p in orp.get("points") or [] if p[0] is not None and p[2] is not None]
-    point = OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
-                           ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"), views=int(views),
-                           scene=scene, report=str(Path(report).resolve()),
-                           by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
-                           sharpness=float(orp.get("sharpness", 1.0)),
-                           object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None,
-                           points=points or None, tolerance=SEARCH_TOLERANCE)
+    return OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
+                          ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"),
+                          views=int(views) if views is not None else orp.get("views"), scene=scene, report=report,
+                          by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
+                          sharpness=float(orp.get("sharpness", 1.0)),
+                          object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None,
+                          points=points or None, tolerance=SEARCH_TOLERANCE)
+
+
+def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report: Path, views: int) -> None:
+    """Record the ORP IML/S ran at beside the IMS checkpoint (``<ims.ckpt>.orp.json``, see
+    :mod:`imls_lightning.inference.operating_point`), where renderers built from the checkpoint alone
+    find it; a folder that cannot be written is a one-line warning (the report holds the point)."""
+    from ..inference.operating_point import write_operating_point
+
+    point = point_from_orp(orp, scene=scene, report=str(Path(report).resolve()), views=int(views))
     try:
         path = write_operating_point(s.ims, point)
     except OSError as err:

@@ -392,7 +392,8 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
           bricks, bg, out, marched):
     """Cast the rays of ``pixels`` (flat raster indices of an ``m x m`` image) into ``out (K, 3)``.
 
-    ``marched[i]`` is set to 1 for rays that reach the volume's box (the others are background).
+    ``marched[i]`` is 0 for rays that miss the volume's box (background), else 1 + the samples the ray
+    interpolated: the ray's cost in the unit that dominates it (a skipped brick costs one step, not a sample).
     """
     nlut = lut.shape[0]
     # VTK clips rays against the voxel-centre box inset by 0.01 voxel on every face
@@ -489,6 +490,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
                 k = kn if kn > k else k + 1
                 continue
             k += 1
+            marched[i] += 1
             fx = ux - ix
             fy = uy - iy
             fz = uz - iz
@@ -599,6 +601,9 @@ class NumbaRenderer:
         last_render_seconds: wall time of the last compiled ray-casting call.
         last_rays_marched: rays of the last call that reached the volume's box (the others got
             the background without being marched).
+        last_ray_samples: ``(K,)`` int32, per pixel of the last call in order: 0 for a ray that missed the box,
+            else 1 + the samples it interpolated (its cost with skipping and early termination; the
+            cost-aware masks of :mod:`imls_lightning.estimate.pixel_cost` read it).
 
     Example:
         >>> r = NumbaRenderer(scene)                                    # doctest: +SKIP
@@ -651,6 +656,7 @@ class NumbaRenderer:
         self._all_pixels: dict[int, np.ndarray] = {}
         self.last_render_seconds = 0.0
         self.last_rays_marched = 0
+        self.last_ray_samples = np.zeros(0, np.int32)
         self.warmup_seconds = 0.0
         if warmup:
             t0 = time.perf_counter()
@@ -687,7 +693,7 @@ class NumbaRenderer:
         eye, f, r, u = camera_basis(view)
         near, far = self.clipping_range(view)
         out = np.empty((pixels.shape[0], 3), np.uint8)
-        marched = np.empty(pixels.shape[0], np.uint8)
+        marched = np.empty(pixels.shape[0], np.int32)
         old_threads = numba.get_num_threads()
         n = min(self.threads, numba.config.NUMBA_NUM_THREADS) if self.threads else numba.config.NUMBA_NUM_THREADS
         numba.set_num_threads(n)
@@ -703,7 +709,8 @@ class NumbaRenderer:
         finally:
             numba.set_parallel_chunksize(old_chunk)
             numba.set_num_threads(old_threads)
-        self.last_rays_marched = int(marched.sum(dtype=np.int64))
+        self.last_rays_marched = int(np.count_nonzero(marched))
+        self.last_ray_samples = marched
         return out
 
     def render(self, view, resolution: int) -> np.ndarray:
@@ -724,6 +731,7 @@ class NumbaRenderer:
         if pix.shape[0] == 0:
             self.last_render_seconds = 0.0
             self.last_rays_marched = 0
+            self.last_ray_samples = np.zeros(0, np.int32)
             return np.zeros((0, 3), np.uint8)
         return self._run(view, m, pix)
 

@@ -307,6 +307,8 @@ def test_cli_writes_the_estimate_and_reuses_it(tmp_path):
     ("recnn_lead.lr=0", "recnn_lead.lr=0"),
     ("epsilon_db=0", "epsilon_db"),
     ("silhouette_blur=-1", "silhouette_blur"),
+    ("background_density=2.0", "background_density=2.0"),
+    ("background_density=/nonexistent/summary.json", "background_density=/nonexistent/summary.json"),
 ])
 def test_cli_exception_bad_settings(tmp_path, monkeypatch, override, match):
     r = _cli_here(tmp_path, monkeypatch, override)
@@ -360,6 +362,59 @@ def test_cli_a_recnn_net_override_wins_over_the_default_sizes(tmp_path):
     assert r.returncode == 0, r.stderr
     est = json.loads(Path(r.stdout.strip().splitlines()[-1]).read_text())
     assert est["settings"]["recnn"]["channels"] == 6 and est["settings"]["recnn"]["blocks"] == 1
+
+
+def test_background_density_from_a_trained_mask(tmp_path):
+    """background_density= an evaluation's summary.json (or its folder): the trained mask's background density over
+    its object density at the operating point; a number passes as it is."""
+    from omegaconf import OmegaConf
+
+    from imls_lightning.estimate.run import background_density
+
+    (tmp_path / "summary.json").write_text(json.dumps({"mask_density": {"object_density": 0.8, "background_density": 0.1}}))
+    for value in (str(tmp_path), str(tmp_path / "summary.json")):
+        assert background_density(OmegaConf.create({"background_density": value})) == pytest.approx(0.125)
+    assert background_density(OmegaConf.create({"background_density": 0.3})) == 0.3
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "summary.json").write_text(json.dumps({"orp": {}}))  # written before mask_density existed
+    with pytest.raises(InputError, match="mask_density"):
+        background_density(OmegaConf.create({"background_density": str(tmp_path / "old")}))
+
+
+def test_committed_row_gives_the_estimate_its_density():
+    from omegaconf import OmegaConf
+
+    from imls_lightning.estimate.run import background_density
+
+    row = Path(__file__).resolve().parents[2] / "benchmarks" / "rows" / "seed_whole" / "point"
+    md = json.loads((row / "summary.json").read_text())["mask_density"]
+    assert background_density(OmegaConf.create({"background_density": str(row)})) == pytest.approx(
+        md["background_density"] / md["object_density"])
+
+
+def test_table_row_has_the_bound_against_the_fastest(tmp_path):
+    """The estimates table's columns against the fastest RecNN alone, from the committed seed_whole estimate; an older
+    table (without them) is extended, its rows keeping the new columns empty."""
+    import csv
+
+    from imls_lightning.estimate.run import TABLE_COLUMNS, table_row, update_table
+
+    est = json.loads((Path(__file__).resolve().parents[2] / "benchmarks" / "seed_whole" / "estimate_fastest.json").read_text())
+    row = table_row(est, tmp_path / "estimate.json")
+    rc = est["ray_casters"]
+    assert row["vs_fastest_best"] == pytest.approx(max(r["speedup"] for r in rc["vs_fastest"]), rel=1e-3)
+    assert row["vs_fastest_at_needed"] == pytest.approx(rc["speedup_vs_fastest_at_needed"], rel=1e-3)
+    free = {r["share"]: r["speedup"] for r in rc["free_networks_vs_fastest"]}
+    lo, hi = 0.2, 0.3  # the needed share (24%) lies between them
+    t = (est["needed_share"] - lo) / (hi - lo)
+    assert row["free_networks_vs_fastest_at_needed"] == pytest.approx(free[lo] + t * (free[hi] - free[lo]), rel=1e-3)
+    old = tmp_path / "old.csv"
+    old_cols = TABLE_COLUMNS[:TABLE_COLUMNS.index("path") + 1]
+    old.write_text(",".join(old_cols) + "\n" + ",".join("ct_head" if c == "scene" else "enhancenet" if c == "recnn" else "1"
+                                                       for c in old_cols) + "\n")
+    update_table(old, row)
+    rows = list(csv.DictReader(old.open()))
+    assert [r["scene"] for r in rows] == ["ct_head", "seed_whole"] and rows[0]["vs_fastest_best"] == ""
 
 
 def test_exception_update_table_refuses_a_foreign_csv(tmp_path):

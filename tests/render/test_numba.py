@@ -182,6 +182,30 @@ def test_background_rays_are_not_marched(blob_scene, numba_renderer):
     assert (out == 0).all() and (img.reshape(-1, 3)[misses] == 0).all()
 
 
+def test_ray_samples_count_each_rays_samples(blob_scene, numba_renderer):
+    """last_ray_samples: 0 for a miss, else 1 + the samples interpolated; a ray across the box without skipping
+    interpolates one sample per sample_distance of its segment, fewer only where early ray termination ends it."""
+    from imls_lightning.render.camera import pixel_rays, ray_box_hits
+    from imls_lightning.render import make_renderer
+
+    view, m = [3.0, 2.0, 4.0, 0.6, 0.4, 0.3, 0.0, 1.0, 0.0], 48
+    numba_renderer.render(view, m)
+    samples = numba_renderer.last_ray_samples
+    assert samples.shape == (m * m,) and samples.dtype == np.int32
+    assert np.count_nonzero(samples) == numba_renderer.last_rays_marched
+    every = make_renderer(blob_scene, {"name": "numba", "skip_empty": False})
+    every.render(view, m)
+    full = every.last_ray_samples
+    assert (full >= samples).all() and full.sum() > samples.sum()  # skipping only drops samples
+    eye, dirs = pixel_rays(view, m, blob_scene.view_angle)
+    t0, t1 = ray_box_hits(eye, dirs, blob_scene.volume.bounds)
+    inside = (t1 - t0) / blob_scene.sample_distance
+    crossing = full > 0
+    off = (full[crossing] - 1) - inside[crossing]
+    assert off.max() <= 2  # never more than the segment holds (the box inset and the 0.1% pull: a sample or two)
+    assert (np.abs(off) <= 2).mean() > 0.9  # and all of it unless early termination ended the ray first
+
+
 def test_empty_space_skipping_is_exact(blob_scene, numba_renderer):
     """renderer.skip_empty=false marches every brick (a ray caster without empty-space skipping): the same pixels."""
     from imls_lightning.render import make_renderer
