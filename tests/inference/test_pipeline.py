@@ -491,3 +491,49 @@ def test_half_auto_is_measured_once_and_resolves_to_a_bool(monkeypatch):
     assert list(pipeline._HALF_IS_FASTER) == ["cpu"]
     with pytest.raises(InputError, match="options.half=maybe: expected true or false or auto"):
         NetOptions.from_config({"half": "maybe"})
+
+
+class _IndexColours:
+    """A ray caster whose colours are a fixed function of the FR raster index: the product's image then depends on the
+    networks and the operating point only (no volume needed)."""
+
+    def render_pixels(self, view, m, idx):
+        idx = np.asarray(idx, np.int64)
+        return np.stack([(idx * 37) % 251, (idx * 101 + 7) % 241, (idx // 512 * 3 + idx % 512) % 239], 1).astype(np.uint8)
+
+
+#: the product's IM and image on three views, made with the code of commit 579d537 (before the operating point became
+#: one frozen OperatingPoint and timing moved out of the renderer): seed_whole's committed networks at its recorded
+#: point (by camera distance, sharpness 3, lifted, the object floor per band), then the plain head at u = 0.3
+SEED_WHOLE_PRODUCT = {
+    0: ("7c9ed69d9d92a8a3", "c1b3f03d4ebad060", 28304, 0.4217),
+    1: ("20746c2516466567", "523621b7c5a16cab", 23932, 0.36518),
+    2: ("b6dad232ea54c05f", "a776388ac31dbb2b", 15501, 0.23714),
+    "plain": ("5422a48901abdd60", None, 18835, 0.3),
+}
+
+
+def test_the_product_of_committed_networks_at_their_point_is_bit_identical_to_before():
+    """Behaviour unchanged: seed_whole's committed IMS (its decoder and RecNN) at its recorded operating point renders
+    the same IM and the same image, bit for bit, as the code before the refactor (SEED_WHOLE_PRODUCT)."""
+    import hashlib
+
+    from imls_lightning.inference.checkpoints import load_ims_nets
+    from imls_lightning.models.ims import DistanceMeans
+
+    nets = load_ims_nets(ROOT / "benchmarks" / "rows" / "seed_whole" / "ims.ckpt")
+    head = nets.head.with_sharpness(3.0).with_object_floor(0.14, 0.2)
+    bands = DistanceMeans([3.808149662596027, 4.2323177988619545, 4.791850412524883], [0.4217, 0.36518, 0.28387, 0.23714],
+                          [0.14, 0.02, None, None])
+    point = IMLSRenderer(_IndexColours(), nets.pattern, head, nets.decoder, nets.recnn, CPU, mean=0.4217, lift=True,
+                         by_distance=bands)
+    plain = IMLSRenderer(_IndexColours(), nets.pattern, nets.head, nets.decoder, nets.recnn, CPU, mean=0.3)
+    views = [[0, 0, 3.7, 0, 0, 0, 0, 1, 0], [2.9, 0.4, 3.0, 0, 0, 0, 0, 1, 0], [0, 4.9, 0.3, 0, 0, 0, 1, 0, 0]]
+    digest = lambda a: hashlib.sha256(a.tobytes()).hexdigest()[:16]  # noqa: E731
+    with torch.inference_mode():
+        for key, (image, im, count, u) in SEED_WHOLE_PRODUCT.items():
+            r = plain if key == "plain" else point
+            res = r.run(np.asarray(views[0 if key == "plain" else key], np.float64))
+            assert digest(res.image) == image and res.info["rendered_pixels"] == count
+            assert im is None or digest(res.info["im"].numpy()) == im
+            assert key == "plain" or res.info["mean"] == pytest.approx(u, abs=1e-6)
