@@ -24,6 +24,7 @@ from data_gen.scene import build_scene
 from data_gen.views import sample_training_views
 from imls_lightning.export import parse_args
 from imls_lightning.inference.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available
+from imls_lightning.evaluation.timing import timed
 from imls_lightning.inference.pipeline import IMLSRenderer
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
@@ -107,7 +108,7 @@ def _compare(ref: IMLSRenderer, exp: ExportedIMLSRenderer, views, tol: int) -> l
         diff = np.abs(a.image.astype(np.int16) - b.image.astype(np.int16)).max()
         assert diff <= tol, diff
         assert a.info["rendered_pixels"] == b.info["rendered_pixels"]
-        img, timings = exp.render(v)
+        img, timings = timed(exp).render(v)
         assert img.shape == (FR, FR, 3) and img.dtype == np.uint8
         assert set(timings) == {"importance", "selective_render", "decoder", "recnn", "total"}
         sizes.append(int(b.info["im"].sum()))

@@ -350,8 +350,9 @@ def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, patt
                     repeats: int = 3) -> dict[float, float]:
     """Each found candidate's product at its operating point (its sharpness, mean value or bands, lift), timed on
     ``views`` of the search views spaced along them, the candidates interleaved run by run
-    (:func:`~imls_lightning.inference.pipeline.time_methods`): ``{sharpness: mean over the views of the median total ms}``."""
-    from ..inference.pipeline import IMLSRenderer, time_methods
+    (:func:`~imls_lightning.evaluation.timing.time_methods`): ``{sharpness: mean over the views of the median total ms}``."""
+    from ..inference.pipeline import IMLSRenderer
+    from .timing import time_methods
 
     ims = nets.ims_task
     products = {r.sharpness: IMLSRenderer(renderer, pattern, ims.mask_head.with_sharpness(r.sharpness), ims.decoder, nets.recnn,

@@ -54,7 +54,7 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Generator, Mapping
 
 import numpy as np
 import torch
@@ -194,27 +194,14 @@ class NetOptions:
         return torch.autocast(device.type, dtype=dtype)
 
 
-class StageTimer:
-    """Stage timer: wall time around a block, synchronized on CUDA so GPU work is counted."""
-
-    def __init__(self, device: torch.device):
-        self.device = device
-        self.times: dict[str, float] = {}
-
-    @contextlib.contextmanager
-    def stage(self, name: str):
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        t0 = time.perf_counter()
-        yield
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
-
-    def result(self) -> dict[str, float]:
-        out = dict(self.times)
-        out["total"] = float(sum(self.times.values()))
-        return out
+def run_steps(steps: Generator[str | None, None, "RenderResult"]) -> "RenderResult":
+    """Run a method's forward pass (:meth:`Method.steps`) to its end, timing nothing: its :class:`RenderResult`
+    (``timings`` empty). :func:`imls_lightning.evaluation.timing.timed_run` runs the same steps timing each stage."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
 
 
 def prepare_net(net: torch.nn.Module | None, device: torch.device, opts: NetOptions):
@@ -243,7 +230,8 @@ class RenderResult:
 
 
 class Method(abc.ABC):
-    """Base class of an inference method: ``render(view) -> (image, timings)``."""
+    """Base class of an inference method: a forward pass (:meth:`steps`) in named stages, run by :meth:`run` or
+    :meth:`render`, timing nothing (:func:`imls_lightning.evaluation.timing.timed` times any method by its stages)."""
 
     name = "method"
 
@@ -258,14 +246,20 @@ class Method(abc.ABC):
         return x.contiguous(memory_format=torch.channels_last) if self.opts.channels_last else x
 
     @abc.abstractmethod
+    def steps(self, view, **kwargs) -> Generator[str | None, None, RenderResult]:
+        """The forward pass of a validated view as a generator: it yields the name of each stage (one of
+        :data:`STAGES`, or ``"mean"``) just before running it, ``None`` before a step no stage counts, and returns the
+        :class:`RenderResult` (``kwargs``: the method's per-call arguments). It reads no clock: a stage ends where the
+        next begins, and a timer that runs the steps (:func:`imls_lightning.evaluation.timing.timed_run`) times them."""
+
     def run(self, view, **kwargs) -> RenderResult:
-        """Render a validated view, timing each stage (``kwargs``: the method's per-call arguments)."""
+        """Render a validated view (``kwargs``: the method's per-call arguments); ``timings`` is empty."""
+        return run_steps(self.steps(view, **kwargs))
 
     @torch.inference_mode()
-    def render(self, view) -> tuple[np.ndarray, dict[str, float]]:
-        """Render one view: ``(m, m, 3)`` uint8 image and seconds per stage (plus ``total``)."""
-        r = self.run(validate_view(view))
-        return r.image, r.timings
+    def render(self, view) -> np.ndarray:
+        """Render one view: the ``(m, m, 3)`` uint8 image."""
+        return self.run(validate_view(view)).image
 
 
 class FullRayCast(Method):
@@ -273,11 +267,10 @@ class FullRayCast(Method):
 
     name = "full"
 
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(torch.device("cpu"))
-        with timer.stage("render"):
-            img = self.renderer.render(view, self.fr_size)
-        return RenderResult(img, timer.result(), {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
+    def steps(self, view):
+        yield "render"
+        img = self.renderer.render(view, self.fr_size)
+        return RenderResult(img, {}, {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
 
 
 class PatternMethod(Method):
@@ -321,14 +314,14 @@ class RecNNAlone(PatternMethod):
         super().__init__(renderer, pattern, opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(self.device)
-        with timer.stage("selective_render"):
-            c, count = self._render_c_pixels(view, None)
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+    def steps(self, view):
+        yield "selective_render"
+        c, count = self._render_c_pixels(view, None)
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(c)
-        return RenderResult(to_uint8_image(fr), timer.result(),
-                            {"ipr": count / self.fr_size**2, "c_share": 1.0, "rendered_pixels": count})
+        yield None
+        return RenderResult(to_uint8_image(fr), {}, {"ipr": count / self.fr_size**2, "c_share": 1.0, "rendered_pixels": count})
 
 
 class IMLPlusRecNN(PatternMethod):
@@ -359,25 +352,28 @@ class IMLPlusRecNN(PatternMethod):
     def mean(self) -> float:
         return float(self.iml.mean)
 
-    def _importance(self, c: torch.Tensor, view, timer: StageTimer, info: dict) -> torch.Tensor:
-        """The hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
-        with timer.stage("importance"), self.opts.autocast(self.device):
+    def _importance(self, c: torch.Tensor, view, info: dict) -> Generator[str | None, None, torch.Tensor]:
+        """The steps to the hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
+        yield "importance"
+        with self.opts.autocast(self.device):
             return self.iml.importance(c, hard=True)
 
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(self.device)
-        with timer.stage("selective_render"):
-            c, _ = self._render_c_pixels(view, None)
+    def steps(self, view):
+        yield "selective_render"
+        c, _ = self._render_c_pixels(view, None)
         info: dict = {}
-        im = self._importance(c, view, timer, info)
-        with timer.stage("decoder"), self.opts.autocast(self.device):
+        im = yield from self._importance(c, view, info)
+        yield "decoder"
+        with self.opts.autocast(self.device):
             m = im.to(c.dtype)
             c_rec = self.iml.decode(m * c, m)
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
+        yield None
         im_cpu = im[0, 0].bool().cpu()
         count = int(im_cpu.sum())
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
                              "rendered_pixels": self.pattern.count, "im": im_cpu, **info})
 
@@ -481,31 +477,34 @@ class IMLSRenderer(PatternMethod):
         with self.opts.autocast(self.device):
             return self.mask(view)
 
-    def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
-        """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
+    def _importance(self, view, info: dict) -> Generator[str | None, None, torch.Tensor]:
+        """The steps to the IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
         v = view_tensor(view, self.device)
-        with timer.stage("importance"):
-            im = self.predict_im(v)[0, 0].bool()
-        if self.by_distance is not None:  # the view's band's mean value, for the caller (outside the timed stage)
+        yield "importance"
+        im = self.predict_im(v)[0, 0].bool()
+        if self.by_distance is not None:  # the view's band's mean value, for the caller (outside the importance stage)
+            yield None
             info["mean"] = float(self.mask.by_distance(v)[0])
         return im
 
-    def run(self, view, im: torch.Tensor | None = None) -> RenderResult:
-        """Render a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the
-        mask still runs and is timed: "the IML's IM, selectively rendered" of the evaluation)."""
-        timer = StageTimer(self.device)
+    def steps(self, view, im: torch.Tensor | None = None):
+        """The forward pass of a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the
+        mask still runs, in the importance stage: "the IML's IM, selectively rendered" of the evaluation)."""
         info: dict = {}
-        mask = self._importance(view, timer, info)
+        mask = yield from self._importance(view, info)
         if im is not None:
-            with timer.stage("importance"):
-                mask = torch.as_tensor(im).to(self.device).bool().reshape(mask.shape)
-        with timer.stage("selective_render"):
-            pr_c, count = self._render_c_pixels(view, mask)
-        with timer.stage("decoder"), self.opts.autocast(self.device):
+            yield "importance"
+            mask = torch.as_tensor(im).to(self.device).bool().reshape(mask.shape)
+        yield "selective_render"
+        pr_c, count = self._render_c_pixels(view, mask)
+        yield "decoder"
+        with self.opts.autocast(self.device):
             c_rec = self.decoder(pr_c, mask.to(pr_c.dtype).view(1, 1, *mask.shape[-2:]))
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        yield None
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
                              "rendered_pixels": count, "im": mask.cpu(), **info})
 
@@ -570,98 +569,36 @@ class LASMethod(Method):
             return self.ipr
         return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
 
-    def run(self, view, ipr: float | None = None) -> RenderResult:
-        """Render a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;
+    def steps(self, view, ipr: float | None = None):
+        """The forward pass of a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;
         ``None``: the method's own, or its band's)."""
         ipr = self.ipr_for(view) if ipr is None else check_ipr(ipr)
-        timer = StageTimer(self.device)
         m = self.fr_size
         net = getattr(self.las, "_orig_mod", self.las)  # attributes of a compiled LASNet
-        with timer.stage("low_res_render"):
-            low = self.renderer.render(view, self.low_res)
-            low_t = self._tensor(torch.from_numpy(low).permute(2, 0, 1).float().div(255.0)[None])
-        with timer.stage("importance"), self.opts.autocast(self.device):
+        yield "low_res_render"
+        low = self.renderer.render(view, self.low_res)
+        low_t = self._tensor(torch.from_numpy(low).permute(2, 0, 1).float().div(255.0)[None])
+        yield "importance"
+        with self.opts.autocast(self.device):
             raw = net.importance_net(low_t)
-        u = net.mean if ipr is None else las_mean_for_ipr(net, raw, ipr)  # untimed calibration
-        with timer.stage("importance"):
-            mask = las_mask(net, raw, u)[0, 0]
-            idx = np.flatnonzero(mask.cpu().numpy().reshape(-1))
-        with timer.stage("selective_render"):
-            colours = self.renderer.render_pixels(view, m, idx)
-            flat = np.zeros((m * m, 3), np.float32)
-            flat[idx] = colours.astype(np.float32) / 255.0
-            samples = self._tensor(torch.from_numpy(flat).view(1, m, m, 3).permute(0, 3, 1, 2))  # channels-last, as above
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield None
+        u = net.mean if ipr is None else las_mean_for_ipr(net, raw, ipr)  # a calibration, in no stage
+        yield "importance"
+        mask = las_mask(net, raw, u)[0, 0]
+        idx = np.flatnonzero(mask.cpu().numpy().reshape(-1))
+        yield "selective_render"
+        colours = self.renderer.render_pixels(view, m, idx)
+        flat = np.zeros((m * m, 3), np.float32)
+        flat[idx] = colours.astype(np.float32) / 255.0
+        samples = self._tensor(torch.from_numpy(flat).view(1, m, m, 3).permute(0, 3, 1, 2))  # channels-last, as above
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = net.reconstruct(samples, mask[None, None].float())
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        yield None
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": len(idx) / m**2, "rendered_pixels": int(len(idx)), "mask": mask.bool().cpu()})
 
 
 def c_mask_to_fr_pixels(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch.Tensor:
     """FR raster indices of the set C-Image pixels (re-exported for users)."""
     return c_pixels_to_fr(pattern, c_mask)
-
-
-def time_method(method: Method, view, repeats: int = 10, warmup: int = 1,
-                **run_args: Any) -> tuple[np.ndarray, dict[str, float], dict[str, Any]]:
-    """Render a view ``warmup + repeats`` times; per-stage medians over the repeats. ``run_args`` go to
-    each ``method.run`` (e.g. an oracle ``im`` for :class:`IMLSRenderer`, an ``ipr`` for :class:`LASMethod`).
-
-    Returns the last image ``(m, m, 3)`` uint8, ``{stage: median seconds}`` (``total`` is the median
-    of the per-run totals, not the sum of the stage medians), and the method's info of the last run.
-
-    Raises:
-        InputError: ``repeats`` < 1, ``warmup`` < 0, or a bad view.
-    """
-    return time_methods({"method": method}, view, repeats, warmup, run_args={"method": run_args})["method"]
-
-
-#: how :func:`time_methods` orders the runs of several methods on one view
-TIMING_ORDERS = ("interleaved", "blocked")
-
-
-def time_methods(methods: Mapping[str, Method], view, repeats: int = 10, warmup: int = 1, order: str = "interleaved",
-                 run_args: Mapping[str, Mapping[str, Any]] | None = None
-                 ) -> dict[str, tuple[np.ndarray, dict[str, float], dict[str, Any]]]:
-    """Time several methods on one view, ``warmup + repeats`` runs each: ``{name: (image, medians, info)}`` as
-    :func:`time_method` returns them.
-
-    ``order="interleaved"`` runs them in rounds, each method once per round (a load that comes and goes
-    for a few seconds then slows every method alike, so their ratio holds); ``"blocked"`` runs each method's
-    runs back to back (its working set stays in the CPU's caches, as from one frame to the next of one
-    renderer). ``run_args``: per method name, the keyword arguments of each of its runs.
-
-    Example:
-        >>> from imls_lightning.inference.pipeline import FullRayCast, time_methods
-        >>> # timed = time_methods({"full": FullRayCast(renderer, 512), "alone": RecNNAlone(...)}, view)
-        >>> # timed["full"][1]["total"] / timed["alone"][1]["total"]   # the ratio of one run's medians
-
-    Raises:
-        InputError: ``repeats`` < 1, ``warmup`` < 0, an unknown ``order``, no method, or a bad view.
-    """
-    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
-        raise InputError(f"repeats={repeats}: expected an integer >= 1")
-    if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
-        raise InputError(f"warmup={warmup}: expected an integer >= 0")
-    if order not in TIMING_ORDERS:
-        raise InputError(f"timing={order!r}: expected one of {list(TIMING_ORDERS)}")
-    if not methods:
-        raise InputError("methods: expected at least one method to time")
-    v = validate_view(view)
-    args = {name: dict((run_args or {}).get(name) or {}) for name in methods}
-    n = warmup + repeats
-    schedule = ([(i, name) for i in range(n) for name in methods] if order == "interleaved" else
-                [(i, name) for name in methods for i in range(n)])
-    runs: dict[str, list[dict[str, float]]] = {name: [] for name in methods}
-    last: dict[str, RenderResult] = {}
-    with torch.inference_mode():
-        for i, name in schedule:
-            last[name] = methods[name].run(v, **args[name])
-            if i >= warmup:
-                runs[name].append(last[name].timings)
-    out = {}
-    for name in methods:
-        keys = runs[name][0].keys()
-        med = {k: float(np.median([r[k] for r in runs[name]])) for k in keys}
-        out[name] = (last[name].image, med, last[name].info)
-    return out

@@ -24,6 +24,7 @@ from PIL import Image
 from data_gen.errors import InputError, finite_number
 
 from ..core.patterns import c_pixels_to_fr
+from ..evaluation.timing import timed_run  # each frame's stages, timed from outside the methods
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
 from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, view_tensor
@@ -217,7 +218,7 @@ class ViewerSession(OrbitCamera):
     def _truth(self, view: np.ndarray):
         key = np.asarray(view, np.float64).tobytes()
         if self._truth_cache is None or self._truth_cache[0] != key:
-            res = self.truth_method.run(view)
+            res = timed_run(self.truth_method, view)
             self._truth_cache = (key, res.image)
             self._truth_ms = {k: 1e3 * v for k, v in res.timings.items()}
         return self._truth_cache[1]
@@ -240,14 +241,14 @@ class ViewerSession(OrbitCamera):
                 image, stages, mask = truth, dict(self._truth_ms), np.ones((m, m), bool)
             else:
                 if self.method in ("imls", "adaptive"):
-                    res = (imls if self.method == "imls" else self.adaptive_method).run(view)
+                    res = timed_run(imls if self.method == "imls" else self.adaptive_method, view)
                     mask = self._fr_mask(res.info["im"])
                 elif self.method == "recnn":
-                    res = self.recnn_method.run(view)
+                    res = timed_run(self.recnn_method, view)
                     mask = self._fr_mask(None)
                 else:  # LAS at the IPR IML/S has at this view and mean (the IMS alone decides it, no rendering)
                     im = imls.predict_im(view_tensor(view, imls.device))
-                    res = self.las_method.run(view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
+                    res = timed_run(self.las_method, view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
                     mask = res.info["mask"].numpy().reshape(m, m)
                 image, stages = res.image, {k: 1e3 * v for k, v in res.timings.items()}
         psnr = frame_psnr(image, truth)

@@ -19,16 +19,14 @@ from imls_lightning.inference.pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
     LASMethod,
-    Method,
     NetOptions,
     RecNNAlone,
     RenderResult,
     las_mean_for_ipr,
     pick_device,
-    time_method,
-    time_methods,
     to_uint8_image,
 )
+from imls_lightning.evaluation.timing import time_method, time_methods, timed
 from imls_lightning.inference.checkpoints import load_task
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -90,9 +88,10 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
     r = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), scene=env["scene"], renderer_cfg={"name": "numba"}, opts=CPU)
     m = env["ims"].pattern.fr_size
     view = env["views"][0]
-    image, timings = r.render(view)
+    image, timings = timed(r).render(view)
     assert image.shape == (m, m, 3) and image.dtype == np.uint8
     _check_timings(timings, IMLS_STAGES)
+    assert np.array_equal(r.render(view), image)  # the renderer itself times nothing
 
     # the same image as the checkpoint's own modules give, step by step (nothing lost on the way)
     task = load_task(env["ckpt"]["ims"], expect="IMSTask")
@@ -109,12 +108,12 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
     # the stored RecNN is the frozen RecNN checkpoint the IML was trained with: passing it gives the same image
     again = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), renderer=env["renderer"],
                                           recnn_checkpoint=str(env["ckpt"]["recnn"]), opts=CPU)
-    np.testing.assert_array_equal(again.render(view)[0], image)
+    np.testing.assert_array_equal(again.render(view), image)
 
     # the IMS checkpoint records its scene and renderer: the checkpoint alone is enough
     assert env["ims"].hparams["scene"]["name"] == "tiny" and env["ims"].hparams["renderer"]["name"] == "numba"
     alone = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), opts=CPU)
-    np.testing.assert_array_equal(alone.render(view)[0], image)
+    np.testing.assert_array_equal(alone.render(view), image)
 
 
 def test_imls_info_counts_the_pixels_of_its_mask(env):
@@ -168,7 +167,7 @@ def test_selective_render_casts_only_the_masked_pixels(env):
 # ---- baselines -----------------------------------------------------------------------------------
 def test_full_ray_cast_reproduces_the_cache(env):
     m = env["ims"].pattern.fr_size
-    image, timings = FullRayCast(env["renderer"], m, CPU).render(env["views"][0])
+    image, timings = timed(FullRayCast(env["renderer"], m, CPU)).render(env["views"][0])
     _check_timings(timings, {"render", "total"})
     np.testing.assert_array_equal(image, env["truth"][0])  # same renderer, deterministic: PSNR 100 in the report
 
@@ -177,14 +176,14 @@ def test_recnn_alone_and_iml_plus_recnn_shapes(env):
     task = env["ims"]
     pattern, m = task.pattern, task.pattern.fr_size
     rec = RecordingRenderer(env["renderer"])
-    res = RecNNAlone(rec, pattern, task.recnn, CPU).run(env["views"][0])
+    res = timed(RecNNAlone(rec, pattern, task.recnn, CPU)).run(env["views"][0])
     assert res.image.shape == (m, m, 3) and res.image.dtype == np.uint8
     _check_timings(res.timings, {"selective_render", "recnn", "total"})
     assert res.info["rendered_pixels"] == pattern.count == len(rec.calls[-1])
     assert res.info["ipr"] == pytest.approx(pattern.count / m**2)
 
     iml = IMLPlusRecNN(env["renderer"], pattern, task.iml, task.recnn, CPU)
-    res = iml.run(env["views"][0])
+    res = timed(iml).run(env["views"][0])
     assert res.image.shape == (m, m, 3) and res.image.dtype == np.uint8
     _check_timings(res.timings, {"selective_render", "importance", "decoder", "recnn", "total"})
     assert res.info["rendered_pixels"] == pattern.count  # the IML needs the whole C-Image
@@ -203,7 +202,7 @@ def test_las_method_samples_its_ipr(env):
     m = int(las.hparams["fr_size"])
     rec = RecordingRenderer(env["renderer"])
     method = LASMethod(rec, las.net, m, int(las.hparams["low_res"]), ipr=0.25, opts=CPU)
-    image, timings = method.render(env["views"][0])
+    image, timings = timed(method).render(env["views"][0])
     assert image.shape == (m, m, 3) and image.dtype == np.uint8
     _check_timings(timings, {"low_res_render", "importance", "selective_render", "recnn", "total"})
     res = method.run(env["views"][0])
@@ -242,66 +241,11 @@ def test_the_pipeline_module_names_no_training_task():
 
 
 # ---- timing ---------------------------------------------------------------------------------------
-class Scripted(Method):
-    """A method whose stage times are known: run i takes i seconds to "render" (tests the statistics)."""
-
-    name = "scripted"
-
-    def __init__(self):
-        super().__init__(None, 4, CPU)
-        self.calls = 0
-
-    def run(self, view) -> RenderResult:
-        i = self.calls
-        self.calls += 1
-        t = {"render": float(i), "recnn": 100.0 - i}
-        t["total"] = float(sum(t.values())) + (50.0 if i == 7 else 0.0)  # one slow outlier run
-        return RenderResult(np.full((4, 4, 3), i, np.uint8), t, {"run": i})
-
-
-def test_time_method_returns_medians_over_the_repeats():
-    s = Scripted()
-    image, med, info = time_method(s, [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=6, warmup=2)
-    assert s.calls == 8
-    # runs 2..7 are timed: medians of (2..7) and (98..93); the outlier moves the mean, not the median
-    assert med == {"render": 4.5, "recnn": 95.5, "total": 100.0}
-    assert info == {"run": 7} and int(image[0, 0, 0]) == 7
-
-
 def test_time_method_on_a_real_method(env):
     m = env["ims"].pattern.fr_size
     image, med, info = time_method(FullRayCast(env["renderer"], m, CPU), env["views"][0], repeats=10, warmup=1)
     assert set(med) == {"render", "total"} and all(v > 0 for v in med.values())
     assert image.shape == (m, m, 3) and info["rendered_pixels"] == m * m
-
-
-class Logged(Scripted):
-    """A :class:`Scripted` method that writes its name into a shared log at every run (tests the schedule)."""
-
-    def __init__(self, name, log):
-        super().__init__()
-        self.name, self.log = name, log
-
-    def run(self, view) -> RenderResult:
-        self.log.append(self.name)
-        return super().run(view)
-
-
-@pytest.mark.parametrize("order,expected", [
-    ("interleaved", ["a", "b"] * 4),
-    ("blocked", ["a"] * 4 + ["b"] * 4),
-])
-def test_time_methods_schedule(order, expected):
-    log = []
-    methods = {"a": Logged("a", log), "b": Logged("b", log)}
-    timed = time_methods(methods, [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=3, warmup=1, order=order)
-    assert log == expected
-    # each method's own runs 1..3 are timed, whatever the order: the same medians as time_method's
-    for name in "ab":
-        image, med, info = timed[name]
-        assert med == {"render": 2.0, "recnn": 98.0, "total": 100.0} and info == {"run": 3} and int(image[0, 0, 0]) == 3
-    alone = time_method(Scripted(), [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=3, warmup=1)
-    assert alone[1] == timed["a"][1]
 
 
 def test_time_methods_on_real_methods(env):
@@ -310,39 +254,14 @@ def test_time_methods_on_real_methods(env):
     m = env["ims"].pattern.fr_size
     full = FullRayCast(env["renderer"], m, CPU)
     alone = RecNNAlone(env["renderer"], env["ims"].pattern, env["ims"].recnn, CPU)
-    timed = time_methods({"full": full, "alone": alone}, env["views"][0], repeats=10, warmup=1)
-    assert set(timed) == {"full", "alone"}
-    assert all(v > 0 for v in timed["full"][1].values()) and timed["alone"][1]["total"] > 0
-    assert np.array_equal(timed["full"][0], full.render(env["views"][0])[0])
-    assert timed["alone"][2]["c_share"] == 1.0
-
-
-@pytest.mark.parametrize("kw,needle", [
-    ({"order": "shuffled"}, "timing='shuffled'"),
-    ({"repeats": 0}, "repeats"),
-    ({"warmup": -1}, "warmup"),
-])
-def test_exception_time_methods_bad_arguments(kw, needle):
-    with pytest.raises(InputError, match=needle):
-        time_methods({"a": Scripted()}, [0, 0, 3, 0, 0, 0, 0, 1, 0], **kw)
-
-
-def test_exception_time_methods_none():
-    with pytest.raises(InputError, match="at least one method"):
-        time_methods({}, [0, 0, 3, 0, 0, 0, 0, 1, 0])
+    out = time_methods({"full": full, "alone": alone}, env["views"][0], repeats=10, warmup=1)
+    assert set(out) == {"full", "alone"}
+    assert all(v > 0 for v in out["full"][1].values()) and out["alone"][1]["total"] > 0
+    assert np.array_equal(out["full"][0], full.render(env["views"][0]))
+    assert out["alone"][2]["c_share"] == 1.0
 
 
 # ---- errors ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("kw,needle", [
-    ({"repeats": 0}, "repeats"),
-    ({"repeats": 2.5}, "repeats"),
-    ({"warmup": -1}, "warmup"),
-])
-def test_exception_time_method_bad_counts(kw, needle):
-    with pytest.raises(InputError, match=needle):
-        time_method(Scripted(), [0, 0, 3, 0, 0, 0, 0, 1, 0], **kw)
-
-
 @pytest.mark.parametrize("view,needle", [
     ([0, 0, 3, 0, 0, 0, 0, 1], "9 floats"),
     ([0, 0, 3, 0, 0, 0, 0, 0, 1], "parallel"),
@@ -409,8 +328,8 @@ def test_full_mask_gives_the_recnn_alone_exactly(env):
     imls = IMLSRenderer(env["renderer"], ims.pattern, lambda v: valid.to(v.device), ims.decoder, ims.recnn, CPU)
     alone = RecNNAlone(env["renderer"], ims.pattern, ims.recnn, CPU)
     for view, truth in zip(env["views"], env["truth"]):
-        a, _ = alone.render(view)
-        b, _ = imls.render(view)
+        a = alone.render(view)
+        b = imls.render(view)
         assert np.array_equal(a, b)
         assert abs(image_quality(a, truth)[0] - image_quality(b, truth)[0]) < 0.1
     iml = ims.iml
