@@ -28,6 +28,8 @@ HOMES: dict[str, str] = {
     "LASMethod": "imls_lightning.inference.pipeline",
     "Method": "imls_lightning.inference.pipeline",
     "NetOptions": "imls_lightning.inference.pipeline",
+    "OperatingPoint": "imls_lightning.core.operating_point",
+    "Bands": "imls_lightning.core.operating_point",
     "time_method": "imls_lightning.evaluation.timing",
     "time_methods": "imls_lightning.evaluation.timing",
     "timed": "imls_lightning.evaluation.timing",

@@ -53,7 +53,8 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
                  predictor: nn.Module, opts: NetOptions | None = None, *, lift: bool = False):
         require_pim_target({"target": head.target}, what="the adaptive renderer, which scales the regressed PIM',")
         recnn = require_recnn(recnn, key="ims_checkpoint")
-        super().__init__(renderer, pattern, head, decoder, recnn, opts, lift=lift)
+        # the head's own sharpness and floor, the predictor's share per view, lifted with ``lift``
+        super().__init__(renderer, pattern, head, decoder, recnn, opts, point=head.point(lift=lift))
         self.u_train = float(head.trained_mean)
         self.predictor = predictor.to(self.device).eval()
 

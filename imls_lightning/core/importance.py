@@ -455,7 +455,8 @@ def hard_rejection_sample(pim_norm: torch.Tensor, P: torch.Tensor) -> torch.Tens
 
 
 class ImportanceNormalization(nn.Module):
-    """:func:`normalize_importance` as a layer; ``mean`` can be changed after construction (validated).
+    """:func:`normalize_importance` as a layer at its ``mean`` (validated; changed after construction, or given to
+    one call: ``forward(pim, valid, mean=u)``, e.g. a training step at a drawn mean value).
 
     Example:
         >>> norm = ImportanceNormalization(mean=0.1)
@@ -478,8 +479,12 @@ class ImportanceNormalization(nn.Module):
         _check_lower_delta(u, self.lower, self.delta)
         self._mean = u
 
-    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> torch.Tensor:
-        return normalize_importance(pim, self._mean, self.lower, self.delta, valid)
+    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None, mean: Optional[float] = None) -> torch.Tensor:
+        if mean is None:
+            return normalize_importance(pim, self._mean, self.lower, self.delta, valid)
+        u = check_mean(mean)
+        _check_lower_delta(u, self.lower, self.delta)
+        return normalize_importance(pim, u, self.lower, self.delta, valid)
 
     def extra_repr(self) -> str:
         return f"mean={self._mean}, lower={self.lower}, delta={self.delta}"

@@ -64,6 +64,7 @@ from data_gen.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
 from ..core.importance import check_ipr
+from ..core.operating_point import OperatingPoint
 from ..core.patterns import SamplingPattern, c_pixels_to_fr
 from ..models.ims import IMSMaskHead
 
@@ -241,6 +242,12 @@ class Method(abc.ABC):
         self.opts = opts or NetOptions()
         self.device = pick_device(self.opts.device)
 
+    def with_ray_caster(self, renderer) -> "Method":
+        """The same method (its prepared networks shared) on another ray caster."""
+        twin = copy.copy(self)
+        twin.renderer = renderer
+        return twin
+
     def _tensor(self, x: torch.Tensor) -> torch.Tensor:
         x = x.to(self.device, non_blocking=True)
         return x.contiguous(memory_format=torch.channels_last) if self.opts.channels_last else x
@@ -387,73 +394,82 @@ def prepare_mask_head(head: IMSMaskHead, device: torch.device, opts: NetOptions)
 class IMLSRenderer(PatternMethod):
     """The product: IML/S + RecNN. View -> mask head -> IM -> ray-cast only those pixels -> decoder -> RecNN.
 
+    Built from its parts and one operating point, in the manner of pytorch3d's ``ImplicitRenderer(raysampler,
+    raymarcher)``; its forward pass (:meth:`steps`) times nothing (:func:`imls_lightning.evaluation.timing.timed`
+    times it from outside).
+
     Args:
         renderer: the ray caster, the scene's renderer (``render_pixels`` is used).
         pattern: the RecNN's sampling pattern.
-        mask: the mask head: an :class:`~imls_lightning.models.ims.IMSMaskHead` (run at ``mean`` with
-            ``lift``; its generator prepared as ``opts`` asks), or any module or callable view
-            ``(1, 9)`` float32 on the device -> ``(1, 1, n, n)`` bool IM with its mean bound (an
-            exported ``im`` network, a fixed mask); padding already zero.
+        mask: the mask head: an :class:`~imls_lightning.models.ims.IMSMaskHead` (run at ``point``; its generator
+            prepared as ``opts`` asks), or any module or callable view ``(1, 9)`` float32 on the device ->
+            ``(1, 1, n, n)`` bool IM with its point bound (an exported ``im`` network, a fixed mask); padding already
+            zero.
         decoder: the IML decoder ``(pr_c_image (1, 3, n, n), im (1, 1, n, n)) -> (1, 3, n, n)``.
         recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
         opts: :class:`NetOptions`.
-        mean: the mean value an :class:`IMSMaskHead` runs at (``None``: the trained one; another needs
-            ``target="pim"``); ``lift``: lift its masks to the share ``mean``.
-        by_distance: a :class:`~imls_lightning.models.ims.DistanceMeans`: each view runs at its band of
-            camera distance's mean value instead of ``mean`` (the evaluation's ``orp_by_distance`` point;
-            an :class:`IMSMaskHead` with ``target="pim"`` only). ``info["mean"]`` is then the view's.
+        point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` the masks are made at (share, lift,
+            bands of camera distance, sharpness, object floor; another share than the trained one needs
+            ``target="pim"``). ``None``: an :class:`IMSMaskHead` at its trained share, as it is; for a bound mask,
+            what it is bound to when said (an export's), else unknown.
+        record: the evaluation's record the point came from
+            (:class:`~imls_lightning.inference.operating_point.ORPRecord`, or an export's dict), or ``None``.
 
     Attributes:
-        mean: the mean value the masks are made at (the trained one for ``mean=None``; ``None`` when a
-            bound mask does not say; with ``by_distance`` the single recorded value, for display); lift;
-            by_distance; operating_point (the evaluation's record it came from, or None); mask
-            (``view -> IM``), mask_head (the prepared head, or None).
+        point (frozen), record, mask (``view -> IM``), mask_head (the prepared head, or None); mean (the
+        share as the paper's mean value ``u`` the masks are made at: the trained one for ``share=None``; ``None``
+        when a bound mask does not say; with bands the single recorded value, for display), lift, by_distance
+        (the bands as a :class:`~imls_lightning.models.ims.DistanceMeans`, or None). ``info["mean"]`` of a run is
+        the view's band's with bands.
 
     Example:
         >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
-        >>> image, timings = r.render(view)          # (m, m, 3) uint8, {stage: seconds, "total": ...}  # doctest: +SKIP
-        >>> r = IMLSRenderer(ray_caster, pattern, nets.head, nets.decoder, nets.recnn, mean=0.4)      # doctest: +SKIP
+        >>> image = r.render(view)                    # (m, m, 3) uint8                                  # doctest: +SKIP
+        >>> r = IMLSRenderer(ray_caster, pattern, nets.head, nets.decoder, nets.recnn,
+        ...                  point=OperatingPoint(share=0.4))                                              # doctest: +SKIP
     """
 
     name = "imls"
 
     def __init__(self, renderer, pattern, mask, decoder: torch.nn.Module, recnn: torch.nn.Module,
-                 opts: NetOptions | None = None, *, mean: float | None = None, lift: bool = False,
-                 by_distance: torch.nn.Module | None = None):
+                 opts: NetOptions | None = None, *, point: OperatingPoint | None = None, record: Any = None):
         super().__init__(renderer, pattern, opts)
+        if point is not None and not isinstance(point, OperatingPoint):
+            raise InputError(f"point={point!r}: expected an OperatingPoint (imls_lightning.core.operating_point)")
         self.mask_head = None
-        if by_distance is not None and not isinstance(mask, IMSMaskHead):
-            raise InputError("by_distance: needs the IMS's mask head (an IMSMaskHead), not a bound mask")
         if isinstance(mask, IMSMaskHead):
             self.mask_head = prepare_mask_head(mask, self.device, self.opts)
-            mask = self.mask_head.at(mean if by_distance is None else by_distance, lift)  # InputError for a target=im head
-            mean = mask.head.trained_mean if mean is None else float(mean)
+            point = point if point is not None else self.mask_head.point()
+            mask = self.mask_head.at(point)  # InputError for a share of a target=im head
         self.mask = mask
-        self.mean, self.lift, self.by_distance = mean, bool(lift), by_distance
-        self.operating_point = None
+        self.point, self.record = point, record
+        share = None if point is None else point.share
+        self.mean = share if share is not None or self.mask_head is None else self.mask_head.trained_mean
+        self.lift = point is not None and point.lift
+        self.by_distance = getattr(mask, "by_distance", None) if self.mask_head is not None else None
         self.decoder = prepare_net(decoder, self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @classmethod
-    def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, mean: float | None = None,
-                  lift: bool = False, by_distance: torch.nn.Module | None = None) -> "IMLSRenderer":
+    def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, point: OperatingPoint | None = None,
+                  record: Any = None) -> "IMLSRenderer":
         """The renderer of the product's networks (:class:`~imls_lightning.inference.checkpoints.IMSNets`:
-        mask head, decoder, RecNN) and a ray caster, at ``mean`` (``None``: the trained mean) or ``by_distance``."""
+        mask head, decoder, RecNN) and a ray caster, at ``point`` (``None``: the trained share)."""
         recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
-        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, mean=mean, lift=lift, by_distance=by_distance)
+        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, point=point, record=record)
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
                          recnn_checkpoint: str | None = None, opts: NetOptions | None = None,
-                         mean: float | str | None = None) -> "IMLSRenderer":
+                         share: float | str | None = None, mean: float | str | None = None) -> "IMLSRenderer":
         """Build the renderer from an IMS checkpoint (it carries the IML decoder and the RecNN):
         :func:`~imls_lightning.inference.checkpoints.load_product` composed with a ray caster.
 
         By default it runs at the operating point the evaluation recorded for this checkpoint
         (``<ims.ckpt>.orp.json``, checked against the checkpoint's bytes: the report's ORP, its
-        masks lifted if the evaluation lifted them), else at the trained mean; one line on stderr
-        says which (:mod:`imls_lightning.inference.operating_point`). :attr:`mean` is the mean value
-        it runs at, :attr:`operating_point` the record used (``None``: none).
+        masks lifted, sharpened and floored as the evaluation made them), else at the trained share; one line on
+        stderr says which (:mod:`imls_lightning.inference.operating_point`). :attr:`point` is the point it runs at,
+        :attr:`record` the record used (``None``: none).
 
         Args:
             ims_checkpoint: a ``.ckpt`` of ``model=ims``.
@@ -461,15 +477,15 @@ class IMLSRenderer(PatternMethod):
                 by default the scene and renderer the IMS was trained on (stored in its checkpoint).
             recnn_checkpoint: use this RecNN instead of the one stored in the IMS checkpoint.
             opts: :class:`NetOptions` (device, half, channels_last, compile).
-            mean: ``None``: the recorded operating point, else the trained mean; a number in
-                ``[0.01, 1]``: that mean value (the paper's rescale; needs ``model.target=pim``);
-                ``"trained"``: the trained mean. Neither reads the record.
+            share: ``None``: the recorded operating point, else the trained share; a number in
+                ``[0.01, 1]``: that share of the C-Image (the paper's rescale to that mean value; needs
+                ``model.target=pim``); ``"trained"``: the trained share. Neither reads the record.
+                ``mean``: the same (its older name).
         """
-        product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
+        product = load_product(ims_checkpoint, recnn_checkpoint, share=share if share is not None else mean,
+                               share_key="share" if share is not None or mean is None else "mean")
         ray_caster = renderer_for(product.nets.hparams, scene, renderer, renderer_cfg)
-        method = cls.from_nets(product.nets, ray_caster, opts, mean=product.mean, lift=product.lift, by_distance=product.by_distance)
-        method.operating_point = product.operating_point
-        return method
+        return cls.from_nets(product.nets, ray_caster, opts, point=product.point, record=product.record)
 
     def predict_im(self, view: torch.Tensor) -> torch.Tensor:
         """The IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` (float32, on the device): the mask, the

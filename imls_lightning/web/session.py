@@ -27,7 +27,9 @@ from ..core.patterns import c_pixels_to_fr
 from ..evaluation.timing import timed_run  # each frame's stages, timed from outside the methods
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
+from ..core.operating_point import OperatingPoint
 from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, view_tensor
+from ..models.ims import DistanceMeans
 from ..report.viz import error_map, to_uint8
 
 #: the methods a user can pick, with their labels
@@ -91,12 +93,11 @@ class ViewerSession(OrbitCamera):
         azimuth, elevation, distance: start camera (degrees, degrees, normalized units; ``None``:
             the middle of the scene's camera distance range).
         method: the start method (:data:`METHODS`).
-        start_mean: the start mean value of IML/S (``None``: the trained mean);
-            :meth:`from_checkpoints` passes the operating point the evaluation recorded for the IMS.
-        lift: IML/S's masks lifted to the share of the mean value (as the evaluation's operating point says).
-        by_distance: the recorded point's mean value per band of camera distance
-            (:class:`~imls_lightning.models.ims.DistanceMeans`, ``orp_by_distance``): IML/S at ``start_mean``
-            runs each view at its band's value; a mean value set with the slider holds for every view.
+        point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` IML/S opens at (``None``: the trained
+            share); :meth:`from_checkpoints` passes the one the evaluation recorded for the IMS. Its share is the start
+            mean value; at it each view runs at its band's share (``bands``); a mean value set with the slider holds for
+            every view, with the point's lift, sharpness and object floor.
+        record: the evaluation's record the point came from (``None``: none).
     """
 
     nets: IMSNets
@@ -109,9 +110,8 @@ class ViewerSession(OrbitCamera):
     elevation: float = 20.0
     distance: float | None = None
     method: str = "imls"
-    start_mean: float | None = None
-    lift: bool = False
-    by_distance: torch.nn.Module | None = None
+    point: OperatingPoint | None = None
+    record: Any = None
 
     def __post_init__(self):
         scene = getattr(self.renderer, "scene", None)
@@ -124,12 +124,17 @@ class ViewerSession(OrbitCamera):
         self.home = (float(self.azimuth), float(self.elevation), float(self.distance))
         self.scene_name = getattr(scene, "name", "?")
         self.trained_mean = self.nets.trained_mean
+        # the start point as the viewer shows it, made once here: its share as the mean value u, lift, bands, the record
+        self.start_mean = None if self.point is None else self.point.u
+        self.lift = self.point is not None and self.point.lift
+        b = None if self.point is None else self.point.bands
+        self.by_distance = None if b is None else DistanceMeans(b.edges, b.shares, b.floor_margins)
+        self.operating_point = self.record
         self.mean = self.trained_mean
         self.rescalable = self.nets.target == "pim"
         if self.start_mean is not None:
             self.set_mean(self.start_mean)  # checked there
             self.mean = float(self.start_mean)  # exactly the recorded point, not rounded like a slider value
-        self.operating_point = None  # the record the start mean came from (from_checkpoints)
         self._imls: dict[float, IMLSRenderer] = {}
         self.truth_method = FullRayCast(self.renderer, self.pattern.fr_size, self.opts)
         self.recnn_method = RecNNAlone(self.renderer, self.pattern, self.recnn, self.opts)
@@ -140,8 +145,10 @@ class ViewerSession(OrbitCamera):
         if self.predictor is not None:
             from ..adaptive.renderer import AdaptiveIMLSRenderer
 
-            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder,
+            head = self.nets.head if self.point is None else self.nets.head.for_point(self.point)  # its sharpness and floor
+            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.pattern, head, self.nets.decoder,
                                                         self.recnn, self.predictor, self.opts, lift=self.lift)
+
         self.history: deque[tuple[str, float, float]] = deque(maxlen=HISTORY)
         self._truth_cache: tuple[bytes, np.ndarray] | None = None
         self.set_method(self.method)
@@ -157,7 +164,7 @@ class ViewerSession(OrbitCamera):
         (its masks lifted if the evaluation lifted them), else at the trained mean, as
         :meth:`IMLSRenderer.from_checkpoints` does; ``mean`` (a number or ``"trained"``) overrides it.
         """
-        product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
+        product = load_product(ims_checkpoint, recnn_checkpoint, share=mean, share_key="mean")
         nets, recnn = product.nets, product.nets.recnn
         if recnn is None:
             raise InputError(f"ims_checkpoint={ims_checkpoint}: holds no RecNN; pass recnn_checkpoint=<RecNN .ckpt>")
@@ -174,8 +181,7 @@ class ViewerSession(OrbitCamera):
 
             mean_predictor = MeanPredictor.load(predictor)
         session = cls(nets, recnn, renderer_for(nets.hparams), las=las, predictor=mean_predictor, opts=opts or NetOptions(),
-                      start_mean=product.mean, lift=product.lift, by_distance=product.by_distance, **camera)
-        session.operating_point = product.operating_point
+                      point=product.point, record=product.record, **camera)
         return session
 
     @property
@@ -209,10 +215,12 @@ class ViewerSession(OrbitCamera):
     # -- rendering ---------------------------------------------------------------------------------
     def _imls_at(self, u: float) -> IMLSRenderer:
         if u not in self._imls:
-            mean = None if abs(u - self.trained_mean) < 1e-9 else u
+            share = None if abs(u - self.trained_mean) < 1e-9 else u
             at_start = self.start_mean is not None and abs(u - float(self.start_mean)) < 1e-9
+            start = self.point if self.point is not None else self.nets.head.point()
+            point = start.replace(share=share, bands=start.bands if at_start else None)
             self._imls[u] = IMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder, self.recnn, self.opts,
-                                         mean=mean, lift=self.lift, by_distance=self.by_distance if at_start else None)
+                                         point=point)
         return self._imls[u]
 
     def _truth(self, view: np.ndarray):

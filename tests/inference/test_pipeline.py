@@ -28,6 +28,7 @@ from imls_lightning.inference.pipeline import (
 )
 from imls_lightning.evaluation.timing import time_method, time_methods, timed
 from imls_lightning.inference.checkpoints import load_task
+from imls_lightning.core.operating_point import OperatingPoint
 
 ROOT = Path(__file__).resolve().parents[2]
 CPU = NetOptions(device="cpu")
@@ -343,7 +344,7 @@ def test_imls_renderer_at_another_mean_needs_a_pim_target(env):
     if ims.target == "pim":
         pytest.skip("the tiny IMS regresses PIM'")
     with pytest.raises(InputError, match="target=pim"):
-        IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, mean=0.3)
+        IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, point=OperatingPoint(share=0.3))
 
 
 def test_net_options_from_config_smoke_and_device_override(monkeypatch):
@@ -437,16 +438,15 @@ def test_the_product_of_committed_networks_at_their_point_is_bit_identical_to_be
     the same IM and the same image, bit for bit, as the code before the refactor (SEED_WHOLE_PRODUCT)."""
     import hashlib
 
+    from imls_lightning.core.operating_point import Bands
     from imls_lightning.inference.checkpoints import load_ims_nets
-    from imls_lightning.models.ims import DistanceMeans
 
     nets = load_ims_nets(ROOT / "benchmarks" / "rows" / "seed_whole" / "ims.ckpt")
-    head = nets.head.with_sharpness(3.0).with_object_floor(0.14, 0.2)
-    bands = DistanceMeans([3.808149662596027, 4.2323177988619545, 4.791850412524883], [0.4217, 0.36518, 0.28387, 0.23714],
-                          [0.14, 0.02, None, None])
-    point = IMLSRenderer(_IndexColours(), nets.pattern, head, nets.decoder, nets.recnn, CPU, mean=0.4217, lift=True,
-                         by_distance=bands)
-    plain = IMLSRenderer(_IndexColours(), nets.pattern, nets.head, nets.decoder, nets.recnn, CPU, mean=0.3)
+    bands = Bands([3.808149662596027, 4.2323177988619545, 4.791850412524883], [0.4217, 0.36518, 0.28387, 0.23714],
+                  [0.14, 0.02, None, None])
+    at_point = OperatingPoint(share=0.4217, lift=True, bands=bands, sharpness=3.0, object_floor=(0.14, 0.2))
+    point = IMLSRenderer(_IndexColours(), nets.pattern, nets.head, nets.decoder, nets.recnn, CPU, point=at_point)
+    plain = IMLSRenderer(_IndexColours(), nets.pattern, nets.head, nets.decoder, nets.recnn, CPU, point=OperatingPoint(share=0.3))
     views = [[0, 0, 3.7, 0, 0, 0, 0, 1, 0], [2.9, 0.4, 3.0, 0, 0, 0, 0, 1, 0], [0, 4.9, 0.3, 0, 0, 0, 1, 0, 0]]
     digest = lambda a: hashlib.sha256(a.tobytes()).hexdigest()[:16]  # noqa: E731
     with torch.inference_mode():
