@@ -227,6 +227,15 @@ def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys)
     assert parse_args(["ims_checkpoint=a", "out=b", "mean=0.4"])["mean"] == "0.4"
     with pytest.raises(InputError, match=r"^mean=2: expected a number in \[0.01, 1\]"):
         export_renderer(ckpt, tmp_path / "bad", mean=2)
+    # share is the documented name (mean its older one): the same export, its own name in messages, not both at once
+    by_share = json.loads((export_renderer(ckpt, tmp_path / "share", share="trained") / "export.json").read_text())
+    assert by_share["mean"] == meta["mean"] and parse_args(["ims_checkpoint=a", "out=b", "share=0.4"])["share"] == "0.4"
+    with pytest.raises(InputError, match=r"^share=2: expected a number in \[0.01, 1\]"):
+        export_renderer(ckpt, tmp_path / "bad", share=2)
+    from imls_lightning.inference.operating_point import share_setting
+
+    with pytest.raises(InputError, match=r"^share=0.4 and mean=0.3: set one"):
+        share_setting(parse_args(["ims_checkpoint=a", "out=b", "share=0.4", "mean=0.3"]))
 
 
 def test_export_runs_a_point_recorded_by_camera_distance(renderer, tmp_path):

@@ -213,7 +213,7 @@ def _sha256(path: Path, length: int = 16) -> str:
 
 def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, format: str = "torchscript",
                     recnn_checkpoint: str | os.PathLike | None = None, overwrite: bool = False,
-                    mean: float | str | None = None) -> Path:
+                    mean: float | str | None = None, *, share: float | str | None = None) -> Path:
     """Export the per-view networks of an IMS checkpoint (see the module doc); returns ``out``.
 
     The ``im`` network thresholds at the operating point the evaluation recorded for the checkpoint
@@ -228,8 +228,9 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
         recnn_checkpoint: a RecNN checkpoint to use instead of the one in the IMS checkpoint
             (needed when the IML was standalone and no RecNN was stored).
         overwrite: replace an existing export directory.
-        mean: ``None``: the recorded operating point, else the trained mean; a number in
-            ``[0.01, 1]`` or ``"trained"``: that mean value (nothing is read).
+        share: ``None``: the recorded operating point, else the trained share; a number in
+            ``[0.01, 1]`` or ``"trained"``: that share of the C-Image (nothing is read). ``mean``: the same (its
+            older name).
 
     Raises:
         InputError: a bad format, a missing/wrong checkpoint, ``out`` exists, ONNX not installed.
@@ -249,10 +250,11 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
 
     from dataclasses import asdict
 
-    product = load_product(ims_checkpoint, recnn_checkpoint, share=mean, share_key="mean")
+    value, key = (share, "share") if share is not None else (mean, "mean")
+    product = load_product(ims_checkpoint, recnn_checkpoint, share=value, share_key=key)
     nets, point, record = product.nets, product.point, product.record
     if point is not None and nets.target != "pim":
-        raise InputError(f"mean={mean}: the IMS was trained with model.target={nets.target}; only its trained mean can be exported")
+        raise InputError(f"{key}={value}: the IMS was trained with model.target={nets.target}; only its trained mean can be exported")
     u, lift, bands = product.mean, product.lift, None if point is None else point.bands
     parts = export_parts(nets, point)
     pattern = nets.pattern

@@ -56,7 +56,7 @@ from ..core.importance import check_object_floor, check_sharpness
 from ..core.operating_point import Bands, OperatingPoint
 
 __all__ = ["SUFFIX", "ORPRecord", "sidecar_path", "write_operating_point", "read_operating_point", "point_to_run",
-           "record_digest", "SEARCH_TOLERANCE"]
+           "share_setting", "record_digest", "SEARCH_TOLERANCE"]
 
 #: appended to the checkpoint's file name
 SUFFIX = ".orp.json"
@@ -457,3 +457,20 @@ def point_to_run(ims_checkpoint: str | Path, share: float | str | None = None, *
         return None, None
     record = read_operating_point(ims_checkpoint, trained_mean, log=log)
     return (None, None) if record is None else (record.point, record)
+
+
+def share_setting(settings: Any) -> tuple[Any, str]:
+    """The share of the C-Image a user asked a viewer or the export for, and the key they typed it as: ``share`` (the
+    documented name) or ``mean`` (its older name, still read); ``(None, "share")`` when neither is set.
+
+    Raises:
+        InputError: both are set.
+
+    Example:
+        >>> share_setting({"share": 0.4, "mean": None}), share_setting({"mean": "trained"}), share_setting({})
+        ((0.4, 'share'), ('trained', 'mean'), (None, 'share'))
+    """
+    share, mean = settings.get("share"), settings.get("mean")
+    if share is not None and mean is not None:
+        raise InputError(f"share={share} and mean={mean}: set one (mean is share's older name)")
+    return (mean, "mean") if share is None and mean is not None else (share, "share")

@@ -155,16 +155,18 @@ class ViewerSession(OrbitCamera):
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, recnn_checkpoint: str | None = None, las_checkpoint: str | None = None,
-                         predictor: str | None = None, *, opts: NetOptions | None = None, mean: float | str | None = None,
-                         **camera) -> "ViewerSession":
+                         predictor: str | None = None, *, opts: NetOptions | None = None, share: float | str | None = None,
+                         mean: float | str | None = None, **camera) -> "ViewerSession":
         """Load the IMS (and optionally another RecNN, a LAS checkpoint and a mean predictor); the
         scene and renderer are those the IMS was trained on. Bad or mismatched files fail in one line.
 
         The session opens at the operating point the evaluation recorded for the IMS checkpoint
         (its masks lifted if the evaluation lifted them), else at the trained mean, as
-        :meth:`IMLSRenderer.from_checkpoints` does; ``mean`` (a number or ``"trained"``) overrides it.
+        :meth:`IMLSRenderer.from_checkpoints` does; ``share`` (a number or ``"trained"``; ``mean``: its older name)
+        overrides it.
         """
-        product = load_product(ims_checkpoint, recnn_checkpoint, share=mean, share_key="mean")
+        value, key = (share, "share") if share is not None else (mean, "mean")
+        product = load_product(ims_checkpoint, recnn_checkpoint, share=value, share_key=key)
         nets, recnn = product.nets, product.nets.recnn
         if recnn is None:
             raise InputError(f"ims_checkpoint={ims_checkpoint}: holds no RecNN; pass recnn_checkpoint=<RecNN .ckpt>")
