@@ -1,7 +1,8 @@
 """Inference: the IML/S + RecNN renderer users call, and the baselines it is measured against.
 
-Every method renders a view into an ``(m, m, 3)`` uint8 image and reports each stage's wall time
-separately (CUDA-synchronized when the networks run on a GPU):
+Every method renders a view into an ``(m, m, 3)`` uint8 image in named stages (:meth:`Method.steps`, a generator
+that names each stage as it starts it) and times nothing itself; :mod:`imls_lightning.evaluation.timing` times any
+method by those stages (CUDA-synchronized when the networks run on a GPU):
 
 =====================  =====================================================================
 method                 stages
@@ -26,35 +27,33 @@ pixels are on the networks' device (the host-to-device copy is part of deliverin
 methods), ``rendered_pixels`` (rays cast at FR in the render stages), and ``im`` (the ``(n, n)``
 bool IM on the CPU; IML methods).
 
-Options (:class:`NetOptions`) apply to every network's ``forward``: ``torch.compile`` wraps the
+Options (:class:`~imls_lightning.inference.options.NetOptions`, with the device, in :mod:`.options`) apply to every
+network's ``forward``: ``torch.compile`` wraps the
 modules called directly (IMS generator, IML decoder, RecNN, LAS nets); the IML encoder path of
 ``iml`` (``IMLNet.importance``) and LAS's importance/reconstruction methods run uncompiled.
 
-The product is a composition of plain modules, in the manner of pytorch3d's renderer:
-:class:`IMLSRenderer` ``(ray caster, sampling pattern, mask head, decoder, RecNN)``, the mask head an
-:class:`~imls_lightning.models.ims.IMSMaskHead` run at the mean value and lift given at construction.
-What a method returns depends on its construction and its call's arguments only: the mean, the lift,
-an oracle mask (:meth:`IMLSRenderer.run`'s ``im``) and LAS's IPR (:meth:`LASMethod.run`'s ``ipr``)
-are arguments. Reading the networks from checkpoints is
+The product is a composition of plain modules, in the manner of pytorch3d's ``ImplicitRenderer(raysampler,
+raymarcher)``: :class:`IMLSRenderer` ``(ray caster, sampling pattern, mask head, decoder, RecNN, point)``, the mask
+head an :class:`~imls_lightning.models.ims.IMSMaskHead` run at the one frozen
+:class:`~imls_lightning.core.operating_point.OperatingPoint` given at construction. What a method returns depends on
+its construction and its call's arguments only: the point, an oracle mask (:meth:`IMLSRenderer.run`'s ``im``) and
+LAS's IPR (:meth:`LASMethod.run`'s ``ipr``). Reading the networks from checkpoints is
 :mod:`~imls_lightning.inference.checkpoints`' (:func:`~imls_lightning.inference.checkpoints.load_product`).
 
 Example:
     >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
-    >>> image, timings = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                                       # doctest: +SKIP
-    >>> timings                     # seconds per stage                                                  # doctest: +SKIP
+    >>> image = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                                                # doctest: +SKIP
+    >>> from imls_lightning.evaluation.timing import timed                                               # doctest: +SKIP
+    >>> image, timings = timed(r).render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])  # seconds per stage            # doctest: +SKIP
+    >>> timings                                                                                          # doctest: +SKIP
     {'importance': 0.004, 'selective_render': 0.021, 'decoder': 0.006, 'recnn': 0.011, 'total': 0.042}
 """
 from __future__ import annotations
 
 import abc
-import contextlib
 import copy
-import importlib.util
-import os
-import shutil
-import time
 from dataclasses import dataclass, field
-from typing import Any, Generator, Mapping
+from typing import Any, Generator
 
 import numpy as np
 import torch
@@ -63,73 +62,13 @@ from data_gen.camera import validate_view
 from data_gen.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
+from .options import NetOptions, compile_available, half_is_faster, pick_device, prepare_net  # noqa: F401 (re-exported)
 from ..core.importance import check_ipr
 from ..core.operating_point import OperatingPoint
 from ..core.patterns import SamplingPattern, c_pixels_to_fr
 from ..models.ims import IMSMaskHead
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
-
-
-def pick_device(device: str | torch.device = "auto") -> torch.device:
-    """``"auto"``: CUDA when present, else the CPU."""
-    if str(device) == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    d = torch.device(device)
-    if d.type == "cuda" and not torch.cuda.is_available():
-        raise InputError(f"device={device}: CUDA is not available on this machine")
-    return d
-
-
-_HALF_IS_FASTER: dict[str, bool] = {}
-
-
-def half_is_faster(device: torch.device) -> bool:
-    """Whether reduced-precision autocast (bfloat16 on the CPU, float16 on CUDA) beats float32 here.
-
-    Measured once per process and device on a small convolution stack (32 channels at 128², the width and size of
-    this project's decoders), the two precisions interleaved run by run over 9 rounds after a warm-up of each, by
-    their medians: a load that comes and goes slows both alike. A CPU with AVX-512 BF16 or AMX runs bfloat16 about
-    1.5-2x faster; an AVX2-only CPU emulates it, 40-90x slower (measured on this project's machines):
-    ``options.half: auto`` asks this instead of assuming. (Timed back to back on a 16-channel 96² stack, the answer
-    flipped between runs on the AMX machine: an evaluation ran float32 where its estimate had run bfloat16.)
-    """
-    key = str(device)
-    if key not in _HALF_IS_FASTER:
-        net = torch.nn.Sequential(*[torch.nn.Conv2d(32, 32, 3, padding=1) for _ in range(3)]).to(device).eval()
-        x = torch.rand(1, 32, 128, 128, device=device)
-        opts = NetOptions(device=key, half=True)
-
-        def once(half: bool) -> float:
-            with torch.inference_mode():
-                t0 = time.perf_counter()
-                with opts.autocast(device) if half else contextlib.nullcontext():
-                    net(x)
-                if device.type == "cuda":
-                    torch.cuda.synchronize(device)
-                return time.perf_counter() - t0
-
-        once(True), once(False)  # warm-up: the first call of each precision builds its kernels
-        times: dict[bool, list[float]] = {True: [], False: []}
-        for _ in range(9):
-            for half in (True, False):
-                times[half].append(once(half))
-        _HALF_IS_FASTER[key] = float(np.median(times[True])) < float(np.median(times[False]))
-    return _HALF_IS_FASTER[key]
-
-
-def compile_available(device: torch.device) -> str | None:
-    """``None`` where ``torch.compile`` can build kernels for ``device``, else why not, in a few words: on CUDA it
-    needs Triton, on the CPU a C++ compiler (``$CXX``, else ``g++``, ``c++`` or ``clang++`` on the PATH).
-
-    Example:
-        >>> compile_available(torch.device("cpu")) in (None, "no C++ compiler ($CXX, g++, c++ or clang++) on the PATH")
-        True
-    """
-    if device.type == "cuda":
-        return None if importlib.util.find_spec("triton") is not None else "Triton is not installed"
-    names = [os.environ["CXX"]] if os.environ.get("CXX") else ["g++", "c++", "clang++"]
-    return None if any(shutil.which(n) for n in names) else "no C++ compiler ($CXX, g++, c++ or clang++) on the PATH"
 
 
 def view_tensor(view, device) -> torch.Tensor:
@@ -143,58 +82,6 @@ def view_tensor(view, device) -> torch.Tensor:
     return torch.from_numpy(np.array(view, np.float32))[None].to(device)
 
 
-@dataclass
-class NetOptions:
-    """Inference options, each measured rather than assumed (see ``evaluate.options``)."""
-
-    device: str = "auto"
-    half: bool = False            # float16 on CUDA, bfloat16 on the CPU (autocast); from_config also takes "auto"
-    channels_last: bool = False
-    compile: bool = False         # torch.compile each network (first call pays the compile); from_config takes "auto"
-
-    #: the switches (besides ``device``), as in the ``options`` node of evaluate / adaptive
-    SWITCHES = ("half", "channels_last", "compile")
-
-    @classmethod
-    def from_config(cls, options: Mapping[str, Any] | None, device: str | None = None, key: str = "options") -> "NetOptions":
-        """Validated options from a config node ``{device?, half?, channels_last?, compile?}`` (``half`` and
-        ``compile`` also take ``"auto"``: bfloat16 where it is faster here, :func:`half_is_faster`; torch.compile where it
-        can build kernels, :func:`compile_available`);
-        ``device`` (when given) is used instead of the node's. A bad key or value raises a one-line
-        :class:`InputError` naming ``<key>.<name>``; a missing CUDA device fails here, not mid-run.
-
-        Example:
-            >>> NetOptions.from_config({"half": True}, device="cpu")
-            NetOptions(device='cpu', half=True, channels_last=False, compile=False)
-        """
-        opt = dict(options or {})
-        unknown = set(opt) - {"device", *cls.SWITCHES}
-        if unknown:
-            raise InputError(f"{key}.{sorted(unknown)[0]}: unknown option; expected device, {', '.join(cls.SWITCHES)}")
-        dev = lambda: pick_device(str(device if device is not None else opt.get("device", "auto")))  # noqa: E731
-        if opt.get("half") == "auto":
-            opt["half"] = half_is_faster(dev())
-        if opt.get("compile") in ("auto", True):
-            why_not = compile_available(dev())
-            if why_not and opt["compile"] is True:
-                raise InputError(f"{key}.compile=true: torch.compile cannot run here ({why_not}); "
-                                 "set compile=auto (compile where it can) or false")
-            opt["compile"] = why_not is None
-        for k in cls.SWITCHES:
-            if not isinstance(opt.get(k, False), bool):
-                raise InputError(f"{key}.{k}={opt.get(k)}: expected true or false" + (" or auto" if k in ("half", "compile") else ""))
-        out = cls(device=str(device if device is not None else opt.get("device", "auto")),
-                  **{k: bool(opt.get(k, False)) for k in cls.SWITCHES})
-        pick_device(out.device)
-        return out
-
-    def autocast(self, device: torch.device):
-        if not self.half:
-            return contextlib.nullcontext()
-        dtype = torch.float16 if device.type == "cuda" else torch.bfloat16
-        return torch.autocast(device.type, dtype=dtype)
-
-
 def run_steps(steps: Generator[str | None, None, "RenderResult"]) -> "RenderResult":
     """Run a method's forward pass (:meth:`Method.steps`) to its end, timing nothing: its :class:`RenderResult`
     (``timings`` empty). :func:`imls_lightning.evaluation.timing.timed_run` runs the same steps timing each stage."""
@@ -203,18 +90,6 @@ def run_steps(steps: Generator[str | None, None, "RenderResult"]) -> "RenderResu
             next(steps)
         except StopIteration as stop:
             return stop.value
-
-
-def prepare_net(net: torch.nn.Module | None, device: torch.device, opts: NetOptions):
-    """``net`` on ``device`` in eval mode, channels-last and/or compiled as ``opts`` asks (``None`` stays ``None``)."""
-    if net is None:
-        return None
-    net = net.to(device).eval()
-    if opts.channels_last:
-        net = net.to(memory_format=torch.channels_last)
-    if opts.compile:
-        net = torch.compile(net)
-    return net
 
 
 def to_uint8_image(x: torch.Tensor) -> np.ndarray:
