@@ -112,9 +112,9 @@ def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
 
 
 def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer=None):
-    """The ORP on the product path (validation views): ``(orp summary | None, mean IML/S runs at | None, lift)``, the
-    summary :func:`~.operating_point.orp_summary`'s; ``renderer`` times the mask sharpnesses' operating points when there
-    are several."""
+    """The ORP on the product path (validation views): ``(orp summary | None, the OperatingPoint IML/S runs at)``, the
+    summary :func:`~.operating_point.orp_summary`'s, the point :func:`~.operating_point.point_of` it (its share ``None``:
+    the trained one); ``renderer`` times the mask sharpnesses' operating points when there are several."""
     ims = nets.ims_task
     orp, imls_mean, lift = None, None, s.ims_lift is True  # lift: IML/S's masks lifted to their share
     if s.orp and ims.target == "pim":
@@ -130,12 +130,12 @@ def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, posi
     elif s.orp:
         notes.append(f"ORP search skipped: the IMS was trained with model.target={ims.target}, whose binary mask cannot be "
                      "rescaled to another mean (train the IMS with model.target=pim).")
-    return orp, imls_mean, lift
+    return orp, point_of(orp, imls_mean, lift)
 
 
 def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer,
                progress: EvaluationProgress, borrowed: dict[str, Any] | None = None):
-    """The operating point, the two-pass sampler's and LAS's at the promise: ``(orp summary | None, imls_mean, lift,
+    """The operating point, the two-pass sampler's and LAS's at the promise: ``(orp summary | None, OperatingPoint,
     two_pass | None, las | None)``, restored from ``progress`` when an earlier sitting searched them, else taken from ``borrowed`` (``orp_from``:
     :func:`~.operating_point.borrowed_point`) or searched, and kept there."""
     point = progress.point
@@ -152,10 +152,11 @@ def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions
         point = progress.point
     if point:
         notes += point["notes"]
-        orp, imls_mean, lift = point["orp"], point["imls_mean"], bool(point["lift"])
+        orp = point["orp"]
+        imls = point_of(orp, point["imls_mean"], bool(point["lift"]))
     else:
-        orp, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
-        progress.save_point({"orp": orp, "imls_mean": imls_mean, "lift": lift, "notes": list(notes)})
+        orp, imls = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
+        progress.save_point({"orp": orp, "imls_mean": imls.u, "lift": imls.lift, "notes": list(notes)})
     two_pass, las = None, None
     if s.two_pass_base is not None:
         if progress.point.get("two_pass") is not None:
@@ -169,7 +170,7 @@ def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions
         else:
             las = las_point(s, cfg, cache, scene, nets, renderer, device, future_views=len(positions))
             progress.save_point({**progress.point, "las_searched": las.to_dict()})
-    return orp, imls_mean, lift, two_pass, las
+    return orp, imls, two_pass, las
 
 
 def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list[float]:
@@ -429,9 +430,8 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
     # what an interrupted run of these settings measured: its point and views are kept, the rest measured
     progress = EvaluationProgress(out, positions, timed_pos, resume=s.resume)
-    orp, imls_mean, lift, two_pass, las = find_point(s, cfg, val_cache, scene, nets, device, positions, notes, renderer,
-                                                     progress, borrowed)
-    point = point_of(orp, imls_mean, lift)  # IML/S's operating point, given to every method that makes its masks
+    orp, point, two_pass, las = find_point(s, cfg, val_cache, scene, nets, device, positions, notes, renderer,
+                                           progress, borrowed)
     methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, point, notes,
                                           two_pass=two_pass, las=las, orp=orp,
                                           other_renderer=other_ray_caster(s, scene, rcfg, renderer, notes))
@@ -466,7 +466,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         rep.write_metrics_csv(option_rows, out / "options.csv", rep.OPTION_COLUMNS)
 
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
-                   methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp=orp,
+                   methods=methods, imls_mean=point.u, lift=point.lift, las_ipr=las_ipr_used, orp=orp,
                    equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass,
                    las_searched=las, timing_load=load_summary, ray_casters=both)
     report = write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)
