@@ -475,15 +475,16 @@ class ImportanceNormalization(nn.Module):
 
     @mean.setter
     def mean(self, value: float) -> None:
-        u = check_mean(value)
-        _check_lower_delta(u, self.lower, self.delta)
-        self._mean = u
+        self._mean = self.checked(value)
 
-    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None, mean: Optional[float] = None) -> torch.Tensor:
-        if mean is None:
-            return normalize_importance(pim, self._mean, self.lower, self.delta, valid)
+    def checked(self, mean: float) -> float:
+        """``mean`` validated as a mean value of this layer (in ``[0.01, 1]``, above its ``lower``)."""
         u = check_mean(mean)
         _check_lower_delta(u, self.lower, self.delta)
+        return u
+
+    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None, mean: Optional[float] = None) -> torch.Tensor:
+        u = self._mean if mean is None else self.checked(mean)
         return normalize_importance(pim, u, self.lower, self.delta, valid)
 
     def extra_repr(self) -> str:

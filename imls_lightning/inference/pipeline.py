@@ -215,8 +215,9 @@ class IMLPlusRecNN(PatternMethod):
     Args:
         iml: the :class:`~imls_lightning.models.iml.IMLNet` (encoder + decoder).
         recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
-        mean: normalization mean ``u`` at inference; ``None`` keeps the trained one. A different
-            value works on a private copy of ``iml`` (modules shared with other methods keep theirs).
+        mean: normalization mean ``u`` at inference (the paper's normalization of the IML's importance); ``None``
+            keeps the trained one. It is an argument of every normalization this method runs: the IML, shared with
+            other methods, is never changed.
     """
 
     name = "iml"
@@ -224,21 +225,17 @@ class IMLPlusRecNN(PatternMethod):
     def __init__(self, renderer, pattern, iml: torch.nn.Module, recnn: torch.nn.Module, opts: NetOptions | None = None,
                  mean: float | None = None):
         super().__init__(renderer, pattern, opts)
-        if mean is not None and float(mean) != float(iml.mean):
-            iml = copy.deepcopy(iml)
-            iml.mean = mean  # validated by IMLNet (InputError outside [0.01, 1])
+        # the mean value of every normalization this method runs (None: the IML's own), validated by the IML's layer
+        self._u = None if mean is None or float(mean) == float(iml.mean) else iml.normalization.checked(mean)
+        self.mean = float(iml.mean) if self._u is None else self._u
         self.iml = prepare_net(iml, self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
-
-    @property
-    def mean(self) -> float:
-        return float(self.iml.mean)
 
     def _importance(self, c: torch.Tensor, view, info: dict) -> Generator[str | None, None, torch.Tensor]:
         """The steps to the hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
         yield "importance"
         with self.opts.autocast(self.device):
-            return self.iml.importance(c, hard=True)
+            return self.iml.importance(c, hard=True, mean=self._u)
 
     def steps(self, view):
         yield "selective_render"

@@ -330,9 +330,10 @@ class IMLNet(nn.Module):
             im = self.sampling(pim_norm, hard)
         return im if self._all_valid else im * self.valid.to(im.dtype)
 
-    def importance(self, c_image: torch.Tensor, hard: bool = True) -> torch.Tensor:
-        """The IM alone: ``(B, 1, n, n)`` float32 (``{0, 1}`` when ``hard``; use ``.bool()`` for bits)."""
-        return self.sample(self.encode(c_image)[1], hard)
+    def importance(self, c_image: torch.Tensor, hard: bool = True, mean: Optional[float] = None) -> torch.Tensor:
+        """The IM alone: ``(B, 1, n, n)`` float32 (``{0, 1}`` when ``hard``; use ``.bool()`` for bits), at the mean value
+        ``mean`` (``None``: the net's own)."""
+        return self.sample(self.encode(c_image, mean)[1], hard)
 
     def decode(self, pr_c_image: torch.Tensor, im: torch.Tensor) -> torch.Tensor:
         """Rebuild the C-Image ``(B, 3, n, n)`` from the rendered pixels ``pr_c_image`` (``(B, 3, n, n)``,

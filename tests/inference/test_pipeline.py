@@ -390,3 +390,19 @@ def test_the_product_of_committed_networks_at_their_point_is_bit_identical_to_be
             assert digest(res.image) == image and res.info["rendered_pixels"] == count
             assert im is None or digest(res.info["im"].numpy()) == im
             assert key == "plain" or res.info["mean"] == pytest.approx(u, abs=1e-6)
+
+
+def test_iml_plus_recnn_at_another_mean_passes_it_per_call_and_changes_no_shared_iml(env):
+    """IML + RecNN at a mean value u normalizes each run at u (an argument, no private copy of the IML): the same IM and
+    image as an IML whose own mean is u, and the IML it shares with other methods keeps its trained mean."""
+    import copy
+
+    task, view = env["ims"], env["views"][0]
+    trained = float(task.iml.mean)
+    u = 0.3 if abs(trained - 0.3) > 1e-6 else 0.5
+    per_call = IMLPlusRecNN(env["renderer"], task.pattern, task.iml, task.recnn, CPU, mean=u)
+    own = copy.deepcopy(task.iml)
+    own.mean = u
+    a, b = per_call.run(view), IMLPlusRecNN(env["renderer"], task.pattern, own, task.recnn, CPU).run(view)
+    assert np.array_equal(a.image, b.image) and torch.equal(a.info["im"], b.info["im"])
+    assert per_call.mean == u and float(task.iml.mean) == trained
