@@ -4,7 +4,8 @@ The small public API, importable from the package itself::
 
     from imls_lightning import IMLSRenderer
     renderer = IMLSRenderer.from_checkpoints("ims.ckpt")   # IMS + IML decoder + RecNN + scene
-    image, timings = renderer.render(view)                 # view: 9 floats (eye, lookAt, up)
+    image = renderer.render(view)                          # view: 9 floats (eye, lookAt, up)
+    image, timings = timed(renderer).render(view)          # the same, timed by stage (imls_lightning.evaluation.timing)
 
 Every name in :data:`__all__` lives in one home module (see :data:`HOMES`) and is imported from
 there on first use (PEP 562 module ``__getattr__``), so ``import imls_lightning`` stays cheap: it
@@ -26,10 +27,13 @@ HOMES: dict[str, str] = {
     "IMLPlusRecNN": "imls_lightning.inference.pipeline",
     "LASMethod": "imls_lightning.inference.pipeline",
     "Method": "imls_lightning.inference.pipeline",
-    "NetOptions": "imls_lightning.inference.pipeline",
-    "time_method": "imls_lightning.inference.pipeline",
-    "time_methods": "imls_lightning.inference.pipeline",
-    "pick_device": "imls_lightning.inference.pipeline",
+    "NetOptions": "imls_lightning.inference.options",
+    "OperatingPoint": "imls_lightning.core.operating_point",
+    "Bands": "imls_lightning.core.operating_point",
+    "time_method": "imls_lightning.evaluation.timing",
+    "time_methods": "imls_lightning.evaluation.timing",
+    "timed": "imls_lightning.evaluation.timing",
+    "pick_device": "imls_lightning.inference.options",
     "AdaptiveIMLSRenderer": "imls_lightning.adaptive.renderer",
     "ExportedIMLSRenderer": "imls_lightning.inference.export",
     "export_renderer": "imls_lightning.inference.export",

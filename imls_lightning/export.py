@@ -1,5 +1,5 @@
 """``python -m imls_lightning.export ims_checkpoint=ims.ckpt format=torchscript|onnx out=DIR
-[recnn_checkpoint=recnn.ckpt] [overwrite=true] [mean=null]``: export the per-view networks of an IMS
+[recnn_checkpoint=recnn.ckpt] [overwrite=true] [share=null]``: export the per-view networks of an IMS
 checkpoint to TorchScript or ONNX.
 
 This entry point parses its ``key=value`` arguments and calls
@@ -20,11 +20,13 @@ from typing import Any, Sequence
 from imls_lightning.base.errors import InputError, cli_errors
 
 from .inference.export import META, export_renderer
+from .inference.operating_point import share_setting
 
 __all__ = ["parse_args", "main"]
 
+# share: the share of the C-Image the im network thresholds at (null: the recorded operating point); mean: its older name
 _KEYS = {"ims_checkpoint": None, "format": "torchscript", "out": None, "recnn_checkpoint": None, "overwrite": "false",
-         "mean": None}
+         "share": None, "mean": None}
 
 
 def parse_args(argv: Sequence[str]) -> dict[str, Any]:
@@ -43,7 +45,7 @@ def parse_args(argv: Sequence[str]) -> dict[str, Any]:
     if ov not in ("true", "false"):
         raise InputError(f"overwrite={args['overwrite']}: expected true or false")
     args["overwrite"] = ov == "true"
-    for key in ("recnn_checkpoint", "mean"):
+    for key in ("recnn_checkpoint", "share", "mean"):
         if args[key] in ("", "null", "None"):
             args[key] = None
     return args
@@ -53,8 +55,9 @@ def parse_args(argv: Sequence[str]) -> dict[str, Any]:
 def main(argv: Sequence[str] | None = None) -> Path:
     """Export, print a summary line per file on stderr and the export directory as the last stdout line."""
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    value, key = share_setting(args)
     out = export_renderer(args["ims_checkpoint"], args["out"], args["format"], args["recnn_checkpoint"], args["overwrite"],
-                          mean=args["mean"])
+                          **{key: value})
     meta = json.loads((out / META).read_text())
     print(f"[export] im thresholds at u = {meta['mean']:.3f}" + (" (masks lifted)" if meta["lift"] else "")
           + (" (the evaluation's operating point)" if meta["operating_point"] else ""), file=sys.stderr)

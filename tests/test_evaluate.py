@@ -474,7 +474,7 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
     from data_gen.cache import ViewImageCache
     from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
-    from imls_lightning.evaluation.operating_point import operating_share, orp_summary, product_path_orp, record_operating_point
+    from imls_lightning.evaluation.operating_point import operating_share, orp_summary, point_of, product_path_orp, record_operating_point
     from imls_lightning.inference.checkpoints import load_product
 
     main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
@@ -490,8 +490,9 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
     found = [c for c in cands if c["found"]]
     assert found and res.sharpness == min(found, key=lambda c: (c["c_share"], c["sharpness"]))["sharpness"]
     assert operating_share(res) == pytest.approx(min(c["c_share"] for c in found))
-    assert nets.ims_task.mask_sharpness == res.sharpness == nets.ims_task.mask_head.sharpness
+    assert nets.ims_task.mask_head.sharpness == 1.0  # the search leaves the IMS task as it is
     orp = orp_summary(res, s, lifted=res.lifted)
+    assert point_of(orp, res.mean, res.lifted).sharpness == res.sharpness  # the point carries the sharpness kept
     assert orp["sharpness"] == res.sharpness and orp["sharpness_candidates"] is cands
     from imls_lightning.report.document import _orp_lines
 
@@ -503,8 +504,8 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
     shutil.copy(s.ims, ck)
     record_operating_point(dataclasses.replace(s, ims=str(ck)), {**orp, "sharpness": 3.0}, "tiny", tmp_path / "report.md", 2)
     product = load_product(ck)
-    assert product.operating_point.sharpness == 3.0 and product.nets.head.sharpness == 3.0
-    assert "sharpness 3" in product.operating_point.describe()
+    assert product.record.sharpness == 3.0 and product.point.sharpness == 3.0
+    assert "sharpness 3" in product.record.describe()
     for bad, msg in (("ims_sharpness=0.5", "ims_sharpness=0.5: expected a number in [1, 8]"),
                      ("ims_sharpness=[]", "ims_sharpness=[]: expected a number or a list"),
                      ("ims_sharpness=[1,nan]", "ims_sharpness=nan")):
@@ -559,7 +560,7 @@ def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run,
     from data_gen.cache import ViewImageCache
     from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
-    from imls_lightning.evaluation.operating_point import orp_summary, product_path_orp, record_operating_point
+    from imls_lightning.evaluation.operating_point import orp_summary, point_of, product_path_orp, record_operating_point
     from imls_lightning.inference.checkpoints import load_product
     from imls_lightning.report.document import _orp_lines
 
@@ -581,12 +582,12 @@ def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run,
     held = [c for c in f["candidates"] if c["gap_bound_db"] <= 30]
     best = min(held, key=lambda c: c["c_share"])
     assert (f["chosen"] is None) == (best["margin"] is None)
-    if f["chosen"] is not None:
-        assert f["chosen"]["margin"] == best["margin"] and nets.ims_task.mask_object_floor == (best["margin"], 0.2)
-        assert nets.ims_task.mask_head.object_floor == (best["margin"], 0.2)
-    else:
-        assert nets.ims_task.mask_object_floor is None
     orp = orp_summary(res, s, lifted=res.lifted)
+    assert nets.ims_task.mask_head.object_floor is None  # the search leaves the IMS task as it is; the point carries the floor
+    if f["chosen"] is not None:
+        assert f["chosen"]["margin"] == best["margin"] and point_of(orp, res.mean, res.lifted).object_floor == (best["margin"], 0.2)
+    else:
+        assert point_of(orp, res.mean, res.lifted).object_floor is None
     assert orp["object_floor"] is f
     section = "\n".join(_orp_lines(orp, "test"))
     assert "**Object floor** (`orp_object_floor`)" in section and "| no floor |" in section
@@ -597,7 +598,7 @@ def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run,
     record_operating_point(dataclasses.replace(s, ims=str(ck)), {**orp, "object_floor": {**f, "chosen": chosen}}, "tiny",
                            tmp_path / "report.md", 2)
     product = load_product(ck)
-    assert product.operating_point.object_floor == chosen and product.nets.head.object_floor == (0.5, 0.2)
+    assert product.record.object_floor == chosen and product.point.object_floor == (0.5, 0.2)
     for bad, msg in (("orp_object_floor=1.5", "orp_object_floor=1.5: expected a margin or a list of margins in [0, 1]"),
                      ("orp_object_floor=[0.1,nan]", "orp_object_floor=nan"),
                      ("orp_object_floor_tau=1", "orp_object_floor_tau=1: expected an importance in (0, 1)")):
@@ -1013,15 +1014,15 @@ def test_a_renderer_from_the_ims_checkpoint_alone_runs_at_the_reports_orp(run, c
     r = IMLSRenderer.from_checkpoints(ims, opts=cpu)
     lines = _orp_lines(capsys)
     assert len(lines) == 1 and "running at the evaluation's operating point" in lines[0] and f"u = {orp['mean']:.3f}" in lines[0]
-    assert r.mean == orp["mean"] and r.operating_point.lift == orp["lift"] and r.operating_point.c_share == orp["c_share"]
+    assert r.mean == orp["mean"] and r.record.lift == orp["lift"] and r.record.c_share == orp["c_share"]
     views = _orp_views(run["ck"])
     share = float(np.mean([r.run(v).info["c_share"] for v in views]))
     assert abs(share - orp["c_share"]) <= 0.05, (share, orp["c_share"])
     # an explicit mean value (or the trained one) overrides the record, which is then not read
     trained = IMLSRenderer.from_checkpoints(ims, opts=cpu, mean="trained")
-    assert trained.mean == pytest.approx(_trained_mean(ims)) and trained.operating_point is None
+    assert trained.mean == pytest.approx(_trained_mean(ims)) and trained.record is None
     at = IMLSRenderer.from_checkpoints(ims, opts=cpu, mean=0.05)
-    assert at.mean == 0.05 and at.operating_point is None and _orp_lines(capsys) == []
+    assert at.mean == 0.05 and at.record is None and _orp_lines(capsys) == []
     assert float(np.mean([at.run(v).info["c_share"] for v in views])) < share
     with pytest.raises(InputError, match=r"^mean=1.5: expected a number in \[0.01, 1\]"):
         IMLSRenderer.from_checkpoints(ims, opts=cpu, mean=1.5)
@@ -1043,7 +1044,7 @@ def test_the_record_is_checked_by_the_checkpoints_bytes(run, tmp_path, capsys):
     capsys.readouterr()
     r = IMLSRenderer.from_checkpoints(str(copy), opts=cpu)
     lines = _orp_lines(capsys)
-    assert r.mean == pytest.approx(u0) and r.operating_point is None
+    assert r.mean == pytest.approx(u0) and r.record is None
     assert len(lines) == 1 and "no recorded operating point" in lines[0] and f"running at the trained mean u = {u0:.3f}" in lines[0]
     shutil.copy(sidecar_path(src), sidecar_path(copy))
     mean = json.loads(sidecar_path(src).read_text())["mean"]
@@ -1056,7 +1057,7 @@ def test_the_record_is_checked_by_the_checkpoints_bytes(run, tmp_path, capsys):
             sidecar_path(copy).write_text(broken)
         r = IMLSRenderer.from_checkpoints(str(copy), opts=cpu)
         lines = _orp_lines(capsys)
-        assert r.mean == pytest.approx(u0) and r.operating_point is None
+        assert r.mean == pytest.approx(u0) and r.record is None
         assert len(lines) == 1 and lines[0].startswith(f"[orp] warning: {sidecar_path(copy)} ignored: {why}"), lines
         assert lines[0].endswith(f"running at the trained mean u = {u0:.3f}")
 
@@ -1143,7 +1144,7 @@ def test_two_pass_sampler_by_distance_gives_each_band_its_own_share(run):
     point = two_pass_point(s, cfg, main, build_scene(cfg.scene), nets, nets.ims_task.pattern, "cpu", future_views=2)
     assert point.found
     b = point.by_distance
-    assert len(b["shares"]) == 2 and all(0.2 < x <= point.share for x in b["shares"]) and b["views"] == [2, 2]
+    assert len(b["shares"]) == 2 and all(0.2 < x <= point.value for x in b["shares"]) and b["views"] == [2, 2]
     assert b["hi"][0] < b["edges"][0] < b["lo"][1] and all(g <= 3.0 for g in b["bounds_db"])
     method = two_pass_method(point, object(), nets.ims_task.pattern, nets.recnn, None)
     assert method.shares == pytest.approx(b["shares"])
@@ -1233,7 +1234,8 @@ def test_las_at_the_promise_by_distance_gives_each_band_its_own_ipr(run):
     from imls_lightning.render import make_renderer
     from data_gen.scenes import build_scene
     from imls_lightning.evaluation import load_networks, parse_settings
-    from imls_lightning.evaluation.las_point import LASPoint, las_point, las_searched_method
+    from imls_lightning.evaluation.baseline_point import SearchedPoint
+    from imls_lightning.evaluation.las_point import las_point, las_searched_method
 
     main = _training_cache(run["ck"])
     cfg = _compose(*_args(run["ck"], "orp_strata=2", "orp_by_distance=true", "orp_confidence=0.5", "epsilon_db=60.0"))
@@ -1243,9 +1245,9 @@ def test_las_at_the_promise_by_distance_gives_each_band_its_own_ipr(run):
     point = las_point(s, cfg, main, scene, nets, make_renderer(scene, dict(cfg.renderer)), "cpu", future_views=2)
     assert point.found
     b = point.by_distance
-    assert len(b["values"]) == 2 and all(x <= point.ipr for x in b["values"]) and b["views"] == [2, 2]
+    assert len(b["values"]) == 2 and all(x <= point.value for x in b["values"]) and b["views"] == [2, 2]
     assert b["hi"][0] < b["edges"][0] < b["lo"][1] and all(g <= 60.0 for g in b["bounds_db"])
-    again = LASPoint.from_dict(json.loads(json.dumps(point.to_dict())))  # as an interrupted run restores it
+    again = SearchedPoint.from_dict(json.loads(json.dumps(point.to_dict())))  # as an interrupted run restores it
     method = las_searched_method(again, object(), nets.las_task, int(cfg.data.resolution), None)
     assert method.name == "las_searched" and method.iprs == pytest.approx(b["values"])
     near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]

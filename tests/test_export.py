@@ -24,6 +24,8 @@ from data_gen.scenes import build_scene
 from data_gen.views import sample_training_views
 from imls_lightning.export import parse_args
 from imls_lightning.inference.export import ExportedIMLSRenderer, IMPredictor, export_renderer, onnx_available
+from imls_lightning.evaluation.timing import timed
+from imls_lightning.core.operating_point import OperatingPoint
 from imls_lightning.inference.pipeline import IMLSRenderer
 from imls_lightning.inference.checkpoints import load_task
 from imls_lightning.tasks.iml import IMLTask
@@ -107,7 +109,7 @@ def _compare(ref: IMLSRenderer, exp: ExportedIMLSRenderer, views, tol: int) -> l
         diff = np.abs(a.image.astype(np.int16) - b.image.astype(np.int16)).max()
         assert diff <= tol, diff
         assert a.info["rendered_pixels"] == b.info["rendered_pixels"]
-        img, timings = exp.render(v)
+        img, timings = timed(exp).render(v)
         assert img.shape == (FR, FR, 3) and img.dtype == np.uint8
         assert set(timings) == {"importance", "selective_render", "decoder", "recnn", "total"}
         sizes.append(int(b.info["im"].sum()))
@@ -185,7 +187,7 @@ def test_im_predictor_at_a_mean_is_the_tasks_rescale_and_lift(recnn, shift):
     k = ims.pattern.count
     for lift in (False, True):
         for u in (0.05, 0.35, 0.95):  # below and above the trained mean (0.1)
-            pred = IMPredictor(ims.mask_head, mean=u, lift=lift).eval()
+            pred = IMPredictor(ims.mask_head, OperatingPoint(share=u, lift=lift)).eval()
             with torch.no_grad():
                 want = ims.predict_im(views, mean=u, lift=lift)
                 traced = torch.jit.trace(pred, (views[:1],), check_trace=False)
@@ -198,20 +200,20 @@ def test_im_predictor_at_a_mean_is_the_tasks_rescale_and_lift(recnn, shift):
 def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys):
     """export.json carries the evaluation's record; the exported renderer thresholds at its mean value
     (lifted) by default, the same IMs as IMLSRenderer.from_checkpoints; mean= overrides it."""
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
 
     ims = _low_pim_ims("enhancenet", 3.0)
     ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
-    point = OperatingPoint(mean=0.6, lift=True, c_share=0.6, ipr=0.15, epsilon_db=1.0, gap_db=0.8, views=4)
+    point = ORPRecord(mean=0.6, lift=True, c_share=0.6, ipr=0.15, epsilon_db=1.0, gap_db=0.8, views=4)
     write_operating_point(ckpt, point)
     out = export_renderer(ckpt, tmp_path / "ts")
     meta = json.loads((out / "export.json").read_text())
     assert (meta["mean"], meta["lift"], meta["trained_mean"]) == (0.6, True, pytest.approx(0.1))
     assert meta["operating_point"]["mean"] == 0.6 and meta["operating_point"]["gap_db"] == 0.8
     ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
-    assert ref.mean == 0.6 and ref.operating_point == point
+    assert ref.mean == 0.6 and ref.record == point
     exp = ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu")
-    assert exp.mean == 0.6 and exp.operating_point["c_share"] == 0.6
+    assert exp.mean == 0.6 and exp.record["c_share"] == 0.6
     sizes = _compare(ref, exp, _views(3, 7), tol=1)
     assert np.mean(sizes) / ref.pattern.count == pytest.approx(0.6, abs=0.05)
     assert "operating point u = 0.600 (masks lifted)" in capsys.readouterr().err
@@ -225,12 +227,21 @@ def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys)
     assert parse_args(["ims_checkpoint=a", "out=b", "mean=0.4"])["mean"] == "0.4"
     with pytest.raises(InputError, match=r"^mean=2: expected a number in \[0.01, 1\]"):
         export_renderer(ckpt, tmp_path / "bad", mean=2)
+    # share is the documented name (mean its older one): the same export, its own name in messages, not both at once
+    by_share = json.loads((export_renderer(ckpt, tmp_path / "share", share="trained") / "export.json").read_text())
+    assert by_share["mean"] == meta["mean"] and parse_args(["ims_checkpoint=a", "out=b", "share=0.4"])["share"] == "0.4"
+    with pytest.raises(InputError, match=r"^share=2: expected a number in \[0.01, 1\]"):
+        export_renderer(ckpt, tmp_path / "bad", share=2)
+    from imls_lightning.inference.operating_point import share_setting
+
+    with pytest.raises(InputError, match=r"^share=0.4 and mean=0.3: set one"):
+        share_setting(parse_args(["ims_checkpoint=a", "out=b", "share=0.4", "mean=0.3"]))
 
 
 def test_export_runs_a_point_recorded_by_camera_distance(renderer, tmp_path):
     """A point recorded with orp_by_distance is exported as it runs: the im network picks each view's band's mean
     value (the same IMs as IMLSRenderer.from_checkpoints), and export.json carries the bands."""
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
 
     ims = _low_pim_ims("enhancenet", 3.0)
     ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
@@ -238,7 +249,7 @@ def test_export_runs_a_point_recorded_by_camera_distance(renderer, tmp_path):
     d = np.linalg.norm(views[:, :3], axis=1)
     edge = float(np.median(d))
     bands = {"edges": [edge], "means": [0.9, 0.3], "c_shares": [0.9, 0.3], "gaps_db": [0.7, 0.4], "views": [5, 5]}
-    write_operating_point(ckpt, OperatingPoint(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
+    write_operating_point(ckpt, ORPRecord(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
     out = export_renderer(ckpt, tmp_path / "ts")
     meta = json.loads((out / "export.json").read_text())
     assert meta["by_distance"] == bands and meta["operating_point"]["by_distance"] == bands and meta["mean"] == 0.9
@@ -253,17 +264,17 @@ def test_export_runs_a_point_recorded_with_an_object_floor(renderer, tmp_path):
     """A point recorded with an object floor is exported as it runs: the im network raises each view's u to its object
     plus the margin (the same IMs as IMLSRenderer.from_checkpoints, whose head carries the floor), and export.json
     says so."""
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
 
     ims = _low_pim_ims("enhancenet", 3.0)
     ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
     floor = {"margin": 0.3, "tau": 0.01, "c_share": 0.5, "gap_db": 0.4, "gap_bound_db": 0.9, "views": 8}
-    write_operating_point(ckpt, OperatingPoint(mean=0.05, lift=True, c_share=0.05, ipr=0.01, epsilon_db=1.0, object_floor=floor))
+    write_operating_point(ckpt, ORPRecord(mean=0.05, lift=True, c_share=0.05, ipr=0.01, epsilon_db=1.0, object_floor=floor))
     out = export_renderer(ckpt, tmp_path / "ts")
     meta = json.loads((out / "export.json").read_text())
     assert meta["object_floor"] == {"margin": 0.3, "tau": 0.01} and meta["operating_point"]["object_floor"] == floor
     ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
-    assert ref.mask_head.object_floor == (0.3, 0.01)
+    assert ref.point.object_floor == (0.3, 0.01)
     views = _views(4, 12)
     share = np.array(_compare(ref, ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu"), views, tol=1)) / ref.pattern.count
     assert share.min() > 0.25, share  # the floor, not u = 0.05, sets the share
@@ -273,7 +284,7 @@ def test_export_runs_a_point_floored_per_band(renderer, tmp_path):
     """A by-distance point with an object-floor margin per band is exported as it runs: the im network gives each view
     its band's mean value and margin (the same IMs as IMLSRenderer.from_checkpoints), and export.json carries the
     margins."""
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
 
     ims = _low_pim_ims("enhancenet", 3.0)
     ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
@@ -282,7 +293,7 @@ def test_export_runs_a_point_floored_per_band(renderer, tmp_path):
     edge = float(np.median(d))
     bands = {"edges": [edge], "means": [0.05, 0.05]}
     floor = {"margin": 0.3, "tau": 0.01, "band_margins": [0.3, None]}
-    write_operating_point(ckpt, OperatingPoint(mean=0.05, lift=True, c_share=0.05, ipr=0.01, epsilon_db=1.0, by_distance=bands,
+    write_operating_point(ckpt, ORPRecord(mean=0.05, lift=True, c_share=0.05, ipr=0.01, epsilon_db=1.0, by_distance=bands,
                                                object_floor=floor))
     out = export_renderer(ckpt, tmp_path / "ts")
     meta = json.loads((out / "export.json").read_text())

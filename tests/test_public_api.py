@@ -54,11 +54,11 @@ def test_import_is_cheap(code):
 
 def test_readme_example(tiny_checkpoints):
     """README's "Python API" example: an IMLSRenderer from an IMS checkpoint renders a view."""
-    from imls_lightning import IMLSRenderer, NetOptions
+    from imls_lightning import IMLSRenderer, NetOptions, timed
 
     r = IMLSRenderer.from_checkpoints(str(tiny_checkpoints["ims"]), opts=NetOptions(device="cpu"))
     view = [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # eye, lookAt, up
-    image, timings = r.render(view)
+    image, timings = timed(r).render(view)
     m = r.fr_size
     assert image.shape == (m, m, 3) and image.dtype == np.uint8
     assert {"importance", "selective_render", "decoder", "recnn", "total"} <= set(timings)

@@ -223,16 +223,17 @@ def test_the_viewer_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp_
     evaluation's record beside the IMS checkpoint, and the IML/S panel's title says at which u."""
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
     from imls_lightning.viewer import Viewer
 
     ckpt = tmp_path / "ims.ckpt"
     shutil.copy(tiny_checkpoints["ims_pim"], ckpt)
-    write_operating_point(ckpt, OperatingPoint(mean=0.45, lift=False, c_share=0.3, ipr=0.08, epsilon_db=1.0))
+    write_operating_point(ckpt, ORPRecord(mean=0.45, lift=False, c_share=0.3, ipr=0.08, epsilon_db=1.0))
     r = IMLSRenderer.from_checkpoints(str(ckpt), opts=NetOptions(device="cpu"))
     v = Viewer(r, figsize=FIGSIZE, dpi=DPI, warmup=0)
     assert r.mean == 0.45 and v.axes["imls"].get_title() == "IML/S + RecNN (u = 0.45)"
     assert "running at the evaluation's operating point u = 0.450" in capsys.readouterr().err
-    assert _compose(f"ims_checkpoint={ckpt}").mean is None  # the viewer's default: the recorded point
+    assert _compose(f"ims_checkpoint={ckpt}").share is None  # the viewer's default: the recorded point
+    assert _compose(f"ims_checkpoint={ckpt}", "share=0.3").share == 0.3  # the documented key (mean: its older name)
     v.close()

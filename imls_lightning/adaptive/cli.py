@@ -297,11 +297,15 @@ def recorded_bands(ims_checkpoint: str, lift: bool):
     mask sharpness other than 1 or an object floor: this module's labels and masks are the paper's)."""
     from ..inference.operating_point import read_operating_point
 
-    point = read_operating_point(ims_checkpoint, log=None)
-    if point is None or not point.by_distance or point.lifted != bool(lift) or point.sharpness != 1.0 \
-            or point.floor is not None:
+    from ..models.ims import DistanceMeans
+
+    record = read_operating_point(ims_checkpoint, log=None)
+    point = None if record is None else record.point
+    if point is None or point.bands is None or point.lift != bool(lift) or point.sharpness != 1.0 \
+            or point.object_floor is not None:
         return None
-    return point.distance_means(), point.by_distance
+    b = point.bands
+    return DistanceMeans(b.edges, b.shares, b.floor_margins), record.by_distance
 
 
 def tradeoff_curve(s, cache, ev: MeanLabels, nets, predictor, views_t: torch.Tensor, out: Path, bands=None) -> dict[str, Any]:

@@ -8,7 +8,7 @@ import torch
 from torch import nn
 
 from ..inference.checkpoints import load_ims_nets, renderer_for, require_pim_target, require_recnn
-from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, StageTimer, view_tensor
+from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, view_tensor
 from ..models.ims import IMSMaskHead
 from .labels import im_at_means, iml_pim
 from .predictor import MeanPredictor
@@ -53,7 +53,8 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
                  predictor: nn.Module, opts: NetOptions | None = None, *, lift: bool = False):
         require_pim_target({"target": head.target}, what="the adaptive renderer, which scales the regressed PIM',")
         recnn = require_recnn(recnn, key="ims_checkpoint")
-        super().__init__(renderer, pattern, head, decoder, recnn, opts, lift=lift)
+        # the head's own sharpness and floor, the predictor's share per view, lifted with ``lift``
+        super().__init__(renderer, pattern, head, decoder, recnn, opts, point=head.point(lift=lift))
         self.u_train = float(head.trained_mean)
         self.predictor = predictor.to(self.device).eval()
 
@@ -87,13 +88,14 @@ class AdaptiveIMLSRenderer(IMLSRenderer):
         with torch.inference_mode():
             return float(_mean_of(self.predictor, view_tensor(view, self.device))[0])
 
-    def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
+    def _importance(self, view, info: dict):
         v = view_tensor(view, self.device)
-        with timer.stage("mean"):
-            u = _mean_of(self.predictor, v)
+        yield "mean"
+        u = _mean_of(self.predictor, v)
+        yield None
         info["mean"] = float(u[0])
-        with timer.stage("importance"):
-            return self.predict_im(v, u)[0, 0].bool()
+        yield "importance"
+        return self.predict_im(v, u)[0, 0].bool()
 
 
 class AdaptiveIMLPlusRecNN(IMLPlusRecNN):
@@ -112,9 +114,11 @@ class AdaptiveIMLPlusRecNN(IMLPlusRecNN):
         super().__init__(renderer, pattern, iml, recnn, opts)
         self.predictor = predictor.to(self.device).eval()
 
-    def _importance(self, c: torch.Tensor, view, timer: StageTimer, info: dict) -> torch.Tensor:
-        with timer.stage("mean"):
-            u = _mean_of(self.predictor, view_tensor(view, self.device))
+    def _importance(self, c: torch.Tensor, view, info: dict):
+        yield "mean"
+        u = _mean_of(self.predictor, view_tensor(view, self.device))
+        yield None
         info["mean"] = float(u[0])
-        with timer.stage("importance"), self.opts.autocast(self.device):
+        yield "importance"
+        with self.opts.autocast(self.device):
             return im_at_means(self.iml, iml_pim(getattr(self.iml, "_orig_mod", self.iml), c), u)

@@ -455,7 +455,8 @@ def hard_rejection_sample(pim_norm: torch.Tensor, P: torch.Tensor) -> torch.Tens
 
 
 class ImportanceNormalization(nn.Module):
-    """:func:`normalize_importance` as a layer; ``mean`` can be changed after construction (validated).
+    """:func:`normalize_importance` as a layer at its ``mean`` (validated; changed after construction, or given to
+    one call: ``forward(pim, valid, mean=u)``, e.g. a training step at a drawn mean value).
 
     Example:
         >>> norm = ImportanceNormalization(mean=0.1)
@@ -474,12 +475,17 @@ class ImportanceNormalization(nn.Module):
 
     @mean.setter
     def mean(self, value: float) -> None:
-        u = check_mean(value)
-        _check_lower_delta(u, self.lower, self.delta)
-        self._mean = u
+        self._mean = self.checked(value)
 
-    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None) -> torch.Tensor:
-        return normalize_importance(pim, self._mean, self.lower, self.delta, valid)
+    def checked(self, mean: float) -> float:
+        """``mean`` validated as a mean value of this layer (in ``[0.01, 1]``, above its ``lower``)."""
+        u = check_mean(mean)
+        _check_lower_delta(u, self.lower, self.delta)
+        return u
+
+    def forward(self, pim: torch.Tensor, valid: Optional[torch.Tensor] = None, mean: Optional[float] = None) -> torch.Tensor:
+        u = self._mean if mean is None else self.checked(mean)
+        return normalize_importance(pim, u, self.lower, self.delta, valid)
 
     def extra_repr(self) -> str:
         return f"mean={self._mean}, lower={self.lower}, delta={self.delta}"

@@ -6,7 +6,7 @@ parses its config and calls :func:`evaluate` (:mod:`imls_lightning.evaluation.ru
 For each view of the cache's test trajectory (``views=test``; rendered if missing, with the
 scene/data/renderer groups the networks were trained with) and each method - full ray cast, RecNN
 alone, LAS (with a LAS checkpoint), IML + RecNN, IML/S + RecNN - every stage is timed (median of
-``repeats`` runs after ``warmup``; see :func:`imls_lightning.inference.pipeline.time_method`) and the image is
+``repeats`` runs after ``warmup``; see :func:`imls_lightning.evaluation.timing.time_method`) and the image is
 scored against the cache's ground truth (PSNR, SSIM). Selective rendering is real: the renderer
 ray-casts only the chosen pixels.
 

@@ -17,12 +17,82 @@ Example:
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ..orp import protocol_gap_record
 from .operating_point import SearchViews, band_edges, split_bands
+
+#: a searched point's knob: LAS's IPR (a share of the FR pixels) or the two-pass sampler's share of C
+KNOBS = ("ipr", "share")
+
+
+@dataclass(frozen=True)
+class SearchedPoint:
+    """A baseline's operating point searched like the ORP, the small sibling of the product's
+    :class:`~imls_lightning.core.operating_point.OperatingPoint`: the value of its knob it runs at and the search
+    that chose it. One type for LAS at the promise (``knob="ipr"``) and the two-pass sampler (``knob="share"``, with its
+    first pass ``base`` and ``floor`` in ``settings``).
+
+    Attributes:
+        knob: ``"ipr"`` or ``"share"``; ``value``: the knob's value it runs at (the largest searched, or 1 for a share,
+            where none kept the bound); ``found``: whether one kept the bound; ``where``: the search views, in the
+            report's words; ``epsilon_db``; ``record``: the chosen value's protocol record (None: none found); ``rows``:
+            every value searched; ``by_distance``: each band of camera distance's own value (:func:`band_values`:
+            ``edges``, the values near to far as ``values`` (LAS) or ``shares`` (two-pass), ...), None: ``value`` for
+            every view; ``settings``: the sampler's other settings.
+
+    Example:
+        >>> p = SearchedPoint("ipr", 0.1, True, "4 views", 1.0, None)
+        >>> p.value, SearchedPoint.from_dict(p.to_dict()) == p
+        (0.1, True)
+    """
+
+    knob: str
+    value: float
+    found: bool
+    where: str
+    epsilon_db: float
+    record: dict[str, Any] | None
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    by_distance: dict[str, Any] | None = None
+    settings: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.knob not in KNOBS:
+            raise ValueError(f"knob={self.knob!r}: expected one of {list(KNOBS)}")
+
+    @property
+    def band_values(self) -> list[float] | None:
+        """Each band's value, near to far (``None``: one value for every view)."""
+        if not self.by_distance:
+            return None
+        return self.by_distance["values" if self.knob == "ipr" else "shares"]
+
+    def values_by_distance(self):
+        """The :class:`~imls_lightning.models.ims.DistanceMeans` of the bands' values (``None``: one value)."""
+        if not self.by_distance:
+            return None
+        from ..models.ims import DistanceMeans
+
+        return DistanceMeans(self.by_distance["edges"], self.band_values)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "SearchedPoint":
+        """The point :meth:`to_dict` wrote (``summary.json``'s ``las_searched`` / ``two_pass``, an interrupted run's point)."""
+        knob = "ipr" if "ipr" in d else "share"
+        settings = {} if knob == "ipr" else {"base": float(d["base"]), "floor": float(d["floor"])}
+        return cls(knob, float(d[knob]), found=bool(d.get("found", True)), where=str(d.get("where", "")),
+                   epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"), rows=list(d.get("rows", [])),
+                   by_distance=d.get("by_distance"), settings=settings)
+
+    def to_dict(self) -> dict[str, Any]:
+        rows = (list(self.rows) if self.knob == "ipr" else
+                [{k: r[k] for k in ("share", "c_share", "gap_db", "gap_bound_db")} for r in self.rows])
+        return {**self.settings, self.knob: self.value, "found": self.found, "where": self.where,
+                "epsilon_db": self.epsilon_db, "record": self.record, "by_distance": self.by_distance, "rows": rows}
 
 
 def smallest_within(v: SearchViews, values: Sequence[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,

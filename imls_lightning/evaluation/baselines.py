@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.operating_point import OperatingPoint
 from ..inference.baselines import equal_share_rows, mask_at_share, summarize_equal_share
 from ..inference.pipeline import IMLSRenderer, NetOptions, RecNNAlone
 from .measurement import view_loader, view_tensor
@@ -15,15 +16,18 @@ from .networks import Networks
 from .settings import Settings
 
 
-def equal_share(s: Settings, cache, rows_all, positions, nets: Networks, pattern, device, lift: bool = False) -> list[dict[str, Any]]:
-    """The untrained baselines at equal share on the evaluated views (cache pixels = what the selective ray cast returns)."""
+def equal_share(s: Settings, cache, rows_all, positions, nets: Networks, pattern, device,
+                point: OperatingPoint | None = None) -> list[dict[str, Any]]:
+    """The untrained baselines at equal share on the evaluated views (cache pixels = what the selective ray cast returns);
+    the IMS's masks made as at ``point`` (its lift, sharpness and object floor; ``None``: the paper's)."""
+    point = point if point is not None else OperatingPoint()
     ims = nets.ims_task.to(device)
     out = []
     with torch.inference_mode():
         for b in view_loader(cache, rows_all[positions], pattern):
             out.append(equal_share_rows(b["c"].to(device), b["fr"].to(device), b["view"].to(device), nets.recnn.to(device).eval(),
                                         iml=nets.iml.to(device).eval(), ims_task=ims, blue=None if nets.blue is None else nets.blue.to(device).eval(),
-                                        shares=s.shares, pattern=pattern, ims_lift=lift))
+                                        shares=s.shares, pattern=pattern, ims_lift=point.lift, ims_head=ims.mask_head.for_point(point)))
     return summarize_equal_share(out)
 
 
@@ -53,18 +57,20 @@ def blue_noise_method(renderer, pattern, blue_iml, recnn, share: float, opts: Ne
     return method
 
 
-def ims_mask_at_share(ims_task, view: np.ndarray, share: float, lift: bool = False) -> torch.Tensor:
+def ims_mask_at_share(head, view: np.ndarray, share: float, lift: bool = False) -> torch.Tensor:
     """The IMS's mask of ``view`` brought to ``share`` of the pattern's pixels: ``(n, n)`` bool.
 
     Bisection on the mean value (:func:`~imls_lightning.inference.baselines.mask_at_share`, the
     equal-share protocol) of the IMS output rescaled to each mean (lifted with ``lift``, as the evaluation's);
-    ``share = 1`` is the whole pattern. Needs an IMS trained with ``model.target=pim``.
+    ``share = 1`` is the whole pattern. ``head``: the IMS's :class:`~imls_lightning.models.ims.IMSMaskHead` (at the
+    operating point's sharpness and floor, :meth:`~imls_lightning.models.ims.IMSMaskHead.for_point`). Needs an IMS
+    trained with ``model.target=pim``.
     """
-    valid = ims_task.valid.bool().view(ims_task.valid.shape[-2:])
+    valid = head.valid.bool().view(head.valid.shape[-2:])
     if share >= 1.0:
         return valid.clone().cpu()
     device = valid.device
     with torch.inference_mode():
-        g = ims_task.generator(view_tensor(view, device)).float()
-        im = mask_at_share(lambda u: ims_task.output_to_im_at(g, u.to(device), lift), share, valid, 1)
+        g = head.generator(view_tensor(view, device)).float()
+        im = mask_at_share(lambda u: head.threshold(g, u.to(device), lift), share, valid, 1)
     return im[0, 0].bool().cpu()

@@ -39,6 +39,7 @@ from ..core.compaction import compact
 from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern
 from ..core.unpredictability import importance_mask, unpredictability
+from .timing import timed
 
 #: the shares of C the oracle masks are made at, and the exponents of cost they divide the importance by
 ORACLE_SHARES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6, 0.8)
@@ -177,6 +178,7 @@ def measure_view(v: int, view, truth: np.ndarray, alone, product, iml_methods: d
     target = torch.from_numpy(np.asarray(truth, np.float32) / 255.0).permute(2, 0, 1)[None]
     _, cost, _ = ray_costs(product.renderer, view, pattern.fr_size, pattern.indices.numpy())
     obj = cost > 1
+    alone, product = timed(alone), timed(product)  # each run's stages timed (the methods themselves read no clock)
     a = alone.run(view)
     ref = _psnr(a.image, target)
     p = product.run(view)

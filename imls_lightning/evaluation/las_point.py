@@ -9,13 +9,12 @@ from the cached FR-Image, which the ray caster would return for them. The evalua
 
 Example:
     >>> point = las_point(s, cfg, cache, scene, nets, renderer, "cpu", future_views=120)   # doctest: +SKIP
-    >>> point.ipr, point.found                                                            # doctest: +SKIP
+    >>> point.value, point.found                                                            # doctest: +SKIP
     (0.15, True)
 """
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -24,58 +23,26 @@ import torch
 from ..core.compaction import compact
 from ..core.metrics import psnr_per_image
 from ..estimate.measure import frame_tensor
-from .baseline_point import band_values, smallest_within
+from .baseline_point import SearchedPoint, band_values, smallest_within
 from .networks import Networks
 from .operating_point import judged, search_views
 from .settings import Settings
 
 
-@dataclass
-class LASPoint:
-    """LAS's operating point: the IPR (share of the FR pixels) it runs at and the search that chose it."""
-    ipr: float                     # the IPR it runs at (the largest searched where none kept the bound)
-    found: bool                    # whether an IPR searched kept the bound
-    where: str                     # the search views, in the report's words
-    epsilon_db: float
-    record: dict[str, Any] | None  # the chosen IPR's protocol record (None: none found)
-    rows: list[dict[str, Any]] = field(default_factory=list)  # every IPR searched: ipr, kept, gap_db, gap_bound_db
-    # orp_by_distance: each band's own IPR (band_values: edges, values near to far, kept, gaps_db, bounds_db, views,
-    # lo, hi); None: ``ipr`` for every view
-    by_distance: dict[str, Any] | None = None
-
-    def iprs_by_distance(self):
-        """The :class:`~imls_lightning.models.ims.DistanceMeans` of the bands' IPRs (``None``: one IPR)."""
-        if not self.by_distance:
-            return None
-        from ..models.ims import DistanceMeans
-
-        return DistanceMeans(self.by_distance["edges"], self.by_distance["values"])
-
-    def describe(self) -> str:
-        """The report's line on where LAS at the promise runs and why."""
-        head = (f"LAS at the product's promise (what a user who chose LAS would run): its IPR searched on {self.where}, "
-                f"the smallest that keeps the bound on the gap to the RecNN alone within {self.epsilon_db:g} dB")
-        if not self.found:
-            return f"{head}: none of those searched did, so it runs at the largest, IPR {self.ipr:.1%}."
-        rec = self.record
-        line = f"{head}: IPR {self.ipr:.1%}, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} dB)"
-        if not self.by_distance:
-            return line + "."
-        b = self.by_distance
-        bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.1%} (bound {bd:.2f} dB)"
-                          for lo, hi, x, bd in zip(b["lo"], b["hi"], b["values"], b["bounds_db"]))
-        return f"{line}; then each band of camera distance its own, never above that one: {bands}."
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "LASPoint":
-        """The point :meth:`to_dict` wrote (``summary.json``'s ``las_searched``, an interrupted run's point)."""
-        return cls(ipr=float(d["ipr"]), found=bool(d.get("found", True)), where=str(d.get("where", "")),
-                   epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"), rows=list(d.get("rows", [])),
-                   by_distance=d.get("by_distance"))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"ipr": self.ipr, "found": self.found, "where": self.where, "epsilon_db": self.epsilon_db,
-                "record": self.record, "by_distance": self.by_distance, "rows": list(self.rows)}
+def describe_las(point: SearchedPoint) -> str:
+    """The report's line on where LAS at the promise runs and why (``point``: its :class:`~.baseline_point.SearchedPoint`)."""
+    head = (f"LAS at the product's promise (what a user who chose LAS would run): its IPR searched on {point.where}, "
+            f"the smallest that keeps the bound on the gap to the RecNN alone within {point.epsilon_db:g} dB")
+    if not point.found:
+        return f"{head}: none of those searched did, so it runs at the largest, IPR {point.value:.1%}."
+    rec = point.record
+    line = f"{head}: IPR {point.value:.1%}, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} dB)"
+    if not point.by_distance:
+        return line + "."
+    b = point.by_distance
+    bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.1%} (bound {bd:.2f} dB)"
+                      for lo, hi, x, bd in zip(b["lo"], b["hi"], b["values"], b["bounds_db"]))
+    return f"{line}; then each band of camera distance its own, never above that one: {bands}."
 
 
 def las_gaps(las_net: torch.nn.Module, recnn: torch.nn.Module, pattern, renderer, views: Sequence, frames: Sequence,
@@ -109,7 +76,7 @@ def las_gaps(las_net: torch.nn.Module, recnn: torch.nn.Module, pattern, renderer
     return kept, gaps
 
 
-def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, future_views: int | None = None) -> LASPoint:
+def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, future_views: int | None = None) -> SearchedPoint:
     """Search LAS's IPR on the ORP's search views (``s.las_search_iprs``; the bound at ``s.orp_confidence`` for
     ``future_views`` new views, within ``s.epsilon_db``)."""
     v = search_views(s, cfg, cache, scene)
@@ -134,8 +101,8 @@ def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, 
         print(f"[evaluate] LAS at the promise: no IPR searched kept the bound; it runs at the largest, {iprs[-1]:.1%}",
               file=sys.stderr, flush=True)
     rows = [{"ipr": r["value"], "kept": r["kept"], "gap_db": r["gap_db"], "gap_bound_db": r["gap_bound_db"]} for r in rows]
-    return LASPoint(ipr=float(chosen["value"]) if chosen else float(iprs[-1]), found=chosen is not None, where=v.where,
-                    epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
+    return SearchedPoint("ipr", float(chosen["value"]) if chosen else float(iprs[-1]), found=chosen is not None, where=v.where,
+                         epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
 
 
 #: "equal quality" with IML/S (issue 84): LAS's mean validation gap within this much of IML/S's
@@ -159,35 +126,35 @@ def imls_validation_gap(orp: dict[str, Any] | None) -> float | None:
     return None if gap is None else float(gap)
 
 
-def equal_quality_point(searched: LASPoint, imls_gap_db: float, margin_db: float = EQUAL_QUALITY_DB) -> LASPoint:
+def equal_quality_point(searched: SearchedPoint, imls_gap_db: float, margin_db: float = EQUAL_QUALITY_DB) -> SearchedPoint:
     """LAS at IML/S's quality: of the IPRs LAS's promise search scored (``searched.rows``, their mean gaps on the same
     search views), the smallest whose mean gap is within ``margin_db`` of IML/S's validation gap (not better by a dB:
     "equal quality" compares like with like). No new render: the search's gaps are reused. Where none is, the one
     closest to that gap.
 
     Example:
-        >>> pt = LASPoint(0.3, True, "views", 1.0, None, rows=[{"ipr": 0.05, "gap_db": 2.0}, {"ipr": 0.1, "gap_db": 0.5},
-        ...                                                   {"ipr": 0.2, "gap_db": 0.2}])
-        >>> equal_quality_point(pt, 0.45).ipr
+        >>> pt = SearchedPoint("ipr", 0.3, True, "views", 1.0, None, rows=[{"ipr": 0.05, "gap_db": 2.0}, {"ipr": 0.1, "gap_db": 0.5},
+        ...                                                                {"ipr": 0.2, "gap_db": 0.2}])
+        >>> equal_quality_point(pt, 0.45).value
         0.1
     """
     rows = sorted(searched.rows, key=lambda r: float(r["ipr"]))
     target = float(imls_gap_db) + float(margin_db)
     ok = [r for r in rows if float(r["gap_db"]) <= target]
     pick = ok[0] if ok else min(rows, key=lambda r: abs(float(r["gap_db"]) - target))
-    return LASPoint(ipr=float(pick["ipr"]), found=bool(ok), where=searched.where, epsilon_db=target,
+    return SearchedPoint("ipr", float(pick["ipr"]), found=bool(ok), where=searched.where, epsilon_db=target,
                     record={"gap_db": float(pick["gap_db"]), "imls_gap_db": float(imls_gap_db), "margin_db": float(margin_db)},
                     rows=list(rows))
 
 
-def las_searched_method(point: LASPoint, renderer, las_task, fr_size: int, opts):
+def las_searched_method(point: SearchedPoint, renderer, las_task, fr_size: int, opts):
     """The method the evaluation measures at ``point`` (key ``las_searched``)."""
     from ..inference.pipeline import LASMethod
 
-    method = LASMethod(renderer, las_task.net, fr_size, int(las_task.hparams["low_res"]), ipr=point.ipr, opts=opts,
-                       by_distance=point.iprs_by_distance())
+    method = LASMethod(renderer, las_task.net, fr_size, int(las_task.hparams["low_res"]), ipr=point.value, opts=opts,
+                       by_distance=point.values_by_distance())
     method.name = "las_searched"
     return method
 
 
-__all__ = ["LASPoint", "equal_quality_point", "imls_validation_gap", "las_gaps", "las_point", "las_searched_method"]
+__all__ = ["describe_las", "equal_quality_point", "imls_validation_gap", "las_gaps", "las_point", "las_searched_method"]

@@ -1,4 +1,4 @@
-"""Measuring methods on one view: their stage times (medians, :func:`~imls_lightning.inference.pipeline.time_methods`)
+"""Measuring methods on one view: their stage times (medians, :func:`~imls_lightning.evaluation.timing.time_methods`)
 and their images scored against the ground truth (PSNR, SSIM); the views measured (:func:`spaced`) and the
 view as the networks' input (:func:`view_tensor`)."""
 from __future__ import annotations
@@ -9,7 +9,8 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
-from ..inference.pipeline import Method, time_method, time_methods, view_tensor
+from ..inference.pipeline import Method, view_tensor
+from .timing import time_method, time_methods
 
 
 def image_quality(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -32,7 +33,7 @@ def measure(method: Method, view: np.ndarray, truth: np.ndarray, repeats: int, w
 
 def measure_methods(methods: Mapping[str, Method], view: np.ndarray, truth: np.ndarray, repeats: int, warmup: int,
                     order: str = "interleaved") -> dict[str, tuple[dict[str, Any], np.ndarray, dict[str, Any]]]:
-    """Time several methods on one view in one ``order`` (:func:`~imls_lightning.inference.pipeline.time_methods`)
+    """Time several methods on one view in one ``order`` (:func:`~imls_lightning.evaluation.timing.time_methods`)
     and score each: ``{name: (metric row fields, image, info)}``."""
     timed = time_methods(methods, view, repeats=repeats, warmup=warmup, order=order)
     return {name: (_row(med, image, info, truth), image, info) for name, (image, med, info) in timed.items()}

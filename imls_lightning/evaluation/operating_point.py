@@ -17,28 +17,30 @@ from omegaconf import OmegaConf
 from imls_lightning.base.errors import InputError
 from data_gen.views import camera_distance as view_distance
 
+from ..core.operating_point import Bands, OperatingPoint
 from ..orp.product import product_orp, product_point
 from .measurement import spaced, view_loader
 from .networks import Networks
 from .settings import Settings
 
 
-def point_from_orp(orp: dict[str, Any], *, scene: str | None = None, report: str | None = None, views: int | None = None):
-    """The :class:`~imls_lightning.inference.operating_point.OperatingPoint` of an evaluation's ``orp`` summary (its
-    ``summary.json``'s ``orp``): what is recorded beside the IMS checkpoint, and what a committed row runs at."""
-    from ..inference.operating_point import SEARCH_TOLERANCE, OperatingPoint
+def record_from_orp(orp: dict[str, Any], *, scene: str | None = None, report: str | None = None, views: int | None = None):
+    """The :class:`~imls_lightning.inference.operating_point.ORPRecord` of an evaluation's ``orp`` summary (its
+    ``summary.json``'s ``orp``): what is recorded beside the IMS checkpoint (the point it runs at is
+    :func:`point_of` of the same summary)."""
+    from ..inference.operating_point import SEARCH_TOLERANCE, ORPRecord
 
     opt = lambda k: None if orp.get(k) is None else float(orp[k])  # noqa: E731
     bands = orp.get("by_distance") if orp["found"] else None
     # the share of C the search measured at each mean value it tried: the record's share is checked against it on read
     points = [[float(p[0]), float(p[2])] for p in orp.get("points") or [] if p[0] is not None and p[2] is not None]
-    return OperatingPoint(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
-                          ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"),
-                          views=int(views) if views is not None else orp.get("views"), scene=scene, report=report,
-                          by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
-                          sharpness=float(orp.get("sharpness", 1.0)),
-                          object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None,
-                          points=points or None, tolerance=SEARCH_TOLERANCE)
+    return ORPRecord(mean=opt("mean") if orp["found"] else None, lift=bool(orp["lift"]), c_share=opt("c_share"),
+                     ipr=opt("ipr"), epsilon_db=float(orp["epsilon_db"]), gap_db=opt("gap_db"),
+                     views=int(views) if views is not None else orp.get("views"), scene=scene, report=report,
+                     by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
+                     sharpness=float(orp.get("sharpness", 1.0)),
+                     object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None,
+                     points=points or None, tolerance=SEARCH_TOLERANCE)
 
 
 def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report: Path, views: int) -> None:
@@ -47,7 +49,7 @@ def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report:
     find it; a folder that cannot be written is a one-line warning (the report holds the point)."""
     from ..inference.operating_point import write_operating_point
 
-    point = point_from_orp(orp, scene=scene, report=str(Path(report).resolve()), views=int(views))
+    point = record_from_orp(orp, scene=scene, report=str(Path(report).resolve()), views=int(views))
     try:
         path = write_operating_point(s.ims, point)
     except OSError as err:
@@ -167,18 +169,17 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
     (:func:`candidate_times`): a sharper mask keeps the object's rays, which march further, so its share of C
     understates its cost. Without a renderer, or with ``ims_sharpness_views=0``, the one that ray-casts the
     smallest share of C (the smaller sharpness on a tie). ``result.sharpness`` is its sharpness,
-    ``result.sharpness_candidates`` what each reached. The IMS task's masks then stay at it
-    (:attr:`~imls_lightning.tasks.ims.IMSTask.mask_sharpness`) for every method the evaluation builds."""
+    ``result.sharpness_candidates`` what each reached, ``result.object_floor`` the floor chosen; nothing of the IMS
+    task changes: every method the evaluation builds gets the point (:func:`point_of`)."""
     v = search_views(s, cfg, cache, scene)
     print(f"[evaluate] ORP: searched on {v.where}, judged by the {s.orp_confidence:.0%} upper bound on the mean gap of "
           f"{judged(v, future_views)}", file=sys.stderr, flush=True)
     ims = nets.ims_task
     results = []
     for gamma in s.ims_sharpness:
-        ims.mask_sharpness = gamma
         if len(s.ims_sharpness) > 1:
             print(f"[evaluate] ORP at mask sharpness {gamma:g}", file=sys.stderr, flush=True)
-        results.append(_orp_at_sharpness(s, v, nets, pattern, device, future_views))
+        results.append(_orp_at_sharpness(s, v, nets, pattern, device, future_views, gamma))
         results[-1].sharpness = gamma
     found = [r for r in results if r.found]
     times = (candidate_times(found, v, nets, pattern, renderer, s.options, s.ims_sharpness_views)
@@ -195,12 +196,9 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
                                        if c["found"] else "none") for c in best.sharpness_candidates)
             + f"; kept {best.sharpness:g}" + (f" (the fastest on {s.ims_sharpness_views} search views)" if times else
                                              " (the smallest share of C)"), file=sys.stderr, flush=True)
-    ims.mask_sharpness = best.sharpness
     best.object_floor = None
     if s.orp_object_floor and best.found:
         best.object_floor = object_floor_point(s, cache, nets, pattern, device, best, future_views)
-        chosen = best.object_floor["chosen"]
-        ims.mask_object_floor = None if chosen is None else (chosen["margin"], chosen["tau"])
     return best
 
 
@@ -239,8 +237,9 @@ def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, resu
     candidates = []
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))
+        head = ims.mask_head.with_sharpness(float(getattr(result, "sharpness", 1.0)))  # the masks the point was searched with
         for margin in [None, *s.orp_object_floor]:
-            rec = product_point(ims.mask_head.with_object_floor(margin, tau), ims.decoder, recnn, batches, u, device=device,
+            rec = product_point(head.with_object_floor(margin, tau), ims.decoder, recnn, batches, u, device=device,
                                 confidence=s.orp_confidence, lift=result.lifted, future_views=future_views, strata=strata,
                                 per_view=True)
             candidates.append({"margin": margin, "gap_db": rec["gap_db"], "gap_bound_db": rec["gap_bound_db"],
@@ -357,12 +356,13 @@ def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, patt
                     repeats: int = 3) -> dict[float, float]:
     """Each found candidate's product at its operating point (its sharpness, mean value or bands, lift), timed on
     ``views`` of the search views spaced along them, the candidates interleaved run by run
-    (:func:`~imls_lightning.inference.pipeline.time_methods`): ``{sharpness: mean over the views of the median total ms}``."""
-    from ..inference.pipeline import IMLSRenderer, time_methods
+    (:func:`~imls_lightning.evaluation.timing.time_methods`): ``{sharpness: mean over the views of the median total ms}``."""
+    from ..inference.pipeline import IMLSRenderer
+    from .timing import time_methods
 
     ims = nets.ims_task
-    products = {r.sharpness: IMLSRenderer(renderer, pattern, ims.mask_head.with_sharpness(r.sharpness), ims.decoder, nets.recnn,
-                                          opts, mean=float(r.mean), lift=bool(r.lifted), by_distance=distance_means(r))
+    products = {r.sharpness: IMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, nets.recnn, opts,
+                                          point=point_of(r, float(r.mean), bool(r.lifted)))
                 for r in found}
     rows = [int(v.rows[i]) for i in spaced(len(v.rows), views)]
     per_view: dict[float, list[float]] = {g: [] for g in products}
@@ -383,28 +383,30 @@ def operating_share(result) -> float | None:
     return rec.get("c_share")
 
 
-def _orp_at_sharpness(s: Settings, v: "SearchViews", nets: Networks, pattern, device, future_views: int | None):
-    """One ORP search (and its bands' values) at the IMS task's current mask sharpness."""
+def _orp_at_sharpness(s: Settings, v: "SearchViews", nets: Networks, pattern, device, future_views: int | None,
+                      sharpness: float = 1.0):
+    """One ORP search (and its bands' values) with the IMS's masks at ``sharpness``."""
     cache, rows, where, distances, strata, passes, npaths = v.cache, v.rows, v.where, v.distances, v.strata, v.passes, v.paths
     ims = nets.ims_task.to(device)
+    head = ims.mask_head.with_sharpness(sharpness)  # a head view at this sharpness: the task is left as it is
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))
         recnn = nets.recnn.to(device).eval()
-        result = orp_with_lift(lambda lift: product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device,
+        result = orp_with_lift(lambda lift: product_orp(head, ims.decoder, recnn, batches, s.epsilon_db, device=device,
                                                         confidence=s.orp_confidence, lift=lift, future_views=future_views,
                                                         strata=strata, passes=passes, paths=npaths),
                                s.ims_lift)
         result.by_distance = None
         if s.orp_by_distance and result.found:
             result.by_distance = band_means(s, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views,
-                                            passes, npaths)
+                                            passes, npaths, head=head)
             where += "; then each band's own mean value"
-    result.where = where + ("" if ims.mask_sharpness == 1.0 else f"; masks at sharpness {ims.mask_sharpness:g}")
+    result.where = where + ("" if sharpness == 1.0 else f"; masks at sharpness {sharpness:g}")
     return result
 
 
 def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views: int | None,
-               passes: Sequence[int] | None = None, paths: int = 1) -> dict[str, Any] | None:
+               passes: Sequence[int] | None = None, paths: int = 1, head=None) -> dict[str, Any] | None:
     """The by-distance operating point (``orp_by_distance``): each band of camera distance searched on its own
     search views, with its share of the bound's new views; a band keeps the value that held in every band
     (``result.mean``) where its own search finds none below it. The bands split at the midpoints between
@@ -414,18 +416,19 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
     ``gaps_db``, ``bounds_db``, ``views`` and the distance range ``lo`` / ``hi`` of its search views (with
     ``passes``, path views' pass labels, each band's bound counts its passes); ``None``
     (one line says so) where the views' distances do not separate the bands."""
+    head = ims.mask_head if head is None else head  # the IMS's masks (``head``: at the search's sharpness)
     bands = split_bands(strata, future_views, passes)
     out: dict[str, list] = {k: [] for k in ("means", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
     for band in bands:
         k, idx, share, own_passes = band.label, band.idx, band.future_views, band.passes
         batches = list(view_loader(cache, [rows[i] for i in idx], pattern))
-        own = product_orp(ims.mask_head, ims.decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
+        own = product_orp(head, ims.decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
                           lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         if own.found and own.mean <= result.mean:
             u, rec = float(own.mean), own.best.record
         else:  # the value that held in every band, this band's numbers at it
             u = float(result.mean)
-            rec = product_point(ims.mask_head, ims.decoder, recnn, batches, u, device=device, confidence=s.orp_confidence,
+            rec = product_point(head, ims.decoder, recnn, batches, u, device=device, confidence=s.orp_confidence,
                                 lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         d = [distances[i] for i in idx]
         for key, value in (("means", u), ("c_shares", rec["c_share"]), ("gaps_db", rec["gap_db"]),
@@ -482,6 +485,20 @@ def band_edges(lo: Sequence[float], hi: Sequence[float]) -> list[float] | None:
     if any(h >= l for h, l in zip(hi[:-1], lo[1:])):
         return None
     return [0.5 * (h + l) for h, l in zip(hi[:-1], lo[1:])]
+
+
+def point_of(result, share: float | None, lift: bool) -> OperatingPoint:
+    """The :class:`~imls_lightning.core.operating_point.OperatingPoint` IML/S runs at after a search (``result``, or its
+    summary :func:`orp_summary`, a dict; ``None``: no search): ``share`` (``None``: the trained one) with ``lift``, the
+    search's bands of camera distance, its mask sharpness and the object floor chosen (a point found only)."""
+    if result is None:
+        return OperatingPoint(share=share, lift=lift)
+    get = result.get if isinstance(result, dict) else lambda key: getattr(result, key, None)
+    chosen = ((get("object_floor") or {}).get("chosen") if get("found") else None) or {}
+    bands = get("by_distance")
+    return OperatingPoint(share=share, lift=lift, sharpness=float(get("sharpness") or 1.0),
+                          bands=Bands(bands["edges"], bands["means"], chosen.get("band_margins")) if bands else None,
+                          object_floor=(chosen["margin"], chosen["tau"]) if chosen else None)
 
 
 def distance_means(result):

@@ -22,19 +22,21 @@ from ..base.config import file_hash, settings_hash, to_plain
 from ..inference.pipeline import FullRayCast, IMLPlusRecNN, IMLSRenderer, LASMethod, Method, RecNNAlone, pick_device
 from ..models.iml import FillDecoder
 from ..report.document import verdict_line
+from ..core.operating_point import OperatingPoint
 from ..report.names import TWIN_METHODS, ray_caster_twin
 from .baselines import blue_noise_method, equal_share, sparser_method
 from .measurement import measure_methods, progress_bar, spaced, view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
-from .operating_point import (borrowed_point, camera_distance, distance_means, gap_by_distance, orp_summary, paired_gap,
+from .operating_point import (borrowed_point, camera_distance, gap_by_distance, orp_summary, paired_gap, point_of,
                               product_path_orp, record_operating_point)
 from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
 from .protocol import check_view_seeds, fresh_trajectory_data, training_data_seed, trajectory_note
 from ..report.speedup import ray_casters, speedup_intervals
 from .sweeps import Sweeps, front_notes, options_sweep
-from .las_point import LASPoint, las_point, las_searched_method
-from .two_pass import TwoPassPoint, two_pass_method, two_pass_point
+from .baseline_point import SearchedPoint
+from .las_point import describe_las, las_point, las_searched_method
+from .two_pass import describe_two_pass, two_pass_method, two_pass_point
 
 #: the checkpoint keys of ``checkpoints.<key>`` and the settings that name them
 CHECKPOINT_KEYS = ("ims", "las", "recnn", "iml", "blue_noise", "recnn_sparser")
@@ -110,9 +112,9 @@ def open_views(cfg: DictConfig, s: Settings, scene, resolution: int):
 
 
 def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer=None):
-    """The ORP on the product path (validation views): ``(orp summary | None, mean IML/S runs at | None, lift)``, the
-    summary :func:`~.operating_point.orp_summary`'s; ``renderer`` times the mask sharpnesses' operating points when there
-    are several."""
+    """The ORP on the product path (validation views): ``(orp summary | None, the OperatingPoint IML/S runs at)``, the
+    summary :func:`~.operating_point.orp_summary`'s, the point :func:`~.operating_point.point_of` it (its share ``None``:
+    the trained one); ``renderer`` times the mask sharpnesses' operating points when there are several."""
     ims = nets.ims_task
     orp, imls_mean, lift = None, None, s.ims_lift is True  # lift: IML/S's masks lifted to their share
     if s.orp and ims.target == "pim":
@@ -128,23 +130,12 @@ def operating_point(s: Settings, cfg, cache, scene, nets: Networks, device, posi
     elif s.orp:
         notes.append(f"ORP search skipped: the IMS was trained with model.target={ims.target}, whose binary mask cannot be "
                      "rescaled to another mean (train the IMS with model.target=pim).")
-    return orp, imls_mean, lift
-
-
-def restore_point(nets: Networks, orp: dict[str, Any] | None) -> None:
-    """Put the IMS task's masks where the search left them (:func:`~.operating_point.product_path_orp`): its mask
-    sharpness and object floor, from the ORP's summary (a resumed evaluation restores its point without searching)."""
-    if orp is None:
-        return
-    ims = nets.ims_task
-    ims.mask_sharpness = float(orp.get("sharpness", 1.0))
-    chosen = (orp.get("object_floor") or {}).get("chosen") if orp.get("found") else None
-    ims.mask_object_floor = None if not chosen else (float(chosen["margin"]), float(chosen["tau"]))
+    return orp, point_of(orp, imls_mean, lift)
 
 
 def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions, notes: list[str], renderer,
                progress: EvaluationProgress, borrowed: dict[str, Any] | None = None):
-    """The operating point, the two-pass sampler's and LAS's at the promise: ``(orp summary | None, imls_mean, lift,
+    """The operating point, the two-pass sampler's and LAS's at the promise: ``(orp summary | None, OperatingPoint,
     two_pass | None, las | None)``, restored from ``progress`` when an earlier sitting searched them, else taken from ``borrowed`` (``orp_from``:
     :func:`~.operating_point.borrowed_point`) or searched, and kept there."""
     point = progress.point
@@ -160,26 +151,26 @@ def find_point(s: Settings, cfg, cache, scene, nets: Networks, device, positions
         notes.clear()  # they come back from the point, as on a resumed run
         point = progress.point
     if point:
-        restore_point(nets, point["orp"])
         notes += point["notes"]
-        orp, imls_mean, lift = point["orp"], point["imls_mean"], bool(point["lift"])
+        orp = point["orp"]
+        imls = point_of(orp, point["imls_mean"], bool(point["lift"]))
     else:
-        orp, imls_mean, lift = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
-        progress.save_point({"orp": orp, "imls_mean": imls_mean, "lift": lift, "notes": list(notes)})
+        orp, imls = operating_point(s, cfg, cache, scene, nets, device, positions, notes, renderer)
+        progress.save_point({"orp": orp, "imls_mean": imls.u, "lift": imls.lift, "notes": list(notes)})
     two_pass, las = None, None
     if s.two_pass_base is not None:
         if progress.point.get("two_pass") is not None:
-            two_pass = TwoPassPoint.from_dict(progress.point["two_pass"])
+            two_pass = SearchedPoint.from_dict(progress.point["two_pass"])
         else:
             two_pass = two_pass_point(s, cfg, cache, scene, nets, nets.ims_task.pattern, device, future_views=len(positions))
             progress.save_point({**progress.point, "two_pass": two_pass.to_dict()})
     if s.las_searched:
         if progress.point.get("las_searched") is not None:
-            las = LASPoint.from_dict(progress.point["las_searched"])
+            las = SearchedPoint.from_dict(progress.point["las_searched"])
         else:
             las = las_point(s, cfg, cache, scene, nets, renderer, device, future_views=len(positions))
             progress.save_point({**progress.point, "las_searched": las.to_dict()})
-    return orp, imls_mean, lift, two_pass, las
+    return orp, imls, two_pass, las
 
 
 def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list[float]:
@@ -188,7 +179,7 @@ def _imls_counts(imls: IMLSRenderer, cache, rows_all, positions, device) -> list
         return [float(imls.predict_im(view_tensor(cache.views[rows_all[p]], device)).sum()) for p in positions]
 
 
-def las_equal_point(las: LASPoint | None, orp: dict[str, Any] | None) -> LASPoint | None:
+def las_equal_point(las: SearchedPoint | None, orp: dict[str, Any] | None) -> SearchedPoint | None:
     """LAS at equal quality (:func:`~.las_point.equal_quality_point`), from its promise search; None without one."""
     from .las_point import equal_quality_point, imls_validation_gap
 
@@ -199,22 +190,21 @@ def las_equal_point(las: LASPoint | None, orp: dict[str, Any] | None) -> LASPoin
 
 
 def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positions, device, m: int,
-                  imls_mean: float | None, lift: bool, notes: list[str], by_distance=None,
-                  two_pass: TwoPassPoint | None = None, las: LASPoint | None = None,
+                  point: OperatingPoint, notes: list[str],
+                  two_pass: SearchedPoint | None = None, las: SearchedPoint | None = None,
                   other_renderer=None, orp: dict[str, Any] | None = None) -> tuple[dict[str, Method], float | None]:
     """Every method measured (the networks are shared between methods with the same options) and the
-    IPR LAS runs at (None without LAS). ``by_distance``: IML/S's mean value per band of camera distance;
+    IPR LAS runs at (None without LAS). ``point``: IML/S's operating point (:func:`~.operating_point.point_of`);
     ``two_pass``: the two-pass sampler's operating point, ``las``: LAS's at the promise (None: not measured);
     ``other_renderer``: the other ray caster (:func:`other_ray_caster`), on which the RecNN alone and IML/S are
     timed too (their twins, :data:`~imls_lightning.report.names.TWIN_METHODS`)."""
     opts, pattern, ims = s.options, nets.ims_task.pattern, nets.ims_task
-    imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, mean=imls_mean, lift=lift,
-                        by_distance=by_distance)
+    imls = IMLSRenderer(renderer, pattern, ims.to(device).mask_head, ims.decoder, nets.recnn, opts, point=point)
     methods: dict[str, Method] = {
         "full": FullRayCast(renderer, m, opts),
         "recnn": RecNNAlone(renderer, pattern, nets.recnn, opts),
         **({"recnn_sparser": sparser_method(renderer, nets.recnn_sparser, opts)} if nets.recnn_sparser is not None else {}),
-        "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts, mean=imls_mean),
+        "iml": IMLPlusRecNN(renderer, pattern, nets.iml, nets.recnn, opts, mean=point.u),
         "imls": imls,
         "imls_fill": IMLSRenderer(renderer, pattern, imls.predict_im, FillDecoder(pattern), nets.recnn, opts),
     }
@@ -232,11 +222,11 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
         notes.append(f"LAS at IPR {las_ipr_used:.4f}, {how}; its mean u is bisected per view outside the timed stages (LAS's evaluation protocol).")
         if las is not None:
             methods["las_searched"] = las_searched_method(las, renderer, nets.las_task, m, opts)
-            notes.append(las.describe())
+            notes.append(describe_las(las))
             if (equal := las_equal_point(las, orp)) is not None:  # LAS at IML/S's quality (within 0.1 dB)
                 methods["las_equal"] = las_searched_method(equal, renderer, nets.las_task, m, opts)
                 methods["las_equal"].name = "las_equal"
-                notes.append(f"LAS at equal quality: IPR {equal.ipr:.1%}, the smallest searched whose mean gap on "
+                notes.append(f"LAS at equal quality: IPR {equal.value:.1%}, the smallest searched whose mean gap on "
                              f"{equal.where} ({equal.record['gap_db']:.2f} dB) is within {equal.record['margin_db']:g} dB "
                              f"of IML/S's validation gap ({equal.record['imls_gap_db']:.2f} dB)"
                              + ("" if equal.found else ": none was, so the closest") + ".")
@@ -247,7 +237,7 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
         methods["blue_noise"] = blue_noise_method(renderer, pattern, nets.blue, nets.recnn, float(np.mean(shares)), opts)
     if two_pass is not None:
         methods["two_pass"] = two_pass_method(two_pass, renderer, pattern, nets.recnn, opts)
-        notes.append(two_pass.describe())
+        notes.append(describe_two_pass(two_pass))
     if other_renderer is not None:
         methods.update(ray_caster_twins(methods, other_renderer))
         notes.append(f"Both ray casters: the RecNN alone and IML/S are timed with empty-space skipping "
@@ -273,13 +263,9 @@ def other_ray_caster(s: Settings, scene, rcfg: dict[str, Any], renderer, notes: 
 def ray_caster_twins(methods: dict[str, Method], other_renderer) -> dict[str, Method]:
     """``recnn`` and ``imls`` on ``other_renderer``: shallow copies sharing their prepared networks (so the networks'
     times are the same code and weights), only the ray caster swapped."""
-    import copy
-
     twins = {}
     for name in ("recnn", "imls"):
-        twin = copy.copy(methods[name])
-        twin.renderer = other_renderer
-        twins[ray_caster_twin(name, bool(other_renderer.skip_empty))] = twin
+        twins[ray_caster_twin(name, bool(other_renderer.skip_empty))] = methods[name].with_ray_caster(other_renderer)
     return twins
 
 
@@ -444,10 +430,10 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     timed_pos = set(int(positions[i]) for i in spaced(len(positions), s.timed_views)) | set(sweep_pos)
     # what an interrupted run of these settings measured: its point and views are kept, the rest measured
     progress = EvaluationProgress(out, positions, timed_pos, resume=s.resume)
-    orp, imls_mean, lift, two_pass, las = find_point(s, cfg, val_cache, scene, nets, device, positions, notes, renderer,
-                                                     progress, borrowed)
-    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, imls_mean, lift, notes,
-                                          by_distance=distance_means(orp), two_pass=two_pass, las=las, orp=orp,
+    orp, point, two_pass, las = find_point(s, cfg, val_cache, scene, nets, device, positions, notes, renderer,
+                                           progress, borrowed)
+    methods, las_ipr_used = build_methods(s, nets, renderer, cache, rows_all, positions, device, resolution, point, notes,
+                                          two_pass=two_pass, las=las, orp=orp,
                                           other_renderer=other_ray_caster(s, scene, rcfg, renderer, notes))
     order = [k for k in rep.METHOD_ORDER if k in methods]
     if len(timed_pos) < len(positions):
@@ -472,7 +458,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
     rep.write_metrics_csv(sweep_rows, out / "sweep.csv", rep.SWEEP_COLUMNS)
 
     # untrained baselines at equal share (cache pixels = what the selective ray cast returns)
-    shares = equal_share(s, cache, rows_all, positions, nets, nets.ims_task.pattern, device, lift) if s.shares else []
+    shares = equal_share(s, cache, rows_all, positions, nets, nets.ims_task.pattern, device, point) if s.shares else []
     option_rows: list[dict[str, Any]] = []
     if s.options_sweep:
         opt_pos = [int(positions[i]) for i in spaced(len(positions), s.options_sweep_views)]
@@ -480,7 +466,7 @@ def evaluate(cfg: DictConfig, command: str | None = None) -> Path:
         rep.write_metrics_csv(option_rows, out / "options.csv", rep.OPTION_COLUMNS)
 
     results = dict(rows=rows, sweep_rows=sweep_rows, option_rows=option_rows, grid=grid, order=order, notes=notes,
-                   methods=methods, imls_mean=imls_mean, lift=lift, las_ipr=las_ipr_used, orp=orp,
+                   methods=methods, imls_mean=point.u, lift=point.lift, las_ipr=las_ipr_used, orp=orp,
                    equal_share=shares, positions=positions, sweep_pos=sweep_pos, timed_pos=timed_pos, two_pass=two_pass,
                    las_searched=las, timing_load=load_summary, ray_casters=both)
     report = write_results(cfg, s, out, scene, rcfg, cache, rows_all, nets, device, results, command)

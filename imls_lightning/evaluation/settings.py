@@ -287,8 +287,8 @@ def _object_floor(cfg) -> dict[str, Any]:
 
 
 def _timing(cfg) -> str:
-    """``timing``: how a timed view's methods are run (:data:`~imls_lightning.inference.pipeline.TIMING_ORDERS`)."""
-    from ..inference.pipeline import TIMING_ORDERS
+    """``timing``: how a timed view's methods are run (:data:`~imls_lightning.evaluation.timing.TIMING_ORDERS`)."""
+    from .timing import TIMING_ORDERS
 
     v = OmegaConf.select(cfg, "timing", default="interleaved")
     if v not in TIMING_ORDERS:

@@ -33,6 +33,7 @@ class Sweeps:
         self.s, self.nets = s, nets
         imls: IMLSRenderer = methods["imls"]  # type: ignore[assignment]
         self.lift = imls.lift
+        self.head = nets.ims_task.mask_head.for_point(imls.point)  # the IMS's masks at IML/S's point (sharpness, floor)
         # the IML/S pipeline rendering another mask than the IMS's (run's im): the IMS still runs, timed
         self.selective = IMLSRenderer(renderer, imls.pattern, imls.mask, nets.ims_task.decoder, nets.recnn, opts)
         jobs: list[tuple[str, str, float, Method | None]] = []
@@ -56,7 +57,7 @@ class Sweeps:
             if name == "iml_selective":
                 fields, _, _ = measure(self.selective, view, truth, s.repeats, s.warmup, im=iml_im)
             elif name == "imls" and setting == "share":
-                im = ims_mask_at_share(self.nets.ims_task, view, value, lift=self.lift)
+                im = ims_mask_at_share(self.head, view, value, lift=self.lift)
                 fields, _, _ = measure(self.selective, view, truth, s.repeats, s.warmup, im=im)
             else:
                 fields, _, info = measure(method, view, truth, s.repeats, s.warmup)

@@ -13,13 +13,12 @@ caster like every other method.
 
 Example:
     >>> point = two_pass_point(s, cfg, cache, scene, nets, pattern, "cpu", future_views=120)   # doctest: +SKIP
-    >>> point.share, point.found                                                                # doctest: +SKIP
+    >>> point.value, point.found                                                                # doctest: +SKIP
     (0.7, True)
 """
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,63 +26,28 @@ import torch
 
 from ..estimate.needed_share import NEEDED_SHARES, share_gaps
 from .networks import Networks
-from .baseline_point import band_values, smallest_within
+from .baseline_point import SearchedPoint, band_values, smallest_within
 from .operating_point import SearchViews, judged, search_views
 from .settings import Settings
 
 
-@dataclass
-class TwoPassPoint:
-    """The two-pass sampler's operating point: the share it runs at and the search that chose it."""
-    base: float                    # the first pass's share of C (blue noise, always rendered)
-    floor: float                   # the importance every pixel keeps, relative to the mean
-    share: float                   # the share it runs at (1 where no share kept the bound)
-    found: bool                    # whether a share below 1 kept the bound
-    where: str                     # the search views, in the report's words
-    epsilon_db: float
-    record: dict[str, Any] | None  # the chosen share's protocol record (None: none found)
-    rows: list[dict[str, Any]] = field(default_factory=list)  # every share searched: share, c_share, gap_db, gap_bound_db
-    # orp_by_distance: each band's own share (band_shares: edges, shares near to far, c_shares, gaps_db, bounds_db,
-    # views, lo, hi); None: ``share`` for every view
-    by_distance: dict[str, Any] | None = None
-
-    def shares_by_distance(self):
-        """The :class:`~imls_lightning.models.ims.DistanceMeans` of the bands' shares (``None``: one share)."""
-        if not self.by_distance:
-            return None
-        from ..models.ims import DistanceMeans
-
-        return DistanceMeans(self.by_distance["edges"], self.by_distance["shares"])
-
-    def describe(self) -> str:
-        """The report's line on where the two-pass sampler runs and why."""
-        head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
-                f"{self.base:.0%} of C, then the pixels whose neighbours predict them worst, pull-push filled; its share "
-                f"was searched on {self.where}")
-        if self.found:
-            rec = self.record
-            line = (f"{head}: {self.share:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
-                    f"<= {self.epsilon_db:g} dB)")
-            if not self.by_distance:
-                return line + "."
-            b = self.by_distance
-            bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.0%} (bound {bd:.2f} dB)"
-                              for lo, hi, x, bd in zip(b["lo"], b["hi"], b["shares"], b["bounds_db"]))
-            return (f"{line}; then each band of camera distance its own share, never above that one, judged on its own "
-                    f"search views: {bands}.")
-        return f"{head}: no share below 100% kept the bound within {self.epsilon_db:g} dB, so it renders all of C."
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "TwoPassPoint":
-        """The point :meth:`to_dict` wrote (``summary.json``'s ``two_pass``)."""
-        return cls(base=float(d["base"]), floor=float(d["floor"]), share=float(d["share"]), found=bool(d.get("found", True)),
-                   where=str(d.get("where", "")), epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"),
-                   rows=list(d.get("rows", [])), by_distance=d.get("by_distance"))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"base": self.base, "floor": self.floor, "share": self.share, "found": self.found, "where": self.where,
-                "epsilon_db": self.epsilon_db, "record": self.record, "by_distance": self.by_distance,
-                "rows": [{k: r[k] for k in ("share", "c_share", "gap_db", "gap_bound_db")} for r in self.rows]}
+def describe_two_pass(point: SearchedPoint) -> str:
+    """The report's line on where the two-pass sampler runs and why (``point``: its :class:`~.baseline_point.SearchedPoint`)."""
+    head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
+            f"{point.settings['base']:.0%} of C, then the pixels whose neighbours predict them worst, pull-push filled; its share "
+            f"was searched on {point.where}")
+    if point.found:
+        rec = point.record
+        line = (f"{head}: {point.value:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
+                f"<= {point.epsilon_db:g} dB)")
+        if not point.by_distance:
+            return line + "."
+        b = point.by_distance
+        bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.0%} (bound {bd:.2f} dB)"
+                          for lo, hi, x, bd in zip(b["lo"], b["hi"], b["shares"], b["bounds_db"]))
+        return (f"{line}; then each band of camera distance its own share, never above that one, judged on its own "
+                f"search views: {bands}.")
+    return f"{head}: no share below 100% kept the bound within {point.epsilon_db:g} dB, so it renders all of C."
 
 
 def candidate_shares(base: float) -> list[float]:
@@ -97,7 +61,7 @@ def candidate_shares(base: float) -> list[float]:
 
 
 def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, device,
-                   future_views: int | None = None) -> TwoPassPoint:
+                   future_views: int | None = None) -> SearchedPoint:
     """Search the two-pass sampler's share on the ORP's search views (``s.two_pass_base``, ``s.two_pass_floor``;
     the bound at ``s.orp_confidence`` for ``future_views`` new views, within ``s.epsilon_db``)."""
     v = search_views(s, cfg, cache, scene)
@@ -122,8 +86,9 @@ def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, devi
         if s.orp_by_distance and v.strata is not None:
             by_distance = band_shares(v, shares[:shares.index(chosen["share"]) + 1], kept, gaps, s.orp_confidence,
                                       s.epsilon_db, future_views)
-    return TwoPassPoint(base=base, floor=floor, share=float(chosen["share"]) if chosen else 1.0, found=chosen is not None,
-                        where=v.where, epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
+    return SearchedPoint("share", float(chosen["share"]) if chosen else 1.0, found=chosen is not None, where=v.where,
+                         epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance,
+                         settings={"base": base, "floor": floor})
 
 
 def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,
@@ -138,12 +103,12 @@ def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.
     return out
 
 
-def two_pass_method(point: TwoPassPoint, renderer, pattern, recnn, opts):
+def two_pass_method(point: SearchedPoint, renderer, pattern, recnn, opts):
     """The method the evaluation measures at ``point``."""
     from ..inference.two_pass import TwoPassFill
 
-    return TwoPassFill(renderer, pattern, recnn, share=point.share, base=point.base, floor=point.floor, opts=opts,
-                       by_distance=point.shares_by_distance())
+    return TwoPassFill(renderer, pattern, recnn, share=point.value, base=point.settings["base"], floor=point.settings["floor"], opts=opts,
+                       by_distance=point.values_by_distance())
 
 
-__all__ = ["TwoPassPoint", "candidate_shares", "two_pass_point", "band_shares", "two_pass_method"]
+__all__ = ["describe_two_pass", "candidate_shares", "two_pass_point", "band_shares", "two_pass_method"]

@@ -106,7 +106,7 @@ def _densities(im: torch.Tensor, c: torch.Tensor, valid: torch.Tensor) -> tuple[
 def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | None, recnn: torch.nn.Module,
                      iml: torch.nn.Module | None = None, ims_task: Any = None, blue: torch.nn.Module | None = None,
                      shares: Sequence[float] = SHARES, valid: torch.Tensor | None = None, pattern: Any = None,
-                     ims_lift: bool = False) -> list[dict[str, Any]]:
+                     ims_lift: bool = False, ims_head: Any = None) -> list[dict[str, Any]]:
     """Per-image PSNR after the RecNN for every (share, mask, reconstruction) on one batch.
 
     Args:
@@ -125,6 +125,8 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
         pattern: the C-Images' sampling pattern: a foveal one is filled at the samples' FR positions
             (:func:`~imls_lightning.core.pull_push.fill_c_image`); ``None``: filled as a grid.
         ims_lift: lift the IMS's masks to the share of each mean value (the evaluation's ``ims_lift``).
+        ims_head: the IMS's :class:`~imls_lightning.models.ims.IMSMaskHead` its masks are made with (at the operating
+            point's sharpness and floor); ``None``: ``ims_task.mask_head``.
 
     Returns:
         rows ``{"share", "mask", "reconstruction", "psnr" (B,), "c_share" (B,), "density_background",
@@ -147,9 +149,10 @@ def equal_share_rows(c: torch.Tensor, fr: torch.Tensor, views: torch.Tensor | No
 
         sources["iml"] = (iml_mask, iml.decoder)
     if ims_task is not None and views is not None and ims_task.target == "pim":
-        g = ims_task.generator(views.to(c.device).float()).float()
+        head = ims_task.mask_head if ims_head is None else ims_head
+        g = head.generator(views.to(c.device).float()).float()
         # the product's decoder: the IML's, or the one fine-tuned on the IMS's masks (model.decoder_lr > 0)
-        sources["ims"] = (lambda u: ims_task.output_to_im_at(g, u.to(c.device), ims_lift), ims_task.decoder)
+        sources["ims"] = (lambda u: head.threshold(g, u.to(c.device), ims_lift), ims_task.decoder)
     sources["blue_noise"] = (lambda u: u.to(c.device).view(-1, 1, 1, 1) > P, blue.decoder if blue is not None else None)
 
     rows: list[dict[str, Any]] = []

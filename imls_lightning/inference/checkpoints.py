@@ -22,7 +22,6 @@ Example:
 """
 from __future__ import annotations
 
-import dataclasses
 
 import importlib
 from dataclasses import dataclass
@@ -216,46 +215,47 @@ def load_ims_nets(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | Non
     return IMSNets(head, nets["iml.decoder"], recnn, pattern, hp, str(ims_checkpoint))
 
 
-@dataclass
+@dataclass(frozen=True)
 class Product:
-    """The product as it runs from an IMS checkpoint (:func:`load_product`): its networks and the mean
-    value and lift they run at (``mean=None``: the trained mean), from ``operating_point`` (the
-    evaluation's record, :mod:`~imls_lightning.inference.operating_point`) or as asked."""
+    """The product as it runs from an IMS checkpoint (:func:`load_product`): its networks and the
+    :class:`~imls_lightning.core.operating_point.OperatingPoint` they run at (``None``: the trained share), from
+    ``record`` (the evaluation's, :mod:`~imls_lightning.inference.operating_point`) or as asked."""
 
     nets: IMSNets
-    mean: float | None
-    lift: bool
-    operating_point: Any = None
+    point: Any = None
+    record: Any = None
 
     @property
-    def by_distance(self):
-        """The recorded point's mean value per band of camera distance
-        (:class:`~imls_lightning.models.ims.DistanceMeans`), or ``None``: ``mean`` for every view."""
-        return None if self.operating_point is None else self.operating_point.distance_means()
+    def mean(self) -> float | None:
+        """The point's share as the paper's mean value ``u`` (``None``: the trained one)."""
+        return None if self.point is None else self.point.u
+
+    @property
+    def lift(self) -> bool:
+        return self.point is not None and self.point.lift
 
 
 def load_product(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | None = None, *,
-                 mean: float | str | None = None,
+                 share: float | str | None = None, share_key: str = "share",
                  keys: tuple[str, str] = ("ims_checkpoint", "recnn_checkpoint")) -> Product:
-    """:func:`load_ims_nets` and the mean value to run at: by default the operating point the
-    evaluation recorded for this checkpoint (its masks lifted, sharpened and floored as it did), else the trained
-    mean (one line on stderr says which); ``mean`` (a number in ``[0.01, 1]``, or ``"trained"``)
-    overrides it (:func:`~imls_lightning.inference.operating_point.mean_to_run`).
+    """:func:`load_ims_nets` and the operating point to run at: by default the one the evaluation recorded for this
+    checkpoint (its share, bands, lift, sharpness and object floor), else the trained share (one line on stderr says
+    which); ``share`` (a number in ``[0.01, 1]``, or ``"trained"``) overrides it
+    (:func:`~imls_lightning.inference.operating_point.point_to_run`; ``share_key``: the setting it came from, for
+    messages). The networks are the checkpoint's as they
+    are: the point is applied by whoever renders with them (:class:`~imls_lightning.inference.pipeline.IMLSRenderer`,
+    the export's ``im`` network).
 
     Example:
         >>> p = load_product("ims.ckpt")                   # doctest: +SKIP
-        >>> p.mean, p.lift, p.operating_point              # doctest: +SKIP
-        (0.52, False, OperatingPoint(...))
+        >>> p.point, p.record                              # doctest: +SKIP
+        (OperatingPoint(share=0.52, ...), ORPRecord(...))
     """
-    from .operating_point import mean_to_run
+    from .operating_point import point_to_run
 
     nets = load_ims_nets(ims_checkpoint, recnn_checkpoint, keys=keys)
-    u, lift, point = mean_to_run(ims_checkpoint, mean, target=nets.target, trained_mean=nets.trained_mean)
-    if point is not None and point.sharpness != 1.0:  # the masks the point was searched with, for every consumer
-        nets = dataclasses.replace(nets, head=nets.head.with_sharpness(point.sharpness))
-    if point is not None and point.floor is not None:  # each view at least its object plus the recorded margin
-        nets = dataclasses.replace(nets, head=nets.head.with_object_floor(*point.floor))
-    return Product(nets, u, lift, point)
+    point, record = point_to_run(ims_checkpoint, share, target=nets.target, trained_mean=nets.trained_mean, key=share_key)
+    return Product(nets, point, record)
 
 
 def renderer_for(hparams: Mapping[str, Any], scene=None, renderer=None, renderer_cfg=None):

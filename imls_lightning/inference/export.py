@@ -58,6 +58,7 @@ from torch import nn
 from imls_lightning.base.errors import InputError
 
 from ..core.patterns import SamplingPattern
+from ..core.operating_point import Bands, OperatingPoint
 from ..models.ims import MaskAt
 from .checkpoints import IMSNets, load_product, require_recnn
 from .pipeline import IMLSRenderer, NetOptions
@@ -92,19 +93,20 @@ def _onnxruntime():
 
 class IMPredictor(MaskAt):
     """The exported ``im`` network: view ``(B, 9)`` float32 -> IM ``(B, 1, n, n)`` bool, an
-    :class:`~imls_lightning.models.ims.IMSMaskHead` with its mean value and lift bound
+    :class:`~imls_lightning.models.ims.IMSMaskHead` with its operating point bound
     (:class:`~imls_lightning.models.ims.MaskAt`), so tracing sees one branch. The thresholding is the
     head's own (its one home; :func:`~imls_lightning.core.importance.lift_to_share` is traceable), so
     the export makes the IMs :class:`~imls_lightning.inference.pipeline.IMLSRenderer` makes, bit for bit.
 
     Args:
         head: the :class:`~imls_lightning.models.ims.IMSMaskHead` (eval mode).
-        mean: the mean value ``u`` to threshold at (``None``: the trained one; ``target="pim"`` only), or a
-            :class:`~imls_lightning.models.ims.DistanceMeans` (each view at its band's).
-        lift: lift the rescaled PIM' to the share ``u`` above the trained mean (with ``mean``).
+        point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` to threshold at (``None``: the
+            trained share); or a mean value ``u`` (``target="pim"`` only) or a
+            :class:`~imls_lightning.models.ims.DistanceMeans` (each view at its band's) with ``lift``.
+        lift: with a mean value, lift the rescaled PIM' to the share ``u`` above the trained mean.
 
     Example:
-        >>> im = IMPredictor(nets.head, mean=0.4).eval()   # doctest: +SKIP
+        >>> im = IMPredictor(nets.head, OperatingPoint(share=0.4)).eval()   # doctest: +SKIP
         >>> torch.jit.trace(im, (view,))                     # doctest: +SKIP
     """
 
@@ -158,13 +160,12 @@ class _OnnxModule(nn.Module):
 # ---------------------------------------------------------------------------------------------
 # export
 # ---------------------------------------------------------------------------------------------
-def export_parts(nets: IMSNets, mean: float | None = None, lift: bool = False, by_distance: nn.Module | None = None
-                 ) -> dict[str, nn.Module]:
-    """The three exported modules of the product's networks; ``im`` thresholds at ``mean`` (``None``:
-    the trained mean), or at each view's band of camera distance (``by_distance``, a
-    :class:`~imls_lightning.models.ims.DistanceMeans`), lifted with ``lift``."""
+def export_parts(nets: IMSNets, point: OperatingPoint | None = None) -> dict[str, nn.Module]:
+    """The three exported modules of the product's networks; ``im`` thresholds at ``point`` (an
+    :class:`~imls_lightning.core.operating_point.OperatingPoint`: its share or bands of camera distance, lift,
+    sharpness and floor; ``None``: the trained share)."""
     recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
-    im = IMPredictor(nets.head.eval(), mean if by_distance is None else by_distance, lift).eval()
+    im = IMPredictor(nets.head.eval(), point).eval()
     return {"im": im, "decoder": PackedDecoder(nets.decoder).eval(), "recnn": recnn.eval()}
 
 
@@ -212,7 +213,7 @@ def _sha256(path: Path, length: int = 16) -> str:
 
 def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, format: str = "torchscript",
                     recnn_checkpoint: str | os.PathLike | None = None, overwrite: bool = False,
-                    mean: float | str | None = None) -> Path:
+                    mean: float | str | None = None, *, share: float | str | None = None) -> Path:
     """Export the per-view networks of an IMS checkpoint (see the module doc); returns ``out``.
 
     The ``im`` network thresholds at the operating point the evaluation recorded for the checkpoint
@@ -227,8 +228,9 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
         recnn_checkpoint: a RecNN checkpoint to use instead of the one in the IMS checkpoint
             (needed when the IML was standalone and no RecNN was stored).
         overwrite: replace an existing export directory.
-        mean: ``None``: the recorded operating point, else the trained mean; a number in
-            ``[0.01, 1]`` or ``"trained"``: that mean value (nothing is read).
+        share: ``None``: the recorded operating point, else the trained share; a number in
+            ``[0.01, 1]`` or ``"trained"``: that share of the C-Image (nothing is read). ``mean``: the same (its
+            older name).
 
     Raises:
         InputError: a bad format, a missing/wrong checkpoint, ``out`` exists, ONNX not installed.
@@ -248,12 +250,13 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
 
     from dataclasses import asdict
 
-    product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
-    nets, u, point = product.nets, product.mean, product.operating_point
-    if u is not None and nets.target != "pim":
-        raise InputError(f"mean={mean}: the IMS was trained with model.target={nets.target}; only its trained mean can be exported")
-    lift = u is not None and product.lift
-    parts = export_parts(nets, u, lift, product.by_distance)
+    value, key = (share, "share") if share is not None else (mean, "mean")
+    product = load_product(ims_checkpoint, recnn_checkpoint, share=value, share_key=key)
+    nets, point, record = product.nets, product.point, product.record
+    if point is not None and nets.target != "pim":
+        raise InputError(f"{key}={value}: the IMS was trained with model.target={nets.target}; only its trained mean can be exported")
+    u, lift, bands = product.mean, product.lift, None if point is None else point.bands
+    parts = export_parts(nets, point)
     pattern = nets.pattern
     examples = _example_inputs(pattern)
 
@@ -285,13 +288,14 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
             "mean": nets.trained_mean if u is None else u,
             "trained_mean": nets.trained_mean,
             "lift": lift,
-            "sharpness": float(nets.head.sharpness),  # the im network's masks, sharpened as the record's ORP was searched
+            # the im network's masks, sharpened as the record's ORP was searched
+            "sharpness": float(nets.head.sharpness if point is None else point.sharpness),
             # the im network's floor on each view's mean value (its object + margin), as the record's evaluation chose it
             # (its band's margin where the record chose one per band: by_distance's floor_margins)
-            "object_floor": None if nets.head.object_floor is None else dict(zip(("margin", "tau"), nets.head.object_floor)),
-            "floor_margins": None if product.by_distance is None else product.by_distance.floor_margins,
-            "by_distance": None if product.by_distance is None else point.by_distance,
-            "operating_point": None if point is None else asdict(point),
+            "object_floor": None if point is None or point.object_floor is None else dict(zip(("margin", "tau"), point.object_floor)),
+            "floor_margins": None if bands is None or bands.floor_margins is None else list(bands.floor_margins),
+            "by_distance": None if bands is None else record.by_distance,
+            "operating_point": None if record is None else asdict(record),
             "inputs": {"im": [1, 9], "decoder": [1, 4, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
             "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
             "ims_checkpoint_sha256": _sha256(Path(ims_checkpoint).expanduser()),
@@ -383,10 +387,23 @@ class ExportedIMLSRenderer(IMLSRenderer):
             from imls_lightning.render import make_renderer
 
             renderer = make_renderer(scene, renderer_cfg)
-        r = cls(renderer, pattern, mods["im"], UnpackedDecoder(mods["decoder"]), mods["recnn"], NetOptions(device=str(dev)))
-        r.lift = bool(meta.get("lift", False))
+        # the point its im network thresholds at (None: an export made before it was recorded), and the evaluation's
+        # record it came from (a dict), both given at construction
+        r = cls(renderer, pattern, mods["im"], UnpackedDecoder(mods["decoder"]), mods["recnn"], NetOptions(device=str(dev)),
+                point=exported_point(meta), record=meta.get("operating_point"))
         r.meta = meta
         r.export_path = p
-        r.mean = meta.get("mean")  # the mean value its im network thresholds at (None: an export made before it was recorded)
-        r.operating_point = meta.get("operating_point")  # the evaluation's record it came from (dict), or None
         return r
+
+
+def exported_point(meta: dict) -> OperatingPoint | None:
+    """The :class:`~imls_lightning.core.operating_point.OperatingPoint` an export's ``im`` network thresholds at, from
+    its ``export.json`` (``None``: an export made before the mean value was recorded)."""
+    if meta.get("mean") is None:
+        return None
+    bands = meta.get("by_distance")
+    floor = meta.get("object_floor")
+    return OperatingPoint(share=meta["mean"], lift=bool(meta.get("lift", False)),
+                          bands=None if not bands else Bands(bands["edges"], bands["means"], meta.get("floor_margins")),
+                          sharpness=float(meta.get("sharpness", 1.0)),
+                          object_floor=None if not floor else (floor["margin"], floor["tau"]))

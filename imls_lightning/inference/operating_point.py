@@ -15,19 +15,27 @@ relative ``tolerance``), and one that disagrees with its evaluation's ``summary.
 ``report`` it names, when that file is at hand) is ignored with a one-line warning, never trusted; the
 trained mean is used, and ``mean=<u>`` runs at a point of the user's choice.
 
-Every consumer reads it the same way (:func:`mean_to_run`, through
+An :class:`ORPRecord` is the search's account: the frozen
+:class:`~imls_lightning.core.operating_point.OperatingPoint` it chose (:attr:`ORPRecord.point`: share, lift, bands,
+sharpness, object floor), with what it measured there (the share of C and IPR, the gap, the views, the search's
+points). The file keeps its format (``mean`` is the point's share as the paper's mean value ``u``, ``by_distance``
+its bands, ``object_floor`` its floor), so records written before read the same.
+
+Every consumer reads it the same way (:func:`point_to_run`, through
 :func:`~imls_lightning.inference.checkpoints.load_product`) and runs at the recorded point by default; an
-explicit mean overrides it, and without a record they fall back to the trained mean, saying so in one
+explicit share overrides it, and without a record they fall back to the trained share, saying so in one
 line on stderr: :meth:`IMLSRenderer.from_checkpoints <imls_lightning.inference.pipeline.IMLSRenderer.from_checkpoints>`
 (so the desktop viewer), the browser viewer's session, and :func:`imls_lightning.inference.export.export_renderer`
 (whose ``export.json`` carries the record).
 
 Example:
-    >>> p = OperatingPoint(mean=0.52, lift=False, c_share=0.393, ipr=0.098, epsilon_db=1.0)
-    >>> p.describe()
+    >>> r = ORPRecord(mean=0.52, lift=False, c_share=0.393, ipr=0.098, epsilon_db=1.0)
+    >>> r.describe()
     'u = 0.520, 39.3 % of C, IPR 0.098 on the validation views (within 1 dB of the RecNN alone)'
-    >>> write_operating_point("ims.ckpt", p)              # doctest: +SKIP
-    >>> read_operating_point("ims.ckpt", trained_mean=0.2).mean   # doctest: +SKIP
+    >>> r.point
+    OperatingPoint(share=0.52, lift=False, bands=None, sharpness=1.0, object_floor=None)
+    >>> write_operating_point("ims.ckpt", r)              # doctest: +SKIP
+    >>> read_operating_point("ims.ckpt", trained_mean=0.2).point.share   # doctest: +SKIP
     0.52
 """
 from __future__ import annotations
@@ -45,9 +53,10 @@ import numpy as np
 from imls_lightning.base.errors import InputError
 
 from ..core.importance import check_object_floor, check_sharpness
+from ..core.operating_point import Bands, OperatingPoint
 
-__all__ = ["SUFFIX", "OperatingPoint", "sidecar_path", "write_operating_point", "read_operating_point", "mean_to_run",
-           "record_digest", "SEARCH_TOLERANCE"]
+__all__ = ["SUFFIX", "ORPRecord", "sidecar_path", "write_operating_point", "read_operating_point", "point_to_run",
+           "share_setting", "record_digest", "SEARCH_TOLERANCE"]
 
 #: appended to the checkpoint's file name
 SUFFIX = ".orp.json"
@@ -65,11 +74,12 @@ def _log(msg: str) -> None:
 
 
 @dataclass(frozen=True)
-class OperatingPoint:
-    """An evaluation's operating point for one IMS checkpoint.
+class ORPRecord:
+    """An evaluation's operating point for one IMS checkpoint, as recorded: the point (:attr:`point`) and what its
+    search measured there. Its fields are the record file's.
 
     Attributes:
-        mean: the mean value ``u`` IML/S runs at (``None``: the search found no ORP within
+        mean: the share of C IML/S runs at, as the paper's mean value ``u`` (``None``: the search found no ORP within
             ``epsilon_db``; the evaluation ran at the trained mean).
         lift: whether the IMS's masks were lifted to their mean value (the evaluation's ``ims_lift``;
             the ``lift`` argument of :class:`~imls_lightning.models.ims.IMSMaskHead`).
@@ -91,7 +101,7 @@ class OperatingPoint:
             what chose it (``c_share``, ``gap_db`` and ``gap_bound_db`` there, ``views``), or ``None``: no floor
             (:meth:`~imls_lightning.models.ims.IMSMaskHead.with_object_floor`). Records written before it read as ``None``.
             With ``band_margins`` (``orp_object_floor_by_band``) each band of ``by_distance`` has its own margin
-            (``None``: no floor there), which :meth:`distance_means` carries; ``margin`` is then the largest, for
+            (``None``: no floor there), which :attr:`point` carries in its bands; ``margin`` is then the largest, for
             consumers that take one.
         points: ``[u, c_share]`` of every mean value the search tried (the share of C it measured there), so the record
             says which share its ``mean`` implies; ``None``: not recorded (then that check is skipped).
@@ -118,15 +128,16 @@ class OperatingPoint:
     def found(self) -> bool:
         return self.mean is not None
 
-    def distance_means(self):
-        """The :class:`~imls_lightning.models.ims.DistanceMeans` of a by-distance point (``None``: one mean
-        value for every view)."""
-        if not self.found or not self.by_distance:
+    @property
+    def point(self) -> OperatingPoint | None:
+        """The :class:`~imls_lightning.core.operating_point.OperatingPoint` recorded (``None``: the search found none):
+        the share, lift, bands, sharpness and object floor renderers run at."""
+        if not self.found:
             return None
-        from ..models.ims import DistanceMeans
-
-        margins = (self.object_floor or {}).get("band_margins")
-        return DistanceMeans(self.by_distance["edges"], self.by_distance["means"], margins)
+        bands = None
+        if self.by_distance:
+            bands = Bands(self.by_distance["edges"], self.by_distance["means"], (self.object_floor or {}).get("band_margins"))
+        return OperatingPoint(share=self.mean, lift=self.lift, bands=bands, sharpness=self.sharpness, object_floor=self.floor)
 
     def describe(self) -> str:
         """One line: the mean value, the share and IPR it gave, and the bound."""
@@ -198,7 +209,7 @@ def record_digest(record: Any, checkpoint_sha256: str) -> str:
     return h.hexdigest()
 
 
-def write_operating_point(ims_checkpoint: str | Path, point: OperatingPoint) -> Path:
+def write_operating_point(ims_checkpoint: str | Path, point: ORPRecord) -> Path:
     """Record ``point`` for ``ims_checkpoint`` in its sidecar (atomically; replaces an older one), with its
     :func:`record_digest`.
 
@@ -214,7 +225,7 @@ def write_operating_point(ims_checkpoint: str | Path, point: OperatingPoint) -> 
     return atomic_json(sidecar_path(ims_checkpoint), record)
 
 
-def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
+def _check(record: Any, sha: str) -> tuple[ORPRecord | None, str | None]:
     """``(point, None)`` for a record of this checkpoint, as the evaluation wrote it, else ``(None, why)``."""
     if not isinstance(record, dict) or record.get("kind") != KIND or record.get("version") != VERSION:
         return None, "not an operating-point record of this version"
@@ -233,7 +244,7 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
         if mean is not None and not 0.01 <= mean <= 1.0:
             raise ValueError(f"mean={mean} outside [0.01, 1]")
         opt = lambda k, f=float: None if record.get(k) is None else f(record[k])  # noqa: E731
-        point = OperatingPoint(mean=mean, lift=bool(record["lift"]), c_share=opt("c_share"), ipr=opt("ipr"),
+        point = ORPRecord(mean=mean, lift=bool(record["lift"]), c_share=opt("c_share"), ipr=opt("ipr"),
                                epsilon_db=float(record["epsilon_db"]), gap_db=opt("gap_db"), views=opt("views", int),
                                scene=opt("scene", str), report=opt("report", str),
                                by_distance=_by_distance(record.get("by_distance")),
@@ -245,7 +256,7 @@ def _check(record: Any, sha: str) -> tuple[OperatingPoint | None, str | None]:
             raise ValueError("object_floor.band_margins without by_distance bands to hold them")
         if not 0.0 <= point.tolerance <= 1.0:
             raise ValueError(f"tolerance={point.tolerance} outside [0, 1]")
-        point.distance_means()  # the bands are checked as a renderer will read them
+        point.point  # the point is checked as a renderer will read it (its bands, floor and share)
     except (KeyError, TypeError, ValueError, InputError) as err:
         return None, f"malformed ({type(err).__name__}: {err})"
     why = _inconsistency(point)
@@ -262,7 +273,7 @@ def _points(value: Any) -> list | None:
     return out
 
 
-def _inconsistency(point: OperatingPoint) -> str | None:
+def _inconsistency(point: ORPRecord) -> str | None:
     """Why ``point``'s share of C is not the one its mean value implies (the share its search measured there,
     interpolated between the mean values it tried), beyond its relative tolerance; ``None`` when it is, or when the
     record does not say (no ``points``, no share, no point found)."""
@@ -281,7 +292,7 @@ def _inconsistency(point: OperatingPoint) -> str | None:
     return None
 
 
-def _summary_disagreement(point: OperatingPoint, sha: str) -> str | None:
+def _summary_disagreement(point: ORPRecord, sha: str) -> str | None:
     """Why ``point`` is not what its evaluation's ``summary.json`` (beside the report it names) says, or ``None``: it
     agrees, or that file is not at hand (an evaluation folder moved or deleted, a record written without a report)."""
     if not point.report:
@@ -346,7 +357,7 @@ def _object_floor(value: Any) -> dict | None:
         raise TypeError(f"object_floor is a {type(value).__name__}, expected a mapping")
     margin, tau = check_object_floor(value["margin"], value["tau"])
     out: dict[str, Any] = {"margin": margin, "tau": tau}
-    if value.get("band_margins") is not None:  # one per band of by_distance: distance_means() checks the count
+    if value.get("band_margins") is not None:  # one per band of by_distance: the point's Bands check the count
         from ..models.ims import check_band_margins
 
         out["band_margins"] = check_band_margins(value["band_margins"], name="object_floor.band_margins")
@@ -374,7 +385,7 @@ def _by_distance(value: Any) -> dict | None:
 
 
 def read_operating_point(ims_checkpoint: str | Path, trained_mean: float | None = None, *,
-                         log: Callable[[str], None] | None = _log, warn: Any = "log") -> OperatingPoint | None:
+                         log: Callable[[str], None] | None = _log, warn: Any = "log") -> ORPRecord | None:
     """The operating point recorded for ``ims_checkpoint`` (checked against its bytes, its digest, its own search
     and its evaluation's ``summary.json``), or ``None``; every consumer reads the record through this function.
 
@@ -413,35 +424,53 @@ def read_operating_point(ims_checkpoint: str | Path, trained_mean: float | None 
     return point
 
 
-def mean_to_run(ims_checkpoint: str | Path, mean: float | str | None = None, *, target: str = "pim",
-                trained_mean: float | None = None, log: Callable[[str], None] | None = _log
-                ) -> tuple[float | None, bool, OperatingPoint | None]:
-    """The mean value a renderer of the IMS checkpoint ``ims_checkpoint`` runs at, whether its masks are
-    lifted, and the recorded point they came from: ``(mean or None for the trained one, lift, point or None)``.
+def point_to_run(ims_checkpoint: str | Path, share: float | str | None = None, *, target: str = "pim",
+                 trained_mean: float | None = None, log: Callable[[str], None] | None = _log, key: str = "share"
+                 ) -> tuple[OperatingPoint | None, ORPRecord | None]:
+    """The operating point a renderer of the IMS checkpoint ``ims_checkpoint`` runs at and the record it came from:
+    ``(point or None for the trained share, record or None)``.
 
-    ``mean``: ``None``: the recorded operating point (its mean and lift), else the trained mean (one
-    line says which, see :func:`read_operating_point`); a number in ``[0.01, 1]``: that mean value (the
-    paper's rescale; nothing is read); ``"trained"``: the trained mean. An IMS trained with
-    ``target="im"`` (``target``) has only its trained mean: nothing is read. ``trained_mean`` names
-    the fallback in the message.
+    ``share``: ``None``: the recorded operating point (its share, lift, bands, sharpness and floor), else the trained
+    share (one line says which, see :func:`read_operating_point`); a number in ``[0.01, 1]``: that share of the
+    C-Image (the paper's rescale to that mean value; nothing is read); ``"trained"``: the trained share. An IMS
+    trained with ``target="im"`` (``target``) has only its trained share: nothing is read. ``trained_mean`` names the
+    fallback in the message; ``key`` the setting ``share`` came from, for messages (``mean`` where users type that).
 
     Raises:
-        InputError: a ``mean`` that is neither of those.
+        InputError: a ``share`` that is neither of those.
 
     Example:
-        >>> mean_to_run("ims.ckpt", 0.4), mean_to_run("ims.ckpt", "trained")
-        ((0.4, False, None), (None, False, None))
+        >>> point_to_run("ims.ckpt", 0.4), point_to_run("ims.ckpt", "trained")
+        ((OperatingPoint(share=0.4, lift=False, bands=None, sharpness=1.0, object_floor=None), None), (None, None))
     """
     from imls_lightning.base.errors import finite_number
 
-    if isinstance(mean, str) and mean == "trained":
-        return None, False, None
-    if mean is not None:
-        u = finite_number(mean, "mean", "a number in [0.01, 1], 'trained' or null (the recorded operating point)")
+    if isinstance(share, str) and share == "trained":
+        return None, None
+    if share is not None:
+        what = "a number in [0.01, 1] (a share of the C-Image), 'trained' or null (the recorded operating point)"
+        u = finite_number(share, key, what)
         if not 0.01 <= u <= 1.0:
-            raise InputError(f"mean={mean}: expected a number in [0.01, 1], 'trained' or null (the recorded operating point)")
-        return u, False, None
+            raise InputError(f"{key}={share}: expected {what}")
+        return OperatingPoint(share=u), None
     if str(target) != "pim":
-        return None, False, None
-    point = read_operating_point(ims_checkpoint, trained_mean, log=log)
-    return (None, False, None) if point is None else (point.mean, point.lifted, point)
+        return None, None
+    record = read_operating_point(ims_checkpoint, trained_mean, log=log)
+    return (None, None) if record is None else (record.point, record)
+
+
+def share_setting(settings: Any) -> tuple[Any, str]:
+    """The share of the C-Image a user asked a viewer or the export for, and the key they typed it as: ``share`` (the
+    documented name) or ``mean`` (its older name, still read); ``(None, "share")`` when neither is set.
+
+    Raises:
+        InputError: both are set.
+
+    Example:
+        >>> share_setting({"share": 0.4, "mean": None}), share_setting({"mean": "trained"}), share_setting({})
+        ((0.4, 'share'), ('trained', 'mean'), (None, 'share'))
+    """
+    share, mean = settings.get("share"), settings.get("mean")
+    if share is not None and mean is not None:
+        raise InputError(f"share={share} and mean={mean}: set one (mean is share's older name)")
+    return (mean, "mean") if share is None and mean is not None else (share, "share")

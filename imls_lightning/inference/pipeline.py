@@ -1,7 +1,8 @@
 """Inference: the IML/S + RecNN renderer users call, and the baselines it is measured against.
 
-Every method renders a view into an ``(m, m, 3)`` uint8 image and reports each stage's wall time
-separately (CUDA-synchronized when the networks run on a GPU):
+Every method renders a view into an ``(m, m, 3)`` uint8 image in named stages (:meth:`Method.steps`, a generator
+that names each stage as it starts it) and times nothing itself; :mod:`imls_lightning.evaluation.timing` times any
+method by those stages (CUDA-synchronized when the networks run on a GPU):
 
 =====================  =====================================================================
 method                 stages
@@ -26,35 +27,33 @@ pixels are on the networks' device (the host-to-device copy is part of deliverin
 methods), ``rendered_pixels`` (rays cast at FR in the render stages), and ``im`` (the ``(n, n)``
 bool IM on the CPU; IML methods).
 
-Options (:class:`NetOptions`) apply to every network's ``forward``: ``torch.compile`` wraps the
+Options (:class:`~imls_lightning.inference.options.NetOptions`, with the device, in :mod:`.options`) apply to every
+network's ``forward``: ``torch.compile`` wraps the
 modules called directly (IMS generator, IML decoder, RecNN, LAS nets); the IML encoder path of
 ``iml`` (``IMLNet.importance``) and LAS's importance/reconstruction methods run uncompiled.
 
-The product is a composition of plain modules, in the manner of pytorch3d's renderer:
-:class:`IMLSRenderer` ``(ray caster, sampling pattern, mask head, decoder, RecNN)``, the mask head an
-:class:`~imls_lightning.models.ims.IMSMaskHead` run at the mean value and lift given at construction.
-What a method returns depends on its construction and its call's arguments only: the mean, the lift,
-an oracle mask (:meth:`IMLSRenderer.run`'s ``im``) and LAS's IPR (:meth:`LASMethod.run`'s ``ipr``)
-are arguments. Reading the networks from checkpoints is
+The product is a composition of plain modules, in the manner of pytorch3d's ``ImplicitRenderer(raysampler,
+raymarcher)``: :class:`IMLSRenderer` ``(ray caster, sampling pattern, mask head, decoder, RecNN, point)``, the mask
+head an :class:`~imls_lightning.models.ims.IMSMaskHead` run at the one frozen
+:class:`~imls_lightning.core.operating_point.OperatingPoint` given at construction. What a method returns depends on
+its construction and its call's arguments only: the point, an oracle mask (:meth:`IMLSRenderer.run`'s ``im``) and
+LAS's IPR (:meth:`LASMethod.run`'s ``ipr``). Reading the networks from checkpoints is
 :mod:`~imls_lightning.inference.checkpoints`' (:func:`~imls_lightning.inference.checkpoints.load_product`).
 
 Example:
     >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
-    >>> image, timings = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                                       # doctest: +SKIP
-    >>> timings                     # seconds per stage                                                  # doctest: +SKIP
+    >>> image = r.render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])                                                # doctest: +SKIP
+    >>> from imls_lightning.evaluation.timing import timed                                               # doctest: +SKIP
+    >>> image, timings = timed(r).render([0, 0, 3.5, 0, 0, 0, 0, 1, 0])  # seconds per stage            # doctest: +SKIP
+    >>> timings                                                                                          # doctest: +SKIP
     {'importance': 0.004, 'selective_render': 0.021, 'decoder': 0.006, 'recnn': 0.011, 'total': 0.042}
 """
 from __future__ import annotations
 
 import abc
-import contextlib
 import copy
-import importlib.util
-import os
-import shutil
-import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Generator
 
 import numpy as np
 import torch
@@ -63,72 +62,13 @@ from imls_lightning.render.camera import validate_view
 from imls_lightning.base.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
+from .options import NetOptions, compile_available, half_is_faster, pick_device, prepare_net  # noqa: F401 (re-exported)
 from ..core.importance import check_ipr
+from ..core.operating_point import OperatingPoint
 from ..core.patterns import SamplingPattern, c_pixels_to_fr
 from ..models.ims import IMSMaskHead
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
-
-
-def pick_device(device: str | torch.device = "auto") -> torch.device:
-    """``"auto"``: CUDA when present, else the CPU."""
-    if str(device) == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    d = torch.device(device)
-    if d.type == "cuda" and not torch.cuda.is_available():
-        raise InputError(f"device={device}: CUDA is not available on this machine")
-    return d
-
-
-_HALF_IS_FASTER: dict[str, bool] = {}
-
-
-def half_is_faster(device: torch.device) -> bool:
-    """Whether reduced-precision autocast (bfloat16 on the CPU, float16 on CUDA) beats float32 here.
-
-    Measured once per process and device on a small convolution stack (32 channels at 128², the width and size of
-    this project's decoders), the two precisions interleaved run by run over 9 rounds after a warm-up of each, by
-    their medians: a load that comes and goes slows both alike. A CPU with AVX-512 BF16 or AMX runs bfloat16 about
-    1.5-2x faster; an AVX2-only CPU emulates it, 40-90x slower (measured on this project's machines):
-    ``options.half: auto`` asks this instead of assuming. (Timed back to back on a 16-channel 96² stack, the answer
-    flipped between runs on the AMX machine: an evaluation ran float32 where its estimate had run bfloat16.)
-    """
-    key = str(device)
-    if key not in _HALF_IS_FASTER:
-        net = torch.nn.Sequential(*[torch.nn.Conv2d(32, 32, 3, padding=1) for _ in range(3)]).to(device).eval()
-        x = torch.rand(1, 32, 128, 128, device=device)
-        opts = NetOptions(device=key, half=True)
-
-        def once(half: bool) -> float:
-            with torch.inference_mode():
-                t0 = time.perf_counter()
-                with opts.autocast(device) if half else contextlib.nullcontext():
-                    net(x)
-                if device.type == "cuda":
-                    torch.cuda.synchronize(device)
-                return time.perf_counter() - t0
-
-        once(True), once(False)  # warm-up: the first call of each precision builds its kernels
-        times: dict[bool, list[float]] = {True: [], False: []}
-        for _ in range(9):
-            for half in (True, False):
-                times[half].append(once(half))
-        _HALF_IS_FASTER[key] = float(np.median(times[True])) < float(np.median(times[False]))
-    return _HALF_IS_FASTER[key]
-
-
-def compile_available(device: torch.device) -> str | None:
-    """``None`` where ``torch.compile`` can build kernels for ``device``, else why not, in a few words: on CUDA it
-    needs Triton, on the CPU a C++ compiler (``$CXX``, else ``g++``, ``c++`` or ``clang++`` on the PATH).
-
-    Example:
-        >>> compile_available(torch.device("cpu")) in (None, "no C++ compiler ($CXX, g++, c++ or clang++) on the PATH")
-        True
-    """
-    if device.type == "cuda":
-        return None if importlib.util.find_spec("triton") is not None else "Triton is not installed"
-    names = [os.environ["CXX"]] if os.environ.get("CXX") else ["g++", "c++", "clang++"]
-    return None if any(shutil.which(n) for n in names) else "no C++ compiler ($CXX, g++, c++ or clang++) on the PATH"
 
 
 def view_tensor(view, device) -> torch.Tensor:
@@ -142,91 +82,14 @@ def view_tensor(view, device) -> torch.Tensor:
     return torch.from_numpy(np.array(view, np.float32))[None].to(device)
 
 
-@dataclass
-class NetOptions:
-    """Inference options, each measured rather than assumed (see ``evaluate.options``)."""
-
-    device: str = "auto"
-    half: bool = False            # float16 on CUDA, bfloat16 on the CPU (autocast); from_config also takes "auto"
-    channels_last: bool = False
-    compile: bool = False         # torch.compile each network (first call pays the compile); from_config takes "auto"
-
-    #: the switches (besides ``device``), as in the ``options`` node of evaluate / adaptive
-    SWITCHES = ("half", "channels_last", "compile")
-
-    @classmethod
-    def from_config(cls, options: Mapping[str, Any] | None, device: str | None = None, key: str = "options") -> "NetOptions":
-        """Validated options from a config node ``{device?, half?, channels_last?, compile?}`` (``half`` and
-        ``compile`` also take ``"auto"``: bfloat16 where it is faster here, :func:`half_is_faster`; torch.compile where it
-        can build kernels, :func:`compile_available`);
-        ``device`` (when given) is used instead of the node's. A bad key or value raises a one-line
-        :class:`InputError` naming ``<key>.<name>``; a missing CUDA device fails here, not mid-run.
-
-        Example:
-            >>> NetOptions.from_config({"half": True}, device="cpu")
-            NetOptions(device='cpu', half=True, channels_last=False, compile=False)
-        """
-        opt = dict(options or {})
-        unknown = set(opt) - {"device", *cls.SWITCHES}
-        if unknown:
-            raise InputError(f"{key}.{sorted(unknown)[0]}: unknown option; expected device, {', '.join(cls.SWITCHES)}")
-        dev = lambda: pick_device(str(device if device is not None else opt.get("device", "auto")))  # noqa: E731
-        if opt.get("half") == "auto":
-            opt["half"] = half_is_faster(dev())
-        if opt.get("compile") in ("auto", True):
-            why_not = compile_available(dev())
-            if why_not and opt["compile"] is True:
-                raise InputError(f"{key}.compile=true: torch.compile cannot run here ({why_not}); "
-                                 "set compile=auto (compile where it can) or false")
-            opt["compile"] = why_not is None
-        for k in cls.SWITCHES:
-            if not isinstance(opt.get(k, False), bool):
-                raise InputError(f"{key}.{k}={opt.get(k)}: expected true or false" + (" or auto" if k in ("half", "compile") else ""))
-        out = cls(device=str(device if device is not None else opt.get("device", "auto")),
-                  **{k: bool(opt.get(k, False)) for k in cls.SWITCHES})
-        pick_device(out.device)
-        return out
-
-    def autocast(self, device: torch.device):
-        if not self.half:
-            return contextlib.nullcontext()
-        dtype = torch.float16 if device.type == "cuda" else torch.bfloat16
-        return torch.autocast(device.type, dtype=dtype)
-
-
-class StageTimer:
-    """Stage timer: wall time around a block, synchronized on CUDA so GPU work is counted."""
-
-    def __init__(self, device: torch.device):
-        self.device = device
-        self.times: dict[str, float] = {}
-
-    @contextlib.contextmanager
-    def stage(self, name: str):
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        t0 = time.perf_counter()
-        yield
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
-
-    def result(self) -> dict[str, float]:
-        out = dict(self.times)
-        out["total"] = float(sum(self.times.values()))
-        return out
-
-
-def prepare_net(net: torch.nn.Module | None, device: torch.device, opts: NetOptions):
-    """``net`` on ``device`` in eval mode, channels-last and/or compiled as ``opts`` asks (``None`` stays ``None``)."""
-    if net is None:
-        return None
-    net = net.to(device).eval()
-    if opts.channels_last:
-        net = net.to(memory_format=torch.channels_last)
-    if opts.compile:
-        net = torch.compile(net)
-    return net
+def run_steps(steps: Generator[str | None, None, "RenderResult"]) -> "RenderResult":
+    """Run a method's forward pass (:meth:`Method.steps`) to its end, timing nothing: its :class:`RenderResult`
+    (``timings`` empty). :func:`imls_lightning.evaluation.timing.timed_run` runs the same steps timing each stage."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
 
 
 def to_uint8_image(x: torch.Tensor) -> np.ndarray:
@@ -243,7 +106,8 @@ class RenderResult:
 
 
 class Method(abc.ABC):
-    """Base class of an inference method: ``render(view) -> (image, timings)``."""
+    """Base class of an inference method: a forward pass (:meth:`steps`) in named stages, run by :meth:`run` or
+    :meth:`render`, timing nothing (:func:`imls_lightning.evaluation.timing.timed` times any method by its stages)."""
 
     name = "method"
 
@@ -253,19 +117,31 @@ class Method(abc.ABC):
         self.opts = opts or NetOptions()
         self.device = pick_device(self.opts.device)
 
+    def with_ray_caster(self, renderer) -> "Method":
+        """The same method (its prepared networks shared) on another ray caster."""
+        twin = copy.copy(self)
+        twin.renderer = renderer
+        return twin
+
     def _tensor(self, x: torch.Tensor) -> torch.Tensor:
         x = x.to(self.device, non_blocking=True)
         return x.contiguous(memory_format=torch.channels_last) if self.opts.channels_last else x
 
     @abc.abstractmethod
+    def steps(self, view, **kwargs) -> Generator[str | None, None, RenderResult]:
+        """The forward pass of a validated view as a generator: it yields the name of each stage (one of
+        :data:`STAGES`, or ``"mean"``) just before running it, ``None`` before a step no stage counts, and returns the
+        :class:`RenderResult` (``kwargs``: the method's per-call arguments). It reads no clock: a stage ends where the
+        next begins, and a timer that runs the steps (:func:`imls_lightning.evaluation.timing.timed_run`) times them."""
+
     def run(self, view, **kwargs) -> RenderResult:
-        """Render a validated view, timing each stage (``kwargs``: the method's per-call arguments)."""
+        """Render a validated view (``kwargs``: the method's per-call arguments); ``timings`` is empty."""
+        return run_steps(self.steps(view, **kwargs))
 
     @torch.inference_mode()
-    def render(self, view) -> tuple[np.ndarray, dict[str, float]]:
-        """Render one view: ``(m, m, 3)`` uint8 image and seconds per stage (plus ``total``)."""
-        r = self.run(validate_view(view))
-        return r.image, r.timings
+    def render(self, view) -> np.ndarray:
+        """Render one view: the ``(m, m, 3)`` uint8 image."""
+        return self.run(validate_view(view)).image
 
 
 class FullRayCast(Method):
@@ -273,11 +149,10 @@ class FullRayCast(Method):
 
     name = "full"
 
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(torch.device("cpu"))
-        with timer.stage("render"):
-            img = self.renderer.render(view, self.fr_size)
-        return RenderResult(img, timer.result(), {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
+    def steps(self, view):
+        yield "render"
+        img = self.renderer.render(view, self.fr_size)
+        return RenderResult(img, {}, {"ipr": 1.0, "rendered_pixels": self.fr_size**2})
 
 
 class PatternMethod(Method):
@@ -321,14 +196,14 @@ class RecNNAlone(PatternMethod):
         super().__init__(renderer, pattern, opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(self.device)
-        with timer.stage("selective_render"):
-            c, count = self._render_c_pixels(view, None)
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+    def steps(self, view):
+        yield "selective_render"
+        c, count = self._render_c_pixels(view, None)
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(c)
-        return RenderResult(to_uint8_image(fr), timer.result(),
-                            {"ipr": count / self.fr_size**2, "c_share": 1.0, "rendered_pixels": count})
+        yield None
+        return RenderResult(to_uint8_image(fr), {}, {"ipr": count / self.fr_size**2, "c_share": 1.0, "rendered_pixels": count})
 
 
 class IMLPlusRecNN(PatternMethod):
@@ -340,8 +215,9 @@ class IMLPlusRecNN(PatternMethod):
     Args:
         iml: the :class:`~imls_lightning.models.iml.IMLNet` (encoder + decoder).
         recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
-        mean: normalization mean ``u`` at inference; ``None`` keeps the trained one. A different
-            value works on a private copy of ``iml`` (modules shared with other methods keep theirs).
+        mean: normalization mean ``u`` at inference (the paper's normalization of the IML's importance); ``None``
+            keeps the trained one. It is an argument of every normalization this method runs: the IML, shared with
+            other methods, is never changed.
     """
 
     name = "iml"
@@ -349,35 +225,34 @@ class IMLPlusRecNN(PatternMethod):
     def __init__(self, renderer, pattern, iml: torch.nn.Module, recnn: torch.nn.Module, opts: NetOptions | None = None,
                  mean: float | None = None):
         super().__init__(renderer, pattern, opts)
-        if mean is not None and float(mean) != float(iml.mean):
-            iml = copy.deepcopy(iml)
-            iml.mean = mean  # validated by IMLNet (InputError outside [0.01, 1])
+        # the mean value of every normalization this method runs (None: the IML's own), validated by the IML's layer
+        self._u = None if mean is None or float(mean) == float(iml.mean) else iml.normalization.checked(mean)
+        self.mean = float(iml.mean) if self._u is None else self._u
         self.iml = prepare_net(iml, self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
-    @property
-    def mean(self) -> float:
-        return float(self.iml.mean)
+    def _importance(self, c: torch.Tensor, view, info: dict) -> Generator[str | None, None, torch.Tensor]:
+        """The steps to the hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
+        yield "importance"
+        with self.opts.autocast(self.device):
+            return self.iml.importance(c, hard=True, mean=self._u)
 
-    def _importance(self, c: torch.Tensor, view, timer: StageTimer, info: dict) -> torch.Tensor:
-        """The hard IM of the rendered C-Image ``(1, 1, n, n)``; subclasses change how it is chosen."""
-        with timer.stage("importance"), self.opts.autocast(self.device):
-            return self.iml.importance(c, hard=True)
-
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(self.device)
-        with timer.stage("selective_render"):
-            c, _ = self._render_c_pixels(view, None)
+    def steps(self, view):
+        yield "selective_render"
+        c, _ = self._render_c_pixels(view, None)
         info: dict = {}
-        im = self._importance(c, view, timer, info)
-        with timer.stage("decoder"), self.opts.autocast(self.device):
+        im = yield from self._importance(c, view, info)
+        yield "decoder"
+        with self.opts.autocast(self.device):
             m = im.to(c.dtype)
             c_rec = self.iml.decode(m * c, m)
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
+        yield None
         im_cpu = im[0, 0].bool().cpu()
         count = int(im_cpu.sum())
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
                              "rendered_pixels": self.pattern.count, "im": im_cpu, **info})
 
@@ -391,73 +266,82 @@ def prepare_mask_head(head: IMSMaskHead, device: torch.device, opts: NetOptions)
 class IMLSRenderer(PatternMethod):
     """The product: IML/S + RecNN. View -> mask head -> IM -> ray-cast only those pixels -> decoder -> RecNN.
 
+    Built from its parts and one operating point, in the manner of pytorch3d's ``ImplicitRenderer(raysampler,
+    raymarcher)``; its forward pass (:meth:`steps`) times nothing (:func:`imls_lightning.evaluation.timing.timed`
+    times it from outside).
+
     Args:
         renderer: the ray caster, the scene's renderer (``render_pixels`` is used).
         pattern: the RecNN's sampling pattern.
-        mask: the mask head: an :class:`~imls_lightning.models.ims.IMSMaskHead` (run at ``mean`` with
-            ``lift``; its generator prepared as ``opts`` asks), or any module or callable view
-            ``(1, 9)`` float32 on the device -> ``(1, 1, n, n)`` bool IM with its mean bound (an
-            exported ``im`` network, a fixed mask); padding already zero.
+        mask: the mask head: an :class:`~imls_lightning.models.ims.IMSMaskHead` (run at ``point``; its generator
+            prepared as ``opts`` asks), or any module or callable view ``(1, 9)`` float32 on the device ->
+            ``(1, 1, n, n)`` bool IM with its point bound (an exported ``im`` network, a fixed mask); padding already
+            zero.
         decoder: the IML decoder ``(pr_c_image (1, 3, n, n), im (1, 1, n, n)) -> (1, 3, n, n)``.
         recnn: the RecNN ``(1, 3, n, n) -> (1, 3, m, m)``.
         opts: :class:`NetOptions`.
-        mean: the mean value an :class:`IMSMaskHead` runs at (``None``: the trained one; another needs
-            ``target="pim"``); ``lift``: lift its masks to the share ``mean``.
-        by_distance: a :class:`~imls_lightning.models.ims.DistanceMeans`: each view runs at its band of
-            camera distance's mean value instead of ``mean`` (the evaluation's ``orp_by_distance`` point;
-            an :class:`IMSMaskHead` with ``target="pim"`` only). ``info["mean"]`` is then the view's.
+        point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` the masks are made at (share, lift,
+            bands of camera distance, sharpness, object floor; another share than the trained one needs
+            ``target="pim"``). ``None``: an :class:`IMSMaskHead` at its trained share, as it is; for a bound mask,
+            what it is bound to when said (an export's), else unknown.
+        record: the evaluation's record the point came from
+            (:class:`~imls_lightning.inference.operating_point.ORPRecord`, or an export's dict), or ``None``.
 
     Attributes:
-        mean: the mean value the masks are made at (the trained one for ``mean=None``; ``None`` when a
-            bound mask does not say; with ``by_distance`` the single recorded value, for display); lift;
-            by_distance; operating_point (the evaluation's record it came from, or None); mask
-            (``view -> IM``), mask_head (the prepared head, or None).
+        point (frozen), record, mask (``view -> IM``), mask_head (the prepared head, or None); mean (the
+        share as the paper's mean value ``u`` the masks are made at: the trained one for ``share=None``; ``None``
+        when a bound mask does not say; with bands the single recorded value, for display), lift, by_distance
+        (the bands as a :class:`~imls_lightning.models.ims.DistanceMeans`, or None). ``info["mean"]`` of a run is
+        the view's band's with bands.
 
     Example:
         >>> r = IMLSRenderer.from_checkpoints("ims.ckpt", scene=scene, renderer_cfg={"name": "numba"})  # doctest: +SKIP
-        >>> image, timings = r.render(view)          # (m, m, 3) uint8, {stage: seconds, "total": ...}  # doctest: +SKIP
-        >>> r = IMLSRenderer(ray_caster, pattern, nets.head, nets.decoder, nets.recnn, mean=0.4)      # doctest: +SKIP
+        >>> image = r.render(view)                    # (m, m, 3) uint8                                  # doctest: +SKIP
+        >>> r = IMLSRenderer(ray_caster, pattern, nets.head, nets.decoder, nets.recnn,
+        ...                  point=OperatingPoint(share=0.4))                                              # doctest: +SKIP
     """
 
     name = "imls"
 
     def __init__(self, renderer, pattern, mask, decoder: torch.nn.Module, recnn: torch.nn.Module,
-                 opts: NetOptions | None = None, *, mean: float | None = None, lift: bool = False,
-                 by_distance: torch.nn.Module | None = None):
+                 opts: NetOptions | None = None, *, point: OperatingPoint | None = None, record: Any = None):
         super().__init__(renderer, pattern, opts)
+        if point is not None and not isinstance(point, OperatingPoint):
+            raise InputError(f"point={point!r}: expected an OperatingPoint (imls_lightning.core.operating_point)")
         self.mask_head = None
-        if by_distance is not None and not isinstance(mask, IMSMaskHead):
-            raise InputError("by_distance: needs the IMS's mask head (an IMSMaskHead), not a bound mask")
         if isinstance(mask, IMSMaskHead):
             self.mask_head = prepare_mask_head(mask, self.device, self.opts)
-            mask = self.mask_head.at(mean if by_distance is None else by_distance, lift)  # InputError for a target=im head
-            mean = mask.head.trained_mean if mean is None else float(mean)
+            point = point if point is not None else self.mask_head.point()
+            mask = self.mask_head.at(point)  # InputError for a share of a target=im head
         self.mask = mask
-        self.mean, self.lift, self.by_distance = mean, bool(lift), by_distance
-        self.operating_point = None
+        self.point, self.record = point, record
+        share = None if point is None else point.share
+        self.mean = share if share is not None or self.mask_head is None else self.mask_head.trained_mean
+        self.lift = point is not None and point.lift
+        self.by_distance = getattr(mask, "by_distance", None) if self.mask_head is not None else None
         self.decoder = prepare_net(decoder, self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @classmethod
-    def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, mean: float | None = None,
-                  lift: bool = False, by_distance: torch.nn.Module | None = None) -> "IMLSRenderer":
+    def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, point: OperatingPoint | None = None,
+                  record: Any = None) -> "IMLSRenderer":
         """The renderer of the product's networks (:class:`~imls_lightning.inference.checkpoints.IMSNets`:
-        mask head, decoder, RecNN) and a ray caster, at ``mean`` (``None``: the trained mean) or ``by_distance``."""
+        mask head, decoder, RecNN) and a ray caster, at ``point`` (``None``: the trained share)."""
         recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
-        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, mean=mean, lift=lift, by_distance=by_distance)
+        return cls(renderer, nets.pattern, nets.head, nets.decoder, recnn, opts, point=point, record=record)
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, *, scene=None, renderer=None, renderer_cfg=None,
                          recnn_checkpoint: str | None = None, opts: NetOptions | None = None,
-                         mean: float | str | None = None) -> "IMLSRenderer":
+                         share: float | str | None = None, mean: float | str | None = None) -> "IMLSRenderer":
         """Build the renderer from an IMS checkpoint (it carries the IML decoder and the RecNN):
         :func:`~imls_lightning.inference.checkpoints.load_product` composed with a ray caster.
 
         By default it runs at the operating point the evaluation recorded for this checkpoint
         (``<ims.ckpt>.orp.json``, checked against the checkpoint's bytes: the report's ORP, its
-        masks lifted if the evaluation lifted them), else at the trained mean; one line on stderr
-        says which (:mod:`imls_lightning.inference.operating_point`). :attr:`mean` is the mean value
-        it runs at, :attr:`operating_point` the record used (``None``: none).
+        masks lifted, sharpened and floored as the evaluation made them), else at the trained share; one line on
+        stderr says which (:mod:`imls_lightning.inference.operating_point`). :attr:`point` is the point it runs at,
+        :attr:`record` the record used (``None``: none).
 
         Args:
             ims_checkpoint: a ``.ckpt`` of ``model=ims``.
@@ -465,15 +349,15 @@ class IMLSRenderer(PatternMethod):
                 by default the scene and renderer the IMS was trained on (stored in its checkpoint).
             recnn_checkpoint: use this RecNN instead of the one stored in the IMS checkpoint.
             opts: :class:`NetOptions` (device, half, channels_last, compile).
-            mean: ``None``: the recorded operating point, else the trained mean; a number in
-                ``[0.01, 1]``: that mean value (the paper's rescale; needs ``model.target=pim``);
-                ``"trained"``: the trained mean. Neither reads the record.
+            share: ``None``: the recorded operating point, else the trained share; a number in
+                ``[0.01, 1]``: that share of the C-Image (the paper's rescale to that mean value; needs
+                ``model.target=pim``); ``"trained"``: the trained share. Neither reads the record.
+                ``mean``: the same (its older name).
         """
-        product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
+        product = load_product(ims_checkpoint, recnn_checkpoint, share=share if share is not None else mean,
+                               share_key="share" if share is not None or mean is None else "mean")
         ray_caster = renderer_for(product.nets.hparams, scene, renderer, renderer_cfg)
-        method = cls.from_nets(product.nets, ray_caster, opts, mean=product.mean, lift=product.lift, by_distance=product.by_distance)
-        method.operating_point = product.operating_point
-        return method
+        return cls.from_nets(product.nets, ray_caster, opts, point=product.point, record=product.record)
 
     def predict_im(self, view: torch.Tensor) -> torch.Tensor:
         """The IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` (float32, on the device): the mask, the
@@ -481,31 +365,34 @@ class IMLSRenderer(PatternMethod):
         with self.opts.autocast(self.device):
             return self.mask(view)
 
-    def _importance(self, view, timer: StageTimer, info: dict) -> torch.Tensor:
-        """The IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
+    def _importance(self, view, info: dict) -> Generator[str | None, None, torch.Tensor]:
+        """The steps to the IM ``(n, n)`` bool of one view; subclasses change how it is chosen."""
         v = view_tensor(view, self.device)
-        with timer.stage("importance"):
-            im = self.predict_im(v)[0, 0].bool()
-        if self.by_distance is not None:  # the view's band's mean value, for the caller (outside the timed stage)
+        yield "importance"
+        im = self.predict_im(v)[0, 0].bool()
+        if self.by_distance is not None:  # the view's band's mean value, for the caller (outside the importance stage)
+            yield None
             info["mean"] = float(self.mask.by_distance(v)[0])
         return im
 
-    def run(self, view, im: torch.Tensor | None = None) -> RenderResult:
-        """Render a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the
-        mask still runs and is timed: "the IML's IM, selectively rendered" of the evaluation)."""
-        timer = StageTimer(self.device)
+    def steps(self, view, im: torch.Tensor | None = None):
+        """The forward pass of a validated view. ``im``: an ``(n, n)`` bool IM to render instead of the mask's (the
+        mask still runs, in the importance stage: "the IML's IM, selectively rendered" of the evaluation)."""
         info: dict = {}
-        mask = self._importance(view, timer, info)
+        mask = yield from self._importance(view, info)
         if im is not None:
-            with timer.stage("importance"):
-                mask = torch.as_tensor(im).to(self.device).bool().reshape(mask.shape)
-        with timer.stage("selective_render"):
-            pr_c, count = self._render_c_pixels(view, mask)
-        with timer.stage("decoder"), self.opts.autocast(self.device):
+            yield "importance"
+            mask = torch.as_tensor(im).to(self.device).bool().reshape(mask.shape)
+        yield "selective_render"
+        pr_c, count = self._render_c_pixels(view, mask)
+        yield "decoder"
+        with self.opts.autocast(self.device):
             c_rec = self.decoder(pr_c, mask.to(pr_c.dtype).view(1, 1, *mask.shape[-2:]))
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(c_rec)
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        yield None
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
                              "rendered_pixels": count, "im": mask.cpu(), **info})
 
@@ -570,98 +457,36 @@ class LASMethod(Method):
             return self.ipr
         return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
 
-    def run(self, view, ipr: float | None = None) -> RenderResult:
-        """Render a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;
+    def steps(self, view, ipr: float | None = None):
+        """The forward pass of a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;
         ``None``: the method's own, or its band's)."""
         ipr = self.ipr_for(view) if ipr is None else check_ipr(ipr)
-        timer = StageTimer(self.device)
         m = self.fr_size
         net = getattr(self.las, "_orig_mod", self.las)  # attributes of a compiled LASNet
-        with timer.stage("low_res_render"):
-            low = self.renderer.render(view, self.low_res)
-            low_t = self._tensor(torch.from_numpy(low).permute(2, 0, 1).float().div(255.0)[None])
-        with timer.stage("importance"), self.opts.autocast(self.device):
+        yield "low_res_render"
+        low = self.renderer.render(view, self.low_res)
+        low_t = self._tensor(torch.from_numpy(low).permute(2, 0, 1).float().div(255.0)[None])
+        yield "importance"
+        with self.opts.autocast(self.device):
             raw = net.importance_net(low_t)
-        u = net.mean if ipr is None else las_mean_for_ipr(net, raw, ipr)  # untimed calibration
-        with timer.stage("importance"):
-            mask = las_mask(net, raw, u)[0, 0]
-            idx = np.flatnonzero(mask.cpu().numpy().reshape(-1))
-        with timer.stage("selective_render"):
-            colours = self.renderer.render_pixels(view, m, idx)
-            flat = np.zeros((m * m, 3), np.float32)
-            flat[idx] = colours.astype(np.float32) / 255.0
-            samples = self._tensor(torch.from_numpy(flat).view(1, m, m, 3).permute(0, 3, 1, 2))  # channels-last, as above
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield None
+        u = net.mean if ipr is None else las_mean_for_ipr(net, raw, ipr)  # a calibration, in no stage
+        yield "importance"
+        mask = las_mask(net, raw, u)[0, 0]
+        idx = np.flatnonzero(mask.cpu().numpy().reshape(-1))
+        yield "selective_render"
+        colours = self.renderer.render_pixels(view, m, idx)
+        flat = np.zeros((m * m, 3), np.float32)
+        flat[idx] = colours.astype(np.float32) / 255.0
+        samples = self._tensor(torch.from_numpy(flat).view(1, m, m, 3).permute(0, 3, 1, 2))  # channels-last, as above
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = net.reconstruct(samples, mask[None, None].float())
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        yield None
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": len(idx) / m**2, "rendered_pixels": int(len(idx)), "mask": mask.bool().cpu()})
 
 
 def c_mask_to_fr_pixels(pattern: SamplingPattern, c_mask: torch.Tensor) -> torch.Tensor:
     """FR raster indices of the set C-Image pixels (re-exported for users)."""
     return c_pixels_to_fr(pattern, c_mask)
-
-
-def time_method(method: Method, view, repeats: int = 10, warmup: int = 1,
-                **run_args: Any) -> tuple[np.ndarray, dict[str, float], dict[str, Any]]:
-    """Render a view ``warmup + repeats`` times; per-stage medians over the repeats. ``run_args`` go to
-    each ``method.run`` (e.g. an oracle ``im`` for :class:`IMLSRenderer`, an ``ipr`` for :class:`LASMethod`).
-
-    Returns the last image ``(m, m, 3)`` uint8, ``{stage: median seconds}`` (``total`` is the median
-    of the per-run totals, not the sum of the stage medians), and the method's info of the last run.
-
-    Raises:
-        InputError: ``repeats`` < 1, ``warmup`` < 0, or a bad view.
-    """
-    return time_methods({"method": method}, view, repeats, warmup, run_args={"method": run_args})["method"]
-
-
-#: how :func:`time_methods` orders the runs of several methods on one view
-TIMING_ORDERS = ("interleaved", "blocked")
-
-
-def time_methods(methods: Mapping[str, Method], view, repeats: int = 10, warmup: int = 1, order: str = "interleaved",
-                 run_args: Mapping[str, Mapping[str, Any]] | None = None
-                 ) -> dict[str, tuple[np.ndarray, dict[str, float], dict[str, Any]]]:
-    """Time several methods on one view, ``warmup + repeats`` runs each: ``{name: (image, medians, info)}`` as
-    :func:`time_method` returns them.
-
-    ``order="interleaved"`` runs them in rounds, each method once per round (a load that comes and goes
-    for a few seconds then slows every method alike, so their ratio holds); ``"blocked"`` runs each method's
-    runs back to back (its working set stays in the CPU's caches, as from one frame to the next of one
-    renderer). ``run_args``: per method name, the keyword arguments of each of its runs.
-
-    Example:
-        >>> from imls_lightning.inference.pipeline import FullRayCast, time_methods
-        >>> # timed = time_methods({"full": FullRayCast(renderer, 512), "alone": RecNNAlone(...)}, view)
-        >>> # timed["full"][1]["total"] / timed["alone"][1]["total"]   # the ratio of one run's medians
-
-    Raises:
-        InputError: ``repeats`` < 1, ``warmup`` < 0, an unknown ``order``, no method, or a bad view.
-    """
-    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
-        raise InputError(f"repeats={repeats}: expected an integer >= 1")
-    if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
-        raise InputError(f"warmup={warmup}: expected an integer >= 0")
-    if order not in TIMING_ORDERS:
-        raise InputError(f"timing={order!r}: expected one of {list(TIMING_ORDERS)}")
-    if not methods:
-        raise InputError("methods: expected at least one method to time")
-    v = validate_view(view)
-    args = {name: dict((run_args or {}).get(name) or {}) for name in methods}
-    n = warmup + repeats
-    schedule = ([(i, name) for i in range(n) for name in methods] if order == "interleaved" else
-                [(i, name) for name in methods for i in range(n)])
-    runs: dict[str, list[dict[str, float]]] = {name: [] for name in methods}
-    last: dict[str, RenderResult] = {}
-    with torch.inference_mode():
-        for i, name in schedule:
-            last[name] = methods[name].run(v, **args[name])
-            if i >= warmup:
-                runs[name].append(last[name].timings)
-    out = {}
-    for name in methods:
-        keys = runs[name][0].keys()
-        med = {k: float(np.median([r[k] for r in runs[name]])) for k in keys}
-        out[name] = (last[name].image, med, last[name].info)
-    return out

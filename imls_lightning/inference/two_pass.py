@@ -25,7 +25,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
 from ..core.pull_push import fill_c_image
-from .pipeline import NetOptions, RenderResult, StageTimer, PatternMethod, prepare_net, to_uint8_image
+from .pipeline import NetOptions, RenderResult, PatternMethod, prepare_net, to_uint8_image
 
 
 class TwoPassFill(PatternMethod):
@@ -71,23 +71,24 @@ class TwoPassFill(PatternMethod):
             return self.share
         return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
 
-    def run(self, view) -> RenderResult:
-        timer = StageTimer(self.device)
+    def steps(self, view):
         first = self._first
-        with timer.stage("low_res_render"):
-            c1, n1 = self._render_c_pixels(view, first)
-        with timer.stage("importance"):
-            keep = self.mask(c1.float(), self.share_for(view))
-            second = keep & ~first.to(keep.device)
-        with timer.stage("selective_render"):
-            c2, n2 = self._render_c_pixels(view, second)
-        with timer.stage("decoder"):
-            m = keep[None, None].to(c1.dtype)
-            c = fill_c_image(c1 + c2, m, self.pattern)
-        with timer.stage("recnn"), self.opts.autocast(self.device):
+        yield "low_res_render"
+        c1, n1 = self._render_c_pixels(view, first)
+        yield "importance"
+        keep = self.mask(c1.float(), self.share_for(view))
+        second = keep & ~first.to(keep.device)
+        yield "selective_render"
+        c2, n2 = self._render_c_pixels(view, second)
+        yield "decoder"
+        m = keep[None, None].to(c1.dtype)
+        c = fill_c_image(c1 + c2, m, self.pattern)
+        yield "recnn"
+        with self.opts.autocast(self.device):
             fr = self.recnn(self._tensor(c))
+        yield None
         count = n1 + n2
-        return RenderResult(to_uint8_image(fr), timer.result(),
+        return RenderResult(to_uint8_image(fr), {},
                             {"ipr": count / self.fr_size**2, "c_share": count / self.pattern.count,
                              "rendered_pixels": count, "im": keep.cpu()})
 

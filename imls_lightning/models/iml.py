@@ -300,8 +300,8 @@ class IMLNet(nn.Module):
             raise ValueError(f"IMLNet: expected a C-Image (B, 3, {n}, {n})"
                              f"{' or a crop (B, 3, h, w), h, w <= ' + str(n) if self._all_valid else ''}, got {tuple(c_image.shape)}")
 
-    def encode(self, c_image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(pim, pim_norm)``, each ``(B, 1, n, n)`` float32."""
+    def encode(self, c_image: torch.Tensor, mean: Optional[float] = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(pim, pim_norm)``, each ``(B, 1, n, n)`` float32; normalized to ``mean`` (``None``: the net's own)."""
         self._check(c_image)
         if self.encoder is None:  # uniform importance: PIM' = u on every valid pixel
             pim = torch.ones_like(c_image[:, :1], dtype=torch.float64 if c_image.dtype == torch.float64 else torch.float32)
@@ -310,7 +310,7 @@ class IMLNet(nn.Module):
             with torch.autocast(device_type=c_image.device.type, enabled=False):
                 x = logits if logits.dtype in (torch.float32, torch.float64) else logits.float()
                 pim = F.softplus(x)
-        pim_norm = self.normalization(pim, None if self._all_valid else self.valid)
+        pim_norm = self.normalization(pim, None if self._all_valid else self.valid, mean=mean)
         return pim, pim_norm
 
     def sample(self, pim_norm: torch.Tensor, hard: Optional[bool] = None) -> torch.Tensor:
@@ -330,9 +330,10 @@ class IMLNet(nn.Module):
             im = self.sampling(pim_norm, hard)
         return im if self._all_valid else im * self.valid.to(im.dtype)
 
-    def importance(self, c_image: torch.Tensor, hard: bool = True) -> torch.Tensor:
-        """The IM alone: ``(B, 1, n, n)`` float32 (``{0, 1}`` when ``hard``; use ``.bool()`` for bits)."""
-        return self.sample(self.encode(c_image)[1], hard)
+    def importance(self, c_image: torch.Tensor, hard: bool = True, mean: Optional[float] = None) -> torch.Tensor:
+        """The IM alone: ``(B, 1, n, n)`` float32 (``{0, 1}`` when ``hard``; use ``.bool()`` for bits), at the mean value
+        ``mean`` (``None``: the net's own)."""
+        return self.sample(self.encode(c_image, mean)[1], hard)
 
     def decode(self, pr_c_image: torch.Tensor, im: torch.Tensor) -> torch.Tensor:
         """Rebuild the C-Image ``(B, 3, n, n)`` from the rendered pixels ``pr_c_image`` (``(B, 3, n, n)``,
@@ -340,8 +341,9 @@ class IMLNet(nn.Module):
         self._check(pr_c_image)
         return self.decoder(pr_c_image, im)
 
-    def forward(self, c_image: torch.Tensor, hard: Optional[bool] = None) -> IMLOutput:
-        pim, pim_norm = self.encode(c_image)
+    def forward(self, c_image: torch.Tensor, hard: Optional[bool] = None, mean: Optional[float] = None) -> IMLOutput:
+        """The IML on a C-Image; ``mean``: normalize to this mean value ``u`` for this call (``None``: the net's own)."""
+        pim, pim_norm = self.encode(c_image, mean)
         im = self.sample(pim_norm, hard)
         pr_c = im * c_image.to(im.dtype)
         return IMLOutput(pim, pim_norm, im, pr_c, self.decoder(c_image.to(im.dtype), im))

@@ -43,6 +43,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.importance import (check_object_floor, check_sharpness, floored_mean, lift_to_share, lifted_mask, object_fraction,
                                sharpen_importance)
+from ..core.operating_point import OperatingPoint
 
 __all__ = ["IMSGenerator", "IMSDiscriminator", "IMSMaskHead", "MaskAt", "DistanceMeans", "TARGETS", "im_to_target", "output_to_im",
            "generator_plan"]
@@ -387,9 +388,24 @@ class IMSMaskHead(nn.Module):
             im = im | lifted_mask(x, m, f, P)
         return im & valid
 
-    def at(self, mean: "float | DistanceMeans | None" = None, lift: bool = False) -> "MaskAt":
-        """This head with its mean value (or a :class:`DistanceMeans`) and lift bound: ``view -> IM`` (see :class:`MaskAt`)."""
-        return MaskAt(self, mean, lift)
+    def at(self, point: "OperatingPoint | float | DistanceMeans | None" = None, lift: bool = False) -> "MaskAt":
+        """This head at an :class:`~imls_lightning.core.operating_point.OperatingPoint` (its share, lift, bands,
+        sharpness and floor), or at a mean value (or a :class:`DistanceMeans`) and ``lift``: ``view -> IM``
+        (see :class:`MaskAt`)."""
+        return MaskAt(self, point, lift)
+
+    def for_point(self, point: OperatingPoint) -> "IMSMaskHead":
+        """The head (generator and buffers shared) at ``point``'s sharpness and object floor: itself where they are
+        its own, else a new head view; nothing of this one changes."""
+        if point.sharpness == self.sharpness and point.object_floor == self.object_floor:
+            return self
+        return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, point.sharpness,
+                           point.object_floor)
+
+    def point(self, share: float | None = None, lift: bool = False) -> OperatingPoint:
+        """The :class:`~imls_lightning.core.operating_point.OperatingPoint` this head's masks are made at with
+        ``share`` (``None``: the trained one) and ``lift``: its own sharpness and floor."""
+        return OperatingPoint(share=share, lift=lift, sharpness=self.sharpness, object_floor=self.object_floor)
 
     def extra_repr(self) -> str:
         return (f"target={self.target}, c_size={self.c_size}, trained_mean={self.trained_mean}, lower={self.lower}"
@@ -491,10 +507,13 @@ def check_band_margins(margins, bands: int | None = None, name: str = "floor_mar
 
 
 class MaskAt(nn.Module):
-    """An :class:`IMSMaskHead` at a fixed mean value and lift: ``forward(view (B, 9)) -> IM (B, 1, n, n)``
-    bool. What a caller that passes views only needs (the exported ``im`` network; tracing then sees one
-    branch). The binding is made once, at construction. ``mean`` may also be a :class:`DistanceMeans`:
-    each view then runs at its band's mean value.
+    """An :class:`IMSMaskHead` at a fixed operating point: ``forward(view (B, 9)) -> IM (B, 1, n, n)`` bool. What a
+    caller that passes views only needs (the product, the exported ``im`` network; tracing then sees one branch). The
+    binding is made once, at construction, and never changes.
+
+    ``point``: an :class:`~imls_lightning.core.operating_point.OperatingPoint` (its share, lift, bands, and the head
+    at its sharpness and floor, :meth:`IMSMaskHead.for_point`); or, with ``lift``, a mean value (``None``: the
+    trained one) or a :class:`DistanceMeans` (each view at its band's mean value) for the head as it is.
 
     Example:
         >>> n = 8
@@ -507,10 +526,18 @@ class MaskAt(nn.Module):
         True
     """
 
-    def __init__(self, head: IMSMaskHead, mean: "float | DistanceMeans | None" = None, lift: bool = False):
+    def __init__(self, head: IMSMaskHead, point: "OperatingPoint | float | DistanceMeans | None" = None, lift: bool = False):
         super().__init__()
+        if isinstance(point, OperatingPoint):
+            head = head.for_point(point)  # InputError: a sharpness or floor for a target=im head
+            b = point.bands
+            mean = point.share if b is None else DistanceMeans(b.edges, b.shares, b.floor_margins)
+            lift = point.lift
+        else:
+            mean = point
         if mean is not None and head.target != "pim":
-            raise InputError(f"mean={mean}: rescaling the IMS's mask needs model.target=pim and the trained mean")
+            shown = "per band" if isinstance(mean, DistanceMeans) else mean
+            raise InputError(f"mean={shown}: rescaling the IMS's mask needs model.target=pim and the trained mean")
         self.head = head
         self.by_distance = mean if isinstance(mean, DistanceMeans) else None
         self.mean = None if mean is None or self.by_distance is not None else float(mean)

@@ -321,7 +321,8 @@ def _latencies(cfg, s: ORPSettings, dataset, iml_task, recnn_iml, recnn_alone, i
     from imls_lightning.render import make_renderer
     from data_gen.scenes import build_scene
 
-    from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone, time_method
+    from ..evaluation.timing import time_method
+    from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone
 
     renderer_cfg = _plain(cfg.renderer) if s.latency_renderer is None else {"name": s.latency_renderer}
     renderer = make_renderer(build_scene(_plain(cfg.scene)), renderer_cfg)

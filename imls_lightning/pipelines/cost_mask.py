@@ -53,10 +53,10 @@ def row_times(summary: Mapping[str, Any]) -> dict[str, Any] | None:
 
 def cost_masks(cfg: DictConfig) -> Path:
     """Measure ``cfg.row`` (module docstring); returns ``cost_mask.json``'s path."""
-    from ..evaluation.cost_mask import measure_all, summarize
-    from ..evaluation.operating_point import point_from_orp
-    from ..evaluation.protocol import training_data_seed
     from ..estimate.run import estimate_views
+    from ..evaluation.cost_mask import measure_all, summarize
+    from ..evaluation.operating_point import point_of, record_from_orp
+    from ..evaluation.protocol import training_data_seed
     from ..inference.checkpoints import load_ims_nets, load_task, renderer_for
     from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone
 
@@ -69,26 +69,24 @@ def cost_masks(cfg: DictConfig) -> Path:
     check_seed(seed, {k: training_data_seed(p) for k, p in files.items() if k in ("ims", "iml", "recnn")})
     out = Path(str(cfg.output_dir)) if cfg.get("output_dir") else Path(str(cfg.runs_dir)) / "cost_mask" / f"{name}-seed{seed}-views{views_n}"
     summary = json.loads((point_dir / "summary.json").read_text(encoding="utf-8"))
-    point = point_from_orp(summary["orp"], scene=str(summary.get("scene")))
+    orp = summary["orp"]
+    record = record_from_orp(orp, scene=str(summary.get("scene")))  # what the row's search measured, for the report
+    point = point_of(orp, share=float(orp["mean"]) if orp.get("found") else None, lift=bool(orp.get("lift")))
     nets = load_ims_nets(files["ims"], files.get("recnn"))
-    head = nets.head.with_sharpness(point.sharpness)
-    if point.floor is not None:
-        head = head.with_object_floor(*point.floor)
     renderer_cfg = {**(nets.hparams.get("renderer") or {"name": "numba"}), "skip_empty": True}  # the fastest ray caster
     if str(renderer_cfg.get("name")) != "numba":
         raise InputError(f"row={name}: its renderer is {renderer_cfg.get('name')}; the ray costs need renderer=numba")
     ray = renderer_for(nets.hparams, renderer_cfg=renderer_cfg)
     opts = NetOptions.from_config(cfg.get("options"))
-    product = IMLSRenderer(ray, nets.pattern, head, nets.decoder, nets.recnn, opts, mean=point.mean, lift=point.lifted,
-                           by_distance=point.distance_means())
+    product = IMLSRenderer(ray, nets.pattern, nets.head, nets.decoder, nets.recnn, opts, point=point, record=record)
     alone = RecNNAlone(ray, nets.pattern, nets.recnn, opts)
     iml = load_task(files["iml"], expect="IMLTask", what=f"row={name} iml").iml if "iml" in files and means else None
     iml_methods = {u: IMLPlusRecNN(ray, nets.pattern, iml, nets.recnn, opts, mean=u) for u in means} if iml is not None else {}
     views = estimate_views(ray.scene, views_n, seed)
-    log(f"cost masks: row {name}, {views_n} views of seed {seed}, point {point.describe()}")
+    log(f"cost masks: row {name}, {views_n} views of seed {seed}, point {record.describe()}")
     measured = measure_all(views, lambda i: ray.render(views[i], nets.pattern.fr_size), alone, product, iml_methods,
                            progress=log)
-    result = {"row": name, "seed": seed, "point": point.describe(),
+    result = {"row": name, "seed": seed, "point": record.describe(),
               **summarize(measured, float(cfg.epsilon_db), row_times(summary) if cfg.get("times", "row") == "row" else None),
               "per_view": [{"view": v.view, "recnn_db": v.recnn_db, "object_share": v.object_share,
                             "object_cost": v.object_cost, "rows": v.rows} for v in measured]}

@@ -58,7 +58,7 @@ class ReportContext:
     grid: dict[int, dict[str, Any]] = field(default_factory=dict)
     pattern_obj: Any = None
     notes: list[str] = field(default_factory=list)
-    timing: str = "blocked"   # the order of a timed view's runs (inference.pipeline.time_methods)
+    timing: str = "blocked"   # the order of a timed view's runs (evaluation.timing.time_methods)
     las_ipr: float | None = None
     machine: dict[str, str] = field(default_factory=dict)
     command: str = ""

@@ -228,13 +228,10 @@ class IMLTask(ImlsTask):
         c = batch["c"]
         hard = prefix != "train"
         rng = self.hparams.mean_range
-        trained_mean = self.iml.mean
+        mean = None  # the trained mean; a training step with mean_range draws one, passed to this call only
         if prefix == "train" and rng is not None:
-            self.iml.mean = float(rng[0] + (rng[1] - rng[0]) * torch.rand((), generator=self._rng))
-        try:
-            out = self.iml(c, hard=hard)
-        finally:
-            self.iml.mean = trained_mean
+            mean = float(rng[0] + (rng[1] - rng[0]) * torch.rand((), generator=self._rng))
+        out = self.iml(c, hard=hard, mean=mean)
         bs = c.shape[0]
         on_step = prefix == "train"
         fr_pred = self.recnn(out.c_recon) if self.recnn is not None else None

@@ -338,7 +338,7 @@ class IMSTask(ImlsTask):
         generator (:class:`IMSGenerator`), discriminator (:class:`IMSDiscriminator`), iml
         (:class:`IMLNet`, frozen), recnn (``nn.Module`` or None, frozen), pattern; :attr:`mask_head`
         (:class:`~imls_lightning.models.ims.IMSMaskHead`: the generator and its thresholding, the mean
-        value and lift given to each call; at :attr:`mask_sharpness`, 1 unless an evaluation chose another).
+        value and lift given to each call; an operating point's sharpness and floor given by the point).
 
     Example:
         >>> task = build_task(cfg)  # model=ims iml.checkpoint=...  # doctest: +SKIP
@@ -446,10 +446,6 @@ class IMSTask(ImlsTask):
         # taken over from init_checkpoint keeps the normalization it was trained with
         self.register_buffer("view_norm_fitted", torch.tensor("generator" in (pretrained or {})))
         self._warned_no_recnn = False
-        # the sharpness of the masks :attr:`mask_head` makes (1: the paper's); the evaluation sets the one its ORP kept
-        self.mask_sharpness = 1.0
-        # the floor on each view's mean value from its object ((margin, tau), None: none); the evaluation sets the one it chose
-        self.mask_object_floor = None
 
     # -- accessors ----------------------------------------------------------------------------
     @property
@@ -566,10 +562,11 @@ class IMSTask(ImlsTask):
     def mask_head(self) -> IMSMaskHead:
         """The generator with its thresholding (:class:`~imls_lightning.models.ims.IMSMaskHead`): the
         task's generator and buffers (``P``, ``valid``), its target, the IML's trained mean and lower
-        bound, at :attr:`mask_sharpness`, with :attr:`mask_object_floor`. Made on each access (cheap, nothing copied), so it follows the task
-        across devices."""
+        bound; the paper's masks (an operating point's sharpness and floor are the point's:
+        :meth:`~imls_lightning.models.ims.IMSMaskHead.for_point`). Made on each access (cheap, nothing copied), so it
+        follows the task across devices."""
         return IMSMaskHead(self.generator, self.P, self.valid, self.target, float(self.iml.mean),
-                           float(self.iml.normalization.lower), self.mask_sharpness, self.mask_object_floor)
+                           float(self.iml.normalization.lower))
 
     def output_to_im(self, g: torch.Tensor) -> torch.Tensor:
         """Generator output ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool at the trained mean, False on

@@ -14,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError, boolean, finite_number
 
 from ..inference.camera import orbit_view
+from ..inference.operating_point import share_setting
 from ..inference.pipeline import IMLSRenderer, NetOptions
 from .window import Viewer
 
@@ -91,10 +92,11 @@ def viewer(cfg: DictConfig) -> Path | None:
         torch.set_num_threads(threads)
     opts = NetOptions(**OmegaConf.to_container(cfg.options, resolve=True)) if cfg.get("options") else NetOptions()
     t0 = time.perf_counter()
+    value, key = share_setting(cfg)  # share (mean: its older name)
     renderer = IMLSRenderer.from_checkpoints(str(cfg.ims_checkpoint), recnn_checkpoint=cfg.get("recnn_checkpoint") or None,
-                                             opts=opts, mean=cfg.get("mean"))
+                                             opts=opts, **{key: value})
     print(f"[viewer] renderer ready in {time.perf_counter() - t0:.1f} s (scene FR {renderer.fr_size}^2, "
-          f"networks on {renderer.device}, mean value u = {float(renderer.mean):.3f}"
+          f"networks on {renderer.device}, share of C u = {float(renderer.mean):.3f}"
           + (", per band of camera distance" if renderer.by_distance is not None else "") + ")", file=sys.stderr, flush=True)
     try:
         v = Viewer(renderer, azimuth=cfg.azimuth, elevation=cfg.elevation, distance=cfg.get("distance"),

@@ -13,6 +13,7 @@ import torch
 from imls_lightning.base.errors import InputError, finite_number
 
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
+from ..evaluation.timing import timed
 from ..inference.pipeline import FullRayCast, IMLSRenderer, RenderResult
 
 __all__ = ["IMLS_STAGES", "RAY_CAST", "Viewer"]
@@ -52,8 +53,8 @@ class Viewer(OrbitCamera):
     def __init__(self, renderer: IMLSRenderer, *, azimuth: float = 30.0, elevation: float = 20.0,
                  distance: float | None = None, show_mask: bool = True, interactive: bool = False,
                  figsize: Sequence[float] = (12.0, 6.5), dpi: float = 100.0, warmup: int = 1):
-        self.renderer = renderer
-        self.ray_caster = FullRayCast(renderer.renderer, renderer.fr_size, renderer.opts)
+        self.renderer = timed(renderer)  # the latency bars: each stage timed from outside the renderer
+        self.ray_caster = timed(FullRayCast(renderer.renderer, renderer.fr_size, renderer.opts))
         scene = getattr(renderer.renderer, "scene", None)
         lo, hi = (float(c) for c in getattr(scene, "camera_distance", DEFAULT_DISTANCE_RANGE))
         self.distance_range = (lo, hi)

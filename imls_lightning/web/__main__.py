@@ -9,6 +9,7 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError, checked_command_line, cli_errors
 from imls_lightning.base.validate import check_integer
 
+from ..inference.operating_point import share_setting
 from ..inference.pipeline import NetOptions
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -101,10 +102,12 @@ def serve(cfg: DictConfig, *, exec_mode: str = "main"):
         log(f"warning: host={host}: the viewer is reachable from other machines, with no authentication")
     opts = NetOptions(**{k: cfg.options[k] for k in ("device", "half", "channels_last", "compile")})
 
+    value, key = share_setting(cfg)  # share (mean: its older name)
+
     def load() -> ViewerSession:
         return ViewerSession.from_checkpoints(ims, recnn, las, cfg.adaptive_predictor, opts=opts,
                                               azimuth=float(cfg.azimuth), elevation=float(cfg.elevation),
-                                              distance=cfg.distance, method=str(cfg.method), mean=cfg.get("mean"))
+                                              distance=cfg.distance, method=str(cfg.method), **{key: value})
 
     server = get_server(name="imls-web", client_type="vue3")
     WebViewer(server, load)

@@ -24,10 +24,13 @@ from PIL import Image
 from imls_lightning.base.errors import InputError, finite_number
 
 from ..core.patterns import c_pixels_to_fr
+from ..evaluation.timing import timed_run  # each frame's stages, timed from outside the methods
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
+from ..core.operating_point import OperatingPoint
 from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, view_tensor
 from ..base.images import error_map, to_uint8
+from ..models.ims import DistanceMeans
 
 #: the methods a user can pick, with their labels
 METHODS = {"imls": "IML/S + RecNN (the product)", "adaptive": "IML/S + RecNN, adaptive mean", "recnn": "RecNN alone",
@@ -90,12 +93,11 @@ class ViewerSession(OrbitCamera):
         azimuth, elevation, distance: start camera (degrees, degrees, normalized units; ``None``:
             the middle of the scene's camera distance range).
         method: the start method (:data:`METHODS`).
-        start_mean: the start mean value of IML/S (``None``: the trained mean);
-            :meth:`from_checkpoints` passes the operating point the evaluation recorded for the IMS.
-        lift: IML/S's masks lifted to the share of the mean value (as the evaluation's operating point says).
-        by_distance: the recorded point's mean value per band of camera distance
-            (:class:`~imls_lightning.models.ims.DistanceMeans`, ``orp_by_distance``): IML/S at ``start_mean``
-            runs each view at its band's value; a mean value set with the slider holds for every view.
+        point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` IML/S opens at (``None``: the trained
+            share); :meth:`from_checkpoints` passes the one the evaluation recorded for the IMS. Its share is the start
+            mean value; at it each view runs at its band's share (``bands``); a mean value set with the slider holds for
+            every view, with the point's lift, sharpness and object floor.
+        record: the evaluation's record the point came from (``None``: none).
     """
 
     nets: IMSNets
@@ -108,9 +110,8 @@ class ViewerSession(OrbitCamera):
     elevation: float = 20.0
     distance: float | None = None
     method: str = "imls"
-    start_mean: float | None = None
-    lift: bool = False
-    by_distance: torch.nn.Module | None = None
+    point: OperatingPoint | None = None
+    record: Any = None
 
     def __post_init__(self):
         scene = getattr(self.renderer, "scene", None)
@@ -123,12 +124,17 @@ class ViewerSession(OrbitCamera):
         self.home = (float(self.azimuth), float(self.elevation), float(self.distance))
         self.scene_name = getattr(scene, "name", "?")
         self.trained_mean = self.nets.trained_mean
+        # the start point as the viewer shows it, made once here: its share as the mean value u, lift, bands, the record
+        self.start_mean = None if self.point is None else self.point.u
+        self.lift = self.point is not None and self.point.lift
+        b = None if self.point is None else self.point.bands
+        self.by_distance = None if b is None else DistanceMeans(b.edges, b.shares, b.floor_margins)
+        self.operating_point = self.record
         self.mean = self.trained_mean
         self.rescalable = self.nets.target == "pim"
         if self.start_mean is not None:
             self.set_mean(self.start_mean)  # checked there
             self.mean = float(self.start_mean)  # exactly the recorded point, not rounded like a slider value
-        self.operating_point = None  # the record the start mean came from (from_checkpoints)
         self._imls: dict[float, IMLSRenderer] = {}
         self.truth_method = FullRayCast(self.renderer, self.pattern.fr_size, self.opts)
         self.recnn_method = RecNNAlone(self.renderer, self.pattern, self.recnn, self.opts)
@@ -139,24 +145,28 @@ class ViewerSession(OrbitCamera):
         if self.predictor is not None:
             from ..adaptive.renderer import AdaptiveIMLSRenderer
 
-            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder,
+            head = self.nets.head if self.point is None else self.nets.head.for_point(self.point)  # its sharpness and floor
+            self.adaptive_method = AdaptiveIMLSRenderer(self.renderer, self.pattern, head, self.nets.decoder,
                                                         self.recnn, self.predictor, self.opts, lift=self.lift)
+
         self.history: deque[tuple[str, float, float]] = deque(maxlen=HISTORY)
         self._truth_cache: tuple[bytes, np.ndarray] | None = None
         self.set_method(self.method)
 
     @classmethod
     def from_checkpoints(cls, ims_checkpoint: str, recnn_checkpoint: str | None = None, las_checkpoint: str | None = None,
-                         predictor: str | None = None, *, opts: NetOptions | None = None, mean: float | str | None = None,
-                         **camera) -> "ViewerSession":
+                         predictor: str | None = None, *, opts: NetOptions | None = None, share: float | str | None = None,
+                         mean: float | str | None = None, **camera) -> "ViewerSession":
         """Load the IMS (and optionally another RecNN, a LAS checkpoint and a mean predictor); the
         scene and renderer are those the IMS was trained on. Bad or mismatched files fail in one line.
 
         The session opens at the operating point the evaluation recorded for the IMS checkpoint
         (its masks lifted if the evaluation lifted them), else at the trained mean, as
-        :meth:`IMLSRenderer.from_checkpoints` does; ``mean`` (a number or ``"trained"``) overrides it.
+        :meth:`IMLSRenderer.from_checkpoints` does; ``share`` (a number or ``"trained"``; ``mean``: its older name)
+        overrides it.
         """
-        product = load_product(ims_checkpoint, recnn_checkpoint, mean=mean)
+        value, key = (share, "share") if share is not None else (mean, "mean")
+        product = load_product(ims_checkpoint, recnn_checkpoint, share=value, share_key=key)
         nets, recnn = product.nets, product.nets.recnn
         if recnn is None:
             raise InputError(f"ims_checkpoint={ims_checkpoint}: holds no RecNN; pass recnn_checkpoint=<RecNN .ckpt>")
@@ -173,8 +183,7 @@ class ViewerSession(OrbitCamera):
 
             mean_predictor = MeanPredictor.load(predictor)
         session = cls(nets, recnn, renderer_for(nets.hparams), las=las, predictor=mean_predictor, opts=opts or NetOptions(),
-                      start_mean=product.mean, lift=product.lift, by_distance=product.by_distance, **camera)
-        session.operating_point = product.operating_point
+                      point=product.point, record=product.record, **camera)
         return session
 
     @property
@@ -208,16 +217,18 @@ class ViewerSession(OrbitCamera):
     # -- rendering ---------------------------------------------------------------------------------
     def _imls_at(self, u: float) -> IMLSRenderer:
         if u not in self._imls:
-            mean = None if abs(u - self.trained_mean) < 1e-9 else u
+            share = None if abs(u - self.trained_mean) < 1e-9 else u
             at_start = self.start_mean is not None and abs(u - float(self.start_mean)) < 1e-9
+            start = self.point if self.point is not None else self.nets.head.point()
+            point = start.replace(share=share, bands=start.bands if at_start else None)
             self._imls[u] = IMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder, self.recnn, self.opts,
-                                         mean=mean, lift=self.lift, by_distance=self.by_distance if at_start else None)
+                                         point=point)
         return self._imls[u]
 
     def _truth(self, view: np.ndarray):
         key = np.asarray(view, np.float64).tobytes()
         if self._truth_cache is None or self._truth_cache[0] != key:
-            res = self.truth_method.run(view)
+            res = timed_run(self.truth_method, view)
             self._truth_cache = (key, res.image)
             self._truth_ms = {k: 1e3 * v for k, v in res.timings.items()}
         return self._truth_cache[1]
@@ -240,14 +251,14 @@ class ViewerSession(OrbitCamera):
                 image, stages, mask = truth, dict(self._truth_ms), np.ones((m, m), bool)
             else:
                 if self.method in ("imls", "adaptive"):
-                    res = (imls if self.method == "imls" else self.adaptive_method).run(view)
+                    res = timed_run(imls if self.method == "imls" else self.adaptive_method, view)
                     mask = self._fr_mask(res.info["im"])
                 elif self.method == "recnn":
-                    res = self.recnn_method.run(view)
+                    res = timed_run(self.recnn_method, view)
                     mask = self._fr_mask(None)
                 else:  # LAS at the IPR IML/S has at this view and mean (the IMS alone decides it, no rendering)
                     im = imls.predict_im(view_tensor(view, imls.device))
-                    res = self.las_method.run(view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
+                    res = timed_run(self.las_method, view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
                     mask = res.info["mask"].numpy().reshape(m, m)
                 image, stages = res.image, {k: 1e3 * v for k, v in res.timings.items()}
         psnr = frame_psnr(image, truth)

@@ -124,20 +124,20 @@ def test_the_evaluations_bands_by_camera_distance_join_the_tradeoff(tiny_cache, 
     from imls_lightning.adaptive.cli import BANDS_SETTING, recorded_bands, tradeoff_curve
     from imls_lightning.adaptive.labels import MeanLabels
     from imls_lightning.adaptive.report import tradeoff_markdown
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
 
     ck = tmp_path / "ims.ckpt"
     shutil.copy(pim_ckpt, ck)
     assert recorded_bands(str(ck), False) is None  # no record
-    write_operating_point(ck, OperatingPoint(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0))
+    write_operating_point(ck, ORPRecord(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0))
     assert recorded_bands(str(ck), False) is None  # one mean value for every view
     bands = {"edges": [3.75], "means": [0.6, 0.15], "c_shares": [0.5, 0.1], "gaps_db": [0.5, 0.3], "views": [2, 2]}
-    write_operating_point(ck, OperatingPoint(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands))
+    write_operating_point(ck, ORPRecord(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands))
     assert recorded_bands(str(ck), True) is None  # searched on other masks
-    write_operating_point(ck, OperatingPoint(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands,
+    write_operating_point(ck, ORPRecord(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands,
                                              sharpness=2.0))
     assert recorded_bands(str(ck), False) is None  # sharpened masks: not this module's
-    write_operating_point(ck, OperatingPoint(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands))
+    write_operating_point(ck, ORPRecord(mean=0.6, lift=False, c_share=0.5, ipr=0.1, epsilon_db=1.0, by_distance=bands))
     sched, record = recorded_bands(str(ck), False)
     assert record == bands
     rows = np.asarray(tiny_cache.splits["test"][:6])

@@ -77,12 +77,13 @@ def test_one_view_with_real_networks(tiny_checkpoints):
     """The product, the IML and the oracle masks on one view of the tiny scene: every kind measured, costs in [0, 1],
     the share-1 end keeping (nearly) the whole cost, no NaN; the summary's ceilings follow its own formulas."""
     from imls_lightning.inference.checkpoints import load_ims_nets, load_task, renderer_for
+    from imls_lightning.core.operating_point import OperatingPoint
     from imls_lightning.inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone
 
     nets = load_ims_nets(tiny_checkpoints["ims_pim"])
     ray = renderer_for(nets.hparams, renderer_cfg={"name": "numba", "skip_empty": True})
     opts = NetOptions(device="cpu")
-    product = IMLSRenderer.from_nets(nets, ray, opts, mean=0.4)
+    product = IMLSRenderer.from_nets(nets, ray, opts, point=OperatingPoint(share=0.4))
     alone = RecNNAlone(ray, nets.pattern, nets.recnn, opts)
     iml = load_task(tiny_checkpoints["iml"], expect="IMLTask").iml
     view = [0.0, 0.3, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from imls_lightning.evaluation.operating_point import SearchViews, band_edges
-from imls_lightning.evaluation.two_pass import TwoPassPoint, band_shares
+from imls_lightning.evaluation.baseline_point import SearchedPoint
+from imls_lightning.evaluation.two_pass import band_shares, describe_two_pass
 from imls_lightning.orp import gap_upper_bound, protocol_gap_record
 from imls_lightning.report.document import _two_pass_lines
 
@@ -78,17 +79,17 @@ def _point(by_distance=True):
              "bounds_db": [0.52, 0.31], "views": [4, 4], "lo": [2.6, 3.4], "hi": [2.9, 3.7]}
     rows = [{"share": x, "c_share": x + 0.01, "gap_db": g, "gap_bound_db": bd}
             for x, g, bd in zip(SHARES, [1.5, 0.9, 0.18], [2.5, 1.6, 0.4])]
-    return TwoPassPoint(base=0.2, floor=0.25, share=0.8, found=True, where="8 test views", epsilon_db=1.0,
-                        record={**rows[2]}, rows=rows, by_distance=bands if by_distance else None)
+    return SearchedPoint("share", 0.8, found=True, where="8 test views", epsilon_db=1.0, record={**rows[2]}, rows=rows,
+                         by_distance=bands if by_distance else None, settings={"base": 0.2, "floor": 0.25})
 
 
 def test_point_describes_and_runs_its_bands():
     p = _point()
-    assert "then each band of camera distance its own share" in p.describe()
-    assert "2.60-2.90: 80% (bound 0.52 dB); 3.40-3.70: 40% (bound 0.31 dB)." in p.describe()
-    sched = p.shares_by_distance()
+    assert "then each band of camera distance its own share" in describe_two_pass(p)
+    assert "2.60-2.90: 80% (bound 0.52 dB); 3.40-3.70: 40% (bound 0.31 dB)." in describe_two_pass(p)
+    sched = p.values_by_distance()
     assert sched.edges.tolist() == pytest.approx([3.15]) and sched.means.tolist() == pytest.approx([0.8, 0.4])
-    assert _point(False).shares_by_distance() is None and _point(False).describe().endswith("<= 1 dB).")
+    assert _point(False).values_by_distance() is None and describe_two_pass(_point(False)).endswith("<= 1 dB).")
     assert p.to_dict()["by_distance"]["shares"] == [0.8, 0.4]
 
 

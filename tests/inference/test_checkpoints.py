@@ -242,18 +242,18 @@ def test_load_ims_nets_builds_the_product_without_the_task(tiny_checkpoints, mon
 
 
 def test_load_product_reads_the_operating_point_and_refuses_wrong_files(tiny_checkpoints, tmp_path, capsys):
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
     import shutil
 
     ck = tmp_path / "ims.ckpt"
     shutil.copy(tiny_checkpoints["ims_pim"], ck)
     plain = load_product(str(ck))
-    assert plain.mean is None and plain.lift is False and plain.operating_point is None
-    write_operating_point(ck, OperatingPoint(mean=0.6, lift=True, c_share=0.6, ipr=0.1, epsilon_db=1.0))
+    assert plain.mean is None and plain.lift is False and plain.record is None
+    write_operating_point(ck, ORPRecord(mean=0.6, lift=True, c_share=0.6, ipr=0.1, epsilon_db=1.0))
     rec = load_product(str(ck))
-    assert rec.mean == 0.6 and rec.lift is True and rec.operating_point.mean == 0.6
-    over = load_product(str(ck), mean=0.3)
-    assert over.mean == 0.3 and over.lift is False and over.operating_point is None
+    assert rec.mean == 0.6 and rec.lift is True and rec.record.mean == 0.6
+    over = load_product(str(ck), share=0.3)
+    assert over.mean == 0.3 and over.lift is False and over.record is None
     with pytest.raises(InputError, match=r"^ims_checkpoint=.*is a IMLTask checkpoint, expected a IMSTask"):
         load_ims_nets(str(tiny_checkpoints["iml"]))
     with pytest.raises(InputError, match=r"^recnn_checkpoint=.*is a IMLTask checkpoint, expected a RecNNTask"):
@@ -272,20 +272,20 @@ def test_a_point_by_camera_distance_travels_with_the_checkpoint(tiny_checkpoints
     import json
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, read_operating_point, sidecar_path, write_operating_point
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 
     ck = tmp_path / "ims.ckpt"
     shutil.copy(tiny_checkpoints["ims_pim"], ck)
     bands = {"edges": [3.5, 4.0], "means": [0.95, 0.6, 0.3], "c_shares": [0.9, 0.6, 0.3], "gaps_db": [0.8, 0.5, 0.2],
              "views": [2, 2, 2]}
-    point = OperatingPoint(mean=0.95, lift=True, c_share=0.9, ipr=0.2, epsilon_db=1.0, by_distance=bands)
+    point = ORPRecord(mean=0.95, lift=True, c_share=0.9, ipr=0.2, epsilon_db=1.0, by_distance=bands)
     write_operating_point(ck, point)
     read = read_operating_point(ck, log=None)
     assert read.by_distance == bands and "by camera distance, near to far: u = 0.950 / 0.600 / 0.300 (90 / 60 / 30 % of C) " \
                                          "split at 3.50, 4.00" in read.describe()
     product = load_product(str(ck))
-    assert product.mean == 0.95 and product.by_distance.means.tolist() == pytest.approx([0.95, 0.6, 0.3])
+    assert product.mean == 0.95 and product.point.bands.shares == pytest.approx((0.95, 0.6, 0.3))
     r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
     near, far = [0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 4.4, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
     got = {u: r.run(v).info for u, v in ((0.95, near), (0.3, far))}
@@ -295,7 +295,7 @@ def test_a_point_by_camera_distance_travels_with_the_checkpoint(tiny_checkpoints
     capsys.readouterr()
     rec = json.loads(sidecar_path(ck).read_text())
     sidecar_path(ck).write_text(sealed({**rec, "by_distance": {**bands, "edges": [4.0, 3.5]}}, ck))
-    assert load_product(str(ck)).by_distance is None
+    assert load_product(str(ck)).point is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: by_distance: band edges [4.0, 3.5]" in err[0]
 
@@ -307,24 +307,24 @@ def test_a_sharpened_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_pat
     import json
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, read_operating_point, sidecar_path, write_operating_point
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 
     ck = tmp_path / "ims.ckpt"
     shutil.copy(tiny_checkpoints["ims_pim"], ck)
-    write_operating_point(ck, OperatingPoint(mean=0.4, lift=True, c_share=0.4, ipr=0.1, epsilon_db=1.0, sharpness=2.0))
+    write_operating_point(ck, ORPRecord(mean=0.4, lift=True, c_share=0.4, ipr=0.1, epsilon_db=1.0, sharpness=2.0))
     assert read_operating_point(ck, log=None).sharpness == 2.0
     r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
-    assert r.mask_head.sharpness == 2.0 and r.mean == 0.4 and r.lift
+    assert r.point.sharpness == 2.0 and r.mean == 0.4 and r.lift
     view = torch.tensor([[0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
     plain = load_ims_nets(str(ck)).head
     assert torch.equal(r.predict_im(view), plain.with_sharpness(2.0)(view, 0.4, True))
     rec = json.loads(sidecar_path(ck).read_text())
     sidecar_path(ck).write_text(sealed({k: v for k, v in rec.items() if k != "sharpness"}, ck))
-    assert read_operating_point(ck, log=None).sharpness == 1.0 and load_product(str(ck)).nets.head.sharpness == 1.0
+    assert read_operating_point(ck, log=None).sharpness == 1.0 and load_product(str(ck)).point.sharpness == 1.0
     capsys.readouterr()
     sidecar_path(ck).write_text(sealed({**rec, "sharpness": 0.5}, ck))
-    assert load_product(str(ck)).operating_point is None
+    assert load_product(str(ck)).record is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: sharpness=0.5: expected a number in [1, 8]" in err[0]
 
@@ -336,29 +336,29 @@ def test_a_floored_point_travels_with_the_checkpoint(tiny_checkpoints, tmp_path,
     import json
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, read_operating_point, sidecar_path, write_operating_point
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 
     ck = tmp_path / "ims.ckpt"
     shutil.copy(tiny_checkpoints["ims_pim"], ck)
     floor = {"margin": 0.12, "tau": 0.2, "c_share": 0.43, "gap_db": 0.1, "gap_bound_db": 0.6, "views": 40}
-    write_operating_point(ck, OperatingPoint(mean=0.3, lift=True, c_share=0.3, ipr=0.1, epsilon_db=1.0, object_floor=floor))
+    write_operating_point(ck, ORPRecord(mean=0.3, lift=True, c_share=0.3, ipr=0.1, epsilon_db=1.0, object_floor=floor))
     point = read_operating_point(ck, log=None)
     assert point.object_floor == floor and point.floor == (0.12, 0.2)
     assert "each view at least its object (PIM' > 0.2) + 0.12 of C" in point.describe()
     r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
-    assert r.mask_head.object_floor == (0.12, 0.2) and r.mean == 0.3 and r.lift
+    assert r.point.object_floor == (0.12, 0.2) and r.mean == 0.3 and r.lift
     view = torch.tensor([[0.0, 0.0, 3.2, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
     plain = load_ims_nets(str(ck)).head
     assert plain.object_floor is None
     assert torch.equal(r.predict_im(view), plain.with_object_floor(0.12, 0.2)(view, 0.3, True))
-    assert load_product(str(ck), mean=0.5).nets.head.object_floor is None  # an explicit mean: nothing is read
+    assert load_product(str(ck), share=0.5).point.object_floor is None  # an explicit mean: nothing is read
     rec = json.loads(sidecar_path(ck).read_text())
     sidecar_path(ck).write_text(sealed({k: v for k, v in rec.items() if k != "object_floor"}, ck))
-    assert read_operating_point(ck, log=None).object_floor is None and load_product(str(ck)).nets.head.object_floor is None
+    assert read_operating_point(ck, log=None).object_floor is None and load_product(str(ck)).point.object_floor is None
     capsys.readouterr()
     sidecar_path(ck).write_text(sealed({**rec, "object_floor": {"margin": 1.5, "tau": 0.2}}, ck))
-    assert load_product(str(ck)).operating_point is None
+    assert load_product(str(ck)).record is None
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
     assert len(err) == 1 and "ignored: malformed (InputError: object_floor.margin=1.5: expected a share of the C-Image" in err[0]
 
@@ -371,7 +371,7 @@ def test_a_point_floored_per_band_travels_with_the_checkpoint(tiny_checkpoints, 
     import json
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, read_operating_point, sidecar_path, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, read_operating_point, sidecar_path, write_operating_point
     from imls_lightning.inference.pipeline import IMLSRenderer, NetOptions
 
     ck = tmp_path / "ims.ckpt"
@@ -379,10 +379,10 @@ def test_a_point_floored_per_band_travels_with_the_checkpoint(tiny_checkpoints, 
     bands = {"edges": [3.0], "means": [0.5, 0.2]}
     floor = {"margin": 0.3, "tau": 0.2, "band_margins": [0.3, None], "c_share": 0.4, "gap_db": 0.1, "gap_bound_db": 0.6,
              "views": 40}
-    write_operating_point(ck, OperatingPoint(mean=0.5, lift=True, c_share=0.4, ipr=0.1, epsilon_db=1.0, by_distance=bands,
+    write_operating_point(ck, ORPRecord(mean=0.5, lift=True, c_share=0.4, ipr=0.1, epsilon_db=1.0, by_distance=bands,
                                              object_floor=floor))
     point = read_operating_point(ck, log=None)
-    assert point.object_floor == floor and point.distance_means().floor_margins == [0.3, None]
+    assert point.object_floor == floor and point.point.bands.floor_margins == (0.3, None)
     assert "+ (near to far) 0.3 / none of C" in point.describe()
     r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
     plain = load_ims_nets(str(ck)).head
@@ -395,7 +395,7 @@ def test_a_point_floored_per_band_travels_with_the_checkpoint(tiny_checkpoints, 
                      ({**rec, "object_floor": {**floor, "band_margins": [0.3]}}, "floor_margins=[0.3]: expected 2 margins")):
         capsys.readouterr()
         sidecar_path(ck).write_text(sealed(bad, ck))
-        assert load_product(str(ck)).operating_point is None
+        assert load_product(str(ck)).record is None
         err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
         assert len(err) == 1 and "ignored: malformed" in err[0] and msg in err[0], err
 

@@ -10,16 +10,16 @@ from pathlib import Path
 import pytest
 
 from imls_lightning.base.config import file_hash
-from imls_lightning.inference.operating_point import (SEARCH_TOLERANCE, OperatingPoint, read_operating_point, record_digest,
+from imls_lightning.inference.operating_point import (SEARCH_TOLERANCE, ORPRecord, read_operating_point, record_digest,
                                                       sidecar_path, write_operating_point)
 
 POINTS = [[0.1, 0.08], [0.316, 0.27], [0.562, 0.49], [0.75, 0.66], [0.806, 0.72]]
 
 
-def _point(**kw) -> OperatingPoint:
+def _point(**kw) -> ORPRecord:
     base = dict(mean=0.806, lift=False, c_share=0.72, ipr=0.18, epsilon_db=1.0, gap_db=0.4, views=30, scene="tiny",
                 points=POINTS, tolerance=SEARCH_TOLERANCE)
-    return OperatingPoint(**{**base, **kw})
+    return ORPRecord(**{**base, **kw})
 
 
 @pytest.fixture
@@ -133,13 +133,14 @@ def test_a_record_is_cross_checked_with_its_evaluations_summary(ckpt, tmp_path, 
 
 
 def test_an_explicit_mean_is_not_read_from_the_record(ckpt, capsys):
-    from imls_lightning.inference.operating_point import mean_to_run
+    from imls_lightning.core.operating_point import OperatingPoint
+    from imls_lightning.inference.operating_point import point_to_run
 
     write_operating_point(ckpt, _point())
     _edit(ckpt, mean=0.9)
     capsys.readouterr()
-    assert mean_to_run(ckpt, 0.4) == (0.4, False, None) and capsys.readouterr().err == ""
-    assert mean_to_run(ckpt, None)[0] is None and "ignored: its digest does not match" in capsys.readouterr().err
+    assert point_to_run(ckpt, 0.4) == (OperatingPoint(share=0.4), None) and capsys.readouterr().err == ""
+    assert point_to_run(ckpt, None)[0] is None and "ignored: its digest does not match" in capsys.readouterr().err
 
 
 def test_every_consumer_ignores_an_edited_record(tiny_checkpoints, tmp_path, capsys):
@@ -159,7 +160,7 @@ def test_every_consumer_ignores_an_edited_record(tiny_checkpoints, tmp_path, cap
     capsys.readouterr()
     r = IMLSRenderer.from_checkpoints(str(ck), opts=NetOptions(device="cpu"))
     lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]
-    assert r.operating_point is None and r.mean == pytest.approx(load_product(str(ck), mean="trained").nets.trained_mean)
+    assert r.record is None and r.mean == pytest.approx(load_product(str(ck), share="trained").nets.trained_mean)
     assert len(lines) == 1 and "ignored: its digest does not match its content" in lines[0]
     assert recorded_bands(str(ck), True) is None
     lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[orp]")]

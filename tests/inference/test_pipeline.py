@@ -19,17 +19,16 @@ from imls_lightning.inference.pipeline import (
     IMLPlusRecNN,
     IMLSRenderer,
     LASMethod,
-    Method,
     NetOptions,
     RecNNAlone,
     RenderResult,
     las_mean_for_ipr,
     pick_device,
-    time_method,
-    time_methods,
     to_uint8_image,
 )
+from imls_lightning.evaluation.timing import time_method, time_methods, timed
 from imls_lightning.inference.checkpoints import load_task
+from imls_lightning.core.operating_point import OperatingPoint
 
 ROOT = Path(__file__).resolve().parents[2]
 CPU = NetOptions(device="cpu")
@@ -90,9 +89,10 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
     r = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), scene=env["scene"], renderer_cfg={"name": "numba"}, opts=CPU)
     m = env["ims"].pattern.fr_size
     view = env["views"][0]
-    image, timings = r.render(view)
+    image, timings = timed(r).render(view)
     assert image.shape == (m, m, 3) and image.dtype == np.uint8
     _check_timings(timings, IMLS_STAGES)
+    assert np.array_equal(r.render(view), image)  # the renderer itself times nothing
 
     # the same image as the checkpoint's own modules give, step by step (nothing lost on the way)
     task = load_task(env["ckpt"]["ims"], expect="IMSTask")
@@ -109,12 +109,12 @@ def test_imls_renderer_round_trips_from_checkpoints(env):
     # the stored RecNN is the frozen RecNN checkpoint the IML was trained with: passing it gives the same image
     again = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), renderer=env["renderer"],
                                           recnn_checkpoint=str(env["ckpt"]["recnn"]), opts=CPU)
-    np.testing.assert_array_equal(again.render(view)[0], image)
+    np.testing.assert_array_equal(again.render(view), image)
 
     # the IMS checkpoint records its scene and renderer: the checkpoint alone is enough
     assert env["ims"].hparams["scene"]["name"] == "tiny" and env["ims"].hparams["renderer"]["name"] == "numba"
     alone = IMLSRenderer.from_checkpoints(str(env["ckpt"]["ims"]), opts=CPU)
-    np.testing.assert_array_equal(alone.render(view)[0], image)
+    np.testing.assert_array_equal(alone.render(view), image)
 
 
 def test_imls_info_counts_the_pixels_of_its_mask(env):
@@ -168,7 +168,7 @@ def test_selective_render_casts_only_the_masked_pixels(env):
 # ---- baselines -----------------------------------------------------------------------------------
 def test_full_ray_cast_reproduces_the_cache(env):
     m = env["ims"].pattern.fr_size
-    image, timings = FullRayCast(env["renderer"], m, CPU).render(env["views"][0])
+    image, timings = timed(FullRayCast(env["renderer"], m, CPU)).render(env["views"][0])
     _check_timings(timings, {"render", "total"})
     np.testing.assert_array_equal(image, env["truth"][0])  # same renderer, deterministic: PSNR 100 in the report
 
@@ -177,14 +177,14 @@ def test_recnn_alone_and_iml_plus_recnn_shapes(env):
     task = env["ims"]
     pattern, m = task.pattern, task.pattern.fr_size
     rec = RecordingRenderer(env["renderer"])
-    res = RecNNAlone(rec, pattern, task.recnn, CPU).run(env["views"][0])
+    res = timed(RecNNAlone(rec, pattern, task.recnn, CPU)).run(env["views"][0])
     assert res.image.shape == (m, m, 3) and res.image.dtype == np.uint8
     _check_timings(res.timings, {"selective_render", "recnn", "total"})
     assert res.info["rendered_pixels"] == pattern.count == len(rec.calls[-1])
     assert res.info["ipr"] == pytest.approx(pattern.count / m**2)
 
     iml = IMLPlusRecNN(env["renderer"], pattern, task.iml, task.recnn, CPU)
-    res = iml.run(env["views"][0])
+    res = timed(iml).run(env["views"][0])
     assert res.image.shape == (m, m, 3) and res.image.dtype == np.uint8
     _check_timings(res.timings, {"selective_render", "importance", "decoder", "recnn", "total"})
     assert res.info["rendered_pixels"] == pattern.count  # the IML needs the whole C-Image
@@ -203,7 +203,7 @@ def test_las_method_samples_its_ipr(env):
     m = int(las.hparams["fr_size"])
     rec = RecordingRenderer(env["renderer"])
     method = LASMethod(rec, las.net, m, int(las.hparams["low_res"]), ipr=0.25, opts=CPU)
-    image, timings = method.render(env["views"][0])
+    image, timings = timed(method).render(env["views"][0])
     assert image.shape == (m, m, 3) and image.dtype == np.uint8
     _check_timings(timings, {"low_res_render", "importance", "selective_render", "recnn", "total"})
     res = method.run(env["views"][0])
@@ -242,66 +242,11 @@ def test_the_pipeline_module_names_no_training_task():
 
 
 # ---- timing ---------------------------------------------------------------------------------------
-class Scripted(Method):
-    """A method whose stage times are known: run i takes i seconds to "render" (tests the statistics)."""
-
-    name = "scripted"
-
-    def __init__(self):
-        super().__init__(None, 4, CPU)
-        self.calls = 0
-
-    def run(self, view) -> RenderResult:
-        i = self.calls
-        self.calls += 1
-        t = {"render": float(i), "recnn": 100.0 - i}
-        t["total"] = float(sum(t.values())) + (50.0 if i == 7 else 0.0)  # one slow outlier run
-        return RenderResult(np.full((4, 4, 3), i, np.uint8), t, {"run": i})
-
-
-def test_time_method_returns_medians_over_the_repeats():
-    s = Scripted()
-    image, med, info = time_method(s, [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=6, warmup=2)
-    assert s.calls == 8
-    # runs 2..7 are timed: medians of (2..7) and (98..93); the outlier moves the mean, not the median
-    assert med == {"render": 4.5, "recnn": 95.5, "total": 100.0}
-    assert info == {"run": 7} and int(image[0, 0, 0]) == 7
-
-
 def test_time_method_on_a_real_method(env):
     m = env["ims"].pattern.fr_size
     image, med, info = time_method(FullRayCast(env["renderer"], m, CPU), env["views"][0], repeats=10, warmup=1)
     assert set(med) == {"render", "total"} and all(v > 0 for v in med.values())
     assert image.shape == (m, m, 3) and info["rendered_pixels"] == m * m
-
-
-class Logged(Scripted):
-    """A :class:`Scripted` method that writes its name into a shared log at every run (tests the schedule)."""
-
-    def __init__(self, name, log):
-        super().__init__()
-        self.name, self.log = name, log
-
-    def run(self, view) -> RenderResult:
-        self.log.append(self.name)
-        return super().run(view)
-
-
-@pytest.mark.parametrize("order,expected", [
-    ("interleaved", ["a", "b"] * 4),
-    ("blocked", ["a"] * 4 + ["b"] * 4),
-])
-def test_time_methods_schedule(order, expected):
-    log = []
-    methods = {"a": Logged("a", log), "b": Logged("b", log)}
-    timed = time_methods(methods, [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=3, warmup=1, order=order)
-    assert log == expected
-    # each method's own runs 1..3 are timed, whatever the order: the same medians as time_method's
-    for name in "ab":
-        image, med, info = timed[name]
-        assert med == {"render": 2.0, "recnn": 98.0, "total": 100.0} and info == {"run": 3} and int(image[0, 0, 0]) == 3
-    alone = time_method(Scripted(), [0, 0, 3, 0, 0, 0, 0, 1, 0], repeats=3, warmup=1)
-    assert alone[1] == timed["a"][1]
 
 
 def test_time_methods_on_real_methods(env):
@@ -310,39 +255,14 @@ def test_time_methods_on_real_methods(env):
     m = env["ims"].pattern.fr_size
     full = FullRayCast(env["renderer"], m, CPU)
     alone = RecNNAlone(env["renderer"], env["ims"].pattern, env["ims"].recnn, CPU)
-    timed = time_methods({"full": full, "alone": alone}, env["views"][0], repeats=10, warmup=1)
-    assert set(timed) == {"full", "alone"}
-    assert all(v > 0 for v in timed["full"][1].values()) and timed["alone"][1]["total"] > 0
-    assert np.array_equal(timed["full"][0], full.render(env["views"][0])[0])
-    assert timed["alone"][2]["c_share"] == 1.0
-
-
-@pytest.mark.parametrize("kw,needle", [
-    ({"order": "shuffled"}, "timing='shuffled'"),
-    ({"repeats": 0}, "repeats"),
-    ({"warmup": -1}, "warmup"),
-])
-def test_exception_time_methods_bad_arguments(kw, needle):
-    with pytest.raises(InputError, match=needle):
-        time_methods({"a": Scripted()}, [0, 0, 3, 0, 0, 0, 0, 1, 0], **kw)
-
-
-def test_exception_time_methods_none():
-    with pytest.raises(InputError, match="at least one method"):
-        time_methods({}, [0, 0, 3, 0, 0, 0, 0, 1, 0])
+    out = time_methods({"full": full, "alone": alone}, env["views"][0], repeats=10, warmup=1)
+    assert set(out) == {"full", "alone"}
+    assert all(v > 0 for v in out["full"][1].values()) and out["alone"][1]["total"] > 0
+    assert np.array_equal(out["full"][0], full.render(env["views"][0]))
+    assert out["alone"][2]["c_share"] == 1.0
 
 
 # ---- errors ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("kw,needle", [
-    ({"repeats": 0}, "repeats"),
-    ({"repeats": 2.5}, "repeats"),
-    ({"warmup": -1}, "warmup"),
-])
-def test_exception_time_method_bad_counts(kw, needle):
-    with pytest.raises(InputError, match=needle):
-        time_method(Scripted(), [0, 0, 3, 0, 0, 0, 0, 1, 0], **kw)
-
-
 @pytest.mark.parametrize("view,needle", [
     ([0, 0, 3, 0, 0, 0, 0, 1], "9 floats"),
     ([0, 0, 3, 0, 0, 0, 0, 0, 1], "parallel"),
@@ -409,8 +329,8 @@ def test_full_mask_gives_the_recnn_alone_exactly(env):
     imls = IMLSRenderer(env["renderer"], ims.pattern, lambda v: valid.to(v.device), ims.decoder, ims.recnn, CPU)
     alone = RecNNAlone(env["renderer"], ims.pattern, ims.recnn, CPU)
     for view, truth in zip(env["views"], env["truth"]):
-        a, _ = alone.render(view)
-        b, _ = imls.render(view)
+        a = alone.render(view)
+        b = imls.render(view)
         assert np.array_equal(a, b)
         assert abs(image_quality(a, truth)[0] - image_quality(b, truth)[0]) < 0.1
     iml = ims.iml
@@ -424,70 +344,65 @@ def test_imls_renderer_at_another_mean_needs_a_pim_target(env):
     if ims.target == "pim":
         pytest.skip("the tiny IMS regresses PIM'")
     with pytest.raises(InputError, match="target=pim"):
-        IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, mean=0.3)
+        IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, point=OperatingPoint(share=0.3))
 
 
-def test_net_options_from_config_smoke_and_device_override(monkeypatch):
-    from imls_lightning.inference import pipeline
+class _IndexColours:
+    """A ray caster whose colours are a fixed function of the FR raster index: the product's image then depends on the
+    networks and the operating point only (no volume needed)."""
 
-    monkeypatch.setattr(pipeline, "compile_available", lambda device: None)
-    assert NetOptions.from_config(None) == NetOptions()
-    assert NetOptions.from_config({"half": True, "device": "cpu"}) == NetOptions(device="cpu", half=True)
-    # the adaptive CLI keeps its top-level device key: it wins over the node's
-    assert NetOptions.from_config({"device": "auto", "compile": True}, device="cpu") == NetOptions(device="cpu", compile=True)
-
-
-def test_net_options_compile_auto_compiles_where_a_compiler_is(monkeypatch):
-    """``compile: auto`` (what make bench-paper evaluates with): torch.compile where it can build kernels, else eager;
-    ``compile: true`` where it cannot is a one-line error that says why and what to set instead."""
-    from imls_lightning.inference import pipeline
-
-    monkeypatch.setattr(pipeline, "compile_available", lambda device: None)
-    assert NetOptions.from_config({"compile": "auto"}, device="cpu").compile is True
-    monkeypatch.setattr(pipeline, "compile_available", lambda device: "no C++ compiler")
-    assert NetOptions.from_config({"compile": "auto"}, device="cpu").compile is False
-    assert NetOptions.from_config({"compile": False}, device="cpu").compile is False
-    with pytest.raises(InputError, match=r"^evaluate\.compile=true: torch.compile cannot run here \(no C\+\+ compiler\); "
-                                         r"set compile=auto .* or false$"):
-        NetOptions.from_config({"compile": True}, device="cpu", key="evaluate")
+    def render_pixels(self, view, m, idx):
+        idx = np.asarray(idx, np.int64)
+        return np.stack([(idx * 37) % 251, (idx * 101 + 7) % 241, (idx // 512 * 3 + idx % 512) % 239], 1).astype(np.uint8)
 
 
-def test_compile_available_looks_for_the_compiler_torch_would_use(monkeypatch):
-    from imls_lightning.inference.pipeline import compile_available
-
-    found = {"g++"}
-    monkeypatch.setattr("shutil.which", lambda name: f"/usr/bin/{name}" if name in found else None)
-    monkeypatch.delenv("CXX", raising=False)
-    assert compile_available(torch.device("cpu")) is None
-    found.clear()
-    assert "no C++ compiler" in compile_available(torch.device("cpu"))
-    monkeypatch.setenv("CXX", "my-clang")  # $CXX, when set, is the one torch uses
-    assert "no C++ compiler" in compile_available(torch.device("cpu"))
-    found.add("my-clang")
-    assert compile_available(torch.device("cpu")) is None
+#: the product's IM and image on three views, made with the code of commit 579d537 (before the operating point became
+#: one frozen OperatingPoint and timing moved out of the renderer): seed_whole's committed networks at its recorded
+#: point (by camera distance, sharpness 3, lifted, the object floor per band), then the plain head at u = 0.3
+SEED_WHOLE_PRODUCT = {
+    0: ("7c9ed69d9d92a8a3", "c1b3f03d4ebad060", 28304, 0.4217),
+    1: ("20746c2516466567", "523621b7c5a16cab", 23932, 0.36518),
+    2: ("b6dad232ea54c05f", "a776388ac31dbb2b", 15501, 0.23714),
+    "plain": ("5422a48901abdd60", None, 18835, 0.3),
+}
 
 
-@pytest.mark.parametrize("node, needle", [({"fast": True}, r"options\.fast: unknown option"),
-                                          ({"half": "yes"}, r"options\.half=yes: expected true or false"),
-                                          ({"channels_last": 1}, r"options\.channels_last=1: expected true or false"),
-                                          ({"compile": "yes"}, r"options\.compile=yes: expected true or false or auto")])
-def test_exception_net_options_from_config_names_the_key(node, needle):
-    with pytest.raises(InputError, match=needle):
-        NetOptions.from_config(node)
+def test_the_product_of_committed_networks_at_their_point_is_bit_identical_to_before():
+    """Behaviour unchanged: seed_whole's committed IMS (its decoder and RecNN) at its recorded operating point renders
+    the same IM and the same image, bit for bit, as the code before the refactor (SEED_WHOLE_PRODUCT)."""
+    import hashlib
+
+    from imls_lightning.core.operating_point import Bands
+    from imls_lightning.inference.checkpoints import load_ims_nets
+
+    nets = load_ims_nets(ROOT / "benchmarks" / "rows" / "seed_whole" / "ims.ckpt")
+    bands = Bands([3.808149662596027, 4.2323177988619545, 4.791850412524883], [0.4217, 0.36518, 0.28387, 0.23714],
+                  [0.14, 0.02, None, None])
+    at_point = OperatingPoint(share=0.4217, lift=True, bands=bands, sharpness=3.0, object_floor=(0.14, 0.2))
+    point = IMLSRenderer(_IndexColours(), nets.pattern, nets.head, nets.decoder, nets.recnn, CPU, point=at_point)
+    plain = IMLSRenderer(_IndexColours(), nets.pattern, nets.head, nets.decoder, nets.recnn, CPU, point=OperatingPoint(share=0.3))
+    views = [[0, 0, 3.7, 0, 0, 0, 0, 1, 0], [2.9, 0.4, 3.0, 0, 0, 0, 0, 1, 0], [0, 4.9, 0.3, 0, 0, 0, 1, 0, 0]]
+    digest = lambda a: hashlib.sha256(a.tobytes()).hexdigest()[:16]  # noqa: E731
+    with torch.inference_mode():
+        for key, (image, im, count, u) in SEED_WHOLE_PRODUCT.items():
+            r = plain if key == "plain" else point
+            res = r.run(np.asarray(views[0 if key == "plain" else key], np.float64))
+            assert digest(res.image) == image and res.info["rendered_pixels"] == count
+            assert im is None or digest(res.info["im"].numpy()) == im
+            assert key == "plain" or res.info["mean"] == pytest.approx(u, abs=1e-6)
 
 
-def test_exception_net_options_from_config_missing_cuda(monkeypatch):
-    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    with pytest.raises(InputError, match="device=cuda: CUDA is not available"):
-        NetOptions.from_config({"device": "cuda"})
+def test_iml_plus_recnn_at_another_mean_passes_it_per_call_and_changes_no_shared_iml(env):
+    """IML + RecNN at a mean value u normalizes each run at u (an argument, no private copy of the IML): the same IM and
+    image as an IML whose own mean is u, and the IML it shares with other methods keeps its trained mean."""
+    import copy
 
-
-def test_half_auto_is_measured_once_and_resolves_to_a_bool(monkeypatch):
-    from imls_lightning.inference import pipeline
-
-    monkeypatch.setattr(pipeline, "_HALF_IS_FASTER", {})
-    opts = NetOptions.from_config({"half": "auto"}, device="cpu")
-    assert isinstance(opts.half, bool) and opts.half == pipeline.half_is_faster(torch.device("cpu"))
-    assert list(pipeline._HALF_IS_FASTER) == ["cpu"]
-    with pytest.raises(InputError, match="options.half=maybe: expected true or false or auto"):
-        NetOptions.from_config({"half": "maybe"})
+    task, view = env["ims"], env["views"][0]
+    trained = float(task.iml.mean)
+    u = 0.3 if abs(trained - 0.3) > 1e-6 else 0.5
+    per_call = IMLPlusRecNN(env["renderer"], task.pattern, task.iml, task.recnn, CPU, mean=u)
+    own = copy.deepcopy(task.iml)
+    own.mean = u
+    a, b = per_call.run(view), IMLPlusRecNN(env["renderer"], task.pattern, own, task.recnn, CPU).run(view)
+    assert np.array_equal(a.image, b.image) and torch.equal(a.info["im"], b.info["im"])
+    assert per_call.mean == u and float(task.iml.mean) == trained

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from imls_lightning.base.errors import InputError
+from imls_lightning.evaluation.timing import timed_run
 from imls_lightning.core.compaction import compact
 from imls_lightning.core.unpredictability import base_unpredictability, two_pass_mask
 from imls_lightning.inference.pipeline import NetOptions, RecNNAlone
@@ -25,7 +26,7 @@ def test_two_pass_casts_the_base_then_the_rest_of_its_mask(env):  # noqa: F811
     pattern, idx = ims.pattern, ims.pattern.indices.numpy()
     rec = RecordingRenderer(env["renderer"])
     method = TwoPassFill(rec, pattern, ims.recnn, share=0.5, base=0.2, opts=CPU)
-    res = method.run(env["views"][0])
+    res = timed_run(method, env["views"][0])
     first, second = rec.calls
     keep = res.info["im"]
     assert len(set(first) & set(second)) == 0                         # no ray is cast twice

@@ -45,14 +45,17 @@ def test_smoke_validation_logs_psnr_fill_and_importance_stats():
     assert logs.values["val/c_psnr"] == pytest.approx(logs.values["val/fill_c_psnr"], abs=1e-4)
 
 
-def test_mean_range_draws_a_mean_per_training_batch_and_restores_the_trained_one():
+def test_mean_range_draws_a_mean_per_training_batch_and_leaves_the_trained_one():
+    """A training step with mean_range normalizes at a drawn mean value passed to that call; the IML's own mean is never
+    changed (validation and every other caller see the trained one)."""
     task = _task(mean_range=[0.05, 0.5]).train()
     seen = []
     orig = task.iml.normalization.forward
 
-    def spy(pim, valid=None):
-        seen.append(task.iml.mean)
-        return orig(pim, valid)
+    def spy(pim, valid=None, mean=None):
+        assert task.iml.mean == 0.2  # nothing swapped in for the step
+        seen.append(task.iml.mean if mean is None else mean)
+        return orig(pim, valid, mean=mean)
 
     task.iml.normalization.forward = spy
     _Logs(task)

@@ -102,14 +102,14 @@ def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp
     masks lifted if the evaluation lifted them; mean= overrides it; without a record, the trained mean."""
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
 
     ckpt, cpu = tmp_path / "ims.ckpt", NetOptions(device="cpu")
     shutil.copy(tiny_checkpoints["ims_pim"], ckpt)
     plain = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
     assert plain.mean == plain.trained_mean and plain.operating_point is None
     assert "no recorded operating point" in capsys.readouterr().err
-    point = OperatingPoint(mean=0.4567, lift=True, c_share=0.45, ipr=0.11, epsilon_db=1.0)
+    point = ORPRecord(mean=0.4567, lift=True, c_share=0.45, ipr=0.11, epsilon_db=1.0)
     write_operating_point(ckpt, point)
     s = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
     assert s.mean == 0.4567 and s.operating_point == point and s.lift is True
@@ -124,13 +124,13 @@ def test_the_session_runs_a_point_recorded_by_camera_distance(tiny_checkpoints, 
     value (the frame says it is the view's); a mean value set with the slider holds for every view."""
     import shutil
 
-    from imls_lightning.inference.operating_point import OperatingPoint, write_operating_point
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
     from imls_lightning.web.app import stats_text
 
     ckpt = tmp_path / "ims.ckpt"
     shutil.copy(tiny_checkpoints["ims_pim"], ckpt)
     bands = {"edges": [3.6], "means": [0.9, 0.35]}
-    write_operating_point(ckpt, OperatingPoint(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
+    write_operating_point(ckpt, ORPRecord(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
     s = ViewerSession.from_checkpoints(str(ckpt), opts=NetOptions(device="cpu"), distance=4.2)
     assert s.mean == 0.9 and s.by_distance is not None
     far = s.frame()
