@@ -34,7 +34,7 @@ def _compose(overrides: list[str]) -> DictConfig:
 def _resolve(cfg: DictConfig) -> DictConfig:
     """Resolve everything but ``${hydra:...}`` (only set inside a running Hydra app)."""
     cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=False))
-    cfg.paths.output_dir = "/tmp/not-used"  # ${hydra:runtime.output_dir}
+    cfg.paths.output_dir = "not-used"  # ${hydra:runtime.output_dir}, never written here
     OmegaConf.resolve(cfg)
     return cfg
 
