@@ -184,7 +184,7 @@ def _row_dry_run(experiment: str, monkeypatch, capsys, tmp_path, *overrides: str
 
 
 def test_every_row_script_has_its_experiment():
-    assert set(ROWS) <= set(PROTOCOL_ROWS) | {"flame_whole_no_skipping"}
+    assert set(ROWS) <= set(PROTOCOL_ROWS)
     assert {"seed_whole_fastest", "seed_whole_fovolnet", "rt_plumes_enhancenet", "rt_plumes_fovolnet",
             "flame_whole_enhancenet"} <= set(ROWS)
     for name in ROWS:
