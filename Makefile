@@ -10,7 +10,7 @@ PYTEST_ARGS ?=
 # workers nearly halve it (11.4 min); --dist loadfile keeps a file's module fixtures in one worker; TEST_WORKERS=0: serial
 TEST_WORKERS ?= 2
 
-.PHONY: setup test test-all test-browser demo web bench bench-paper reproduce cost-mask size-search clean lint
+.PHONY: setup test test-all test-browser demo web bench bench-paper bench-row reproduce cost-mask size-search clean lint
 
 setup: $(STAMP)
 
@@ -64,6 +64,16 @@ bench: setup
 bench-paper: setup
 	mkdir -p benchmarks
 	$(PY) -m imls_lightning.bench_paper 2>&1 | tee -a benchmarks/paper_scale.log
+
+# one benchmark row, a config (conf/pipelines/experiment/<EXPERIMENT>.yaml): bench-paper's stages, each training stage
+# in 30-minute chunks; a stage that trained one chunk exits with status 3 and the same command runs again (it resumes
+# from last.ckpt), at most 20 passes. make bench-row EXPERIMENT=seed_whole_fastest [ARGS='train_only=true']
+bench-row: setup
+	$(if $(EXPERIMENT),,$(error EXPERIMENT=<row> expected: a name in conf/pipelines/experiment))
+	@for i in $$(seq 1 20); do \
+	  $(PY) -m imls_lightning.bench_paper +experiment=$(EXPERIMENT) $(ARGS); rc=$$?; \
+	  echo "[row] pass $$i rc=$$rc at $$(date)"; [ $$rc -eq 3 ] || exit $$rc; \
+	done; exit 3
 
 # model only what a scene requires: a Hydra multirun over the networks' sizes (the demo's scale by
 # default, about 40 minutes); writes benchmarks/size_search/<scene>/pareto.* and

@@ -57,7 +57,7 @@ def test_pair_config_smoke_crop_net_and_las_per_recnn():
     assert not any(a.startswith("data.crop") for a in enh.stages.ims)
     assert enh.stages.las is not None and any("timed_views" in a for a in enh.evaluate)
     assert list(enh.stages.recnn_sparser) == []  # the demo trains it as the recnn stage on a sparser pattern
-    assert bp.pair_config(_cfg(**{"+stages.recnn_sparser": "null"}), "ct_head", "enhancenet").stages.recnn_sparser is None
+    assert bp.pair_config(_cfg(**{"stages.recnn_sparser": "null"}), "ct_head", "enhancenet").stages.recnn_sparser is None
     fov = bp.pair_config(cfg, "mri_head", "fovolnet")
     assert fov.stages.las is None  # LAS does not do foveated rendering (the paper)
     assert not any(a.startswith("data.crop") for st in ("recnn", "iml") for a in fov.stages[st])

@@ -34,7 +34,7 @@ def _compose(overrides: list[str]) -> DictConfig:
 def _resolve(cfg: DictConfig) -> DictConfig:
     """Resolve everything but ``${hydra:...}`` (only set inside a running Hydra app)."""
     cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=False))
-    cfg.paths.output_dir = "/tmp/not-used"  # ${hydra:runtime.output_dir}
+    cfg.paths.output_dir = "not-used"  # ${hydra:runtime.output_dir}, never written here
     OmegaConf.resolve(cfg)
     return cfg
 
@@ -153,25 +153,84 @@ def test_large_flame_reads_its_volume_memory_mapped(tmp_path):
     np.testing.assert_array_equal(scene.transfer_function.opacity, flame.transfer_function.opacity)
 
 
-def test_the_seed_whole_fastest_row_config_issues_the_row_scripts_commands(tmp_path):
-    """conf/pipelines/experiment/seed_whole_fastest.yaml is the row script's command as a config: both dry runs print
-    the same stage commands (the same run hashes, so the trained networks are found either way). The script runs from
-    a copy of its folder whose .venv/bin/activate only puts this interpreter first on PATH."""
+PIPELINES = CONF / "pipelines"
+#: the stage commands each benchmark row's shell script printed before the row became an experiment (issue 87), one
+#: file per experiment, its header naming the script, its settings and the commit that held it
+ROW_COMMANDS = ROOT / "tests" / "row_commands"
+ROWS = sorted(p.stem for p in ROW_COMMANDS.glob("*.txt"))
+#: the pipeline experiments that are benchmark rows: they compose a row protocol (conf/pipelines/protocol)
+PROTOCOL_ROWS = sorted(p.stem for p in (PIPELINES / "experiment").glob("*.yaml") if "- /protocol/" in p.read_text())
+
+
+def _stage_commands(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.startswith("python -m")]
+
+
+def _row_dry_run(experiment: str, monkeypatch, capsys, tmp_path, *overrides: str) -> list[str]:
+    """The stage commands ``bench_paper +experiment=<experiment> dry_run=true`` prints, composed and run in this process
+    (the CLI only adds the command-line checks and Hydra's logging), from an empty folder (no earlier tables)."""
+    from hydra import compose, initialize_config_dir
+
+    from imls_lightning.pipelines.bench_paper import bench_paper
+
+    for name in ("IMLS_RUNS_DIR", "IMLS_CACHE_DIR"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.chdir(tmp_path)
+    with initialize_config_dir(config_dir=str(PIPELINES), version_base="1.3"):
+        cfg = compose(config_name="bench_paper", overrides=[f"+experiment={experiment}", "dry_run=true", *overrides])
+    capsys.readouterr()
+    assert bench_paper(cfg) is None
+    return _stage_commands(capsys.readouterr().out)
+
+
+def test_every_row_script_has_its_experiment():
+    assert set(ROWS) <= set(PROTOCOL_ROWS)
+    assert {"seed_whole_fastest", "seed_whole_fovolnet", "rt_plumes_enhancenet", "rt_plumes_fovolnet",
+            "flame_whole_enhancenet"} <= set(ROWS)
+    for name in ROWS:
+        assert (PIPELINES / "experiment" / f"{name}.yaml").read_text().startswith("# @package _global_"), name
+
+
+@pytest.mark.parametrize("experiment", ROWS)
+def test_a_row_config_issues_the_commands_its_script_did(experiment, monkeypatch, capsys, tmp_path):
+    """``bench_paper +experiment=<row>`` issues, in order and character for character, the stage commands the row's
+    shell script issued (tests/row_commands/<row>.txt, printed by the script's dry run before it was deleted): the same
+    overrides give the same run hashes, so the networks a row trained are found either way."""
+    expected = _stage_commands((ROW_COMMANDS / f"{experiment}.txt").read_text())
+    assert expected and _row_dry_run(experiment, monkeypatch, capsys, tmp_path) == expected
+
+
+@pytest.mark.parametrize("experiment", PROTOCOL_ROWS)
+def test_every_row_config_composes_and_runs_dry(experiment, monkeypatch, capsys, tmp_path):
+    """A row added as one yaml (no script before it) composes with its protocol and reaches the evaluation."""
+    commands = _row_dry_run(experiment, monkeypatch, capsys, tmp_path)
+    assert commands[-1].startswith("python -m imls_lightning.evaluate ")
+
+
+def test_a_rows_knobs_are_settings_of_the_command_line(monkeypatch, capsys, tmp_path):
+    """The protocol's knobs (once environment variables of the shell rows) are keys the command line may set, checked
+    like any other key; the sparser-pattern RecNN a FoVolNet row skips is one override away."""
+    from data_gen.errors import check_config_keys
+
+    knobs = ["protocol.timed_views=8", "protocol.ims_epochs=12", 'protocol.evaluate_extra=["las_searched=true"]',
+             "stages.recnn_sparser=[]"]
+    check_config_keys(PIPELINES, "bench_paper", ["+experiment=seed_whole_fovolnet", *knobs])
+    commands = _row_dry_run("seed_whole_fovolnet", monkeypatch, capsys, tmp_path, *knobs)
+    evaluate = commands[-1].split()
+    assert "timed_views=8" in evaluate and "las_searched=true" in evaluate and "timed_views=12" not in evaluate
+    assert any("trainer.max_epochs=12 model.monitor=val/fr_psnr" in c for c in commands)
+    assert any("pattern.c_size_ratio=0.3536" in c for c in commands)  # the sparser FoVolNet trains
+
+
+def test_a_row_runs_from_the_command_line(tmp_path):
+    """The command a reader types, through the CLI's own checks: the seed_whole row's stage commands."""
     import os
-    import shutil
     import subprocess
     import sys
 
-    (tmp_path / "benchmarks" / "seed_whole").mkdir(parents=True)
-    for name in ("whole_scene_row.sh", "row_protocol.sh", "seed_whole/row.sh"):
-        shutil.copyfile(ROOT / "benchmarks" / name, tmp_path / "benchmarks" / name)
-    (tmp_path / ".venv" / "bin").mkdir(parents=True)
-    (tmp_path / ".venv" / "bin" / "activate").write_text(f'export PATH="{Path(sys.executable).parent}:$PATH"\n')
-    env = {**os.environ, "FLOOR_BY_BAND": "1", "EVAL_EXTRA": "las_searched=true trajectory_seed=1207"}
-    script = subprocess.run(["bash", str(tmp_path / "benchmarks" / "seed_whole" / "row.sh"), "dry_run=true"], cwd=tmp_path,
-                            env=env, capture_output=True, text=True, timeout=300)
-    config = subprocess.run([sys.executable, "-m", "imls_lightning.bench_paper", "+experiment=seed_whole_fastest", "dry_run=true"],
-                            cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert script.returncode == 0 and config.returncode == 0, script.stderr[-2000:] + config.stderr[-2000:]
-    commands = lambda out: [ln for ln in out.splitlines() if ln.startswith("python -m")]  # noqa: E731
-    assert commands(config.stdout) and commands(config.stdout) == commands(script.stdout)
+    env = {k: v for k, v in os.environ.items() if k not in ("IMLS_RUNS_DIR", "IMLS_CACHE_DIR")}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    run = subprocess.run([sys.executable, "-m", "imls_lightning.bench_paper", "+experiment=seed_whole_fastest", "dry_run=true"],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert _stage_commands(run.stdout) == _stage_commands((ROW_COMMANDS / "seed_whole_fastest.txt").read_text())

@@ -135,13 +135,22 @@ def _echo(stream, log) -> str:
 
 
 def override_list(cfg: DictConfig, key: str) -> list[str]:
-    """The list of overrides at ``key`` of the demo/bench config (``[]`` when unset), as strings."""
+    """The list of overrides at ``key`` of the demo/bench config (``[]`` when unset), as strings. An item that is
+    itself a list is spliced in its place: a benchmark row composes the shared protocol's lists with its own settings
+    (``iml: ['${protocol.iml}', trainer.max_epochs=15]``, conf/pipelines/protocol).
+
+    Example:
+        >>> cfg = OmegaConf.create({"protocol": {"iml": ["model.depth=4", "model.mean=0.2"]},
+        ...                         "stages": {"iml": ["${protocol.iml}", "trainer.max_epochs=15"]}})
+        >>> override_list(cfg, "stages.iml")
+        ['model.depth=4', 'model.mean=0.2', 'trainer.max_epochs=15']
+    """
     v = OmegaConf.select(cfg, key)
     if v is None:
         return []
     if not OmegaConf.is_list(v):
         raise InputError(f"{key}={v}: expected a list of overrides; on the command line quote each one: \"{key}=['trainer.max_epochs=5']\"")
-    return [str(x) for x in v]
+    return [str(y) for x in v for y in (x if OmegaConf.is_list(x) else [x])]
 
 
 def stage_overrides(cfg: DictConfig, name: str) -> list[str]:
