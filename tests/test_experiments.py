@@ -210,7 +210,7 @@ def test_every_row_config_composes_and_runs_dry(experiment, monkeypatch, capsys,
 def test_a_rows_knobs_are_settings_of_the_command_line(monkeypatch, capsys, tmp_path):
     """The protocol's knobs (once environment variables of the shell rows) are keys the command line may set, checked
     like any other key; the sparser-pattern RecNN a FoVolNet row skips is one override away."""
-    from data_gen.errors import check_config_keys
+    from imls_lightning.base.errors import check_config_keys
 
     knobs = ["protocol.timed_views=8", "protocol.ims_epochs=12", 'protocol.evaluate_extra=["las_searched=true"]',
              "stages.recnn_sparser=[]"]
