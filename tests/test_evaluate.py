@@ -455,7 +455,7 @@ def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
     assert "**By camera distance** (`orp_by_distance`): each of the 2 bands" in section
     assert f"| {b['lo'][0]:.2f}-{b['hi'][0]:.2f} | {b['edges'][0]:.3f} | 2 | {b['means'][0]:.4f} |" in section
     # IML/S runs each search view at its band's mean value
-    from imls_lightning.evaluation.measurement import view_tensor
+    from imls_lightning.render.camera import view_tensor
 
     near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
     assert float(sched(view_tensor(near, "cpu"))[0]) == pytest.approx(b["means"][0])

@@ -58,7 +58,7 @@ from typing import Any, Generator
 import numpy as np
 import torch
 
-from imls_lightning.render.camera import validate_view
+from imls_lightning.render.camera import validate_view, view_tensor
 from imls_lightning.base.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
@@ -69,17 +69,6 @@ from ..core.patterns import SamplingPattern, c_pixels_to_fr
 from ..models.ims import IMSMaskHead
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
-
-
-def view_tensor(view, device) -> torch.Tensor:
-    """A view's 9 numbers as the networks' input: a ``(1, 9)`` float32 tensor on ``device`` (a copy: the
-    cache's views are read-only memory maps, which torch warns on).
-
-    Example:
-        >>> view_tensor([0, 0, 3.5, 0, 0, 0, 0, 1, 0], "cpu").shape
-        torch.Size([1, 9])
-    """
-    return torch.from_numpy(np.array(view, np.float32))[None].to(device)
 
 
 def run_steps(steps: Generator[str | None, None, "RenderResult"]) -> "RenderResult":
@@ -455,7 +444,7 @@ class LASMethod(Method):
         """The IPR a validated view ``(9,)`` runs at: its band's with ``by_distance``, else ``ipr``."""
         if self.by_distance is None:
             return self.ipr
-        return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
+        return round(float(self.by_distance(view_tensor(view))[0]), 6)
 
     def steps(self, view, ipr: float | None = None):
         """The forward pass of a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;

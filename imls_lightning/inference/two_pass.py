@@ -22,6 +22,7 @@ from __future__ import annotations
 import torch
 
 from imls_lightning.base.errors import InputError
+from imls_lightning.render.camera import view_tensor
 
 from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
 from ..core.pull_push import fill_c_image
@@ -69,7 +70,7 @@ class TwoPassFill(PatternMethod):
         """The share of C a validated view ``(9,)`` runs at: its band's with ``by_distance``, else ``share``."""
         if self.by_distance is None:
             return self.share
-        return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
+        return round(float(self.by_distance(view_tensor(view))[0]), 6)
 
     def steps(self, view):
         first = self._first
