@@ -75,6 +75,11 @@ def _rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
         return list(r.fieldnames or []), list(r)
 
 
+def _method_rows(run: dict, method: str) -> list[dict[str, str]]:
+    """The rows of ``metrics.csv`` of an evaluation ``run`` that measured ``method``."""
+    return [r for r in _rows(run["out"] / "metrics.csv")[1] if r["method"] == method]
+
+
 @pytest.fixture(scope="module")
 def run(tiny_checkpoints):
     t0 = time.perf_counter()
@@ -455,9 +460,9 @@ def test_orp_by_distance_gives_each_band_its_own_mean_value(run):
     assert "**By camera distance** (`orp_by_distance`): each of the 2 bands" in section
     assert f"| {b['lo'][0]:.2f}-{b['hi'][0]:.2f} | {b['edges'][0]:.3f} | 2 | {b['means'][0]:.4f} |" in section
     # IML/S runs each search view at its band's mean value
-    from imls_lightning.evaluation.measurement import view_tensor
+    from imls_lightning.render.camera import view_tensor
 
-    near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    near, _ = _band_ends(b)
     assert float(sched(view_tensor(near, "cpu"))[0]) == pytest.approx(b["means"][0])
     with pytest.raises(InputError, match=re.escape("orp_by_distance=true: needs orp_strata >= 2 (got 1)")):
         parse_settings(_compose(*_args(run["ck"], "orp_by_distance=true")))
@@ -953,6 +958,12 @@ def test_timed_views_smoke_times_a_subset_and_scores_every_view(run, tmp_path):
 
 
 # ---- the operating point travels with the IMS checkpoint -------------------------------------------
+def _band_ends(b: dict) -> tuple[list[float], list[float]]:
+    """Two views on the z axis looking at the origin: at the near end of a point's first band of camera distance and
+    at the far end of its last (``b``: its ``by_distance``)."""
+    return [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, b["hi"][-1], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
 def _orp_views(ck: dict) -> list:
     """The views the evaluation searched the ORP on (orp_max_views=4 held-out views: evaluate.orp_search_views)."""
     import numpy as np
@@ -1117,8 +1128,7 @@ def test_two_pass_sampler_runs_at_a_share_searched_on_the_orps_views_and_reports
     else:
         assert tp["share"] == 1.0 and tp["record"] is None
     assert "held-out views" in tp["where"] and tp["test"]["views"] == 2 and math.isfinite(tp["test"]["gap_db"])
-    _, rows = _rows(run["out"] / "metrics.csv")
-    two = [r for r in rows if r["method"] == "two_pass"]
+    two = _method_rows(run, "two_pass")
     assert len(two) == 2 and all(abs(float(r["c_share"]) - tp["share"]) <= 0.05 for r in two)
     text = run["report"].read_text()
     assert "two passes + fill + RecNN (no IMS)" in text and "Two passes + fill + RecNN (no IMS, no decoder" in text
@@ -1148,28 +1158,7 @@ def test_two_pass_sampler_by_distance_gives_each_band_its_own_share(run):
     assert b["hi"][0] < b["edges"][0] < b["lo"][1] and all(g <= 3.0 for g in b["bounds_db"])
     method = two_pass_method(point, object(), nets.ims_task.pattern, nets.recnn, None)
     assert method.shares == pytest.approx(b["shares"])
-    near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-    far = [0.0, 0.0, b["hi"][1], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-    assert (method.share_for(near), method.share_for(far)) == pytest.approx(tuple(b["shares"]))
-
-
-def test_two_pass_off_keeps_the_settings_hash_of_evaluations_without_it(run):
-    from imls_lightning.evaluation import parse_settings
-
-    off = parse_settings(_compose(*_args(run["ck"], "two_pass.base=null")))
-    assert off.two_pass_base is None and "two_pass" not in off.hashed()
-
-
-@pytest.mark.parametrize("override, message", [
-    ("two_pass.base=1.0", "two_pass.base=1.0: expected the first pass's share of C in (0, 1), or null (no two-pass sampler)"),
-    ("two_pass.base=0", "two_pass.base=0: expected the first pass's share of C in (0, 1)"),
-    ("two_pass.floor=-1", "two_pass.floor=-1: expected a number >= 0"),
-])
-def test_exception_two_pass_settings_are_one_line(run, override, message):
-    from imls_lightning.evaluation import parse_settings
-
-    with pytest.raises(InputError, match=re.escape(message)):
-        parse_settings(_compose(*_args(run["ck"], override)))
+    assert tuple(map(method.share_for, _band_ends(b))) == pytest.approx(tuple(b["shares"]))
 
 
 # ---- LAS at the product's promise (its IPR searched as the ORP is) ---------------------------------------------
@@ -1187,8 +1176,7 @@ def test_las_at_the_promise_runs_at_an_ipr_searched_on_the_orps_views_and_report
         assert ls["ipr"] == LAS_SEARCH_IPRS[-1] and ls["record"] is None
     assert all(0.0 < r["kept"] <= 1.0 for r in ls["rows"])
     assert "held-out views" in ls["where"] and ls["test"]["views"] == 2 and math.isfinite(ls["test"]["gap_db"])
-    _, rows = _rows(run["out"] / "metrics.csv")
-    las = [r for r in rows if r["method"] == "las_searched"]
+    las = _method_rows(run, "las_searched")
     assert len(las) == 2 and all(abs(float(r["ipr"]) - ls["ipr"]) <= 0.02 for r in las)
     text = run["report"].read_text()
     assert "LAS at the promise (its IPR searched)" in text and "LAS at the product's promise (what a user who chose LAS" in text
@@ -1250,26 +1238,38 @@ def test_las_at_the_promise_by_distance_gives_each_band_its_own_ipr(run):
     again = SearchedPoint.from_dict(json.loads(json.dumps(point.to_dict())))  # as an interrupted run restores it
     method = las_searched_method(again, object(), nets.las_task, int(cfg.data.resolution), None)
     assert method.name == "las_searched" and method.iprs == pytest.approx(b["values"])
-    near = [0.0, 0.0, b["lo"][0], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-    far = [0.0, 0.0, b["hi"][1], 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-    assert (method.ipr_for(near), method.ipr_for(far)) == pytest.approx(tuple(b["values"]))
+    assert tuple(map(method.ipr_for, _band_ends(b))) == pytest.approx(tuple(b["values"]))
 
 
-def test_las_searched_off_keeps_the_settings_hash_of_evaluations_without_it(run):
+@pytest.mark.parametrize("override, attr, off_value, key", [
+    ("two_pass.base=null", "two_pass_base", None, "two_pass"),
+    ("las_searched=false", "las_searched", False, "las_searched"),
+])
+def test_a_baseline_off_keeps_the_settings_hash_of_evaluations_without_it(run, override, attr, off_value, key):
+    """The two-pass sampler and LAS at the promise, each turned off: its key leaves the settings hash."""
     from imls_lightning.evaluation import parse_settings
 
-    off = parse_settings(_compose(*_args(run["ck"], "las_searched=false")))
-    assert off.las_searched is False and "las_searched" not in off.hashed()
+    off = parse_settings(_compose(*_args(run["ck"], override)))
+    assert getattr(off, attr) is off_value and key not in off.hashed()
+
+
+def test_las_search_iprs_are_hashed(run):
+    from imls_lightning.evaluation import parse_settings
+
     assert parse_settings(_compose(*_args(run["ck"]))).hashed()["las_search_iprs"] == LAS_SEARCH_IPRS
 
 
 @pytest.mark.parametrize("override, message", [
+    ("two_pass.base=1.0", "two_pass.base=1.0: expected the first pass's share of C in (0, 1), or null (no two-pass sampler)"),
+    ("two_pass.base=0", "two_pass.base=0: expected the first pass's share of C in (0, 1)"),
+    ("two_pass.floor=-1", "two_pass.floor=-1: expected a number >= 0"),
     ("las_searched=yes", "las_searched='yes': expected true or false"),
     ("las_search_iprs=[]", "las_search_iprs=[]: expected at least one IPR in [0.01, 1] to search LAS's among"),
     ("las_search_iprs=[0.001]", "las_search_iprs=[0.001]: expected numbers in [0.01, 1.0]"),
     ("checkpoints.las=null", "las_searched=true: needs checkpoints.las (the LAS checkpoint whose IPR is searched)"),
 ])
-def test_exception_las_searched_settings_are_one_line(run, override, message):
+def test_exception_baseline_settings_are_one_line(run, override, message):
+    """The two-pass sampler's and LAS at the promise's settings: each wrong one is one line naming it."""
     from imls_lightning.evaluation import parse_settings
 
     with pytest.raises(InputError, match=re.escape(message)):

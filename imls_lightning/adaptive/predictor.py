@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from imls_lightning.base.errors import InputError, finite_number
+from imls_lightning.render.camera import view_tensor
 
 from ..core.importance import MEAN_RANGE
 from .checks import check_integer, clamp_mean
@@ -77,9 +78,7 @@ class MeanPredictor(nn.Module):
     @staticmethod
     def features(view: torch.Tensor) -> torch.Tensor:
         """``(B, 9)`` -> ``(B, 13)``: view, unit direction ``lookAt - eye``, distance."""
-        v = torch.as_tensor(view, dtype=torch.float32)
-        if v.dim() != 2 or v.shape[1] != 9:
-            raise InputError(f"view: expected a (B, 9) tensor of (eye, lookAt, up), got shape {tuple(v.shape)}")
+        v = view_tensor(view)
         d = v[:, 3:6] - v[:, 0:3]
         dist = d.norm(dim=1, keepdim=True)
         return torch.cat([v, d / dist.clamp_min(1e-6), dist], dim=1)
@@ -186,7 +185,7 @@ def train_predictor(views: np.ndarray | torch.Tensor, u: np.ndarray | torch.Tens
         >>> h["train_l1"] < h["constant_l1"]
         True
     """
-    x = torch.as_tensor(np.asarray(views, np.float32))
+    x = view_tensor(views)
     y = torch.as_tensor(np.asarray(u, np.float64)).float().reshape(-1)
     if x.dim() != 2 or x.shape[1] != 9 or x.shape[0] < 1 or x.shape[0] != y.shape[0]:
         raise InputError(f"views/u: expected (N, 9) views and (N,) labels with N >= 1, got {tuple(x.shape)} and {tuple(y.shape)}")

@@ -8,7 +8,8 @@ import torch
 from torch import nn
 
 from ..inference.checkpoints import load_ims_nets, renderer_for, require_pim_target, require_recnn
-from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, view_tensor
+from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions
+from ..render.camera import view_tensor
 from ..models.ims import IMSMaskHead
 from .labels import im_at_means, iml_pim
 from .predictor import MeanPredictor

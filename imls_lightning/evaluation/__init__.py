@@ -55,7 +55,8 @@ from __future__ import annotations
 
 from ..report import summary
 from .baselines import blue_noise_method, equal_share, ims_mask_at_share, sparser_method
-from .measurement import image_quality, measure, spaced, view_loader, view_tensor
+from .measurement import image_quality, measure, spaced, view_loader
+from ..render.camera import view_tensor
 from .networks import Networks, check_trained_on, load_networks, load_sparser_recnn
 from .operating_point import gap_by_distance, orp_search_views, orp_with_lift, paired_gap, record_operating_point
 from .run import evaluate

@@ -148,4 +148,37 @@ def band_values(v: SearchViews, values: list[float], kept: np.ndarray, gaps: np.
     return out
 
 
-__all__ = ["smallest_within", "band_values"]
+def choose(v: SearchViews, s, values: list[float], kept: np.ndarray, gaps: np.ndarray, future_views: int | None,
+           what: str, say: Callable[[float], str]) -> tuple[dict[str, Any] | None, list[dict[str, Any]], dict[str, Any] | None]:
+    """A baseline's point from its measured ``kept`` and ``gaps`` on the search views ``v`` (``values`` ascending):
+    :func:`smallest_within` at ``s.orp_confidence`` and ``s.epsilon_db``, then, with ``s.orp_by_distance`` and bands
+    on ``v``, each band's own (:func:`band_values`, never above the chosen). ``what`` and ``say`` word the log lines.
+
+    Returns ``(chosen, rows, by_distance)`` as :func:`smallest_within` and :func:`band_values` give them (``None``
+    for none found, or no bands).
+    """
+    chosen, rows = smallest_within(v, values, kept, gaps, s.orp_confidence, s.epsilon_db, future_views)
+    by_distance = None
+    if chosen is None:
+        print(f"[evaluate] {what}: none of the values searched kept the bound", file=sys.stderr, flush=True)
+        return chosen, rows, by_distance
+    print(f"[evaluate] {what}: {say(chosen['value'])}, gap {chosen['gap_db']:.2f} dB (bound {chosen['gap_bound_db']:.2f})",
+          file=sys.stderr, flush=True)
+    if s.orp_by_distance and v.strata is not None:
+        by_distance = band_values(v, values[:values.index(chosen["value"]) + 1], kept, gaps, s.orp_confidence, s.epsilon_db,
+                                  future_views, what=what, say=say)
+    return chosen, rows, by_distance
+
+
+def say_bands(b: dict[str, Any], values: Sequence[float], fmt: str) -> str:
+    """A point's bands of camera distance as its report line says them, near to far: ``lo-hi: value (bound x dB)``
+    (``b``: :func:`band_values`' output; ``values``: the bands' values; ``fmt``: their format).
+
+    Example:
+        >>> say_bands({"lo": [1.0, 2.5], "hi": [2.0, 3.5], "bounds_db": [0.4, 0.9]}, [0.1, 0.25], ".0%")
+        '1.00-2.00: 10% (bound 0.40 dB); 2.50-3.50: 25% (bound 0.90 dB)'
+    """
+    return "; ".join(f"{lo:.2f}-{hi:.2f}: {x:{fmt}} (bound {bd:.2f} dB)" for lo, hi, x, bd in zip(b["lo"], b["hi"], values, b["bounds_db"]))
+
+
+__all__ = ["smallest_within", "band_values", "choose", "say_bands"]

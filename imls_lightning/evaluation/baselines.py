@@ -11,7 +11,8 @@ import torch
 from ..core.operating_point import OperatingPoint
 from ..inference.baselines import equal_share_rows, mask_at_share, summarize_equal_share
 from ..inference.pipeline import IMLSRenderer, NetOptions, RecNNAlone
-from .measurement import view_loader, view_tensor
+from .measurement import view_loader
+from ..render.camera import view_tensor
 from .networks import Networks
 from .settings import Settings
 

@@ -23,7 +23,7 @@ import torch
 from ..core.compaction import compact
 from ..core.metrics import psnr_per_image
 from ..estimate.measure import frame_tensor
-from .baseline_point import SearchedPoint, band_values, smallest_within
+from .baseline_point import SearchedPoint, choose, say_bands
 from .networks import Networks
 from .operating_point import judged, search_views
 from .settings import Settings
@@ -39,9 +39,7 @@ def describe_las(point: SearchedPoint) -> str:
     line = f"{head}: IPR {point.value:.1%}, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} dB)"
     if not point.by_distance:
         return line + "."
-    b = point.by_distance
-    bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.1%} (bound {bd:.2f} dB)"
-                      for lo, hi, x, bd in zip(b["lo"], b["hi"], b["values"], b["bounds_db"]))
+    bands = say_bands(point.by_distance, point.by_distance["values"], ".1%")
     return f"{line}; then each band of camera distance its own, never above that one: {bands}."
 
 
@@ -89,17 +87,7 @@ def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, 
     views = [v.cache.views[r] for r in v.rows]
     frames = [np.asarray(v.cache.images[r]) for r in v.rows]
     kept, gaps = las_gaps(las, recnn, nets.ims_task.pattern, renderer, views, frames, iprs, device)
-    chosen, rows = smallest_within(v, iprs, kept, gaps, s.orp_confidence, s.epsilon_db, future_views)
-    by_distance = None
-    if chosen is not None:
-        print(f"[evaluate] LAS at the promise: IPR {chosen['value']:.1%}, gap {chosen['gap_db']:.2f} dB "
-              f"(bound {chosen['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
-        if s.orp_by_distance and v.strata is not None:
-            by_distance = band_values(v, iprs[:iprs.index(chosen["value"]) + 1], kept, gaps, s.orp_confidence,
-                                      s.epsilon_db, future_views, what="LAS at the promise", say=lambda x: f"IPR {x:.1%}")
-    else:
-        print(f"[evaluate] LAS at the promise: no IPR searched kept the bound; it runs at the largest, {iprs[-1]:.1%}",
-              file=sys.stderr, flush=True)
+    chosen, rows, by_distance = choose(v, s, iprs, kept, gaps, future_views, "LAS at the promise", lambda x: f"IPR {x:.1%}")
     rows = [{"ipr": r["value"], "kept": r["kept"], "gap_db": r["gap_db"], "gap_bound_db": r["gap_bound_db"]} for r in rows]
     return SearchedPoint("ipr", float(chosen["value"]) if chosen else float(iprs[-1]), found=chosen is not None, where=v.where,
                          epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)

@@ -1,6 +1,6 @@
 """Measuring methods on one view: their stage times (medians, :func:`~imls_lightning.evaluation.timing.time_methods`)
-and their images scored against the ground truth (PSNR, SSIM); the views measured (:func:`spaced`) and the
-view as the networks' input (:func:`view_tensor`)."""
+and their images scored against the ground truth (PSNR, SSIM); the views measured (:func:`spaced`). A view as
+the networks' input is :func:`imls_lightning.render.camera.view_tensor`."""
 from __future__ import annotations
 
 import sys
@@ -9,7 +9,7 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
-from ..inference.pipeline import Method, view_tensor
+from ..inference.pipeline import Method
 from .timing import time_method, time_methods
 
 

@@ -25,7 +25,8 @@ from ..report.document import verdict_line
 from ..core.operating_point import OperatingPoint
 from ..report.names import TWIN_METHODS, ray_caster_twin
 from .baselines import blue_noise_method, equal_share, sparser_method
-from .measurement import measure_methods, progress_bar, spaced, view_tensor
+from .measurement import measure_methods, progress_bar, spaced
+from ..render.camera import view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
 from .operating_point import (borrowed_point, camera_distance, gap_by_distance, orp_summary, paired_gap, point_of,
                               product_path_orp, record_operating_point)

@@ -26,7 +26,7 @@ import torch
 
 from ..estimate.needed_share import NEEDED_SHARES, share_gaps
 from .networks import Networks
-from .baseline_point import SearchedPoint, band_values, smallest_within
+from .baseline_point import SearchedPoint, band_values, choose, say_bands
 from .operating_point import SearchViews, judged, search_views
 from .settings import Settings
 
@@ -42,9 +42,7 @@ def describe_two_pass(point: SearchedPoint) -> str:
                 f"<= {point.epsilon_db:g} dB)")
         if not point.by_distance:
             return line + "."
-        b = point.by_distance
-        bands = "; ".join(f"{lo:.2f}-{hi:.2f}: {x:.0%} (bound {bd:.2f} dB)"
-                          for lo, hi, x, bd in zip(b["lo"], b["hi"], b["shares"], b["bounds_db"]))
+        bands = say_bands(point.by_distance, point.by_distance["shares"], ".0%")
         return (f"{line}; then each band of camera distance its own share, never above that one, judged on its own "
                 f"search views: {bands}.")
     return f"{head}: no share below 100% kept the bound within {point.epsilon_db:g} dB, so it renders all of C."
@@ -76,16 +74,11 @@ def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, devi
 
     frames = [np.asarray(v.cache.images[r]) for r in v.rows]
     kept, gaps = share_gaps(rebuild, pattern, frames, shares, floor=floor, base=base)
-    chosen, searched = smallest_within(v, shares, kept, gaps, s.orp_confidence, s.epsilon_db, future_views)
+    chosen, searched, by_distance = choose(v, s, shares, kept, gaps, future_views, "the two-pass sampler",
+                                           lambda x: f"{x:.0%} of C")
     rows = [{**r, "share": r["value"], "c_share": r["kept"]} for r in searched]
     chosen = None if chosen is None else {**chosen, "share": chosen["value"], "c_share": chosen["kept"]}
-    by_distance = None
-    if chosen is not None:
-        print(f"[evaluate] two-pass sampler: {chosen['share']:.0%} of C, gap {chosen['gap_db']:.2f} dB "
-              f"(bound {chosen['gap_bound_db']:.2f})", file=sys.stderr, flush=True)
-        if s.orp_by_distance and v.strata is not None:
-            by_distance = band_shares(v, shares[:shares.index(chosen["share"]) + 1], kept, gaps, s.orp_confidence,
-                                      s.epsilon_db, future_views)
+    by_distance = None if by_distance is None else shares_named(by_distance)
     return SearchedPoint("share", float(chosen["share"]) if chosen else 1.0, found=chosen is not None, where=v.where,
                          epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance,
                          settings={"base": base, "floor": floor})
@@ -97,10 +90,14 @@ def band_shares(v: SearchViews, shares: list[float], kept: np.ndarray, gaps: np.
     ``edges``, and per band near to far ``shares``, ``c_shares``, ``gaps_db``, ``bounds_db``, ``views``, ``lo``,
     ``hi``; ``None`` where the views' distances do not separate the bands."""
     out = band_values(v, shares, kept, gaps, confidence, epsilon_db, future_views)
-    if out is None:
-        return None
-    out["shares"], out["c_shares"] = out.pop("values"), out.pop("kept")
-    return out
+    return None if out is None else shares_named(out)
+
+
+def shares_named(b: dict[str, Any]) -> dict[str, Any]:
+    """:func:`~imls_lightning.evaluation.baseline_point.band_values`' output under the two-pass sampler's names
+    (``values`` -> ``shares``, ``kept`` -> ``c_shares``), in place."""
+    b["shares"], b["c_shares"] = b.pop("values"), b.pop("kept")
+    return b
 
 
 def two_pass_method(point: SearchedPoint, renderer, pattern, recnn, opts):
@@ -111,4 +108,4 @@ def two_pass_method(point: SearchedPoint, renderer, pattern, recnn, opts):
                        by_distance=point.values_by_distance())
 
 
-__all__ = ["describe_two_pass", "candidate_shares", "two_pass_point", "band_shares", "two_pass_method"]
+__all__ = ["describe_two_pass", "candidate_shares", "two_pass_point", "band_shares", "shares_named", "two_pass_method"]

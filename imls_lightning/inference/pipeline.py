@@ -58,7 +58,7 @@ from typing import Any, Generator
 import numpy as np
 import torch
 
-from imls_lightning.render.camera import validate_view
+from imls_lightning.render.camera import validate_view, view_tensor
 from imls_lightning.base.errors import InputError
 
 from .checkpoints import IMSNets, load_product, renderer_for, require_recnn
@@ -66,20 +66,9 @@ from .options import NetOptions, compile_available, half_is_faster, pick_device,
 from ..core.importance import check_ipr
 from ..core.operating_point import OperatingPoint
 from ..core.patterns import SamplingPattern, c_pixels_to_fr
-from ..models.ims import IMSMaskHead
+from ..models.ims import DistanceMeans, IMSMaskHead
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
-
-
-def view_tensor(view, device) -> torch.Tensor:
-    """A view's 9 numbers as the networks' input: a ``(1, 9)`` float32 tensor on ``device`` (a copy: the
-    cache's views are read-only memory maps, which torch warns on).
-
-    Example:
-        >>> view_tensor([0, 0, 3.5, 0, 0, 0, 0, 1, 0], "cpu").shape
-        torch.Size([1, 9])
-    """
-    return torch.from_numpy(np.array(view, np.float32))[None].to(device)
 
 
 def run_steps(steps: Generator[str | None, None, "RenderResult"]) -> "RenderResult":
@@ -435,7 +424,7 @@ class LASMethod(Method):
     name = "las"
 
     def __init__(self, renderer, las_net: torch.nn.Module, fr_size: int, low_res: int,
-                 ipr: float | None = None, opts: NetOptions | None = None, by_distance: torch.nn.Module | None = None):
+                 ipr: float | None = None, opts: NetOptions | None = None, by_distance: DistanceMeans | None = None):
         super().__init__(renderer, fr_size, opts)
         self.las = prepare_net(las_net, self.device, self.opts)
         self.low_res = int(low_res)
@@ -448,14 +437,13 @@ class LASMethod(Method):
     @property
     def iprs(self) -> list[float | None]:
         """The IPRs it runs at: ``[ipr]``, or its bands' near to far (``by_distance``)."""
-        # the bands' buffer is float32: round back to the IPRs it was given
-        return [self.ipr] if self.by_distance is None else [round(float(x), 6) for x in self.by_distance.means.tolist()]
+        return [self.ipr] if self.by_distance is None else self.by_distance.values()
 
     def ipr_for(self, view) -> float | None:
         """The IPR a validated view ``(9,)`` runs at: its band's with ``by_distance``, else ``ipr``."""
         if self.by_distance is None:
             return self.ipr
-        return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
+        return self.by_distance.value_for(view)
 
     def steps(self, view, ipr: float | None = None):
         """The forward pass of a validated view at this call's ``ipr`` (a share of the FR pixels in ``(0, 1]``;

@@ -25,6 +25,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
 from ..core.pull_push import fill_c_image
+from ..models.ims import DistanceMeans
 from .pipeline import NetOptions, RenderResult, PatternMethod, prepare_net, to_uint8_image
 
 
@@ -39,7 +40,7 @@ class TwoPassFill(PatternMethod):
 
     def __init__(self, renderer, pattern, recnn: torch.nn.Module, share: float, base: float = 0.2,
                  floor: float = 0.25, seed: int = 0, opts: NetOptions | None = None,
-                 by_distance: torch.nn.Module | None = None):
+                 by_distance: DistanceMeans | None = None):
         super().__init__(renderer, pattern, opts)
         if not 0.0 < float(base) < float(share) <= 1.0:
             raise InputError(f"base={base}, share={share}: expected 0 < base < share <= 1 (the first pass is part "
@@ -62,14 +63,13 @@ class TwoPassFill(PatternMethod):
     @property
     def shares(self) -> list[float]:
         """The shares of C it runs at: ``[share]``, or its bands' near to far (``by_distance``)."""
-        # the bands' buffer is float32: round back to the shares it was given (0.4, not 0.4000000059)
-        return [self.share] if self.by_distance is None else [round(float(x), 6) for x in self.by_distance.means.tolist()]
+        return [self.share] if self.by_distance is None else self.by_distance.values()
 
     def share_for(self, view) -> float:
         """The share of C a validated view ``(9,)`` runs at: its band's with ``by_distance``, else ``share``."""
         if self.by_distance is None:
             return self.share
-        return round(float(self.by_distance(torch.as_tensor(view, dtype=torch.float32).reshape(1, 9))[0]), 6)
+        return self.by_distance.value_for(view)
 
     def steps(self, view):
         first = self._first

@@ -40,6 +40,7 @@ import torch
 from torch import nn
 
 from imls_lightning.base.errors import InputError
+from imls_lightning.render.camera import view_tensor
 
 from ..core.importance import (check_object_floor, check_sharpness, floored_mean, lift_to_share, lifted_mask, object_fraction,
                                sharpen_importance)
@@ -464,6 +465,15 @@ class DistanceMeans(nn.Module):
         if self.floor_margins is not None:  # -1: no floor in that band (floored_mean then keeps the band's u)
             self.register_buffer("margins", torch.tensor([NO_FLOOR if m is None else m for m in self.floor_margins],
                                                          dtype=torch.float32))
+
+    def values(self) -> list[float]:
+        """The bands' mean values near to far, as given: the float32 buffer rounded back to 6 digits (0.4, not
+        0.4000000059). The methods that run a knob per band (LAS's IPR, the two-pass sampler's share) read theirs here."""
+        return [round(float(x), 6) for x in self.means.tolist()]
+
+    def value_for(self, view) -> float:
+        """The value one view ``(9,)`` runs at (its band's), rounded as :meth:`values`."""
+        return round(float(self(view_tensor(view))[0]), 6)
 
     def band(self, view: torch.Tensor) -> torch.Tensor:
         """The band index ``(B,)`` int64 of each view ``(B, 9)``, near to far."""

@@ -298,6 +298,12 @@ def stage_table(records: Sequence[Mapping[str, Any]], times: Mapping[str, Mappin
     return md_table(header, rows)
 
 
+def paper_table_section(title: str, table: str, note: str, details_title: str, details: str) -> list[str]:
+    """The lines of one paper table's section of BENCHMARKS.md: ``## title``, the table, the note on how it was
+    measured, then ``### details_title`` and the details."""
+    return [f"## {title}", "", table, "", note, "", f"### {details_title}", "", details, ""]
+
+
 def render_markdown(records: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
     """The text of BENCHMARKS.md (see the module docstring); ``meta`` holds ``scenes``, ``recnns``,
     ``command``, ``machine``, ``scale`` (lines), ``notes``, ``times``, ``elapsed_s``, ``done``, ``total``."""
@@ -314,24 +320,22 @@ def render_markdown(records: Sequence[Mapping[str, Any]], meta: Mapping[str, Any
     L += ["## Machine", "", md_table(["", ""], [(k, v) for k, v in (meta.get("machine") or {}).items()]), ""]
     L += ["## Scale", ""] + [f"- {line}" for line in meta.get("scale", [])] + [""]
 
-    L += ["## ORP for free rendering latency improvement (paper: Table \"Detailed ORP\")", ""]
-    L += [orp_table(records, scenes, recnns), ""]
-    L += ["ORP: share of the C-Image's pattern pixels the IML keeps at the smallest mean value whose IML + RecNN "
-          "stays within epsilon (1 dB) PSNR of the RecNN alone on the validation views (\"(none)\": no mean value "
-          "in the bracket met epsilon; the job with the smallest gap stands in). Latency: IML/S + RecNN at the ORP "
-          "(IMS network, selective rendering of its important pixels, IML decoder, RecNN), mean over the test "
-          "trajectory of per-view medians. Speed-up: RecNN alone (ray-casting its whole pattern + RecNN) / IML/S + RecNN.", ""]
-    L += ["### ORP details", "", orp_details(records), ""]
-
-    L += ["## Comparison with LAS (paper: Table \"LAS comparison\")", ""]
-    L += [las_table(records, scenes, recnns), ""]
-    L += ["Full ray cast: every FR pixel ray-cast by this machine's renderer (the paper's GPU ray-caster column). "
-          "LAS runs at exactly each IPR (its mean bisected per view, outside the timed stages). IML/S at the IPR rows: "
-          "the IML/S pipeline (IMS network timed) selectively rendering the mask of the ORP's IML at the inference "
-          "mean u = IPR / pattern share, whose quality is that of IML + RecNN at u (an IMS reproducing the IML's mask); "
-          "the measured IPRs are in the details. \"at ORP\": the trained IML/S + RecNN at its own IPR, LAS matched to "
-          "that IPR (super-resolution). Speed-up: LAS / IML/S. NS: not supported (LAS is a super-resolution method).", ""]
-    L += ["### LAS comparison details", "", las_details(records), ""]
+    L += paper_table_section("ORP for free rendering latency improvement (paper: Table \"Detailed ORP\")",
+                             orp_table(records, scenes, recnns),
+                             "ORP: share of the C-Image's pattern pixels the IML keeps at the smallest mean value whose IML + RecNN "
+                             "stays within epsilon (1 dB) PSNR of the RecNN alone on the validation views (\"(none)\": no mean value "
+                             "in the bracket met epsilon; the job with the smallest gap stands in). Latency: IML/S + RecNN at the ORP "
+                             "(IMS network, selective rendering of its important pixels, IML decoder, RecNN), mean over the test "
+                             "trajectory of per-view medians. Speed-up: RecNN alone (ray-casting its whole pattern + RecNN) / IML/S + RecNN.",
+                             "ORP details", orp_details(records))
+    L += paper_table_section("Comparison with LAS (paper: Table \"LAS comparison\")", las_table(records, scenes, recnns),
+                             "Full ray cast: every FR pixel ray-cast by this machine's renderer (the paper's GPU ray-caster column). "
+                             "LAS runs at exactly each IPR (its mean bisected per view, outside the timed stages). IML/S at the IPR rows: "
+                             "the IML/S pipeline (IMS network timed) selectively rendering the mask of the ORP's IML at the inference "
+                             "mean u = IPR / pattern share, whose quality is that of IML + RecNN at u (an IMS reproducing the IML's mask); "
+                             "the measured IPRs are in the details. \"at ORP\": the trained IML/S + RecNN at its own IPR, LAS matched to "
+                             "that IPR (super-resolution). Speed-up: LAS / IML/S. NS: not supported (LAS is a super-resolution method).",
+                             "LAS comparison details", las_details(records))
     L += ["## Stage times", "", stage_table(records, times), ""]
     L += ["Minutes:seconds each stage took when its result was made (the RecNN stage includes rendering the cache; "
           "a stage cut off and resumed shows the resumed part only).", ""]

@@ -44,6 +44,41 @@ def validate_view(view, *, name: str = "view") -> np.ndarray:
     return v
 
 
+def view_tensor(views, device=None):
+    """Views as the networks' input: the one home of view -> tensor.
+
+    Args:
+        views: one view, 9 numbers ``(eye_xyz, lookAt_xyz, up_xyz)`` (shape ``(9,)``), or a batch of
+            them, shape ``(B, 9)``: a list, a numpy array (the cache's read-only memory maps too) or a
+            tensor. Not validated (:func:`validate_view` checks one view's geometry).
+        device: where the tensor goes; ``None``: the CPU for an array, a tensor's own device for a tensor.
+
+    Returns:
+        A float32 tensor of shape ``(B, 9)`` (``(1, 9)`` for one view), rounded from float64 to float32
+        as numpy and torch both round (to nearest). An array is copied (torch warns on read-only
+        memory); a tensor already float32 on ``device`` comes back as itself (reshaped for one view).
+
+    Raises:
+        InputError: the shape is neither ``(9,)`` nor ``(B, 9)``.
+
+    Example:
+        >>> view_tensor([0, 0, 3.5, 0, 0, 0, 0, 1, 0]).shape
+        torch.Size([1, 9])
+    """
+    import torch  # deferred: the ray casters do not need torch
+
+    if isinstance(views, torch.Tensor):
+        v = views.to(device=device if device is not None else views.device, dtype=torch.float32)
+    else:
+        v = torch.from_numpy(np.array(views, np.float32))
+        v = v if device is None else v.to(device)
+    if v.dim() == 1:
+        v = v[None]
+    if v.dim() != 2 or v.shape[1] != 9:
+        raise InputError(f"views: expected one view (9,) or a batch (B, 9) of (eye, lookAt, up), got shape {tuple(v.shape)}")
+    return v
+
+
 def camera_basis(view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Return ``(eye, forward, right, up)``: unit vectors of the camera frame (right-handed,
     ``right = forward x up``, ``up`` re-orthogonalized as VTK's ``OrthogonalizeViewUp`` does)."""

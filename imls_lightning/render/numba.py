@@ -289,20 +289,22 @@ def _shade_from_grad(gx, gy, gz, zero_tol, vx, vy, vz, ka, kd, ks, spow):
 
 
 @njit(cache=True)
+def _cell_corners(flat, base, nx, plane):
+    """The 8 voxel values of the cell whose lowest corner is flat index ``base`` (``nx``: the x row's length,
+    ``plane``: a z slice's), as floats in the order ``v000, v100, v010, v110, v001, v101, v011, v111`` (``vXYZ``)."""
+    return (float(flat[base]), float(flat[base + 1]), float(flat[base + nx]), float(flat[base + nx + 1]),
+            float(flat[base + plane]), float(flat[base + plane + 1]), float(flat[base + plane + nx]),
+            float(flat[base + plane + nx + 1]))
+
+
+@njit(cache=True)
 def _cell_shade_interior(flat, base, nx, plane, gsx, gsy, gsz, zero_tol, vx, vy, vz, ka, kd, ks, spow):
     """``(D, S)`` of the 8 corners of the cell at flat index ``base`` (no corner on a face).
 
     The 8 central differences need 32 distinct voxels: the cell and its one-voxel extension
     along each axis; each is read once.
     """
-    c000 = float(flat[base])
-    c100 = float(flat[base + 1])
-    c010 = float(flat[base + nx])
-    c110 = float(flat[base + nx + 1])
-    c001 = float(flat[base + plane])
-    c101 = float(flat[base + plane + 1])
-    c011 = float(flat[base + plane + nx])
-    c111 = float(flat[base + plane + nx + 1])
+    c000, c100, c010, c110, c001, c101, c011, c111 = _cell_corners(flat, base, nx, plane)
     # x - 1 and x + 2 neighbours of the four x-rows of the cell
     xm00 = float(flat[base - 1])
     xp00 = float(flat[base + 2])
@@ -343,6 +345,24 @@ def _cell_shade_interior(flat, base, nx, plane, gsx, gsy, gsz, zero_tol, vx, vy,
 
 
 @njit(cache=True)
+def _central_difference(flat, i, stride, at, n, edge2):
+    """VTK's ``v[i - stride] - v[i + stride]`` along one axis at flat voxel index ``i`` (``stride``: the axis's step in
+    ``flat``; ``at``: the voxel's index on the axis, ``n``: the axis's length); at a face the one-sided difference,
+    doubled with ``edge2``."""
+    if at == 0:
+        g = float(flat[i]) - float(flat[i + stride])
+        if edge2:
+            g *= 2.0
+    elif at == n - 1:
+        g = float(flat[i - stride]) - float(flat[i])
+        if edge2:
+            g *= 2.0
+    else:
+        g = float(flat[i - stride]) - float(flat[i + stride])
+    return g
+
+
+@njit(cache=True)
 def _corner_shade(flat, x, y, z, nx, ny, nz, gsx, gsy, gsz, edge2, zero_tol, vx, vy, vz, ka, kd, ks, spow):
     """VTK shading-table entry ``(D, S)`` for the normal of voxel ``(x, y, z)``.
 
@@ -350,38 +370,10 @@ def _corner_shade(flat, x, y, z, nx, ny, nz, gsx, gsy, gsz, edge2, zero_tol, vx,
     at the volume's faces VTK clamps the index (8/16-bit integer data) or takes a one-sided
     difference doubled (other types, ``edge2``). Two-sided headlight: the cosine is ``|n . v|``.
     """
-    row = (z * ny + y) * nx
-    if x == 0:
-        gx = float(flat[row]) - float(flat[row + 1])
-        if edge2:
-            gx *= 2.0
-    elif x == nx - 1:
-        gx = float(flat[row + x - 1]) - float(flat[row + x])
-        if edge2:
-            gx *= 2.0
-    else:
-        gx = float(flat[row + x - 1]) - float(flat[row + x + 1])
-    if y == 0:
-        gy = float(flat[row + x]) - float(flat[row + nx + x])
-        if edge2:
-            gy *= 2.0
-    elif y == ny - 1:
-        gy = float(flat[row - nx + x]) - float(flat[row + x])
-        if edge2:
-            gy *= 2.0
-    else:
-        gy = float(flat[row - nx + x]) - float(flat[row + nx + x])
-    plane = nx * ny
-    if z == 0:
-        gz = float(flat[row + x]) - float(flat[row + plane + x])
-        if edge2:
-            gz *= 2.0
-    elif z == nz - 1:
-        gz = float(flat[row - plane + x]) - float(flat[row + x])
-        if edge2:
-            gz *= 2.0
-    else:
-        gz = float(flat[row - plane + x]) - float(flat[row + plane + x])
+    i = (z * ny + y) * nx + x
+    gx = _central_difference(flat, i, 1, x, nx, edge2)
+    gy = _central_difference(flat, i, nx, y, ny, edge2)
+    gz = _central_difference(flat, i, nx * ny, z, nz, edge2)
     return _shade_from_grad(gx * gsx, gy * gsy, gz * gsz, zero_tol, vx, vy, vz, ka, kd, ks, spow)
 
 
@@ -495,14 +487,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
             fy = uy - iy
             fz = uz - iz
             base = iz * plane + iy * nx + ix
-            v000 = float(flat[base])
-            v100 = float(flat[base + 1])
-            v010 = float(flat[base + nx])
-            v110 = float(flat[base + nx + 1])
-            v001 = float(flat[base + plane])
-            v101 = float(flat[base + plane + 1])
-            v011 = float(flat[base + plane + nx])
-            v111 = float(flat[base + plane + nx + 1])
+            v000, v100, v010, v110, v001, v101, v011, v111 = _cell_corners(flat, base, nx, plane)
             gx_ = 1.0 - fx
             gy_ = 1.0 - fy
             gz_ = 1.0 - fz

@@ -86,6 +86,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 
 from imls_lightning.base.errors import InputError, config_keys
 from imls_lightning.base.validate import check_number
+from imls_lightning.render.camera import view_tensor
 
 from ..models.backbones import BACKBONES, VGG16_LAYERS
 from .checkpoint_checks import check_same_pattern
@@ -585,8 +586,7 @@ class IMSTask(ImlsTask):
 
         Uses the generator in whatever mode the task is in (``eval()`` for inference).
         """
-        view = torch.as_tensor(view, dtype=torch.float32, device=self.valid.device)
-        return self.mask_head(view, mean, lift)
+        return self.mask_head(view_tensor(view, self.valid.device), mean, lift)
 
     def reconstruct(self, im: torch.Tensor, c_image: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
         """IML/S path from an IM and the C-Image: ``(decoder C-Image (B, 3, n, n), FR (B, 3, m, m) or None)``."""
@@ -637,7 +637,7 @@ class IMSTask(ImlsTask):
             from data_gen.cache import ViewImageCache
 
             views = ViewImageCache.open(ds.cache_path).views[np.asarray(ds.rows)]
-            self._fit_view_normalization(torch.from_numpy(np.asarray(views, np.float32)))
+            self._fit_view_normalization(view_tensor(views))
 
     def on_train_start(self) -> None:
         if bool(self.view_norm_fitted):

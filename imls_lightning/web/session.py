@@ -28,7 +28,8 @@ from ..evaluation.timing import timed_run  # each frame's stages, timed from out
 from ..inference.camera import DEFAULT_DISTANCE_RANGE, OrbitCamera, frame_psnr, orbit_view
 from ..inference.checkpoints import IMSNets, load_product, load_task, renderer_for
 from ..core.operating_point import OperatingPoint
-from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone, view_tensor
+from ..inference.pipeline import FullRayCast, IMLSRenderer, LASMethod, NetOptions, RecNNAlone
+from ..render.camera import view_tensor
 from ..base.images import error_map, to_uint8
 from ..models.ims import DistanceMeans
 
