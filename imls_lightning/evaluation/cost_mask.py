@@ -39,6 +39,8 @@ from ..core.compaction import compact
 from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern
 from ..core.unpredictability import importance_mask, unpredictability
+from ..estimate.measure import frame_tensor
+from ..estimate.needed_share import first_share_within
 from .timing import timed
 
 #: the shares of C the oracle masks are made at, and the exponents of cost they divide the importance by
@@ -107,23 +109,14 @@ def speedup_ceiling(alone_ms: float, pattern_ms: float, recnn_ms: float, nets_ms
 
 def cost_at_gap(costs: Sequence[float], gaps: Sequence[float], epsilon_db: float) -> float | None:
     """The smallest cost kept whose gap is within ``epsilon_db``, linear between the last point outside and the
-    first inside, the points taken in order of cost; None when none is within.
+    first inside, the points taken in order of cost (the estimate's needed share, on cost); None when none is within.
 
     Example:
         >>> cost_at_gap([0.9, 0.5, 0.7], [0.5, 3.0, 1.5], 1.0)
         0.8
     """
     order = np.argsort(np.asarray(costs, float))
-    c = np.asarray(costs, float)[order]
-    g = np.asarray(gaps, float)[order]
-    inside = np.flatnonzero(g <= epsilon_db)
-    if inside.size == 0:
-        return None
-    i = int(inside[0])
-    if i == 0:
-        return float(c[0])
-    t = (g[i - 1] - epsilon_db) / (g[i - 1] - g[i])
-    return float(c[i - 1] + t * (c[i] - c[i - 1]))
+    return first_share_within(np.asarray(costs, float)[order], np.asarray(gaps, float)[order], epsilon_db)
 
 
 def cost_fit(cost: Sequence[float], ms: Sequence[float]) -> dict[str, float]:
@@ -151,8 +144,7 @@ class ViewCosts:
 
 
 def _psnr(image: np.ndarray, target: torch.Tensor) -> float:
-    t = torch.from_numpy(np.asarray(image, np.float32) / 255.0).permute(2, 0, 1)[None]
-    return float(psnr_per_image(t, target)[0])
+    return float(psnr_per_image(frame_tensor(image), target)[0])
 
 
 def _row(kind: str, setting: float, mask: np.ndarray, cost: np.ndarray, obj: np.ndarray, db: float, ref: float,
@@ -175,7 +167,7 @@ def measure_view(v: int, view, truth: np.ndarray, alone, product, iml_methods: d
     """
     pattern: SamplingPattern = product.pattern
     k = pattern.count
-    target = torch.from_numpy(np.asarray(truth, np.float32) / 255.0).permute(2, 0, 1)[None]
+    target = frame_tensor(truth)
     _, cost, _ = ray_costs(product.renderer, view, pattern.fr_size, pattern.indices.numpy())
     obj = cost > 1
     alone, product = timed(alone), timed(product)  # each run's stages timed (the methods themselves read no clock)

@@ -13,21 +13,14 @@ import json
 from pathlib import Path
 from typing import Any, Mapping
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from imls_lightning.base.atomic import atomic_json, atomic_write_text
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_integer, check_number
 
 from ..base.paths import log
-from .reproduce import row_files
-
-
-def _row(cfg: DictConfig) -> dict[str, Any]:
-    row = OmegaConf.to_container(cfg.row, resolve=True) if cfg.get("row") is not None else None
-    if not isinstance(row, dict) or not row.get("name"):
-        raise InputError("row: required, a row of conf/row/ (e.g. row=seed_whole)")
-    return row
+from .reproduce import row_files, row_spec
 
 
 def check_seed(seed: int, trained: Mapping[str, int | None]) -> None:
@@ -60,7 +53,7 @@ def cost_masks(cfg: DictConfig) -> Path:
     from ..inference.checkpoints import load_ims_nets, load_task, renderer_for
     from ..inference.pipeline import IMLPlusRecNN, IMLSRenderer, NetOptions, RecNNAlone
 
-    row = _row(cfg)
+    row = row_spec(cfg)
     name = str(row["name"])
     folder, files, point_dir = row_files(row)
     views_n = check_integer(cfg.views, "views", 1)

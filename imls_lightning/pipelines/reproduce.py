@@ -34,6 +34,18 @@ RESULT_KEYS = ("row", "trajectory_seed", "views", "timed_views", "c_share", "gap
                "speedup_vs_fastest", "speedup_vs_fastest_low", "speedup_vs_fastest_high", "report")
 
 
+def row_spec(cfg: DictConfig) -> dict[str, Any]:
+    """The row ``cfg.row`` composes (``conf/row/<name>.yaml``) as a plain mapping.
+
+    Raises:
+        InputError: no row, or one without a name.
+    """
+    row = OmegaConf.to_container(cfg.row, resolve=True) if cfg.get("row") is not None else None
+    if not isinstance(row, dict) or not row.get("name"):
+        raise InputError("row: required, a row of conf/row/ (e.g. row=seed_whole)")
+    return row
+
+
 def row_files(row: Mapping[str, Any]) -> tuple[Path, dict[str, Path], Path]:
     """``(folder, {checkpoint key: file}, point folder)`` of a row, each network checked against its SHA-256.
 
@@ -101,9 +113,7 @@ def reproduce(cfg: DictConfig) -> Path:
     from ..evaluation.protocol import check_view_seeds, training_data_seed
     from ..evaluation.settings import parse_settings
 
-    row = OmegaConf.to_container(cfg.row, resolve=True) if cfg.get("row") is not None else None
-    if not isinstance(row, dict) or not row.get("name"):
-        raise InputError("row: required, a row of conf/row/ (e.g. row=seed_whole)")
+    row = row_spec(cfg)
     name = str(row["name"])
     folder, files, point = row_files(row)
     seed = cfg.get("trajectory_seed")

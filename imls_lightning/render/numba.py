@@ -419,7 +419,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
             for c in range(3):
                 out[i, c] = np.uint8(math.floor(bg[c] * 255.0 + 0.5))
             continue
-        marched[i] = 1
+        samples = 0  # counted in a register: an array write per sample would sit in the innermost loop
         # samples sit on the grid t_near + k * sample_distance (VTK anchors them at the near plane)
         k = math.floor((t0 - t_near) / sample_distance) + 1
         acc_r = 0.0
@@ -482,7 +482,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
                 k = kn if kn > k else k + 1
                 continue
             k += 1
-            marched[i] += 1
+            samples += 1
             fx = ux - ix
             fy = uy - iy
             fz = uz - iz
@@ -547,6 +547,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
             rem *= 1.0 - a
             if rem < TERMINATION:
                 break
+        marched[i] = 1 + samples
         # premultiplied colour over the background (VTK clamps the colour to 1 first)
         out[i, 0] = np.uint8(math.floor(min(min(acc_r, 1.0) + rem * bg[0], 1.0) * 255.0 + 0.5))
         out[i, 1] = np.uint8(math.floor(min(min(acc_g, 1.0) + rem * bg[1], 1.0) * 255.0 + 0.5))
