@@ -611,12 +611,17 @@ def _ims_sharpness(cfg: DictConfig) -> list[str]:
 
 def evaluated_options(cfg: DictConfig) -> list[str]:
     """The evaluation's network options (``options.half``, ``options.compile``, ...) as the estimate's overrides, so a
-    row's estimate times its networks as the row runs them (eager and compiled networks differ by 10-40%).
+    row's estimate times its networks as the row runs them (eager and compiled networks differ by 10-40%); none where
+    ``estimate_evaluated_options`` is false (the estimate's own options, as the rows before them issued it).
 
     Example:
         >>> evaluated_options(OmegaConf.create({"evaluate": ["repeats=10", "options.half=auto", "options.compile=auto"]}))
         ['options.half=auto', 'options.compile=auto']
+        >>> evaluated_options(OmegaConf.create({"evaluate": ["options.half=auto"], "estimate_evaluated_options": False}))
+        []
     """
+    if not cfg.get("estimate_evaluated_options", True):
+        return []
     return [str(o) for o in override_list(cfg, "evaluate") if override_key(str(o)).startswith("options.")]
 
 
