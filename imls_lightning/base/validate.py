@@ -21,6 +21,7 @@ Example:
 """
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -72,6 +73,30 @@ def expected(key: str, value: Any, what: str) -> InputError:
         'data.num_views=0: expected an integer >= 1'
     """
     return InputError(f"{key}={shown(value)}: expected {what}")
+
+
+def renamed_keyword(value: Any, old_value: Any, key: str, old_key: str, where: str) -> Any:
+    """The value a caller gave as keyword ``key`` or as ``old_key``, its older name (still read, with a
+    ``DeprecationWarning``); ``None`` when neither is given.
+
+    Raises:
+        InputError: both are given.
+
+    Example:
+        >>> renamed_keyword(0.3, None, "share", "mean", "IMSMaskHead")
+        0.3
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     renamed_keyword(None, 0.4, "share", "mean", "IMSMaskHead"), caught[0].category.__name__
+        (0.4, 'DeprecationWarning')
+    """
+    if old_value is None:
+        return value
+    if value is not None:
+        raise InputError(f"{where}: {key}={shown(value)} and {old_key}={shown(old_value)}; pass {key} only "
+                         f"({old_key} is its older name)")
+    warnings.warn(f"{where}: {old_key}= is {key}='s older name; pass {key}=", DeprecationWarning, stacklevel=3)
+    return old_value
 
 
 def _range_text(noun: str, lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:

@@ -196,7 +196,7 @@ def load_ims_nets(ims_checkpoint: str | Path, recnn_checkpoint: str | Path | Non
 
     Example:
         >>> nets = load_ims_nets("ims.ckpt")        # doctest: +SKIP
-        >>> nets.head(view, mean=0.4).shape          # doctest: +SKIP
+        >>> nets.head(view, share=0.4).shape          # doctest: +SKIP
         torch.Size([1, 1, 128, 128])
     """
     nets, hp, state = load_nets(ims_checkpoint, expect="IMSTask", what=keys[0])

@@ -40,6 +40,7 @@ import torch
 from torch import nn
 
 from imls_lightning.base.errors import InputError
+from imls_lightning.base.validate import renamed_keyword
 from imls_lightning.render.camera import view_tensor
 
 from ..core.importance import (check_object_floor, check_sharpness, floored_mean, lift_to_share, lifted_mask, object_fraction,
@@ -229,7 +230,8 @@ class IMSMaskHead(nn.Module):
     * ``target="im"`` (paper): ``IM = g > 0``;
     * ``target="pim"``: the regressed ``PIM' = (g + 1) / 2``, normalized to the trained mean ``u_train``,
       dithered as the IML does against the plastic rank pattern ``P``: ``IM = PIM' > P  or  g >= 1``.
-      At a mean value ``u`` (an argument of each call) the IML normalization, affine in ``u``, rescales it:
+      At a share ``u`` of the C-Image (an argument of each call, ``share``: the IML normalizes to mean ``u``, the
+      expected share sampled) the IML normalization, affine in ``u``, rescales it:
       ``PIM'(u) = l + (PIM' - l) (u - l) / (u_train - l)``, ``IM = PIM'(u) > P`` (a saturated ``g = 1``
       stays important when ``u >= u_train``). With ``lift``, above ``u_train``, PIM'(u) is lifted until
       the expected share is ``u`` (:func:`~imls_lightning.core.importance.lift_to_share`): the same masks
@@ -244,7 +246,7 @@ class IMSMaskHead(nn.Module):
       whose share falls near its own object's fraction leaves holes in the object (seed_whole's failing views).
       The evaluation chooses the margin on validation views (``orp_object_floor``); ``None`` (default): no floor.
 
-    No state changes what a call returns: the mean value and the lift are arguments (:class:`MaskAt`
+    No state changes what a call returns: the share and the lift are arguments (:class:`MaskAt`
     binds them for a caller that passes views only, e.g. an export). Tensor operations only: traceable.
 
     Args:
@@ -265,7 +267,7 @@ class IMSMaskHead(nn.Module):
         >>> view = torch.tensor([[0.0, 0.0, 3.5, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
         >>> head(view).shape, head(view).dtype
         (torch.Size([1, 1, 8, 8]), torch.bool)
-        >>> bool(head(view, mean=1.0, lift=True).all())   # u = 1 lifted: every pixel
+        >>> bool(head(view, share=1.0, lift=True).all())   # the whole C-Image, lifted: every pixel
         True
     """
 
@@ -316,28 +318,31 @@ class IMSMaskHead(nn.Module):
         return IMSMaskHead(self.generator, self.P, self.valid, self.target, self.trained_mean, self.lower, self.sharpness,
                            None if margin is None else (margin, tau))
 
-    def forward(self, view: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False,
-                floor_margin: torch.Tensor | None = None) -> torch.Tensor:
-        """IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` at the trained mean (``mean=None``) or at ``mean``
-        (a number or ``(B,)``; ``target="pim"`` only), lifted to the share ``mean`` with ``lift``; ``floor_margin``
-        see :meth:`threshold`. Run the generator under autocast if wanted: the thresholding is float32 whatever its
-        output."""
-        return self.threshold(self.generator(view), mean, lift, floor_margin)
+    def forward(self, view: torch.Tensor, share: torch.Tensor | float | None = None, lift: bool = False,
+                floor_margin: torch.Tensor | None = None, *, mean: torch.Tensor | float | None = None) -> torch.Tensor:
+        """IM ``(B, 1, n, n)`` bool of views ``(B, 9)`` at the trained share (``share=None``) or at ``share`` of the
+        C-Image (a number or ``(B,)``; ``target="pim"`` only), lifted to it with ``lift``; ``floor_margin`` see
+        :meth:`threshold`; ``mean``: ``share``'s older name (the paper's mean value ``u``, the same number). Run the
+        generator under autocast if wanted: the thresholding is float32 whatever its output."""
+        return self.threshold(self.generator(view), renamed_keyword(share, mean, "share", "mean", "IMSMaskHead"), lift,
+                              floor_margin)
 
-    def threshold(self, g: torch.Tensor, mean: torch.Tensor | float | None = None, lift: bool = False,
-                  floor_margin: torch.Tensor | None = None) -> torch.Tensor:
+    def threshold(self, g: torch.Tensor, share: torch.Tensor | float | None = None, lift: bool = False,
+                  floor_margin: torch.Tensor | None = None, *, mean: torch.Tensor | float | None = None) -> torch.Tensor:
         """Generator output ``g`` ``(B, 1, n, n)`` -> IM ``(B, 1, n, n)`` bool (see the class doc).
 
-        ``mean=None``: the trained mean. A number or ``(B,)`` tensor: the PIM' rescaled to it (at
-        ``u == u_train``, the same float32, bit for bit the trained-mean IM), lifted with ``lift``.
+        ``share=None``: the trained share. A number or ``(B,)`` tensor, the share of the C-Image (the IML's mean
+        value ``u``: the same number): the PIM' rescaled to it (at ``u == u_train``, the same float32, bit for bit the
+        trained-mean IM), lifted with ``lift``. ``mean``: ``share``'s older name.
         ``floor_margin`` ``(B,)``: each view's object-floor margin in place of the head's one (a floor per band of
         camera distance, :meth:`DistanceMeans.floor_margin`; -1: none for that view); the head's ``object_floor``
         gives ``tau``.
 
         Raises:
-            InputError: a mean value for an IMS trained with ``target="im"`` (a binary IM cannot be rescaled);
-                ``floor_margin`` for a head without an ``object_floor``.
+            InputError: a share for an IMS trained with ``target="im"`` (a binary IM cannot be rescaled);
+                ``floor_margin`` for a head without an ``object_floor``; both ``share`` and ``mean``.
         """
+        mean = renamed_keyword(share, mean, "share", "mean", "IMSMaskHead.threshold")  # u: the share, as normalized
         if floor_margin is not None and self.object_floor is None:
             raise InputError("floor_margin: margins per view need a head with an object_floor (its tau); "
                              "make one with with_object_floor(margin, tau)")
@@ -354,8 +359,8 @@ class IMSMaskHead(nn.Module):
                     im = ((g + 1.0) * 0.5 > P) | (g >= 1.0)
                 return im & valid
             if self.target != "pim":
-                raise InputError(f"mean={mean if not torch.is_tensor(mean) else 'per view'}: its IMS was trained with "
-                                 "model.target=im; rescaling the IMS's mask to another mean value needs an IMS trained "
+                raise InputError(f"share={mean if not torch.is_tensor(mean) else 'per view'}: its IMS was trained with "
+                                 "model.target=im; rescaling the IMS's mask to another share needs an IMS trained "
                                  "with model.target=pim")
             return self._rescaled(g, mean, bool(lift), P, valid, floor_margin)
 

@@ -188,6 +188,22 @@ def test_mask_head_is_traceable_and_keeps_no_state():
         IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "pix")
 
 
+def test_mask_head_names_its_knob_share_and_still_reads_mean():
+    """The share of the C-Image is the head's keyword; ``mean=`` (the paper's normalization mean u, the same number)
+    is still read, with a DeprecationWarning, and both at once are refused."""
+    g = _outputs(3)
+    head = IMSMaskHead(_Fixed(g), torch.rand(N, N), torch.ones(N, N, dtype=torch.bool), "pim", trained_mean=0.2).eval()
+    view = torch.full((1, 9), 2.0)
+    at_share = head(view, share=0.6, lift=True)
+    assert torch.equal(at_share, head(view, 0.6, True)) and not torch.equal(at_share, head(view))
+    with pytest.warns(DeprecationWarning, match="mean= is share='s older name"):
+        assert torch.equal(head(view, mean=0.6, lift=True), at_share)
+    with pytest.warns(DeprecationWarning):
+        assert torch.equal(head.threshold(g[2:3], mean=0.6, lift=True), at_share)
+    with pytest.raises(InputError, match=r"^IMSMaskHead: share=0.6 and mean=0.6; pass share only"):
+        head(view, share=0.6, mean=0.6)
+
+
 def test_distance_means_picks_each_views_band_and_traces():
     """A mean value per band of camera distance (the by-distance operating point): the band is found by the eye's
     distance from the volume's centre; bands are half-open, closed below; tracing keeps the bands."""
