@@ -232,7 +232,7 @@ def test_the_viewer_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp_
     write_operating_point(ckpt, ORPRecord(mean=0.45, lift=False, c_share=0.3, ipr=0.08, epsilon_db=1.0))
     r = IMLSRenderer.from_checkpoints(str(ckpt), opts=NetOptions(device="cpu"))
     v = Viewer(r, figsize=FIGSIZE, dpi=DPI, warmup=0)
-    assert r.mean == 0.45 and v.axes["imls"].get_title() == "IML/S + RecNN (u = 0.45)"
+    assert r.mean == 0.45 and v.axes["imls"].get_title() == "IML/S + RecNN (share of C 0.45)"
     assert "running at the evaluation's operating point u = 0.450" in capsys.readouterr().err
     assert _compose(f"ims_checkpoint={ckpt}").share is None  # the viewer's default: the recorded point
     assert _compose(f"ims_checkpoint={ckpt}", "share=0.3").share == 0.3  # the documented key (mean: its older name)

@@ -1,7 +1,7 @@
 """Interactive viewer: orbit the volume and compare the IML/S + RecNN frame with the ray cast, live.
 
 ``python -m imls_lightning.viewer ims_checkpoint=PATH [recnn_checkpoint=PATH] [screenshot=out.png]
-[azimuth=30] [elevation=20] [distance=null] [mask=true] [mean=null]``
+[azimuth=30] [elevation=20] [distance=null] [mask=true] [share=null]``
 
 A matplotlib window with two image panels side by side, **IML/S + RecNN** (the product:
 :class:`~imls_lightning.inference.pipeline.IMLSRenderer`) and **ray cast (ground truth)** (the same scene
@@ -15,7 +15,8 @@ median: :mod:`imls_lightning.evaluation` measures medians).
 The IMS checkpoint alone is enough: it records the scene and renderer it was trained on (see
 :meth:`IMLSRenderer.from_checkpoints`); ``recnn_checkpoint=`` swaps in another RecNN. The frame is
 rendered at the operating point the evaluation recorded beside the checkpoint (``<ims.ckpt>.orp.json``),
-else at the trained mean; ``mean=`` (a number, or ``trained``) overrides it; the panel's title shows u.
+else at the trained share; ``share=`` (a number, or ``trained``; ``mean=``: its older name) overrides it; the
+panel's title shows the share.
 
 Controls
     ==================  ==============================================================

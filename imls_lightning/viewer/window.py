@@ -232,10 +232,10 @@ class Viewer(OrbitCamera):
         blank = np.zeros((m, m, 3), np.uint8)
         self.axes: dict[str, Any] = {}
         self._artists: dict[str, Any] = {}
-        mean = getattr(self.renderer, "mean", None)
-        u = "" if mean is None else f" (u = {float(mean):.2f})"
+        share = getattr(self.renderer, "mean", None)  # the renderer's share of C (the paper's mean value u)
+        u = "" if share is None else f" (share of C {float(share):.2f})"
         if getattr(self.renderer, "by_distance", None) is not None:
-            u = " (u by camera distance)"
+            u = " (share by camera distance)"
         titles = {"imls": "IML/S + RecNN" + u, "truth": "ray cast (ground truth)", "mask": "importance mask\n(FR pixels ray-cast)"}
         for name in ("imls", "truth", "mask"):
             ax = fig.add_axes((0, 0, 1, 1))

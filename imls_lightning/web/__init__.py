@@ -1,6 +1,6 @@
 """The browser viewer: ``python -m imls_lightning.web ims_checkpoint=<IMS .ckpt>`` (``make web``).
 
-* :mod:`.session`: :class:`ViewerSession`, the camera, method, mean value and frames (no web code).
+* :mod:`.session`: :class:`ViewerSession`, the camera, method, share of the C-Image and frames (no web code).
 * :mod:`.app`: :class:`WebViewer`, the trame page (needs the ``web`` extra: ``pip install -e '.[web]'``).
 * :mod:`.__main__`: the Hydra entry point.
 """

@@ -1,5 +1,5 @@
 """The browser viewer's page (trame, Vue 3 + Vuetify): drag to orbit, scroll to zoom, pick the
-method, move the mean-value slider; the method's image, its mask and its error side by side, with
+method, move the share-of-C slider; the method's image, its mask and its error side by side, with
 the stage latencies, the share of pixels ray-cast, the PSNR and a small latency / PSNR plot.
 
 The page opens at once and shows progress while the checkpoints load (in a worker thread); a bad
@@ -64,7 +64,7 @@ def stats_text(frame: Frame) -> str:
     lines += [f"{'pixels ray-cast':<17s}{100 * frame.share:8.1f} %",
               f"{'PSNR':<17s}{frame.psnr:8.2f} dB" + ("  (exact)" if frame.psnr >= 99.9 else "")]
     if frame.method in ("imls", "adaptive"):
-        lines.append(f"{'mean value u':<17s}{frame.mean:8.3f}" + ("  (this view's)" if frame.view_mean else ""))
+        lines.append(f"{'share of C':<17s}{frame.mean:8.3f}" + ("  (this view's)" if frame.view_mean else ""))
     return "\n".join(lines)
 
 
@@ -85,10 +85,10 @@ class WebViewer:
         self.frames = 0
         s = server.state
         s.update({"status": "Loading the checkpoints ...", "error": "", "ready": False, "method": "imls",
-                  "methods": [], "mean": 0.2, "mean_enabled": False, "image_url": "", "mask_url": "", "error_url": "",
+                  "methods": [], "share": 0.2, "share_enabled": False, "image_url": "", "mask_url": "", "error_url": "",
                   "stats_text": "", "plot_svg": "", "frames": 0, "scene": ""})
         s.change("method")(self._on_method)
-        s.change("mean")(self._on_mean)
+        s.change("share")(self._on_share)
         server.controller.on_server_ready.add(self._start_loading)
         self._layout()
 
@@ -111,12 +111,12 @@ class WebViewer:
                 state.error, state.status = f"{type(err).__name__}: {err}", "Could not load the checkpoints."
             return
         self.session = session
-        log(f"loaded: scene {session.scene_name}, {session.pattern.fr_size}^2, trained mean {session.trained_mean:g}, "
-            f"opens at u = {session.mean:.3f}" + (" (the evaluation's operating point)" if session.operating_point else "")
+        log(f"loaded: scene {session.scene_name}, {session.pattern.fr_size}^2, trained share {session.trained_mean:g}, "
+            f"opens at share {session.share:.3f}" + (" (the evaluation's operating point)" if session.operating_point else "")
             + (", by camera distance" if session.by_distance is not None else ""))
         with state:
             state.methods = [{"title": v, "value": k} for k, v in session.methods.items()]
-            state.method, state.mean, state.mean_enabled = session.method, session.mean, session.rescalable
+            state.method, state.share, state.share_enabled = session.method, session.share, session.rescalable
             state.scene, state.status, state.ready = session.scene_name, "Rendering the first frame ...", True
         self.request()
 
@@ -142,9 +142,9 @@ class WebViewer:
         if self.session is not None and method != self.session.method:
             self._apply(lambda: self.session.set_method(method))
 
-    def _on_mean(self, mean: float, **_: Any) -> None:
-        if self.session is not None and mean is not None and abs(float(mean) - self.session.mean) > 1e-9:
-            self._apply(lambda: self.session.set_mean(float(mean)))
+    def _on_share(self, share: float, **_: Any) -> None:
+        if self.session is not None and share is not None and abs(float(share) - self.session.share) > 1e-9:
+            self._apply(lambda: self.session.set_share(float(share)))
 
     def _apply(self, change: Callable[[], None]) -> None:
         try:
@@ -205,9 +205,9 @@ class WebViewer:
                 v3.VSelect(v_model=("method",), items=("methods",), item_title="title", item_value="value",
                            label="method", density="compact", hide_details=True, style="max-width:300px",
                            disabled=("!ready",), id="method-select")
-                v3.VSlider(v_model=("mean",), min=0.01, max=1.0, step=0.01, label="mean u", thumb_label=True,
+                v3.VSlider(v_model=("share",), min=0.01, max=1.0, step=0.01, label="share of C", thumb_label=True,
                            density="compact", hide_details=True, style="max-width:300px;margin-left:16px",
-                           disabled=("!ready || !mean_enabled",), id="mean-slider")
+                           disabled=("!ready || !share_enabled",), id="share-slider")
                 v3.VBtn("reset camera", click=self.on_reset, variant="text", disabled=("!ready",))
             with layout.content:
                 with v3.VContainer(fluid=True):

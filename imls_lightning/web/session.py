@@ -1,11 +1,11 @@
-"""The browser viewer's state, with no web code: a camera, the chosen method, the mean value, and
+"""The browser viewer's state, with no web code: a camera, the chosen method, the share of the C-Image, and
 one frame at a time (image, mask, error against the ground truth, stage latencies, PSNR).
 
 :class:`ViewerSession` is what :mod:`imls_lightning.web.app` drives; it is tested without a browser.
 
 Example:
     >>> s = ViewerSession.from_checkpoints("ims.ckpt")      # doctest: +SKIP
-    >>> s.orbit(15, 0); s.set_mean(0.4); f = s.frame()       # doctest: +SKIP
+    >>> s.orbit(15, 0); s.set_share(0.4); f = s.frame()      # doctest: +SKIP
     >>> f.psnr, f.stages_ms["total"], f.share                # doctest: +SKIP
 """
 from __future__ import annotations
@@ -13,6 +13,7 @@ from __future__ import annotations
 import base64
 import io
 import math
+import warnings
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -53,7 +54,7 @@ class Frame:
         stages_ms: stage -> milliseconds (``total`` included).
         share: ray-cast FR pixels / FR pixels.
         psnr: dB against the ground truth (100 when identical).
-        mean: the IML/S mean value in force.
+        mean: the share of the C-Image IML/S ran this view at (the paper's mean value ``u``, the same number).
         view_mean: whether ``mean`` is this view's own (the adaptive mean, a by-distance point).
     """
 
@@ -80,7 +81,7 @@ def png_data_url(image: np.ndarray) -> str:
 
 @dataclass
 class ViewerSession(OrbitCamera):
-    """Camera, method and mean value of one viewer, and the methods built from the checkpoints.
+    """Camera, method and share of the C-Image of one viewer, and the methods built from the checkpoints.
 
     Args:
         nets: the product's networks (:class:`~imls_lightning.inference.checkpoints.IMSNets`: the IMS
@@ -96,8 +97,8 @@ class ViewerSession(OrbitCamera):
         method: the start method (:data:`METHODS`).
         point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` IML/S opens at (``None``: the trained
             share); :meth:`from_checkpoints` passes the one the evaluation recorded for the IMS. Its share is the start
-            mean value; at it each view runs at its band's share (``bands``); a mean value set with the slider holds for
-            every view, with the point's lift, sharpness and object floor.
+            share (:attr:`share`); at it each view runs at its band's share (``bands``); a share set with the slider
+            (:meth:`set_share`) holds for every view, with the point's lift, sharpness and object floor.
         record: the evaluation's record the point came from (``None``: none).
     """
 
@@ -125,17 +126,17 @@ class ViewerSession(OrbitCamera):
         self.home = (float(self.azimuth), float(self.elevation), float(self.distance))
         self.scene_name = getattr(scene, "name", "?")
         self.trained_mean = self.nets.trained_mean
-        # the start point as the viewer shows it, made once here: its share as the mean value u, lift, bands, the record
-        self.start_mean = None if self.point is None else self.point.u
+        # the start point as the viewer shows it, made once here: its share, lift, bands, the record
+        self.start_share = None if self.point is None else self.point.share
         self.lift = self.point is not None and self.point.lift
         b = None if self.point is None else self.point.bands
         self.by_distance = None if b is None else DistanceMeans(b.edges, b.shares, b.floor_margins)
         self.operating_point = self.record
-        self.mean = self.trained_mean
+        self.share = self.trained_mean  # the share of C in force: the trained one until set
         self.rescalable = self.nets.target == "pim"
-        if self.start_mean is not None:
-            self.set_mean(self.start_mean)  # checked there
-            self.mean = float(self.start_mean)  # exactly the recorded point, not rounded like a slider value
+        if self.start_share is not None:
+            self.set_share(self.start_share)  # checked there
+            self.share = float(self.start_share)  # exactly the recorded point, not rounded like a slider value
         self._imls: dict[float, IMLSRenderer] = {}
         self.truth_method = FullRayCast(self.renderer, self.pattern.fr_size, self.opts)
         self.recnn_method = RecNNAlone(self.renderer, self.pattern, self.recnn, self.opts)
@@ -205,21 +206,32 @@ class ViewerSession(OrbitCamera):
             raise InputError(f"method={name!r}: expected one of {', '.join(self.methods)}")
         self.method = name
 
-    def set_mean(self, u: float) -> None:
-        """The IML/S mean value (the IMS's PIM' rescaled to it); ``[0.01, 1]``."""
-        u = finite_number(u, "mean", "a number in [0.01, 1]")
+    def set_share(self, share: float) -> None:
+        """The share of the C-Image IML/S runs at (the IMS's PIM' rescaled to it); ``[0.01, 1]``."""
+        u = finite_number(share, "share", "a number in [0.01, 1]")
         if not 0.01 <= u <= 1.0:
-            raise InputError(f"mean={u}: expected a number in [0.01, 1]")
+            raise InputError(f"share={u}: expected a number in [0.01, 1]")
         if not self.rescalable and abs(u - self.trained_mean) > 1e-9:
-            raise InputError(f"mean={u}: this IMS was trained with model.target={self.nets.target}; only its "
-                             f"trained mean {self.trained_mean:g} can be shown (train it with model.target=pim)")
-        self.mean = round(u, 4)
+            raise InputError(f"share={u}: this IMS was trained with model.target={self.nets.target}; only its "
+                             f"trained share {self.trained_mean:g} can be shown (train it with model.target=pim)")
+        self.share = round(u, 4)
+
+    def set_mean(self, u: float) -> None:
+        """:meth:`set_share`'s older name (the paper's mean value ``u`` is the share): still works, with a
+        ``DeprecationWarning``."""
+        warnings.warn("ViewerSession.set_mean is set_share's older name; call set_share", DeprecationWarning, stacklevel=2)
+        self.set_share(u)
+
+    @property
+    def mean(self) -> float:
+        """:attr:`share`'s older name (the paper's mean value ``u``, the same number)."""
+        return self.share
 
     # -- rendering ---------------------------------------------------------------------------------
     def _imls_at(self, u: float) -> IMLSRenderer:
         if u not in self._imls:
             share = None if abs(u - self.trained_mean) < 1e-9 else u
-            at_start = self.start_mean is not None and abs(u - float(self.start_mean)) < 1e-9
+            at_start = self.start_share is not None and abs(u - float(self.start_share)) < 1e-9
             start = self.point if self.point is not None else self.nets.head.point()
             point = start.replace(share=share, bands=start.bands if at_start else None)
             self._imls[u] = IMLSRenderer(self.renderer, self.pattern, self.nets.head, self.nets.decoder, self.recnn, self.opts,
@@ -247,7 +259,7 @@ class ViewerSession(OrbitCamera):
         m = self.pattern.fr_size
         with torch.inference_mode():
             truth = self._truth(view)
-            imls = self._imls_at(self.mean)
+            imls = self._imls_at(self.share)
             if self.method == "truth":
                 image, stages, mask = truth, dict(self._truth_ms), np.ones((m, m), bool)
             else:
@@ -257,7 +269,7 @@ class ViewerSession(OrbitCamera):
                 elif self.method == "recnn":
                     res = timed_run(self.recnn_method, view)
                     mask = self._fr_mask(None)
-                else:  # LAS at the IPR IML/S has at this view and mean (the IMS alone decides it, no rendering)
+                else:  # LAS at the IPR IML/S has at this view and share (the IMS alone decides it, no rendering)
                     im = imls.predict_im(view_tensor(view, imls.device))
                     res = timed_run(self.las_method, view, ipr=max(float(im.sum()) / m**2, 1.0 / m**2))
                     mask = res.info["mask"].numpy().reshape(m, m)
@@ -269,5 +281,5 @@ class ViewerSession(OrbitCamera):
         self.history.append((self.method, stages.get("total", math.nan), psnr))
         # the adaptive mean's and a by-distance point's u are the view's own
         view_mean = self.method in ("imls", "adaptive") and "mean" in res.info
-        mean = float(res.info["mean"]) if view_mean else self.mean
+        mean = float(res.info["mean"]) if view_mean else self.share
         return Frame(self.method, image, mask, err, stages, share, psnr, mean, view_mean)

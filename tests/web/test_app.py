@@ -148,13 +148,13 @@ def test_browser_orbit_slider_and_method_change_the_page(tiny_checkpoints, tmp_p
         _wait(lambda: frames() > n and src("frame") != image0, "a frame after the drag")
         browser.save_screenshot(str(ARTIFACTS / "web_after_drag.png"))
 
-        # the mean slider: keyboard steps on the thumb change u, the share ray-cast and the figures
+        # the share slider: keyboard steps on the thumb change the share of C, the pixels ray-cast and the figures
         mask0, n = src("mask"), frames()
-        thumb = browser.find_element(By.CSS_SELECTOR, "#mean-slider .v-slider-thumb, .v-slider-thumb")
+        thumb = browser.find_element(By.CSS_SELECTOR, "#share-slider .v-slider-thumb, .v-slider-thumb")
         thumb.click()
         for _ in range(30):
             thumb.send_keys(Keys.ARROW_RIGHT)
-        _wait(lambda: frames() > n and src("mask") != mask0, "a frame at the new mean value")
+        _wait(lambda: frames() > n and src("mask") != mask0, "a frame at the new share")
         assert browser.find_element(By.ID, "stats").text != stats0
         assert int(re.search(r'data-points="(\d+)"', browser.find_element(By.ID, "plot").get_attribute("innerHTML")).group(1)) >= 2
 

@@ -64,5 +64,5 @@ def test_help_lists_only_what_the_viewer_reads():
     p = subprocess.run([sys.executable, "-m", "imls_lightning.web", "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert "Configuration groups" not in p.stdout and "scene:" not in p.stdout and "trainer:" not in p.stdout
-    for key in ("ims_checkpoint:", "from_report:", "port:", "timeout:", "mean:", "options:"):
+    for key in ("ims_checkpoint:", "from_report:", "port:", "timeout:", "share:", "mean:", "options:"):
         assert key in p.stdout

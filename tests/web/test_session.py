@@ -46,13 +46,17 @@ def test_adaptive_method_reports_the_views_mean(session):
     assert 0.01 <= f.mean <= 1.0 and "mean" in f.stages_ms and f.mask.any()
 
 
-def test_mean_slider_changes_the_share_ray_cast(session):
+def test_share_slider_changes_the_share_ray_cast(session):
     session.set_method("imls")
-    session.set_mean(0.05)
+    session.set_share(0.05)
     low = session.frame()
-    session.set_mean(1.0)
+    session.set_share(1.0)
     high = session.frame()
     assert low.mean == 0.05 and high.mean == 1.0 and high.share > low.share
+    # set_mean, its older name, still works (the paper's mean value u is the share), with a DeprecationWarning
+    with pytest.warns(DeprecationWarning, match="set_share"):
+        session.set_mean(0.3)
+    assert session.share == session.mean == 0.3
 
 
 def test_orbit_zoom_reset_move_the_camera_and_the_image(session):
@@ -83,8 +87,8 @@ def test_png_data_url_round_trip():
 def test_exception_bad_inputs_are_one_line(session, tiny_checkpoints, tmp_path):
     with pytest.raises(InputError, match=r"^method='x': expected one of imls, adaptive, recnn, las, truth$"):
         session.set_method("x")
-    with pytest.raises(InputError, match=r"^mean=2.0: expected a number in \[0.01, 1\]$"):
-        session.set_mean(2.0)
+    with pytest.raises(InputError, match=r"^share=2.0: expected a number in \[0.01, 1\]$"):
+        session.set_share(2.0)
     with pytest.raises(InputError, match="^ims_checkpoint="):
         ViewerSession.from_checkpoints(str(tmp_path / "missing.ckpt"))
     with pytest.raises(InputError, match="^ims_checkpoint=.*RecNNTask"):
@@ -94,12 +98,13 @@ def test_exception_bad_inputs_are_one_line(session, tiny_checkpoints, tmp_path):
     binary = ViewerSession.from_checkpoints(str(tiny_checkpoints["ims"]), opts=NetOptions(device="cpu"))
     assert "adaptive" not in binary.methods and "las" not in binary.methods
     with pytest.raises(InputError, match="model.target=im"):
-        binary.set_mean(0.5)  # a binary-mask IMS cannot be rescaled
+        binary.set_share(0.5)  # a binary-mask IMS cannot be rescaled
 
 
 def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp_path, capsys):
     """The browser viewer opens where the evaluation's record (beside the IMS checkpoint) says, its
-    masks lifted if the evaluation lifted them; mean= overrides it; without a record, the trained mean."""
+    masks lifted if the evaluation lifted them; share= (mean=: its older name) overrides it; without a record, the
+    trained share."""
     import shutil
 
     from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
@@ -107,21 +112,22 @@ def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp
     ckpt, cpu = tmp_path / "ims.ckpt", NetOptions(device="cpu")
     shutil.copy(tiny_checkpoints["ims_pim"], ckpt)
     plain = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
-    assert plain.mean == plain.trained_mean and plain.operating_point is None
+    assert plain.share == plain.trained_mean and plain.operating_point is None
     assert "no recorded operating point" in capsys.readouterr().err
     point = ORPRecord(mean=0.4567, lift=True, c_share=0.45, ipr=0.11, epsilon_db=1.0)
     write_operating_point(ckpt, point)
     s = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
-    assert s.mean == 0.4567 and s.operating_point == point and s.lift is True
+    assert s.share == 0.4567 and s.operating_point == point and s.lift is True
     f = s.frame()
     assert f.mean == 0.4567 and s._imls_at(0.4567).mean == 0.4567
-    over = ViewerSession.from_checkpoints(str(ckpt), opts=cpu, mean=0.3)
-    assert over.mean == 0.3 and over.operating_point is None and over.lift is False
+    over = ViewerSession.from_checkpoints(str(ckpt), opts=cpu, share=0.3)
+    assert over.share == 0.3 and over.operating_point is None and over.lift is False
+    assert ViewerSession.from_checkpoints(str(ckpt), opts=cpu, mean=0.3).share == 0.3
 
 
 def test_the_session_runs_a_point_recorded_by_camera_distance(tiny_checkpoints, tmp_path, capsys):
-    """A record with bands of camera distance: the session opens at it and IML/S runs each view at its band's mean
-    value (the frame says it is the view's); a mean value set with the slider holds for every view."""
+    """A record with bands of camera distance: the session opens at it and IML/S runs each view at its band's share
+    (the frame says it is the view's); a share set with the slider holds for every view."""
     import shutil
 
     from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
@@ -132,11 +138,11 @@ def test_the_session_runs_a_point_recorded_by_camera_distance(tiny_checkpoints, 
     bands = {"edges": [3.6], "means": [0.9, 0.35]}
     write_operating_point(ckpt, ORPRecord(mean=0.9, lift=True, c_share=0.8, ipr=0.2, epsilon_db=1.0, by_distance=bands))
     s = ViewerSession.from_checkpoints(str(ckpt), opts=NetOptions(device="cpu"), distance=4.2)
-    assert s.mean == 0.9 and s.by_distance is not None
+    assert s.share == 0.9 and s.by_distance is not None
     far = s.frame()
     assert far.view_mean and far.mean == pytest.approx(0.35) and "(this view's)" in stats_text(far)
     s.distance = 3.1
     assert s.frame().mean == pytest.approx(0.9)
-    s.set_mean(0.5)
+    s.set_share(0.5)
     fixed = s.frame()
     assert not fixed.view_mean and fixed.mean == 0.5 and "(this view's)" not in stats_text(fixed)
