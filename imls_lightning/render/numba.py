@@ -488,7 +488,8 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
 
     ``marched[i]`` is 0 for rays that miss the volume's box (background), else 1 + the samples the ray
     interpolated: the ray's cost in the unit that dominates it (a skipped brick costs one step, not a sample).
-    ``tricubic``: sample the cubic B-spline field and shade each sample from its gradient (:func:`tricubic_sample`)
+    ``tricubic``: ``None`` for trilinear (a None-typed argument lets numba prune the tricubic branches at compile
+    time: the trilinear kernel is the one before the option, and as fast), ``True`` to sample the cubic B-spline field and shade each sample from its gradient (:func:`tricubic_sample`)
     instead of the trilinear scalars and the corners' shading.
     """
     nlut = lut.shape[0]
@@ -593,7 +594,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
             fy = uy - iy
             fz = uz - iz
             base = iz * plane + iy * nx + ix
-            if tricubic:
+            if tricubic is not None:
                 # no VTK counterpart, so no fixed-point rounding of integer data either: the smooth value
                 xt, yt, zt = _cell_taps(nx, ny, nz, ix, iy, iz)
                 v = _bspline_sum(flat, xt, yt, zt, _bspline_weights(fx), _bspline_weights(fy), _bspline_weights(fz))
@@ -627,7 +628,7 @@ def _cast(flat, nx, ny, nz, pixels, m, eye, fwd, right, up, tan_half, near, far,
             g = lut[j, 1] + w * (lut[j + 1, 1] - lut[j, 1])
             b = lut[j, 2] + w * (lut[j + 1, 2] - lut[j, 2])
             if shade:
-                if tricubic:
+                if tricubic is not None:
                     # the exact gradient of the B-spline field at the sample, from the same 64 voxels, in VTK's
                     # normal convention (v[x-1] - v[x+1] per axis, about -2 x the derivative, over the spacing)
                     gx, gy, gz = _bspline_gradient(flat, xt, yt, zt, fx, fy, fz)
@@ -829,7 +830,8 @@ class NumbaRenderer:
             _cast(self._flat, self._nx, self._ny, self._nz, pixels, m, eye, f, r, u,
                   math.tan(math.radians(float(self.scene.view_angle)) / 2.0), near, far,
                   self._origin, self._spacing, float(self.scene.sample_distance), self._lut,
-                  self._vmin, self._inv_range, self._int_index, self._dmin, self.interpolation == "tricubic", self._shade, self._ka, self._kd, self._ks, self._spow,
+                  self._vmin, self._inv_range, self._int_index, self._dmin,
+                  True if self.interpolation == "tricubic" else None, self._shade, self._ka, self._kd, self._ks, self._spow,
                   self._edge2, self._zero_tol, self._bricks, self._bg, out, marched)
             self.last_render_seconds = time.perf_counter() - t0
         finally:
