@@ -210,3 +210,21 @@ def test_trilinear_key_leaves_hashes_unchanged():
     assert settings_hash({"renderer": conf}) == settings_hash({"renderer": before})
     assert settings_hash({"renderer": {**conf, "interpolation": "tricubic"}}) != settings_hash({"renderer": before})
     assert all(KEYS_NEUTRAL_AT[k] == v for k, v in PIXEL_KEYS_NEUTRAL_AT.items())  # the two lists agree
+
+
+def test_trilinear_key_leaves_estimate_hash_unchanged():
+    """An estimate's output directory hashes the whole renderer node: the new key must not enter it at its default."""
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    from data_gen.scenes import register_resolvers
+    from imls_lightning.estimate.run import estimate_settings
+
+    register_resolvers()
+    with initialize_config_dir(config_dir=str(Path("conf").resolve()), version_base=None):
+        cfg = compose(config_name="estimate", overrides=["scene=tiny", "renderer=numba"])
+        cubic = compose(config_name="estimate", overrides=["scene=tiny", "renderer=numba", "renderer.interpolation=tricubic"])
+    assert cfg.renderer.interpolation == "trilinear"
+    assert estimate_settings(cfg)["renderer"] == {"name": "numba", "threads": 0, "skip_empty": True}
+    assert estimate_settings(cubic)["renderer"]["interpolation"] == "tricubic"
