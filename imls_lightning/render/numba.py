@@ -719,7 +719,7 @@ class NumbaRenderer:
             corners' central differences (those would bring back the trilinear facets). Clamped at the volume's
             faces like the trilinear path; small-range integer data are not rounded to VTK's fixed-point table
             index (VTK has no tricubic mode to match). A smoother, slightly blurred picture (the approximating
-            spline, no prefilter) at several times the cost per object sample.
+            spline, no prefilter) at about 2.5 times the cost per object sample (docs/GUIDE.md).
 
     Attributes:
         last_render_seconds: wall time of the last compiled ray-casting call.
