@@ -19,8 +19,9 @@ NON_RESULT_KEYS = frozenset({"cache_dir", "cache_path", "fsync", "workers", "loa
 # Keys added after runs existed, left out of run hashes while they hold the value every earlier run had, so
 # those runs are still found (a run's directory is the hash of its settings): data.train_pixels (all: whole frames),
 # model.fill (c: the IML decoder's fill in the C-Image's layout; a foveal run filling at the FR positions is a new run),
-# renderer.skip_empty (true: empty-space skipping; it never changes a pixel, but an estimate's times depend on it).
-KEYS_NEUTRAL_AT = {"train_pixels": "all", "fill": "c", "skip_empty": True,
+# renderer.skip_empty (true: empty-space skipping; it never changes a pixel, but an estimate's times depend on it),
+# renderer.interpolation (trilinear; imls_lightning.render.PIXEL_KEYS_NEUTRAL_AT, for cache keys).
+KEYS_NEUTRAL_AT = {"train_pixels": "all", "fill": "c", "skip_empty": True, "interpolation": "trilinear",
                    # the IMS's decoder-only stage (model.train_generator=false) and its masks; off, runs keep their hashes
                    "decoder_sharpness": [1.0], "decoder_lift": False, "train_generator": True, "init_checkpoint": None}
 

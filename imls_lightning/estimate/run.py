@@ -21,6 +21,7 @@ from imls_lightning.base.atomic import atomic_json, atomic_write
 from data_gen.cache_keys import jsonable, settings_hash
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_integer, check_number
+from imls_lightning.render import without_neutral_keys
 from data_gen.views import camera_distance
 
 from ..core.patterns import build_pattern
@@ -99,7 +100,7 @@ def estimate_settings(cfg: DictConfig, volume_fingerprint: str | None = None) ->
     scene = OmegaConf.to_container(cfg.scene, resolve=True)
     return jsonable({
         "scene": scene, "volume": volume_fingerprint, "recnn_lead": _lead_settings(cfg),
-        "renderer": {k: v for k, v in OmegaConf.to_container(cfg.renderer, resolve=True).items()},
+        "renderer": without_neutral_keys(OmegaConf.to_container(cfg.renderer, resolve=True)),
         "pattern": OmegaConf.to_container(cfg.pattern, resolve=True), "resolution": int(cfg.resolution),
         "recnn": recnn_net(cfg), "iml": OmegaConf.to_container(cfg.iml, resolve=True),
         "ims": OmegaConf.to_container(cfg.ims, resolve=True),

@@ -16,9 +16,13 @@ The ``renderer`` node:
   cores among its worker processes).
 * ``skip_empty`` (numba): empty-space skipping, ``true`` by default; ``false`` marches every sample in the
   volume's box, as a ray caster without it does (same pixels, other costs: where IML/S is meant to pay).
+* ``interpolation`` (numba): ``trilinear`` (default) | ``tricubic`` (the cubic B-spline, shaded from its gradient:
+  smoother surfaces, dearer object pixels). VTK's ray casters interpolate trilinearly only (VTK 9.7's
+  ``vtkVolumeProperty`` accepts nearest or linear), so ``renderer=vtk`` refuses ``tricubic``.
 
 Keys that cannot change pixels (``threads``, ``skip_empty``) are left out of :func:`renderer_pixel_settings`, the
-part of the renderer config that is hashed into cache keys.
+part of the renderer config that is hashed into cache keys; so are keys at the value every earlier render had
+(:data:`PIXEL_KEYS_NEUTRAL_AT`), so that caches and runs made before the key existed keep their hashes.
 """
 from __future__ import annotations
 
@@ -34,6 +38,14 @@ from .scene import Scene
 
 # keys of the renderer node that never change the pixels (how fast, not what)
 NON_PIXEL_KEYS = frozenset({"threads", "skip_empty"})
+# pixel keys added after caches and runs existed, left out of hashes while they hold the value every earlier render
+# had (the run hash's own list, imls_lightning.base.config.KEYS_NEUTRAL_AT, names them too)
+PIXEL_KEYS_NEUTRAL_AT = {"interpolation": "trilinear"}
+
+
+def without_neutral_keys(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """``cfg`` less the keys at their :data:`PIXEL_KEYS_NEUTRAL_AT` value (what a hash of renderer settings takes)."""
+    return {k: v for k, v in cfg.items() if PIXEL_KEYS_NEUTRAL_AT.get(k, object()) != v}
 
 
 def _plain(cfg) -> dict[str, Any]:
@@ -53,14 +65,23 @@ def _make_vtk(scene: Scene, cfg: Mapping[str, Any], threads: int):
     mapper = cfg.get("mapper", "fixed_point")
     if mapper not in ("fixed_point", "gpu"):
         raise InputError(f"renderer.mapper={mapper!r}: expected 'fixed_point' or 'gpu'")
+    _check_vtk_interpolation(cfg)
     return VTKRenderer(scene, mapper=mapper, threads=threads)
+
+
+def _check_vtk_interpolation(cfg: Mapping[str, Any]) -> None:
+    interpolation = cfg.get("interpolation", "trilinear")
+    if interpolation != "trilinear":
+        raise InputError(f"renderer.interpolation={interpolation!r}: renderer=vtk interpolates trilinearly only (VTK's "
+                         "vtkVolumeProperty takes nearest or linear); tricubic needs renderer=numba")
 
 
 def _make_numba(scene: Scene, cfg: Mapping[str, Any], threads: int):
     # the project's own compiled ray caster (VTK's scene model; casts any pixel subset)
     from .numba import NumbaRenderer
 
-    return NumbaRenderer(scene, threads=threads, skip_empty=cfg.get("skip_empty", True))
+    return NumbaRenderer(scene, threads=threads, skip_empty=cfg.get("skip_empty", True),
+                         interpolation=cfg.get("interpolation", "trilinear"))
 
 
 # name -> factory(scene, renderer_cfg, threads); a new renderer only needs an entry here
@@ -108,7 +129,13 @@ def renderer_pixel_settings(renderer_cfg=None) -> dict[str, Any]:
     if name not in RENDERERS:
         raise InputError(f"renderer.name={name!r}: expected one of {sorted(RENDERERS)}")
     _threads(cfg, None)  # checked here so that bad settings fail before any file is written
-    out = {k: v for k, v in sorted(cfg.items()) if k not in NON_PIXEL_KEYS}
+    if name == "vtk":
+        _check_vtk_interpolation(cfg)
+    elif name == "numba":
+        from .numba import check_interpolation
+
+        check_interpolation(cfg.get("interpolation", "trilinear"))
+    out = {k: v for k, v in sorted(without_neutral_keys(cfg).items()) if k not in NON_PIXEL_KEYS}
     out["name"] = name
     # bumped whenever a renderer's pixels change for the same settings, so old caches are not reused
     out["revision"] = RENDERER_REVISION.get(name, 1)
@@ -153,4 +180,5 @@ def renderer_version(renderer_cfg=None) -> str:
     return "unknown"
 
 
-__all__ = ["make_renderer", "render_image", "renderer_pixel_settings", "renderer_version", "RENDERERS", "NON_PIXEL_KEYS"]
+__all__ = ["make_renderer", "render_image", "renderer_pixel_settings", "renderer_version", "without_neutral_keys",
+           "RENDERERS", "NON_PIXEL_KEYS", "PIXEL_KEYS_NEUTRAL_AT"]
