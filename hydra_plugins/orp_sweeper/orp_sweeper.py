@@ -289,9 +289,7 @@ def _key(text: str) -> str:
 
 
 def _write_yaml(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` as YAML atomically (:func:`~imls_lightning.base.atomic.atomic_write_text`)."""
-    import yaml
+    """Write ``data`` as YAML atomically, each process on its own temporary file (:func:`imls_lightning.report.write_yaml`)."""
+    from imls_lightning.report import write_yaml
 
-    from imls_lightning.base.atomic import atomic_write_text
-
-    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120), unique=True)
+    write_yaml(path, data, unique=True)

@@ -69,7 +69,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     from data_gen.scenes import build_scene
 
     from ..base.config import file_hash, settings_hash
-    from ..report import atomic_write_text
+    from ..report import write_markdown
 
     s = parse_settings(cfg)
     t_start = time.perf_counter()
@@ -146,7 +146,7 @@ def run_adaptive(cfg, command: str | None = None) -> Path:
     md = markdown(s, cfg, ims, cache, summ, per_view, hist, timing, labels, u_train, u_orp, orp_res, run.u_match,
                   run.adaptive_ipr_est, out, command or _command(), trade)
     write_results(out, s, cfg, summ, trade, timing, hist, u_train, u_orp, run.u_match, run.u_pred)
-    return atomic_write_text(out / "adaptive.md", md)
+    return write_markdown(out / "adaptive.md", md)
 
 
 def make_labels(s, cache, nets, bracket, label_dir: Path, label_hash: str, timing: dict[str, Any]) -> dict[str, MeanLabels]:
@@ -363,10 +363,8 @@ def summarize_methods(s, names, per_view: list[dict[str, Any]], lat: dict[str, l
 
 def write_results(out: Path, s, cfg, summ, trade, timing, hist, u_train: float, u_orp: float, u_match: float, u_pred) -> None:
     """``adaptive.json`` (the summary, the trade-off, the timing, the means) and ``config.yaml``."""
-    from omegaconf import OmegaConf
-
     from ..base.config import to_plain
-    from ..report import atomic_write_text
+    from ..report import atomic_write_text, write_config
 
     trade_json = None if trade is None else {"curve": trade["curve"], "points": [
         {**p.__dict__, "d_psnr": p.d_psnr, "d_ipr": p.d_ipr} for p in trade["points"]]}
@@ -375,9 +373,8 @@ def write_results(out: Path, s, cfg, summ, trade, timing, hist, u_train: float, 
                                                          "u_adaptive": {"median": float(np.median(u_pred)), "min": float(u_pred.min()),
                                                                         "max": float(u_pred.max())},
                                                          "epsilon_db": s.epsilon_db}, indent=2, default=str))
-    atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(
-        {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg} | {"settings": s.hashed(), "ims_checkpoint": s.ims,
-                                                                                    "recnn_checkpoint": s.recnn})))
+    write_config(out / "config.yaml", {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
+                 | {"settings": s.hashed(), "ims_checkpoint": s.ims, "recnn_checkpoint": s.recnn})
 
 
 def _command() -> str:

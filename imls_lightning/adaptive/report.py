@@ -3,7 +3,6 @@ per-view CSVs (:func:`write_csv`) and the plots (:func:`plot_per_view`, :func:`p
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -11,21 +10,10 @@ import numpy as np
 
 from ..core.importance import MEAN_RANGE
 from ..inference.pipeline import pick_device
-from ..report import atomic_write_text, new_figure, save_figure
+from ..report import fmt, md_table, new_figure, save_figure
+from ..report import write_csv as report_csv
 from .settings import Settings
 from .tradeoff import TradeoffPoint
-
-
-def fmt(x: Any, spec: str = ".3f") -> str:
-    """``x`` formatted with ``spec``; None or a non-finite float -> an en dash.
-
-    Example:
-        >>> fmt(0.12345), fmt(3, "d"), fmt(None), fmt(float("nan"), ".1f")
-        ('0.123', '3', '–', '–')
-    """
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "–"
-    return format(x, spec)
 
 
 def reference_method(name: str, reference: str) -> str:
@@ -56,18 +44,9 @@ LABELS = {
 }
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
     """``rows`` as a CSV at ``path`` (columns: the union of the rows' keys, first-seen order; floats to 6 digits); atomic."""
-    import csv
-    import io
-
-    buf = io.StringIO()
-    fields = list(dict.fromkeys(k for r in rows for k in r)) or ["view"]  # union, in first-seen order
-    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    atomic_write_text(path, buf.getvalue())
+    return report_csv(path, rows, cell=lambda v: f"{v:.6g}" if isinstance(v, float) else v)
 
 
 def plot_per_view(path: Path, per_view: list[dict[str, Any]], eps: float, reference: str = "recnn") -> None:
@@ -153,15 +132,15 @@ def markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels,
                  f" (compute time recorded: {lab.meta.get('seconds', 0):.1f} s).")
     L.append(f"- Predictor: MLP {hist['views']} train views, {hist['epochs']} full-batch epochs in {hist['seconds']:.1f} s "
              f"(kept epoch {hist.get('best_epoch', hist['epochs'])}: lowest validation L1); "
-             f"L1(log u) train {hist['train_l1']:.3f} / val {fmt(hist['val_l1'])} vs constant (median) "
-             f"{hist['constant_l1']:.3f} / {fmt(hist['val_constant_l1'])}; margin x{s.predictor['margin']:g}.")
+             f"L1(log u) train {hist['train_l1']:.3f} / val {fmt(hist['val_l1'], 3)} vs constant (median) "
+             f"{hist['constant_l1']:.3f} / {fmt(hist['val_constant_l1'], 3)}; margin x{s.predictor['margin']:g}.")
     ul = np.array([r["u_label"] for r in per_view])
     up = np.array([r["u_pred"] for r in per_view])
     cx = np.array([r["complexity"] for r in per_view])
     corr = float(np.corrcoef(np.log(ul), np.log(up))[0, 1]) if n > 2 and ul.std() > 0 and up.std() > 0 else float("nan")
     ccx = float(np.corrcoef(cx, np.log(ul))[0, 1]) if n > 2 and ul.std() > 0 and cx.std() > 0 else float("nan")
-    L.append(f"- On the {s.views} views: corr(log label u, log predicted u) = {fmt(corr, '.3f')}; "
-             f"corr(complexity, log label u) = {fmt(ccx, '.3f')}; L1(log u) = {float(np.abs(np.log(ul) - np.log(up)).mean()):.3f}.")
+    L.append(f"- On the {s.views} views: corr(log label u, log predicted u) = {fmt(corr, 3)}; "
+             f"corr(complexity, log label u) = {fmt(ccx, 3)}; L1(log u) = {float(np.abs(np.log(ul) - np.log(up)).mean()):.3f}.")
     L.append(f"- Fixed means compared: trained u = {u_train:g}; ORP u = {u_orp:.5g} (ORP search on the validation views against the "
              f"{orp_ref_text}, inference-time u, {orp_res.jobs} evaluations, {'found' if orp_res.found else 'NOT found: u = 1 used'}); "
              f"IPR-matched u = {u_match:.5g} (IML/S average IPR {adaptive_ipr_est:.4f} of the adaptive one).")
@@ -173,12 +152,11 @@ def markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels,
     if s.reference != "recnn":
         L.append(f"Reference of each method (gap to reference, within epsilon): its own family at the trained mean "
                  f"(IML/S rows: IML/S fixed u = {u_train:g}; IML + RecNN rows: IML + RecNN fixed u = {u_train:g}).\n")
-    L.append("| method | avg IPR | IPR min–max | avg PSNR (dB) | avg gap to RecNN (dB) | avg gap to reference (dB) | max gap to reference | views within epsilon of reference | latency (ms) |")
-    L.append("|---|---|---|---|---|---|---|---|---|")
-    for name, v in summ.items():
-        lat = v.get("latency_ms", {}).get("total")
-        L.append(f"| {LABELS.get(name, name)} | {v['ipr']:.4f} | {v['ipr_min']:.4f}–{v['ipr_max']:.4f} | {v['psnr']:.2f} | "
-                 f"{v['gap']:.3f} | {v['gap_ref']:.3f} | {v['max_gap_ref']:.3f} | {100 * v['within']:.0f} % | {fmt(lat, '.1f')} |")
+    L.append(md_table(["method", "avg IPR", "IPR min–max", "avg PSNR (dB)", "avg gap to RecNN (dB)", "avg gap to reference (dB)",
+                       "max gap to reference", "views within epsilon of reference", "latency (ms)"],
+                      [[LABELS.get(name, name), f"{v['ipr']:.4f}", f"{v['ipr_min']:.4f}–{v['ipr_max']:.4f}", f"{v['psnr']:.2f}",
+                        f"{v['gap']:.3f}", f"{v['gap_ref']:.3f}", f"{v['max_gap_ref']:.3f}", f"{100 * v['within']:.0f} %",
+                        fmt(v.get("latency_ms", {}).get("total"), 1)] for name, v in summ.items()], tight_rule=True))
     a, f_m, f_o, f_t = summ["imls_adaptive"], summ["imls_matched"], summ["imls_orp"], summ["imls_fixed"]
     L.append("")
     L.append("## Adaptive vs fixed (IML/S, the product)\n")
@@ -201,11 +179,8 @@ def markdown(s: Settings, cfg, ims, cache, summ, per_view, hist, timing, labels,
         stages = [k for k in ("mean", "importance", "selective_render", "decoder", "recnn", "total") if k in lat_a or k in lat_f]
         L.append("")
         L.append(f"## Latency (ms, median of {s.repeats} runs per view, mean over {min(s.timing_views, n)} views)\n")
-        L.append("| method | " + " | ".join(stages) + " |")
-        L.append("|---|" + "---|" * len(stages))
-        for name in ("recnn", "imls_fixed", "imls_adaptive"):
-            la = summ[name].get("latency_ms", {})
-            L.append(f"| {LABELS[name]} | " + " | ".join(fmt(la.get(k), ".2f") for k in stages) + " |")
+        L.append(md_table(["method", *stages], [[LABELS[name], *(fmt(summ[name].get("latency_ms", {}).get(k), 2) for k in stages)]
+                                                for name in ("recnn", "imls_fixed", "imls_adaptive")], tight_rule=True))
         if s.repeats < 10:
             L.append(f"\n(repeats={s.repeats} < 10: indicative timings only.)")
     L.append("")
@@ -234,12 +209,11 @@ def tradeoff_markdown(trade: dict[str, Any], s: Settings, path_name: str, n: int
          f"'fixed at same IPR': the curve's average PSNR / within-epsilon share at the setting's average IPR; "
          f"'fixed IPR for same PSNR': the fewest pixels with which some fixed mean reaches the setting's average PSNR. "
          f"Within epsilon: PSNR at most {eps:g} dB below {ref}.\n",
-         "| setting | avg IPR | avg PSNR (dB) | within epsilon | fixed at same IPR: PSNR / within | ΔPSNR (dB) | fixed IPR for same PSNR | Δ pixels |",
-         "|---|---|---|---|---|---|---|---|"]
-    for p in points:
-        fixed = "–" if p.fixed_psnr is None else f"{p.fixed_psnr:.2f} / {100 * p.fixed_within:.0f} %"
-        L.append(f"| {p.name} | {p.ipr:.4f} | {p.psnr:.2f} | {100 * p.within:.0f} % | {fixed} | {fmt(p.d_psnr, '+.2f')} | "
-                 f"{fmt(p.fixed_ipr, '.4f')} | {'–' if p.d_ipr is None else f'{100 * p.d_ipr:+.1f} %'} |")
+         md_table(["setting", "avg IPR", "avg PSNR (dB)", "within epsilon", "fixed at same IPR: PSNR / within", "ΔPSNR (dB)",
+                   "fixed IPR for same PSNR", "Δ pixels"],
+                  [[p.name, f"{p.ipr:.4f}", f"{p.psnr:.2f}", f"{100 * p.within:.0f} %",
+                    "–" if p.fixed_psnr is None else f"{p.fixed_psnr:.2f} / {100 * p.fixed_within:.0f} %", fmt(p.d_psnr, spec="+.2f"),
+                    fmt(p.fixed_ipr, 4), "–" if p.d_ipr is None else f"{100 * p.d_ipr:+.1f} %"] for p in points], tight_rule=True)]
     ad = [p for p in points if p.name.startswith("adaptive") and p.d_psnr is not None]
     if ad:
         best = max(ad, key=lambda p: p.d_psnr)

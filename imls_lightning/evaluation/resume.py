@@ -33,7 +33,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from imls_lightning.base.atomic import atomic_json, atomic_write, fsync_dir
+from imls_lightning.base.atomic import atomic_json, atomic_write, atomic_write_text, fsync_dir
 
 #: the record's layout; a record of another is started over
 FORMAT = 1
@@ -163,7 +163,7 @@ class EvaluationProgress:
         if bad:  # repair: keep the lines that hold, measure the rest again
             _log(f"{path}: {len(bad)} record(s) dropped and measured again ({'; '.join(bad[:3])})")
             text = "".join(json.dumps({"view": p, **v}, default=plain) + "\n" for p, v in views.items())
-            atomic_write(path, lambda f: f.write(text.encode("utf-8")))
+            atomic_write_text(path, text)
         return views
 
     def add_view(self, p: int, rows: list[dict[str, Any]], sweep_rows: list[dict[str, Any]], load: dict[str, Any] | None,

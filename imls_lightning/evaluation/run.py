@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from imls_lightning.base.errors import InputError
 
@@ -483,7 +483,7 @@ def write_results(cfg: DictConfig, s: Settings, out: Path, scene, rcfg: dict[str
     positions, sweep_pos = res["positions"], res["sweep_pos"]
     plain = {k: to_plain(cfg[k]) for k in ("scene", "data", "renderer") if k in cfg}
     plain.update(checkpoints=to_plain(cfg.checkpoints), settings=s.hashed(), output_dir=str(out))
-    rep.atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)))
+    rep.write_config(out / "config.yaml", plain)
     orp = None if res["orp"] is None else dict(res["orp"])
     if orp is not None:  # the same operating point on the evaluated (test) views, beside the validation gap
         orp["test"] = paired_gap(rows, "recnn", "imls")

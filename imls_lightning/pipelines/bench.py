@@ -16,9 +16,8 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.overrides import quote_override_value
 
-from ..report import atomic_write_text as atomic_write
-from ..report.tables import fmt, md_table
-from ..report.tables import fmt_pct as pct
+from ..report import atomic_write_text, fmt, md_table, write_markdown
+from ..report import fmt_pct as pct
 from ..report.tables import speedup as ratio
 from ..base.paths import CONF_DIR, log
 from .stages import StageFailed, check_scene_overrides, dry_stage, override_list, run_stage, stage_args
@@ -366,7 +365,7 @@ class Times:
     def record(self, result: str, seconds: float) -> float:
         if result not in self.data:
             self.data[result] = round(float(seconds), 2)
-            atomic_write(self.path, json.dumps(self.data, indent=1, sort_keys=True))
+            atomic_write_text(self.path, json.dumps(self.data, indent=1, sort_keys=True))
         return self.data[result]
 
 
@@ -497,7 +496,7 @@ def bench(cfg: DictConfig, scene_overrides: Sequence[str] = ()) -> Path | None:
 
     def write() -> Path:
         meta.update(done=len(records), elapsed_s=time.perf_counter() - t0, date=time.strftime("%Y-%m-%d %H:%M"))
-        return atomic_write(out_path, render_markdown(records, meta))
+        return write_markdown(out_path, render_markdown(records, meta))
 
     las_ckpt: dict[str, str] = {}
     train = ["-m", "imls_lightning.train"]

@@ -5,7 +5,6 @@ the CSVs, ``paper_scale.md``, the breakdown plot and the paper-scale section of 
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 import time
@@ -18,8 +17,9 @@ from imls_lightning.base.errors import InputError
 
 from ..estimate import estimate_interval, read_estimate, speedup_from_estimate
 from ..orp.overrides import override_key
-from ..report import atomic_write_text, md_table, shared_cores_warning
-from ..report.tables import equal_share_markdown, fmt, fmt_pct, speedup
+from ..report import (atomic_write_text, equal_share_markdown, fmt, fmt_pct, md_table, shared_cores_warning, speedup,
+                      write_markdown)
+from ..report import write_csv as report_csv
 from .demo import demo
 from ..base.paths import log
 from .stages import dry_stage, override_list, read_summary, run_stage
@@ -287,12 +287,8 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path, columns: Sequence[str] = CSV_COLUMNS) -> Path:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(columns)
-    for r in rows:
-        w.writerow([_cell(r.get(c)) for c in columns])
-    return atomic_write_text(path, buf.getvalue())
+    """``paper_scale.csv``: ``rows`` in ``columns``, each cell by :func:`_cell`; atomic."""
+    return report_csv(path, rows, columns, _cell)
 
 
 #: what ``paper_scale_pairs.json`` keeps per pair, so a run of one pair reports every pair run before
@@ -676,7 +672,7 @@ def write_results(cfg: DictConfig, records: Mapping[str, Mapping[str, Any]], old
     write_csv(all_rows, out_dir / "paper_scale.csv")
     write_csv(ad_rows, out_dir / "paper_scale_adaptive.csv", ADAPTIVE_COLUMNS)
     plot_breakdown(summaries, out_dir / "paper_scale_breakdown.png")
-    atomic_write_text(out_dir / "paper_scale.md", report_markdown(
+    write_markdown(out_dir / "paper_scale.md", report_markdown(
         all_rows, summaries, partial=partial, stage_minutes={n: r["minutes"] for n, r in records.items()}, command=command,
         machine=machine, settings={n: r["settings"] for n, r in records.items()},
         commands={n: r["command"] for n, r in records.items()}))

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 from omegaconf import DictConfig
 
-from imls_lightning.base.atomic import atomic_json, atomic_write_text
+from imls_lightning.base.atomic import atomic_json
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_integer, check_number
 
@@ -84,10 +84,11 @@ def cost_masks(cfg: DictConfig) -> Path:
               "per_view": [{"view": v.view, "recnn_db": v.recnn_db, "object_share": v.object_share,
                             "object_cost": v.object_cost, "rows": v.rows} for v in measured]}
     out.mkdir(parents=True, exist_ok=True)
+    from ..report import write_markdown
     from ..report.cost_mask import cost_mask_markdown, cost_mask_plot
 
     cost_mask_plot(result, out / "cost_mask.png")
-    atomic_write_text(out / "cost_mask.md", cost_mask_markdown(result))
+    write_markdown(out / "cost_mask.md", cost_mask_markdown(result))
     return atomic_json(out / "cost_mask.json", result)
 
 

@@ -44,7 +44,7 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
     """Pack the networks of the finished evaluation in ``evaluation`` (its ``config.yaml`` names them) into ``dest``,
     its point into ``dest/point``, and write ``conf/row/<name>.yaml`` (returned)."""
     from ..base.config import file_hash
-    from ..report import atomic_write_text
+    from ..report import atomic_write_text, write_config
 
     summary_path, config_path = evaluation / "summary.json", evaluation / "config.yaml"
     if not (summary_path.is_file() and config_path.is_file() and (evaluation / "report.md").is_file()):
@@ -71,7 +71,7 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
     atomic_write_text(point / "summary.json", json.dumps(packed_summary, indent=1))
     config["checkpoints"] = {k: str((dest / v["file"]).relative_to(ROOT)) if dest.is_relative_to(ROOT) else str(dest / v["file"])
                              for k, v in networks.items()}
-    atomic_write_text(point / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(config)))
+    write_config(point / "config.yaml", config)
     row = {"name": name, "scene": summary["scene"], "recnn": summary["recnn"], "data": data,
            "dir": str(dest.relative_to(ROOT)) if dest.is_relative_to(ROOT) else str(dest), "point": "point",
            "trajectory_seed": int(trajectory_seed), "views": int(views), "timed_views": int(timed_views),
@@ -81,7 +81,7 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
     out = (row_dir or ROOT / "conf" / "row") / f"{name}.yaml"
     header = (f"# row {name}: written by python -m imls_lightning.pack_row from {evaluation.name}; re-measure it with\n"
               f"# python -m imls_lightning.reproduce row={name} (networks under {row['dir']}, checked by SHA-256)\n")
-    atomic_write_text(out, header + OmegaConf.to_yaml(OmegaConf.create(row)))
+    write_config(out, row, header)
     total = sum((dest / v["file"]).stat().st_size for v in networks.values())
     log(f"[pack_row] {name}: {len(networks)} networks, {total / 2**20:.1f} MiB in all -> {out}")
     return out

@@ -4,8 +4,6 @@ candidates, its table, plot and the experiment file of the chosen sizes (:func:`
 :class:`SizeFront`, the sweep's callback)."""
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
 import time
@@ -206,37 +204,29 @@ def front_rows(records: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
 
 def write_front(records: Sequence[Mapping[str, Any]], folder: Path, scene: str) -> dict[str, Path]:
     """``pareto.csv``, ``pareto.md`` and ``pareto.png`` of a scene's records."""
-    from ..report import md_table
+    from ..report import fmt, md_table, write_csv, write_markdown
     from ..report.plots import new_figure, save_figure
 
     rows = front_rows(records)
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=FRONT_COLUMNS, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: (f"{r[k]:.6g}" if isinstance(r.get(k), float) and math.isfinite(r[k]) else r.get(k, "")) for k in FRONT_COLUMNS})
-    paths = {"csv": atomic_write_text(folder / "pareto.csv", buf.getvalue())}
+    paths = {"csv": write_csv(folder / "pareto.csv", rows, FRONT_COLUMNS,
+                              lambda v: f"{v:.6g}" if isinstance(v, float) and math.isfinite(v) else v)}
     chosen = choose(rows)
-
-    def f(v: Any, d: int = 2) -> str:
-        return f"{float(v):.{d}f}" if v is not None and math.isfinite(float(v)) else "–"
-
     table = md_table(
         ["candidate", "RecNN test (dB)", "ORP u", "C-share", "RecNN alone (ms)", "IML/S (ms)", "speed-up",
          "IML/S (dB)", "gap (dB)", "feasible", "Pareto"],
-        [[candidate_name(r), f(r["recnn_test_psnr_db"]), f(r["mean"], 3) if r["orp_found"] else "none",
-          f(100 * float(r["c_share"]), 1) + "%", f(r["recnn_ms"], 1), f(r["imls_ms"], 1), f(r["speedup"]) + "x",
-          f(r["psnr_imls_db"]), f(r["gap_db"]), "yes" if r["feasible"] else "no", "yes" if r["pareto"] else ""]
+        [[candidate_name(r), fmt(r["recnn_test_psnr_db"]), fmt(r["mean"], 3) if r["orp_found"] else "none",
+          fmt(100 * float(r["c_share"]), 1) + "%", fmt(r["recnn_ms"], 1), fmt(r["imls_ms"], 1), fmt(r["speedup"]) + "x",
+          fmt(r["psnr_imls_db"]), fmt(r["gap_db"]), "yes" if r["feasible"] else "no", "yes" if r["pareto"] else ""]
          for r in rows])
     ref = next((float(r["reference_test_psnr_db"]) for r in rows if math.isfinite(float(r["reference_test_psnr_db"]))), math.nan)
     md = [f"# Size search: {scene}", "",
           "Candidate `rCxB-dDwW-sLwS`: RecNN C channels x B blocks, IML decoder depth D width W, IMS L layers "
           "width S. Latencies and PSNR on the product path at each candidate's ORP (test trajectory).", "",
-          f"Reference RecNN (the paper's size) test PSNR: {f(ref)} dB; a candidate's RecNN must stay within "
+          f"Reference RecNN (the paper's size) test PSNR: {fmt(ref)} dB; a candidate's RecNN must stay within "
           "0.5 dB of it, and its IML/S within ε of its RecNN alone (an ORP exists).", "", table, ""]
-    md.append(f"Chosen: **{candidate_name(chosen)}** ({f(chosen['imls_ms'], 1)} ms, {f(chosen['psnr_imls_db'])} dB)."
+    md.append(f"Chosen: **{candidate_name(chosen)}** ({fmt(chosen['imls_ms'], 1)} ms, {fmt(chosen['psnr_imls_db'])} dB)."
               if chosen else "No candidate meets both bounds; no experiment config was written.")
-    paths["md"] = atomic_write_text(folder / "pareto.md", "\n".join(md) + "\n")
+    paths["md"] = write_markdown(folder / "pareto.md", md)
 
     fig = new_figure(5.6, 4.0)
     ax = fig.add_subplot(1, 1, 1)

@@ -14,9 +14,10 @@ Example:
     >>> summary(p)["recnn"]["latency_ms"]["total"]
     2.0
 
-One idea per module, every public name re-exported here: :mod:`~imls_lightning.report.names`
-(labels, colours, CSV columns), :mod:`~imls_lightning.report.metrics_csv` (atomic files, the CSVs,
-the per-method summary), :mod:`~imls_lightning.report.machine` (command line, machine),
+One idea per module, every public name re-exported here: :mod:`~imls_lightning.report.writer`
+(the one report writer: the Markdown table, the number in a cell, the Markdown, CSV and YAML files),
+:mod:`~imls_lightning.report.names` (labels, colours, CSV columns), :mod:`~imls_lightning.report.metrics_csv`
+(the metrics CSV and the per-method summary), :mod:`~imls_lightning.report.machine` (command line, machine),
 :mod:`~imls_lightning.report.tables` (Markdown tables), :mod:`~imls_lightning.report.front` (the
 speed-quality front: its points, the Pareto front, where IML/S lies), :mod:`~imls_lightning.report.plots` and
 :mod:`~imls_lightning.report.document` (``report.md``).
@@ -26,7 +27,7 @@ from __future__ import annotations
 from .document import ReportContext, render_markdown, write_report
 from .front import front_markdown, front_point, front_points, front_verdict, pareto_front
 from .machine import BUSY_LIMIT, OtherLoad, busy_cores, hydra_command, machine_info, shared_cores_warning
-from .metrics_csv import atomic_write_text, number, read_csv, summarize_rows, summary, write_metrics_csv
+from .metrics_csv import number, read_csv, summarize_rows, summary, write_metrics_csv
 from .names import (
     MASK_LABELS,
     METHOD_COLORS,
@@ -50,8 +51,10 @@ from .plots import (
     plot_stage_breakdown,
     save_figure,
 )
-from .tables import (equal_share_markdown, fmt, fmt_pct, latency_table, md_table, options_table, quality_table,
-                     speedup, speedup_table, sweep_label, sweep_points, sweep_table)
+from .tables import (equal_share_markdown, latency_table, options_table, quality_table, speedup, speedup_table, sweep_label,
+                     sweep_points, sweep_table)
+from .writer import (atomic_write_text, csv_text, fmt, fmt_pct, markdown_text, md_table, write_config, write_csv,
+                     write_markdown, write_yaml)
 
 __all__ = [
     "METHOD_LABELS", "METHOD_ORDER", "METRIC_COLUMNS", "SWEEP_COLUMNS", "OPTION_COLUMNS", "STAGE_LABELS",
@@ -62,4 +65,5 @@ __all__ = [
     "render_markdown",
     "STAGE_COLORS", "METHOD_COLORS", "MASK_LABELS", "hydra_command", "equal_share_markdown", "number", "sweep_label",
     "pareto_front", "front_point", "front_points", "front_markdown", "front_verdict", "plot_front",
+    "csv_text", "write_csv", "markdown_text", "write_markdown", "write_yaml", "write_config",
 ]

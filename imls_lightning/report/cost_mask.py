@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from .plots import new_figure, save_figure
+from .writer import markdown_text, md_table
 
 #: how each mask kind is named in the table and the plot
 MASK_LABELS = {"product": "IML/S (the product, at the row's point)", "iml": "IML (sees the rendered C-Image)"}
@@ -38,19 +39,16 @@ def cost_mask_markdown(r: Mapping[str, Any]) -> str:
              f"{r['needed_for']['1.5x']:.0%}; with free networks 1.5x allows {r['needed_for_free_networks']['1.5x']:.0%}. "
              f"Render time against cost: {r['render_fit']['fixed_ms']:.1f} ms + {r['render_fit']['per_unit_ms']:.2f} x c, "
              f"c the view's pattern time times the share of its ray samples kept; r^2 {r['render_fit']['r2']:.3f}.", "",
-             f"| mask | cost kept within {eps:g} dB | speed-up there | with free networks |", "| --- | ---: | ---: | ---: |"]
-    for kind, m in r["masks"].items():
-        lines.append(f"| {mask_label(kind)} | {_x(m['cost_at_epsilon'])} | {_x(m['speedup_at_epsilon'], '{:.2f}x')} | "
-                     f"{_x(m['free_networks_at_epsilon'], '{:.2f}x')} |")
-    lines += ["", "Each mask's curve (means over the views): setting (share of C, or the IML's mean value), share kept, "
-              "cost kept, density on the object and the background, gap to the RecNN alone.", "",
-              "| mask | setting | kept | cost kept | object | background | gap (dB) |",
-              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for kind, m in r["masks"].items():
-        for c in m["curve"]:
-            lines.append(f"| {mask_label(kind)} | {c['setting']:.3g} | {c['kept']:.1%} | {c['cost_kept']:.1%} | "
-                         f"{c['object_density']:.2f} | {c['background_density']:.2f} | {c['gap_db']:.2f} |")
-    return "\n".join(lines) + "\n"
+             md_table(["mask", f"cost kept within {eps:g} dB", "speed-up there", "with free networks"],
+                      [[mask_label(kind), _x(m["cost_at_epsilon"]), _x(m["speedup_at_epsilon"], "{:.2f}x"),
+                        _x(m["free_networks_at_epsilon"], "{:.2f}x")] for kind, m in r["masks"].items()]),
+             "", "Each mask's curve (means over the views): setting (share of C, or the IML's mean value), share kept, "
+             "cost kept, density on the object and the background, gap to the RecNN alone.", "",
+             md_table(["mask", "setting", "kept", "cost kept", "object", "background", "gap (dB)"],
+                      [[mask_label(kind), f"{c['setting']:.3g}", f"{c['kept']:.1%}", f"{c['cost_kept']:.1%}",
+                        f"{c['object_density']:.2f}", f"{c['background_density']:.2f}", f"{c['gap_db']:.2f}"]
+                       for kind, m in r["masks"].items() for c in m["curve"]])]
+    return markdown_text(lines)
 
 
 def cost_mask_plot(r: Mapping[str, Any], path: str | Path) -> Path:

@@ -8,15 +8,12 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from .front import front_markdown, front_verdict
-from .metrics_csv import atomic_write_text, summarize_rows
+from .metrics_csv import summarize_rows
 from .names import METHOD_LABELS, METHOD_ORDER
 from .plots import plot_front, plot_image_grid, plot_latency_vs_psnr, plot_options, plot_psnr_per_view, plot_stage_breakdown
 from .tables import (
     equal_share_markdown,
-    fmt,
-    fmt_pct,
     latency_table,
-    md_table,
     options_table,
     quality_table,
     speedup_table,
@@ -24,6 +21,7 @@ from .tables import (
     sweep_points,
     sweep_table,
 )
+from .writer import fmt, fmt_pct, md_table, write_markdown
 
 
 @dataclass
@@ -133,7 +131,7 @@ def write_report(ctx: ReportContext) -> Path:
         figures.append(("image_grid.png", "Image grid: ground truth, each method, error maps"))
 
     text = render_markdown(ctx, summ, order, points, figures)
-    return atomic_write_text(out / "report.md", text)
+    return write_markdown(out / "report.md", text)
 
 
 def render_markdown(ctx: ReportContext, summ, order: Sequence[str], points, figures: Sequence[tuple[str, str]]) -> str:

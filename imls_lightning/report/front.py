@@ -22,7 +22,8 @@ import numpy as np
 
 from .metrics_csv import number
 from .names import METHOD_LABELS
-from .tables import fmt, fmt_pct, md_table, speedup, sweep_label
+from .tables import speedup, sweep_label
+from .writer import fmt, fmt_pct, md_table
 
 __all__ = ["pareto_front", "front_point", "front_points", "front_markdown", "front_verdict", "EXACT_PSNR_DB"]
 

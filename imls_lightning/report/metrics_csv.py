@@ -8,21 +8,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from imls_lightning.base.atomic import atomic_write_text  # noqa: F401  (the report's writer; its one home is imls_lightning.base.atomic)
-
 from ..inference.pipeline import STAGES
 from .names import METHOD_LABELS, METRIC_COLUMNS
-
-
-def _csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
-    import io
-
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: _fmt_cell(r.get(k)) for k in columns})
-    return buf.getvalue()
+from .writer import write_csv
 
 
 def _fmt_cell(v: Any) -> Any:
@@ -35,7 +23,7 @@ def _fmt_cell(v: Any) -> Any:
 
 def write_metrics_csv(rows: Sequence[Mapping[str, Any]], path: str | Path, columns: Sequence[str] = METRIC_COLUMNS) -> Path:
     """One row per (view, method); missing stages are empty cells. Atomic."""
-    return atomic_write_text(path, _csv_text(rows, columns))
+    return write_csv(path, rows, columns, _fmt_cell)
 
 
 def read_csv(path: str | Path) -> list[dict[str, Any]]:

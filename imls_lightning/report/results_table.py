@@ -12,8 +12,8 @@ import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from .metrics_csv import atomic_write_text, number
-from .tables import md_table
+from .metrics_csv import number
+from .writer import atomic_write_text, md_table
 
 README_BEGIN = "<!-- results:begin (written from benchmarks/paper_scale.csv by make bench-paper) -->"
 README_END = "<!-- results:end -->"

@@ -11,43 +11,7 @@ from ..inference.pipeline import STAGES
 from .metrics_csv import number, summarize_rows
 from .names import MASK_LABELS, METHOD_LABELS, STAGE_LABELS
 from .speedup import paired_totals, speedup_interval
-
-
-def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]], align: str | None = None) -> str:
-    """A GitHub Markdown table; ``align`` one of ``l``/``r`` per column (default: first left, rest right).
-
-    Example:
-        >>> print(md_table(["method", "ms"], [["RecNN", fmt(1.5)], ["a|b", fmt(None)]]))
-        | method | ms |
-        | --- | ---: |
-        | RecNN | 1.50 |
-        | a\\|b | – |
-    """
-    align = align or ("l" + "r" * (len(header) - 1))
-    sep = ["---" if a == "l" else "---:" for a in align]
-    lines = ["| " + " | ".join(str(h) for h in header) + " |", "| " + " | ".join(sep) + " |"]
-    for r in rows:
-        lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in r) + " |")
-    return "\n".join(lines)
-
-
-def fmt(v: Any, digits: int = 2, suffix: str = "") -> str:
-    """Number for a table cell; NaN/None -> an en dash."""
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return "–"
-    if not math.isfinite(x):
-        return "–"
-    return f"{x:.{digits}f}{suffix}"
-
-
-def fmt_pct(v: Any, digits: int = 1) -> str:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return "–"
-    return "–" if not math.isfinite(x) else f"{100 * x:.{digits}f}%"
+from .writer import fmt, fmt_pct, md_table
 
 
 def equal_share_markdown(summary: Sequence[Mapping[str, Any]]) -> str:

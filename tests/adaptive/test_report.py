@@ -1,15 +1,11 @@
-"""imls_lightning.adaptive.report: number formatting, the reference of each method, and the CSV writer.
+"""imls_lightning.adaptive.report: the reference of each method and the CSV writer (the number formatting is
+``imls_lightning.report.writer``'s, tested in ``tests/report/test_writer.py``).
 The whole report (adaptive.md, plots) is checked end to end in ``tests/adaptive/test_cli.py``."""
 from __future__ import annotations
 
 import csv
 
-from imls_lightning.adaptive.report import fmt, reference_method, write_csv
-
-
-def test_fmt():
-    assert fmt(1.23456) == "1.235" and fmt(2, ".1f") == "2.0" and fmt(0.5, ".0%") == "50%"
-    assert fmt(None) == "–" and fmt(float("nan")) == "–" and fmt(float("inf")) == "–"
+from imls_lightning.adaptive.report import reference_method, write_csv
 
 
 def test_reference_method():
@@ -24,3 +20,8 @@ def test_write_csv_round_trip(tmp_path):
     with open(tmp_path / "a.csv", newline="") as f:
         back = list(csv.DictReader(f))
     assert [(int(r["view"]), float(r["u"])) for r in back] == [(0, 0.1), (1, 0.25)]
+
+
+def test_write_csv_takes_the_union_of_the_keys_and_six_digits(tmp_path):
+    write_csv(tmp_path / "a.csv", [{"view": 0, "u": 1 / 3}, {"view": 1, "gap": 0.5}])
+    assert (tmp_path / "a.csv").read_text() == "view,u,gap\n0,0.333333,\n1,,0.5\n"

@@ -9,7 +9,7 @@ import pytest
 
 
 # .names holds constants only; .document's report needs a whole evaluation (tests/test_evaluate.py)
-@pytest.mark.parametrize("module", ["", ".metrics_csv", ".machine", ".tables", ".plots", ".speedup"])
+@pytest.mark.parametrize("module", ["", ".writer", ".metrics_csv", ".machine", ".tables", ".plots", ".speedup"])
 def test_module_doctests(module):
     result = doctest.testmod(importlib.import_module(f"imls_lightning.report{module}"))
     assert result.attempted > 0 and result.failed == 0, result
