@@ -4,7 +4,6 @@ means (:func:`quality_at_means`), per-view settings against the whole curve of f
 """
 from __future__ import annotations
 
-import math
 import sys
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
@@ -17,6 +16,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.importance import MEAN_RANGE
 from ..core.metrics import psnr_per_image
+from ..core.smallest_within import bisect_monotone
 from ..inference.pipeline import pick_device
 from .checks import check_epsilon, check_integer
 from .labels import check_source, mask_function
@@ -176,25 +176,16 @@ def tradeoff(reference: np.ndarray, fixed: Mapping[float, Mapping[str, np.ndarra
 def mean_for_ipr(ipr_of: Callable[[float], float], target: float, steps: int = 30) -> float:
     """The fixed mean value ``u`` in ``[0.01, 1]`` whose average IPR ``ipr_of(u)`` is closest to ``target``.
 
-    Bisection in ``log u`` (``ipr_of`` non-decreasing in ``u``); returns the closest ``u`` seen.
+    Bisection in ``log u`` (``ipr_of`` non-decreasing in ``u``:
+    :func:`~imls_lightning.core.smallest_within.bisect_monotone`); returns the closest ``u`` seen, the ends
+    included (the earliest seen on a tie: ``hi``, ``lo``, then the midpoints in order).
 
     Example:
         >>> round(mean_for_ipr(lambda u: 0.5 * u, 0.05), 4)
         0.1
     """
     lo, hi = MEAN_RANGE
-    best, best_err = hi, abs(ipr_of(hi) - target)
-    e = abs(ipr_of(lo) - target)
-    if e < best_err:
-        best, best_err = lo, e
-    for _ in range(int(steps)):
-        mid = math.exp(0.5 * (math.log(lo) + math.log(hi)))
-        val = ipr_of(mid)
-        if abs(val - target) < best_err:
-            best, best_err = mid, abs(val - target)
-        if val < target:
-            lo = mid
-        else:
-            hi = mid
-    return float(best)
+    seen = [(hi, ipr_of(hi)), (lo, ipr_of(lo))]
+    seen += bisect_monotone(ipr_of, target, lo, hi, steps).trace
+    return float(min(seen, key=lambda point: abs(point[1] - target))[0])
 

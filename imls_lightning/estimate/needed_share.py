@@ -40,6 +40,7 @@ from ..core.metrics import psnr_per_image
 from ..core.patterns import SamplingPattern
 from ..core.unpredictability import base_unpredictability, importance_mask, two_pass_mask, unpredictability
 from ..core.pull_push import fill_c_image
+from ..core.smallest_within import interpolated_within, smallest_within
 from .measure import PassTimer, frame_tensor, median_ms, on_own_patterns
 
 #: the shares of C at which the needed share is searched (a finer grid than the bound's)
@@ -73,25 +74,13 @@ class NeededShare:
 
 def first_share_within(kept: Sequence[float], gaps: Sequence[float], epsilon_db: float) -> float | None:
     """The smallest share whose gap is within ``epsilon_db``, linear between the first share within and the
-    one before it; None when no share is.
+    one before it; None when no share is (:func:`~imls_lightning.core.smallest_within.interpolated_within`).
 
     Example:
         >>> first_share_within([0.2, 0.4, 0.6], [3.0, 1.5, 0.5], 1.0)
         0.5
     """
-    i = _first_within(gaps, epsilon_db)
-    if i is None:
-        return None
-    if i == 0:
-        return float(kept[0])
-    g0, g1 = gaps[i - 1], gaps[i]
-    t = (g0 - epsilon_db) / (g0 - g1)
-    return float(kept[i - 1] + t * (kept[i] - kept[i - 1]))
-
-
-def _first_within(gaps: Sequence[float], epsilon_db: float) -> int | None:
-    """The index of the first share whose gap is within ``epsilon_db``; None when none is."""
-    return next((i for i, g in enumerate(gaps) if g <= epsilon_db), None)
+    return interpolated_within(kept, gaps, epsilon_db)
 
 
 def share_gaps(rebuild: Callable[[torch.Tensor], torch.Tensor], pattern: SamplingPattern, frames: Sequence,
@@ -194,7 +183,7 @@ def timed_shares(kept: Sequence[float], gaps: Sequence[float], epsilon_db: float
         >>> timed_shares([0.2, 0.4], [3.0, 2.0], 1.0)
         []
     """
-    i = _first_within(gaps, epsilon_db)
+    i = smallest_within(gaps, epsilon_db).index
     return [] if i is None else [i] if i == 0 else [i - 1, i]
 
 

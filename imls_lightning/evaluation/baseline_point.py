@@ -22,11 +22,24 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ..core import smallest_within as grid
 from ..orp import protocol_gap_record
 from .operating_point import SearchViews, band_edges, split_bands
 
 #: a searched point's knob: LAS's IPR (a share of the FR pixels) or the two-pass sampler's share of C
 KNOBS = ("ipr", "share")
+#: the format of a knob's value in the log lines and the report
+FORMATS = {"ipr": ".1%", "share": ".0%"}
+
+
+def say_value(knob: str, x: float) -> str:
+    """A value of ``knob`` as the log lines and the report say it.
+
+    Example:
+        >>> say_value("ipr", 0.1234), say_value("share", 0.75)
+        ('IPR 12.3%', '75% of C')
+    """
+    return f"IPR {x:{FORMATS[knob]}}" if knob == "ipr" else f"{x:{FORMATS[knob]}} of C"
 
 
 @dataclass(frozen=True)
@@ -88,6 +101,35 @@ class SearchedPoint:
                    epsilon_db=float(d.get("epsilon_db", 1.0)), record=d.get("record"), rows=list(d.get("rows", [])),
                    by_distance=d.get("by_distance"), settings=settings)
 
+    def describe(self) -> str:
+        """The report's line on where the point runs and why: what runs and where its knob was searched, then the value
+        chosen with its gap and bound there and, by distance, each band's own; or that none kept the bound.
+
+        Example:
+            >>> p = SearchedPoint("ipr", 0.1, True, "4 views", 1.0, {"gap_db": 0.4, "gap_bound_db": 0.9})
+            >>> p.describe()[-58:]
+            'within 1 dB: IPR 10.0%, gap 0.40 dB there (bound 0.90 dB).'
+        """
+        eps, said = self.epsilon_db, say_value(self.knob, self.value)
+        if self.knob == "ipr":
+            head = (f"LAS at the product's promise (what a user who chose LAS would run): its IPR searched on {self.where}, "
+                    f"the smallest that keeps the bound on the gap to the RecNN alone within {eps:g} dB")
+            none, bound, bands = f"none of those searched did, so it runs at the largest, {said}", "", ", never above that one"
+        else:
+            head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
+                    f"{self.settings['base']:.0%} of C, then the pixels whose neighbours predict them worst, pull-push "
+                    f"filled; its share was searched on {self.where}")
+            none = f"no share below 100% kept the bound within {eps:g} dB, so it renders all of C"
+            bound, bands = f" <= {eps:g}", " share, never above that one, judged on its own search views"
+        if not self.found:
+            return f"{head}: {none}."
+        rec = self.record
+        line = f"{head}: {said}, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f}{bound} dB)"
+        if not self.by_distance:
+            return line + "."
+        each = say_bands(self.by_distance, self.band_values, FORMATS[self.knob])
+        return f"{line}; then each band of camera distance its own{bands}: {each}."
+
     def to_dict(self) -> dict[str, Any]:
         rows = (list(self.rows) if self.knob == "ipr" else
                 [{k: r[k] for k in ("share", "c_share", "gap_db", "gap_bound_db")} for r in self.rows])
@@ -101,19 +143,22 @@ def smallest_within(v: SearchViews, values: Sequence[float], kept: np.ndarray, g
     ``(its record or None, every value's record)``. ``kept`` and ``gaps`` are ``(views, len(values))``: the share
     each view kept at each value and its PSNR gap to the RecNN alone. A record is
     :func:`~imls_lightning.orp.search.protocol_gap_record`'s plus ``value`` and ``kept`` (the mean kept share)."""
-    rows, chosen = [], None
+    rows = []
     for j, value in enumerate(values):
         rec = protocol_gap_record(gaps[:, j].tolist(), confidence, future_views, v.strata, v.passes, v.paths)
         rec.update(value=float(value), kept=float(kept[:, j].mean()))
         rows.append(rec)
-        if chosen is None and rec["gap_bound_db"] <= epsilon_db:
-            chosen = rec
-    return chosen, rows
+    return grid.smallest_within(rows, epsilon_db, gap=_bound).item, rows
+
+
+def _bound(rec: dict[str, Any]) -> float:
+    """A protocol record's bound, what a search compares with epsilon."""
+    return rec["gap_bound_db"]
 
 
 def band_values(v: SearchViews, values: list[float], kept: np.ndarray, gaps: np.ndarray, confidence: float,
                 epsilon_db: float, future_views: int | None, what: str = "the two-pass sampler",
-                say: Callable[[float], str] = lambda x: f"{x:.0%} of C") -> dict[str, Any] | None:
+                say: Callable[[float], str] = lambda x: say_value("share", x)) -> dict[str, Any] | None:
     """Each band of camera distance's own value, as the product's ORP gets a mean value per band: the smallest of
     ``values`` (ascending; the last is the value that held in every band, which a band keeps where none below it
     holds) whose bound on the band's own search views, for its share of ``future_views`` and counting its passes
@@ -129,10 +174,10 @@ def band_values(v: SearchViews, values: list[float], kept: np.ndarray, gaps: np.
     out: dict[str, list] = {k: [] for k in ("values", "kept", "gaps_db", "bounds_db", "views", "lo", "hi")}
     for band in bands:
         k, idx = band.label, band.idx
-        for j, value in enumerate(values):
-            rec = protocol_gap_record(gaps[idx, j].tolist(), confidence, band.future_views, None, band.passes, v.paths)
-            if rec["gap_bound_db"] <= epsilon_db or j == len(values) - 1:
-                break
+        records = (protocol_gap_record(gaps[idx, j].tolist(), confidence, band.future_views, None, band.passes, v.paths)
+                   for j in range(len(values)))  # read up to the first within only
+        pick = grid.smallest_within(records, epsilon_db, gap=_bound, otherwise="last")
+        j, rec, value = pick.index, pick.item, values[pick.index]
         d = [v.distances[i] for i in idx]
         for key, x in (("values", value), ("kept", kept[idx, j].mean()), ("gaps_db", rec["gap_db"]),
                        ("bounds_db", rec["gap_bound_db"]), ("lo", min(d)), ("hi", max(d))):
@@ -181,4 +226,4 @@ def say_bands(b: dict[str, Any], values: Sequence[float], fmt: str) -> str:
     return "; ".join(f"{lo:.2f}-{hi:.2f}: {x:{fmt}} (bound {bd:.2f} dB)" for lo, hi, x, bd in zip(b["lo"], b["hi"], values, b["bounds_db"]))
 
 
-__all__ = ["smallest_within", "band_values", "choose", "say_bands"]
+__all__ = ["FORMATS", "KNOBS", "SearchedPoint", "say_value", "smallest_within", "band_values", "choose", "say_bands"]

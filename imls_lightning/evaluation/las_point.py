@@ -22,25 +22,12 @@ import torch
 
 from ..core.compaction import compact
 from ..core.metrics import psnr_per_image
+from ..core.smallest_within import smallest_within
 from ..estimate.measure import frame_tensor
-from .baseline_point import SearchedPoint, choose, say_bands
+from .baseline_point import SearchedPoint, choose, say_value
 from .networks import Networks
 from .operating_point import judged, search_views
 from .settings import Settings
-
-
-def describe_las(point: SearchedPoint) -> str:
-    """The report's line on where LAS at the promise runs and why (``point``: its :class:`~.baseline_point.SearchedPoint`)."""
-    head = (f"LAS at the product's promise (what a user who chose LAS would run): its IPR searched on {point.where}, "
-            f"the smallest that keeps the bound on the gap to the RecNN alone within {point.epsilon_db:g} dB")
-    if not point.found:
-        return f"{head}: none of those searched did, so it runs at the largest, IPR {point.value:.1%}."
-    rec = point.record
-    line = f"{head}: IPR {point.value:.1%}, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} dB)"
-    if not point.by_distance:
-        return line + "."
-    bands = say_bands(point.by_distance, point.by_distance["values"], ".1%")
-    return f"{line}; then each band of camera distance its own, never above that one: {bands}."
 
 
 def las_gaps(las_net: torch.nn.Module, recnn: torch.nn.Module, pattern, renderer, views: Sequence, frames: Sequence,
@@ -87,11 +74,15 @@ def las_point(s: Settings, cfg, cache, scene, nets: Networks, renderer, device, 
     views = [v.cache.views[r] for r in v.rows]
     frames = [np.asarray(v.cache.images[r]) for r in v.rows]
     kept, gaps = las_gaps(las, recnn, nets.ims_task.pattern, renderer, views, frames, iprs, device)
-    chosen, rows, by_distance = choose(v, s, iprs, kept, gaps, future_views, "LAS at the promise", lambda x: f"IPR {x:.1%}")
+    chosen, rows, by_distance = choose(v, s, iprs, kept, gaps, future_views, "LAS at the promise",
+                                     lambda x: say_value("ipr", x))
     rows = [{"ipr": r["value"], "kept": r["kept"], "gap_db": r["gap_db"], "gap_bound_db": r["gap_bound_db"]} for r in rows]
     return SearchedPoint("ipr", float(chosen["value"]) if chosen else float(iprs[-1]), found=chosen is not None, where=v.where,
                          epsilon_db=float(s.epsilon_db), record=chosen, rows=rows, by_distance=by_distance)
 
+
+#: the report's line on where LAS at the promise runs and why (``point``: its :class:`~.baseline_point.SearchedPoint`)
+describe_las = SearchedPoint.describe
 
 #: "equal quality" with IML/S (issue 84): LAS's mean validation gap within this much of IML/S's
 EQUAL_QUALITY_DB = 0.1
@@ -128,9 +119,9 @@ def equal_quality_point(searched: SearchedPoint, imls_gap_db: float, margin_db: 
     """
     rows = sorted(searched.rows, key=lambda r: float(r["ipr"]))
     target = float(imls_gap_db) + float(margin_db)
-    ok = [r for r in rows if float(r["gap_db"]) <= target]
-    pick = ok[0] if ok else min(rows, key=lambda r: abs(float(r["gap_db"]) - target))
-    return SearchedPoint("ipr", float(pick["ipr"]), found=bool(ok), where=searched.where, epsilon_db=target,
+    chosen = smallest_within(rows, target, gap=lambda r: float(r["gap_db"]), otherwise="closest")
+    pick = chosen.item
+    return SearchedPoint("ipr", float(pick["ipr"]), found=chosen.found, where=searched.where, epsilon_db=target,
                     record={"gap_db": float(pick["gap_db"]), "imls_gap_db": float(imls_gap_db), "margin_db": float(margin_db)},
                     rows=list(rows))
 

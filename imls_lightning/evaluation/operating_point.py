@@ -18,6 +18,7 @@ from imls_lightning.base.errors import InputError
 from data_gen.views import camera_distance as view_distance
 
 from ..core.operating_point import Bands, OperatingPoint
+from ..core.smallest_within import Within, smallest_within
 from ..orp.product import product_orp, product_point
 from .measurement import spaced, view_loader
 from .networks import Networks
@@ -252,12 +253,11 @@ def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, resu
                   f"{c['views_over_epsilon']} views over {s.epsilon_db:g} dB", file=sys.stderr, flush=True)
     if s.orp_object_floor_by_band:
         return _object_floor_by_band(s, cache, rows, bands, candidates, tau, future_views)
-    pick = choose_object_floor(candidates, s.epsilon_db, s.orp_object_floor_tail)
-    if pick is None:
-        pick = min(range(len(candidates)), key=lambda i: (candidates[i]["gap_bound_db"], i))
+    pick = object_floor_pick(candidates, s.epsilon_db, s.orp_object_floor_tail, otherwise="least")
+    if not pick.found:
         print(f"[evaluate] warning: object floor: no margin keeps the bound within {s.epsilon_db:g} dB on the validation "
               "views; keeping the one with the smallest bound", file=sys.stderr, flush=True)
-    c = candidates[pick]
+    c = pick.item
     chosen = None if c["margin"] is None else {"margin": float(c["margin"]), "tau": float(tau), "c_share": c["c_share"],
                                                "gap_db": c["gap_db"], "gap_bound_db": c["gap_bound_db"], "views": len(rows)}
     print("[evaluate] object floor: " + ("none (the operating point alone is the cheapest that holds)" if chosen is None else
@@ -304,11 +304,10 @@ def _object_floor_by_band(s: Settings, cache, rows, bands, candidates: list[dict
             continue
         band = [{"gap_bound_db": c["band_bounds_db"][k], "c_share": c["band_c_shares"][k],
                  "views_over_epsilon": c["band_views_over_epsilon"][k], "views": n_k} for c in candidates]
-        pick = choose_object_floor(band, s.epsilon_db, s.orp_object_floor_tail)
-        if pick is None:
-            pick = min(range(len(band)), key=lambda i: (band[i]["gap_bound_db"], i))
+        pick = object_floor_pick(band, s.epsilon_db, s.orp_object_floor_tail, otherwise="least")
+        if not pick.found:
             warned.append(f"band {k}: nothing holds, the smallest bound")
-        choice.append(pick)
+        choice.append(pick.index)
     for w in warned:
         print(f"[evaluate] warning: object floor by band: {w}", file=sys.stderr, flush=True)
     margins = [candidates[i]["margin"] for i in choice]
@@ -344,12 +343,19 @@ def choose_object_floor(candidates: Sequence[dict[str, Any]], epsilon_db: float,
         >>> choose_object_floor(cands, 1.0, tail=0.1)
         2
     """
-    def holds(c) -> bool:
-        over_ok = tail >= 1.0 or c.get("views") is None or int(c["views_over_epsilon"]) <= tail * int(c["views"])
-        return float(c["gap_bound_db"]) <= epsilon_db and over_ok
+    return object_floor_pick(candidates, epsilon_db, tail).index
 
-    held = [i for i, c in enumerate(candidates) if holds(c)]
-    return min(held, key=lambda i: (float(candidates[i]["c_share"]), i)) if held else None
+
+def object_floor_pick(candidates: Sequence[dict[str, Any]], epsilon_db: float, tail: float = 1.0,
+                      otherwise: str | None = None) -> Within:
+    """:func:`choose_object_floor`'s choice as :func:`~imls_lightning.core.smallest_within.smallest_within` gives it
+    (``found``: whether it holds); with ``otherwise="least"``, where none holds, the candidate of the smallest bound
+    (the earlier on a tie)."""
+    def tail_holds(c) -> bool:
+        return tail >= 1.0 or c.get("views") is None or int(c["views_over_epsilon"]) <= tail * int(c["views"])
+
+    return smallest_within(candidates, epsilon_db, gap=lambda c: float(c["gap_bound_db"]),
+                           value=lambda c: float(c["c_share"]), holds=tail_holds, otherwise=otherwise)
 
 
 def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, pattern, renderer, opts, views: int,

@@ -26,26 +26,13 @@ import torch
 
 from ..estimate.needed_share import NEEDED_SHARES, share_gaps
 from .networks import Networks
-from .baseline_point import SearchedPoint, band_values, choose, say_bands
+from .baseline_point import SearchedPoint, band_values, choose, say_value
 from .operating_point import SearchViews, judged, search_views
 from .settings import Settings
 
 
-def describe_two_pass(point: SearchedPoint) -> str:
-    """The report's line on where the two-pass sampler runs and why (``point``: its :class:`~.baseline_point.SearchedPoint`)."""
-    head = (f"Two passes + fill + RecNN (no IMS, no decoder: the simplest alternative): a blue-noise first pass of "
-            f"{point.settings['base']:.0%} of C, then the pixels whose neighbours predict them worst, pull-push filled; its share "
-            f"was searched on {point.where}")
-    if point.found:
-        rec = point.record
-        line = (f"{head}: {point.value:.0%} of C, gap {rec['gap_db']:.2f} dB there (bound {rec['gap_bound_db']:.2f} "
-                f"<= {point.epsilon_db:g} dB)")
-        if not point.by_distance:
-            return line + "."
-        bands = say_bands(point.by_distance, point.by_distance["shares"], ".0%")
-        return (f"{line}; then each band of camera distance its own share, never above that one, judged on its own "
-                f"search views: {bands}.")
-    return f"{head}: no share below 100% kept the bound within {point.epsilon_db:g} dB, so it renders all of C."
+#: the report's line on where the two-pass sampler runs and why (``point``: its :class:`~.baseline_point.SearchedPoint`)
+describe_two_pass = SearchedPoint.describe
 
 
 def candidate_shares(base: float) -> list[float]:
@@ -75,7 +62,7 @@ def two_pass_point(s: Settings, cfg, cache, scene, nets: Networks, pattern, devi
     frames = [np.asarray(v.cache.images[r]) for r in v.rows]
     kept, gaps = share_gaps(rebuild, pattern, frames, shares, floor=floor, base=base)
     chosen, searched, by_distance = choose(v, s, shares, kept, gaps, future_views, "the two-pass sampler",
-                                           lambda x: f"{x:.0%} of C")
+                                           lambda x: say_value("share", x))
     rows = [{**r, "share": r["value"], "c_share": r["kept"]} for r in searched]
     chosen = None if chosen is None else {**chosen, "share": chosen["value"], "c_share": chosen["kept"]}
     by_distance = None if by_distance is None else shares_named(by_distance)

@@ -35,6 +35,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.pull_push import fill_c_image
 from ..core.metrics import psnr_per_image
+from ..core.smallest_within import bisect_monotone
 from ..tasks.iml import background_mask
 
 __all__ = ["SHARES", "mask_at_share", "iml_pim_at", "equal_share_rows", "summarize_equal_share"]
@@ -47,8 +48,9 @@ def mask_at_share(mask_at: Callable[[torch.Tensor], torch.Tensor], share: float,
                   batch: int, steps: int = 24, bracket: Sequence[float] = (1e-3, 1.0)) -> torch.Tensor:
     """The mask, per image, at the mean value ``u`` whose mask keeps about ``share`` of the valid pixels.
 
-    Bisection in ``log u`` per image; the mask's count grows with ``u``. The smallest ``u`` whose
-    count reaches the target is taken (the share may overshoot by the pixels that switch at once).
+    Bisection in ``log u`` per image (:func:`~imls_lightning.core.smallest_within.bisect_monotone`); the mask's
+    count grows with ``u``. The smallest ``u`` whose count reaches the target is taken (the share may overshoot by
+    the pixels that switch at once).
 
     Args:
         mask_at: ``u (B,) float32 -> (B, 1, n, n)`` bool or 0/1 mask at those means.
@@ -77,11 +79,7 @@ def mask_at_share(mask_at: Callable[[torch.Tensor], torch.Tensor], share: float,
         m = mask_at(u.float()).bool() & valid.to(torch.bool)
         return m.flatten(1).sum(1).double().cpu()
 
-    for _ in range(int(steps)):
-        mid = (lo.log() + hi.log()).mul(0.5).exp()
-        enough = count(mid) >= target - 0.5
-        hi = torch.where(enough, mid, hi)
-        lo = torch.where(enough, lo, mid)
+    hi = bisect_monotone(count, target - 0.5, lo, hi, steps).hi
     return (mask_at(hi.float()).bool() & valid.to(torch.bool)).float()
 
 

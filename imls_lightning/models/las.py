@@ -95,6 +95,7 @@ from imls_lightning.core.importance import (
     soft_rejection_sample,
 )
 from imls_lightning.core.pull_push import PullPushInpaint, pull_push_inpaint
+from imls_lightning.core.smallest_within import bisect_monotone
 from imls_lightning.models.unet import UNet
 from imls_lightning.core.patterns import plastic_rank_pattern
 
@@ -485,7 +486,8 @@ class LASNet(nn.Module):
 
     def mean_for_ipr(self, raw: torch.Tensor, ipr: float, steps: int = 30) -> torch.Tensor:
         """Per-image mean ``u`` ``(B, 1, 1, 1)`` at which :meth:`mask_at` samples about ``ipr`` of
-        the FR pixels (bisection; ``u = 1`` where even that samples fewer).
+        the FR pixels (bisection in ``u``, :func:`~imls_lightning.core.smallest_within.bisect_monotone`; ``u = 1``
+        where even that samples fewer).
 
         Args:
             raw: ``(B, 1, m, m)`` the importance net's output.
@@ -501,13 +503,11 @@ class LASNet(nn.Module):
         target = check_ipr(ipr)
         r = normalize_importance(raw, 1.0, 0.0, self.delta)
         lo = torch.full((raw.shape[0], 1, 1, 1), max(self.lower, 0.0), device=raw.device, dtype=r.dtype)
-        hi = torch.ones_like(lo)
-        for _ in range(int(steps)):
-            mid = 0.5 * (lo + hi)
-            below = self._affine_mask(r, mid).float().mean(dim=(1, 2, 3), keepdim=True) < target
-            lo = torch.where(below, mid, lo)
-            hi = torch.where(below, hi, mid)
-        return hi
+
+        def share(u: torch.Tensor) -> torch.Tensor:
+            return self._affine_mask(r, u).float().mean(dim=(1, 2, 3), keepdim=True)
+
+        return bisect_monotone(share, target, lo, torch.ones_like(lo), steps, scale="linear").hi
 
     @torch.no_grad()
     def reconstruct(self, samples: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

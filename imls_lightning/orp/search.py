@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from imls_lightning.base.errors import InputError, boolean, finite_number
 from imls_lightning.base.validate import check_integer, check_number
+from imls_lightning.core.smallest_within import smallest_within, within
 
 # the paper's range of the mean value (== imls_lightning.core.importance.MEAN_RANGE; not imported, to
 # keep this module free of torch for the Hydra plugin scan)
@@ -393,8 +394,13 @@ class Evaluation:
     error: str | None = None
     record: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def gap(self) -> float:
+        """The gap judged against epsilon: ``gap_db``, NaN (never within) for a failed evaluation."""
+        return self.gap_db if self.status == "ok" and self.gap_db is not None else math.nan
+
     def meets(self, epsilon_db: float) -> bool:
-        return self.status == "ok" and self.gap_db is not None and self.gap_db <= epsilon_db
+        return within(self.gap, epsilon_db)
 
 
 def describe_error(err: BaseException) -> str:
@@ -534,8 +540,8 @@ class ORPSearch:
         return self.hi <= self.lo * (1.0 + self.tolerance) if self.lo > 0 else self.hi - self.lo <= self.tolerance * self.hi
 
     def best(self) -> Evaluation | None:
-        ok = [e for e in self.evaluations if e.meets(self.epsilon_db)]
-        return min(ok, key=lambda e: e.u) if ok else None
+        """The evaluation of the smallest mean value that meets epsilon (the earlier on a tie); None: none does."""
+        return smallest_within(self.evaluations, self.epsilon_db, gap=lambda e: e.gap, value=lambda e: e.u).item
 
     def evaluated(self, u: float) -> bool:
         return any(e.u == u for e in self.evaluations)
