@@ -98,3 +98,31 @@ def test_pack_row_commits_the_evaluated_weights_and_reproduce_reads_the_row(row,
     out = reproduce(OmegaConf.create({"row": spec, "trajectory_seed": 9, "views": None, "timed_views": None,
                                       "output_dir": str(tmp_path / "out"), "runs_dir": str(tmp_path), "cache_dir": str(row["ck"]["cache_dir"])}))
     assert json.loads(out.read_text())["trajectory_seed"] == 9
+
+
+def test_pack_trained_commits_networks_not_yet_evaluated(row, tmp_path):
+    """A row whose session ended before its evaluation: its networks packed as pack_row packs them (the same weights,
+    training-only state dropped), trained.yaml naming them by SHA-256; a missing checkpoint is refused in one line."""
+    import torch
+    import yaml
+
+    from imls_lightning.pipelines.pack_row import pack_trained
+
+    dest = tmp_path / "rows" / "trained"
+    sources = {"ims": row["folder"] / "ims.ckpt", "las": row["folder"] / "las.ckpt"}
+    record = yaml.safe_load(pack_trained(sources, "trained", dest, experiment="tiny_row").read_text())
+    assert record["evaluated"] is False and record["experiment"] == "tiny_row" and set(record["networks"]) == {"ims", "las"}
+    for key, net in record["networks"].items():
+        packed = torch.load(dest / net["file"], weights_only=True)
+        assert "optimizer_states" not in packed and net["sha256"] == file_hash(dest / net["file"], length=64)
+        original = torch.load(sources[key], weights_only=True)
+        assert all(torch.equal(packed["state_dict"][k], v) for k, v in original["state_dict"].items())
+    with pytest.raises(InputError, match=r"checkpoints.recnn=.*gone.ckpt: no such checkpoint file"):
+        pack_trained({"recnn": tmp_path / "gone.ckpt"}, "trained", tmp_path / "other")
+
+
+def test_cli_pack_row_without_evaluation_or_checkpoints_is_one_line_with_status_2(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "imls_lightning.pack_row", "name=nothing", f"dest={tmp_path / 'd'}"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "evaluation=" in p.stderr, p.stderr
+    assert not (tmp_path / "d").exists()

@@ -39,6 +39,41 @@ def pack_checkpoint(src: Path, dest: Path) -> None:
         raise InputError(f"{dest}: its weights differ from {src}'s after packing")
 
 
+def pack_networks(sources: Mapping[str, Path], dest: Path) -> dict[str, dict[str, str]]:
+    """Each ``sources[key]`` checkpoint packed (:func:`pack_checkpoint`) into ``dest/<key>.ckpt``; returns
+    ``{key: {"file": "<key>.ckpt", "sha256": <64 hex digits>}}``, as ``conf/row/<row>.yaml`` names them."""
+    from ..base.config import file_hash
+
+    dest.mkdir(parents=True, exist_ok=True)
+    networks: dict[str, dict[str, str]] = {}
+    for key, src in sources.items():
+        if not src.is_file():
+            raise InputError(f"checkpoints.{key}={src}: no such checkpoint file")
+        out = dest / f"{key}.ckpt"
+        pack_checkpoint(src, out)
+        networks[key] = {"file": out.name, "sha256": file_hash(out, length=64)}
+        log(f"[pack_row] {key}: {src} -> {out} ({out.stat().st_size / 2**20:.2f} MiB)")
+    return networks
+
+
+def pack_trained(sources: Mapping[str, Path], name: str, dest: Path, *, experiment: str | None = None) -> Path:
+    """A row trained but not yet evaluated: its networks packed into ``dest`` (:func:`pack_networks`) and
+    ``dest/trained.yaml`` (returned) naming them by SHA-256, with the experiment that trained them. A later session
+    evaluates them without training again (``checkpoints.<key>=<dest>/<key>.ckpt`` in the row's evaluation command);
+    ``pack_row evaluation=...`` then commits the point beside them."""
+    from ..report import write_config
+
+    if not sources:
+        raise InputError("checkpoints: expected at least one network (checkpoints.<key>=<path>), got none")
+    networks = pack_networks(sources, dest)
+    record = {"name": name, "experiment": experiment, "evaluated": False, "networks": networks,
+              # where they were trained, for the record (a run folder's name carries its settings hash)
+              "trained_in": {k: f"{Path(src).parent.parent.name}/{Path(src).name}" for k, src in sources.items()}}
+    out = dest / "trained.yaml"
+    write_config(out, record, f"# row {name}: trained, not yet evaluated (python -m imls_lightning.pack_row checkpoints=...)\n")
+    return out
+
+
 def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_seed: int, settings: Sequence[str],
              views: int = 60, timed_views: int = 6, row_dir: Path | None = None) -> Path:
     """Pack the networks of the finished evaluation in ``evaluation`` (its ``config.yaml`` names them) into ``dest``,
@@ -51,18 +86,11 @@ def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_s
         raise InputError(f"evaluation={evaluation}: expected a finished evaluation's folder (summary.json, config.yaml, report.md)")
     summary = json.loads(summary_path.read_text())
     config = OmegaConf.to_container(OmegaConf.load(config_path), resolve=True)
-    dest.mkdir(parents=True, exist_ok=True)
-    networks: dict[str, dict[str, str]] = {}
-    for key, path in (config.get("checkpoints") or {}).items():
-        if not path:
-            continue
-        src = Path(str(path)).expanduser()
+    sources = {key: Path(str(path)).expanduser() for key, path in (config.get("checkpoints") or {}).items() if path}
+    for key, src in sources.items():
         if file_hash(src) != summary["checkpoints_sha256"].get(key):
             raise InputError(f"evaluation={evaluation}: its checkpoints.{key} ({src}) changed since it was evaluated")
-        out = dest / f"{key}.ckpt"
-        pack_checkpoint(src, out)
-        networks[key] = {"file": out.name, "sha256": file_hash(out, length=64)}
-        log(f"[pack_row] {key}: {src} -> {out} ({out.stat().st_size / 2**20:.2f} MiB)")
+    networks = pack_networks(sources, dest)
     point = dest / "point"
     point.mkdir(exist_ok=True)
     # the point's own record names the packed files as the evaluation names checkpoints (file_hash's 16 hex digits)
