@@ -25,7 +25,7 @@ def main(cfg: DictConfig) -> None:
         sources = {str(k): Path(str(v)) for k, v in (cfg.checkpoints or {}).items()}
         if not sources:
             raise InputError("evaluation=<finished evaluation folder> or checkpoints.<key>=<path> expected, got neither")
-        print(pack_trained(sources, str(cfg.name), dest, experiment=cfg.experiment), flush=True)
+        print(pack_trained(sources, str(cfg.name), dest, experiment=cfg.trained_by), flush=True)
         return
     if cfg.trajectory_seed is None:
         raise InputError("trajectory_seed=<int> expected with evaluation=: the fresh trajectory the row's numbers come from")
