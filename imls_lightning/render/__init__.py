@@ -31,6 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from imls_lightning.base.config import KEYS_NEUTRAL_AT
 from imls_lightning.base.errors import InputError
 from imls_lightning.base.validate import check_integer, check_mapping
 
@@ -39,8 +40,8 @@ from .scene import Scene
 # keys of the renderer node that never change the pixels (how fast, not what)
 NON_PIXEL_KEYS = frozenset({"threads", "skip_empty"})
 # pixel keys added after caches and runs existed, left out of hashes while they hold the value every earlier render
-# had (the run hash's own list, imls_lightning.base.config.KEYS_NEUTRAL_AT, names them too)
-PIXEL_KEYS_NEUTRAL_AT = {"interpolation": "trilinear"}
+# had: their neutral values live once, in the run hash's own list (imls_lightning.base.config.KEYS_NEUTRAL_AT)
+PIXEL_KEYS_NEUTRAL_AT = {k: KEYS_NEUTRAL_AT[k] for k in ("interpolation",)}
 
 
 def without_neutral_keys(cfg: Mapping[str, Any]) -> dict[str, Any]:
