@@ -91,6 +91,22 @@ def test_skip_empty_false_reaches_every_stage_that_times_and_no_stage_that_rende
         bp.pair_config(_cfg(skip_empty="no"), "flame_whole", "enhancenet")
 
 
+def test_renderer_overrides_reach_every_stage_and_a_malformed_one_is_refused_in_one_line():
+    """``renderer_overrides`` follow ``renderer=<name>`` in the cache's, the training's, the evaluation's and the
+    estimate's commands; none by default, so every existing command (and its hashes) stays as it was."""
+    from imls_lightning.pipelines import stage_args
+
+    cubic = bp.pair_config(_cfg(renderer_overrides='["renderer.interpolation=tricubic"]'), "flame_whole", "enhancenet")
+    for args in (*stage_args(cubic), bp.estimate_args(_cfg(), cubic)):
+        i = args.index("renderer=numba")
+        assert args[i + 1] == "renderer.interpolation=tricubic"
+    default = bp.pair_config(_cfg(), "flame_whole", "enhancenet")
+    assert not any("interpolation" in a for a in [*stage_args(default)[1], *bp.estimate_args(_cfg(), default)])
+    for bad in ('["interpolation=tricubic"]', '["renderer.interpolation"]', '"renderer.interpolation=tricubic"'):
+        with pytest.raises(InputError, match="renderer_overrides"):
+            bp.pair_config(_cfg(renderer_overrides=bad), "flame_whole", "enhancenet")
+
+
 def test_the_evaluations_sharpness_candidates_reach_the_estimate_and_the_row_reads_the_kept_ones_curve():
     """ims_sharpness in the evaluation's overrides: the estimate renders a curve per candidate (sharpness=...), and a
     row whose ORP kept gamma = 2 takes its estimated_speedup from that curve; the paper's masks alone add nothing."""

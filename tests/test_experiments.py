@@ -236,3 +236,16 @@ def test_a_row_runs_from_the_command_line(tmp_path):
                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     assert _stage_commands(run.stdout) == _stage_commands((ROW_COMMANDS / "seed_whole_fastest.txt").read_text())
+
+
+def test_the_tricubic_row_is_the_trilinear_row_with_tricubic_in_every_stage(monkeypatch, capsys, tmp_path):
+    """``renderer_overrides`` reaches every stage's command right after ``renderer=<name>`` (the cache and the training
+    render its pixels, so their caches and runs are their own), and the tricubic row differs from its trilinear twin
+    in nothing else but its own fresh test trajectory."""
+    trilinear = _row_dry_run("rayleigh_taylor_fastest", monkeypatch, capsys, tmp_path)
+    tricubic = _row_dry_run("rayleigh_taylor_tricubic", monkeypatch, capsys, tmp_path)
+    assert len(tricubic) == len(trilinear) == 10
+    expected = [c.replace("renderer=numba", "renderer=numba renderer.interpolation=tricubic", 1)
+                .replace("trajectory_seed=1208", "trajectory_seed=1209") for c in trilinear]
+    assert tricubic == expected
+    assert all(c.count("renderer.interpolation=tricubic") == 1 for c in tricubic)

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 from .stages import (SPARSER_PATTERN, StageFailed, StageUnfinished, check_scene_overrides, dry_stage, evaluation_lift,
                      ims_decoder_overrides, ims_finetune_overrides, override_list, read_summary, run_pipeline, run_stage, sparser_overrides,
-                     split_scene_overrides, stage_args, stage_overrides)
+                     renderer_overrides, split_scene_overrides, stage_args, stage_overrides)
 
 __all__ = [
     "SPARSER_PATTERN", "StageFailed", "StageUnfinished", "check_scene_overrides", "dry_stage",
     "evaluation_lift", "ims_decoder_overrides", "ims_finetune_overrides", "override_list", "read_summary", "run_pipeline", "run_stage",
-    "sparser_overrides", "split_scene_overrides", "stage_args", "stage_overrides",
+    "renderer_overrides", "sparser_overrides", "split_scene_overrides", "stage_args", "stage_overrides",
 ]

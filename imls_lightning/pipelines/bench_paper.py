@@ -22,7 +22,7 @@ from ..report import (atomic_write_text, equal_share_markdown, fmt, fmt_pct, md_
 from ..report import write_csv as report_csv
 from .demo import demo
 from ..base.paths import log
-from .stages import dry_stage, override_list, read_summary, run_stage
+from .stages import dry_stage, override_list, read_summary, renderer_overrides, run_stage
 
 
 #: the columns of ``benchmarks/paper_scale.csv``, in order (issue 18)
@@ -101,6 +101,7 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
     stages["recnn_sparser"] = override_list(cfg, "stages.recnn_sparser") if not explicit or cfg.stages.recnn_sparser is not None else None
     return OmegaConf.create({
         "scene": scene, "data": str(cfg.data), "recnn": recnn, "renderer": str(cfg.renderer),
+        "renderer_overrides": renderer_overrides(cfg),
         "runs_dir": str(cfg.runs_dir), "cache_dir": str(cfg.cache_dir), "seed": int(cfg.seed),
         "progress": bool(cfg.progress), "dry_run": bool(cfg.dry_run),
         "train_only": bool(cfg.get("train_only", False)), "stages": stages,
@@ -595,7 +596,7 @@ def estimate_args(cfg: DictConfig, stages: DictConfig, scene_overrides: Sequence
             if key in keys:
                 sizes.append(f"{keys[key]}={str(o).split('=', 1)[1]}")
     return ["-m", "imls_lightning.estimate", f"scene={stages.scene}", *scene_overrides, f"recnn={stages.recnn}",
-            f"renderer={stages.renderer}", f"runs_dir={stages.runs_dir}", *[str(o) for o in net], *sizes,
+            f"renderer={stages.renderer}", *renderer_overrides(stages), f"runs_dir={stages.runs_dir}", *[str(o) for o in net], *sizes,
             *timing_overrides(cfg), *evaluated_sharpness(cfg), *evaluated_options(cfg), *override_list(cfg, "estimate")]
 
 

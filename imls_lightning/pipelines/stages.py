@@ -225,10 +225,35 @@ def sparser_overrides(cfg: DictConfig) -> list[str]:
     return list({override_key(o): o for o in ordered}.values())
 
 
+#: ``renderer.<key>=<value>``, the only form :func:`renderer_overrides` takes
+_RENDERER_OVERRIDE = re.compile(r"renderer\.[A-Za-z_][A-Za-z0-9_.]*=.+")
+
+
+def renderer_overrides(cfg: DictConfig) -> list[str]:
+    """The pipeline's ``renderer_overrides`` (``renderer.<key>=<value>``, e.g. ``renderer.interpolation=tricubic``):
+    the renderer settings every stage's command gets after ``renderer=<name>``, the cache and the training included,
+    since they may change the pixels; ``[]`` when the pipeline has none. A malformed one is refused in one line.
+
+    Example:
+        >>> renderer_overrides(OmegaConf.create({"renderer_overrides": ["renderer.interpolation=tricubic"]}))
+        ['renderer.interpolation=tricubic']
+        >>> renderer_overrides(OmegaConf.create({}))
+        []
+    """
+    found = cfg.get("renderer_overrides") or []
+    if isinstance(found, str) or not OmegaConf.is_list(found) and not isinstance(found, (list, tuple)):
+        raise InputError(f"renderer_overrides={found!r}: expected a list of renderer.<key>=<value>")
+    out = [str(o) for o in found]
+    for o in out:
+        if not _RENDERER_OVERRIDE.fullmatch(o):
+            raise InputError(f"renderer_overrides: {o!r} is not renderer.<key>=<value> (e.g. renderer.interpolation=tricubic)")
+    return out
+
+
 def stage_args(cfg: DictConfig, scene_overrides: Sequence[str] = (), *, scene: str | None = None, recnn: bool = True,
                quote: bool = False, common: Sequence[str] = (), train: Sequence[str] = ()) -> tuple[list[str], list[str]]:
     """The arguments every stage's command shares: ``(common, train_common)``, the scene, data,
-    renderer and cache for every CLI, plus the RecNN, runs folder, seed (and no progress bar) for
+    renderer (with :func:`renderer_overrides`) and cache for every CLI, plus the RecNN, runs folder, seed (and no progress bar) for
     ``imls_lightning.train``.
 
     ``scene`` replaces ``cfg.scene`` (a benchmark runs several); ``recnn=False`` leaves ``recnn=`` to the
@@ -243,7 +268,7 @@ def stage_args(cfg: DictConfig, scene_overrides: Sequence[str] = (), *, scene: s
     """
     q = quote_override_value if quote else str
     shared = [f"scene={cfg.scene if scene is None else scene}", *scene_overrides, f"data={cfg.data}", f"renderer={cfg.renderer}",
-              f"data.cache_dir={q(str(cfg.cache_dir))}", *common]
+              *renderer_overrides(cfg), f"data.cache_dir={q(str(cfg.cache_dir))}", *common]
     train_common = [*shared, *([f"recnn={cfg.recnn}"] if recnn else []), f"paths.runs_dir={q(str(cfg.runs_dir))}",
                     f"seed={int(cfg.seed)}", *train]
     if not cfg.progress:
