@@ -61,10 +61,10 @@ def latency_psnr_svg(history, current: tuple[float, float] | None) -> str:
 
 def stats_text(frame: Frame) -> str:
     lines = [f"{s:<17s}{frame.stages_ms[s]:8.1f} ms" for s in STAGES if s in frame.stages_ms]
-    lines += [f"{'pixels ray-cast':<17s}{100 * frame.share:8.1f} %",
+    lines += [f"{'pixels ray-cast':<17s}{100 * frame.ipr:8.1f} %",
               f"{'PSNR':<17s}{frame.psnr:8.2f} dB" + ("  (exact)" if frame.psnr >= 99.9 else "")]
     if frame.method in ("imls", "adaptive"):
-        lines.append(f"{'share of C':<17s}{frame.mean:8.3f}" + ("  (this view's)" if frame.view_mean else ""))
+        lines.append(f"{'share of C':<17s}{frame.share:8.3f}" + ("  (this view's)" if frame.view_share else ""))
     return "\n".join(lines)
 
 

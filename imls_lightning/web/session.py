@@ -6,7 +6,7 @@ one frame at a time (image, mask, error against the ground truth, stage latencie
 Example:
     >>> s = ViewerSession.from_checkpoints("ims.ckpt")      # doctest: +SKIP
     >>> s.orbit(15, 0); s.set_share(0.4); f = s.frame()      # doctest: +SKIP
-    >>> f.psnr, f.stages_ms["total"], f.share                # doctest: +SKIP
+    >>> f.psnr, f.stages_ms["total"], f.ipr, f.share         # doctest: +SKIP
 """
 from __future__ import annotations
 
@@ -52,10 +52,10 @@ class Frame:
         mask: ``(m, m)`` bool, the FR pixels ray-cast for it.
         error: ``(m, m, 3)`` uint8 heat map of the error against the ground truth (x4).
         stages_ms: stage -> milliseconds (``total`` included).
-        share: ray-cast FR pixels / FR pixels.
+        ipr: the image-plane ratio, ray-cast FR pixels / FR pixels.
         psnr: dB against the ground truth (100 when identical).
-        mean: the share of the C-Image IML/S ran this view at (the paper's mean value ``u``, the same number).
-        view_mean: whether ``mean`` is this view's own (the adaptive mean, a by-distance point).
+        share: the share of the C-Image IML/S ran this view at (the paper's mean value ``u``, the same number).
+        view_share: whether ``share`` is this view's own (the adaptive mean, a by-distance point).
     """
 
     method: str
@@ -63,10 +63,10 @@ class Frame:
     mask: np.ndarray
     error: np.ndarray
     stages_ms: dict[str, float]
-    share: float
+    ipr: float
     psnr: float
-    mean: float
-    view_mean: bool = False
+    share: float
+    view_share: bool = False
 
 
 def png_data_url(image: np.ndarray) -> str:
@@ -277,9 +277,9 @@ class ViewerSession(OrbitCamera):
         psnr = frame_psnr(image, truth)
         err = to_uint8(error_map(torch.from_numpy(np.array(image)).permute(2, 0, 1).float() / 255,
                                  torch.from_numpy(np.array(truth)).permute(2, 0, 1).float() / 255))
-        share = float(mask.mean())
+        ipr = float(mask.mean())
         self.history.append((self.method, stages.get("total", math.nan), psnr))
-        # the adaptive mean's and a by-distance point's u are the view's own
-        view_mean = self.method in ("imls", "adaptive") and "mean" in res.info
-        mean = float(res.info["mean"]) if view_mean else self.share
-        return Frame(self.method, image, mask, err, stages, share, psnr, mean, view_mean)
+        # the adaptive mean's and a by-distance point's share (u) are the view's own
+        view_share = self.method in ("imls", "adaptive") and "mean" in res.info
+        share = float(res.info["mean"]) if view_share else self.share
+        return Frame(self.method, image, mask, err, stages, ipr, psnr, share, view_share)

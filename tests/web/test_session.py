@@ -25,15 +25,15 @@ def session(tiny_checkpoints, predictor_file):
 
 def test_smoke_every_method_renders_a_scored_frame(session):
     m = session.pattern.fr_size
-    shares = {}
+    iprs = {}
     for name in session.methods:
         session.set_method(name)
         f = session.frame()
         assert f.image.shape == (m, m, 3) and f.image.dtype == np.uint8 and f.mask.shape == (m, m)
         assert f.error.shape == (m, m, 3) and np.isfinite(f.psnr) and f.stages_ms["total"] > 0
-        shares[name] = f.share
-    assert set(shares) == {"imls", "adaptive", "recnn", "las", "truth"}
-    assert shares["truth"] == 1.0 and shares["recnn"] == pytest.approx(session.pattern.sampling_ratio)
+        iprs[name] = f.ipr
+    assert set(iprs) == {"imls", "adaptive", "recnn", "las", "truth"}
+    assert iprs["truth"] == 1.0 and iprs["recnn"] == pytest.approx(session.pattern.sampling_ratio)
     assert session.las_method.ipr == 1.0  # LAS runs at IML/S's IPR as an argument: the method is not changed
     session.set_method("truth")
     assert session.frame().psnr >= 99.9  # the ground truth scored against itself
@@ -43,7 +43,7 @@ def test_smoke_every_method_renders_a_scored_frame(session):
 def test_adaptive_method_reports_the_views_mean(session):
     session.set_method("adaptive")
     f = session.frame()
-    assert 0.01 <= f.mean <= 1.0 and "mean" in f.stages_ms and f.mask.any()
+    assert 0.01 <= f.share <= 1.0 and "mean" in f.stages_ms and f.mask.any()
 
 
 def test_share_slider_changes_the_share_ray_cast(session):
@@ -52,7 +52,7 @@ def test_share_slider_changes_the_share_ray_cast(session):
     low = session.frame()
     session.set_share(1.0)
     high = session.frame()
-    assert low.mean == 0.05 and high.mean == 1.0 and high.share > low.share
+    assert low.share == 0.05 and high.share == 1.0 and high.ipr > low.ipr
     # set_mean, its older name, still works (the paper's mean value u is the share), with a DeprecationWarning
     with pytest.warns(DeprecationWarning, match="set_share"):
         session.set_mean(0.3)
@@ -119,7 +119,7 @@ def test_the_session_opens_at_the_recorded_operating_point(tiny_checkpoints, tmp
     s = ViewerSession.from_checkpoints(str(ckpt), opts=cpu)
     assert s.share == 0.4567 and s.operating_point == point and s.lift is True
     f = s.frame()
-    assert f.mean == 0.4567 and s._imls_at(0.4567).mean == 0.4567
+    assert f.share == 0.4567 and s._imls_at(0.4567).mean == 0.4567
     over = ViewerSession.from_checkpoints(str(ckpt), opts=cpu, share=0.3)
     assert over.share == 0.3 and over.operating_point is None and over.lift is False
     assert ViewerSession.from_checkpoints(str(ckpt), opts=cpu, mean=0.3).share == 0.3
@@ -140,9 +140,9 @@ def test_the_session_runs_a_point_recorded_by_camera_distance(tiny_checkpoints, 
     s = ViewerSession.from_checkpoints(str(ckpt), opts=NetOptions(device="cpu"), distance=4.2)
     assert s.share == 0.9 and s.by_distance is not None
     far = s.frame()
-    assert far.view_mean and far.mean == pytest.approx(0.35) and "(this view's)" in stats_text(far)
+    assert far.view_share and far.share == pytest.approx(0.35) and "(this view's)" in stats_text(far)
     s.distance = 3.1
-    assert s.frame().mean == pytest.approx(0.9)
+    assert s.frame().share == pytest.approx(0.9)
     s.set_share(0.5)
     fixed = s.frame()
-    assert not fixed.view_mean and fixed.mean == 0.5 and "(this view's)" not in stats_text(fixed)
+    assert not fixed.view_share and fixed.share == 0.5 and "(this view's)" not in stats_text(fixed)
