@@ -249,3 +249,36 @@ def test_the_tricubic_row_is_the_trilinear_row_with_tricubic_in_every_stage(monk
                 .replace("trajectory_seed=1208", "trajectory_seed=1209") for c in trilinear]
     assert tricubic == expected
     assert all(c.count("renderer.interpolation=tricubic") == 1 for c in tricubic)
+
+
+def test_a_row_evaluates_its_committed_networks_without_training(monkeypatch, capsys, tmp_path):
+    """``trained=<folder>`` (pack_row's trained.yaml): each network it names, checked by SHA-256, stands in for its
+    training stage; the cache and the evaluation run as before, on the committed files."""
+    folder = ROOT / "benchmarks" / "rows" / "rayleigh_taylor"
+    commands = _row_dry_run("rayleigh_taylor_fastest", monkeypatch, capsys, tmp_path, f"trained={folder}")
+    assert [c.split()[2] for c in commands] == ["imls_lightning.estimate", "data_gen", "imls_lightning.evaluate"]
+    evaluate = commands[-1].split()
+    for key in ("ims", "recnn", "iml", "las", "blue_noise", "recnn_sparser"):
+        assert f"checkpoints.{key}={folder / (key + '.ckpt')}" in evaluate
+
+
+def test_trained_networks_refuse_a_missing_record_or_an_altered_network_in_one_line(tmp_path):
+    from imls_lightning.base.config import file_hash
+    from imls_lightning.base.errors import InputError
+    from imls_lightning.pipelines.pack_row import trained_networks
+
+    with pytest.raises(InputError, match="no trained.yaml there"):
+        trained_networks(tmp_path)
+    (tmp_path / "recnn.ckpt").write_bytes(b"weights")
+    record = {"name": "r", "networks": {"recnn": {"file": "recnn.ckpt", "sha256": file_hash(tmp_path / "recnn.ckpt", length=64)}}}
+    OmegaConf.save(OmegaConf.create(record), tmp_path / "trained.yaml")
+    assert trained_networks(tmp_path) == {"recnn": tmp_path / "recnn.ckpt"}
+    (tmp_path / "recnn.ckpt").write_bytes(b"other weights")
+    with pytest.raises(InputError, match="row=r: .*recnn.ckpt has SHA-256 .* the file was altered"):
+        trained_networks(tmp_path)
+    (tmp_path / "recnn.ckpt").unlink()
+    with pytest.raises(InputError, match="its network recnn .* is missing"):
+        trained_networks(tmp_path)
+    OmegaConf.save(OmegaConf.create({"name": "r", "networks": {}}), tmp_path / "trained.yaml")
+    with pytest.raises(InputError, match="names no networks"):
+        trained_networks(tmp_path)

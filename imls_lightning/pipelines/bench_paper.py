@@ -104,7 +104,7 @@ def pair_config(cfg: DictConfig, scene: str, recnn: str) -> DictConfig:
         "renderer_overrides": renderer_overrides(cfg),
         "runs_dir": str(cfg.runs_dir), "cache_dir": str(cfg.cache_dir), "seed": int(cfg.seed),
         "progress": bool(cfg.progress), "dry_run": bool(cfg.dry_run),
-        "train_only": bool(cfg.get("train_only", False)), "stages": stages,
+        "train_only": bool(cfg.get("train_only", False)), "trained": cfg.get("trained"), "stages": stages,
         "evaluate": [*override_list(cfg, "evaluate"), *timing_overrides(cfg)],
         "adaptive": ([*override_list(cfg, "adaptive"), *timing_overrides(cfg)]
                      if OmegaConf.select(cfg, "adaptive") is not None else None),

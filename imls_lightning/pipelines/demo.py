@@ -9,6 +9,7 @@ from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
+from .pack_row import trained_networks
 from .stages import (check_scene_overrides, dry_stage, evaluation_lift, ims_decoder_overrides, ims_finetune_overrides,
                      override_list, run_stage, sparser_overrides, stage_args, stage_overrides)
 
@@ -31,33 +32,33 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
     if not dry:
         print(f"[demo] contact sheet of the cached views: {sheet}", file=sys.stderr, flush=True)
 
-    train = ["-m", "imls_lightning.train"]
-    recnn = stage("RecNN", [*train, "model=recnn", *train_common, *stage_overrides(cfg, "recnn")])
+    # a row's committed networks (pack_row's trained.yaml) stand in for its training stages: evaluated, not trained again
+    committed = trained_networks(Path(str(cfg.trained))) if cfg.get("trained") else {}
+
+    def train(key: str, name: str, model: str, *refs: str, overrides: Sequence[str] | None = None) -> str:
+        if key in committed:
+            print(f"[demo] {name}: the committed {committed[key]} (trained={cfg.trained}), not trained again",
+                  file=sys.stderr, flush=True)
+            return str(committed[key])
+        return stage(name, ["-m", "imls_lightning.train", f"model={model}", *train_common, *refs,
+                            *(stage_overrides(cfg, key) if overrides is None else overrides)])
+
+    recnn = train("recnn", "RecNN", "recnn")
     sparser = None
     if OmegaConf.select(cfg, "stages.recnn_sparser") is not None:
         # what a user would do instead of IML/S: the same RecNN, trained the same way, on a sparser pattern
-        sparser = stage("RecNN, sparser pattern", [*train, "model=recnn", *train_common, *sparser_overrides(cfg)])
-    iml = stage("IML", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}", *stage_overrides(cfg, "iml")])
-    ims = stage("IMS", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
-                        *stage_overrides(cfg, "ims")])
-    if OmegaConf.select(cfg, "stages.ims_finetune") is not None:
-        # the generator trained on from the IMS stage's best, at a lower learning rate (a step decay): the stage before
-        # it keeps its constant rate, so more epochs there still continue the same run
-        ims = stage("IMS fine-tune", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
-                                      *ims_finetune_overrides(cfg), f"model.init_checkpoint={ims}"])
-    if OmegaConf.select(cfg, "stages.ims_decoder") is not None:
-        # the IMS's decoder alone, trained further on the masks the evaluation runs (its sharpness, lifted); the
-        # generator stays as trained, and the product is this checkpoint
-        ims = stage("IMS decoder", [*train, "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}",
-                                    *ims_decoder_overrides(cfg), f"model.init_checkpoint={ims}"])
+        sparser = train("recnn_sparser", "RecNN, sparser pattern", "recnn", overrides=sparser_overrides(cfg))
+    iml = train("iml", "IML", "iml", f"recnn.checkpoint={recnn}")
+    ims = train("ims", "IMS", "ims", f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}")
+    if "ims" not in committed:
+        ims = _ims_later_stages(cfg, stage, train_common, iml, recnn, ims)
     blue = None
     if OmegaConf.select(cfg, "stages.blue_noise") is not None:
         # the untrained-mask baseline: the blue-noise mask u > P with a decoder trained for it
-        blue = stage("blue-noise decoder", [*train, "model=iml", *train_common, f"recnn.checkpoint={recnn}",
-                                            "model.importance=uniform", *stage_overrides(cfg, "blue_noise")])
+        blue = train("blue_noise", "blue-noise decoder", "iml", f"recnn.checkpoint={recnn}", "model.importance=uniform")
     las = None
     if OmegaConf.select(cfg, "stages.las") is not None:
-        las = stage("LAS", [*train, "model=las", *train_common, *stage_overrides(cfg, "las")])
+        las = train("las", "LAS", "las")
 
     if bool(cfg.get("train_only", False)):
         if not dry:
@@ -90,3 +91,18 @@ def demo(cfg: DictConfig, scene_overrides: Sequence[str] = (), results: dict | N
     print(f"\n[demo] finished in {minutes:.1f} min. Contact sheet: {sheet}", file=sys.stderr, flush=True)
     print(f"[demo] report (tables, plots, image grid): {report}", file=sys.stderr, flush=True)
     return report
+
+
+def _ims_later_stages(cfg: DictConfig, stage, train_common: Sequence[str], iml: str, recnn: str, ims: str) -> str:
+    """The IMS's stages after its first (its fine-tune and its decoder, where the pipeline has them) from the IMS
+    checkpoint ``ims``; the product's IMS checkpoint."""
+    tr = ["-m", "imls_lightning.train", "model=ims", *train_common, f"iml.checkpoint={iml}", f"recnn.checkpoint={recnn}"]
+    if OmegaConf.select(cfg, "stages.ims_finetune") is not None:
+        # the generator trained on from the IMS stage's best, at a lower learning rate (a step decay): the stage before
+        # it keeps its constant rate, so more epochs there still continue the same run
+        ims = stage("IMS fine-tune", [*tr, *ims_finetune_overrides(cfg), f"model.init_checkpoint={ims}"])
+    if OmegaConf.select(cfg, "stages.ims_decoder") is not None:
+        # the IMS's decoder alone, trained further on the masks the evaluation runs (its sharpness, lifted); the
+        # generator stays as trained, and the product is this checkpoint
+        ims = stage("IMS decoder", [*tr, *ims_decoder_overrides(cfg), f"model.init_checkpoint={ims}"])
+    return ims

@@ -74,6 +74,48 @@ def pack_trained(sources: Mapping[str, Path], name: str, dest: Path, *, experime
     return out
 
 
+def checked_networks(name: str, folder: Path, networks: Mapping[str, Mapping[str, Any]]) -> dict[str, Path]:
+    """``{key: file}`` of a committed row's ``networks`` (``{key: {file, sha256}}``, as :func:`pack_networks` names
+    them) under ``folder``, each file checked against its recorded SHA-256.
+
+    Raises:
+        InputError: a missing network file, or one whose bytes are not the recorded ones.
+    """
+    from ..base.config import file_hash
+
+    files = {}
+    for key, net in (networks or {}).items():
+        path = folder / str(net["file"])
+        if not path.is_file():
+            raise InputError(f"row={name}: its network {key} ({path}) is missing; git checkout it, or retrain the row")
+        got = file_hash(path, length=64)
+        if got != str(net["sha256"]):
+            raise InputError(f"row={name}: {path} has SHA-256 {got[:12]}..., the row records {str(net['sha256'])[:12]}...: "
+                             "the file was altered")
+        files[str(key)] = path
+    return files
+
+
+def trained_networks(folder: Path) -> dict[str, Path]:
+    """The networks :func:`pack_trained` committed in ``folder`` (its ``trained.yaml``), each checked against its
+    SHA-256: ``{key: file}`` with the keys of a pipeline's training stages (``recnn``, ``recnn_sparser``, ``iml``,
+    ``ims``, ``blue_noise``, ``las``), so a pipeline evaluates them instead of training them again.
+
+    Raises:
+        InputError: no ``trained.yaml`` there, one that names no networks, or a missing or altered network.
+    """
+    folder = Path(folder)
+    folder = folder if folder.is_absolute() else ROOT / folder
+    record_path = folder / "trained.yaml"
+    if not record_path.is_file():
+        raise InputError(f"trained={folder}: no trained.yaml there (python -m imls_lightning.pack_row name=<row> "
+                         "checkpoints.<key>=<ckpt> writes one)")
+    record = OmegaConf.to_container(OmegaConf.load(record_path))
+    if not isinstance(record, dict) or not isinstance(record.get("networks"), dict) or not record["networks"]:
+        raise InputError(f"{record_path}: names no networks (expected networks: {{<key>: {{file, sha256}}}})")
+    return checked_networks(str(record.get("name", folder.name)), folder, record["networks"])
+
+
 def pack_row(evaluation: Path, name: str, dest: Path, *, data: str, trajectory_seed: int, settings: Sequence[str],
              views: int = 60, timed_views: int = 6, row_dir: Path | None = None) -> Path:
     """Pack the networks of the finished evaluation in ``evaluation`` (its ``config.yaml`` names them) into ``dest``,

@@ -53,20 +53,12 @@ def row_files(row: Mapping[str, Any]) -> tuple[Path, dict[str, Path], Path]:
         InputError: a missing network file, or one whose bytes are not the recorded ones.
     """
     from ..base.config import file_hash
+    from .pack_row import checked_networks
 
     name = row.get("name", "?")
     folder = Path(str(row["dir"]))
     folder = folder if folder.is_absolute() else ROOT / folder
-    files = {}
-    for key, net in (row.get("networks") or {}).items():
-        path = folder / str(net["file"])
-        if not path.is_file():
-            raise InputError(f"row={name}: its network {key} ({path}) is missing; git checkout it, or retrain the row")
-        got = file_hash(path, length=64)
-        if got != str(net["sha256"]):
-            raise InputError(f"row={name}: {path} has SHA-256 {got[:12]}..., the row records {str(net['sha256'])[:12]}...: "
-                             "the file was altered")
-        files[str(key)] = path
+    files = checked_networks(name, folder, row.get("networks") or {})
     if "ims" not in files:
         raise InputError(f"row={name}: lists no ims network (the IMS checkpoint carries the decoder and the RecNN)")
     point = folder / str(row.get("point", "point"))
