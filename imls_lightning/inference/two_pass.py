@@ -24,7 +24,7 @@ import torch
 from imls_lightning.base.errors import InputError
 
 from ..core.unpredictability import base_unpredictability, first_pass, two_pass_mask
-from ..core.pull_push import fill_c_image
+from ..core.pull_push import fill_c_image, in_layout_of
 from ..models.ims import DistanceMeans
 from .pipeline import NetOptions, RenderResult, PatternMethod, prepare_net, to_uint8_image
 
@@ -82,7 +82,7 @@ class TwoPassFill(PatternMethod):
         c2, n2 = self._render_c_pixels(view, second)
         yield "decoder"
         m = keep[None, None].to(c1.dtype)
-        c = fill_c_image(c1 + c2, m, self.pattern)
+        c = in_layout_of(fill_c_image(c1 + c2, m, self.pattern), c1)  # the RecNN runs up to 1.7x faster channels-last
         yield "recnn"
         with self.opts.autocast(self.device):
             fr = self.recnn(self._tensor(c))

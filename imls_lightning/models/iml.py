@@ -36,7 +36,7 @@ from torch import nn
 
 from imls_lightning.base.errors import InputError
 from imls_lightning.core.importance import ImportanceNormalization, RejectionSampling, delegated
-from imls_lightning.core.pull_push import fill_c_image, pull_push_inpaint
+from imls_lightning.core.pull_push import fill_c_image, in_layout_of, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
 __all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "RefineDecoder", "PlainDecoder", "FillDecoder", "build_decoder",
@@ -72,7 +72,8 @@ class FillDecoder(nn.Module):
         self.pattern = pattern  # a foveal pattern's C-Image is filled at the samples' FR positions (fill_c_image)
 
     def forward(self, values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return fill_c_image(values, _mask_like(mask, values), self.pattern)
+        # in the layout the values came in, so the RecNN after it runs as fast as on a rendered C-Image
+        return in_layout_of(fill_c_image(values, _mask_like(mask, values), self.pattern), values)
 
 
 class RefineDecoder(nn.Module):

@@ -160,3 +160,16 @@ def test_exception_fill_c_image_mask_shape():
     p = foveal_pattern(12, 5, None)
     with pytest.raises((ValueError, RuntimeError)):
         fill_c_image(torch.rand(1, 3, 5, 5), torch.ones(1, 1, 4, 4), p)
+
+
+def test_in_layout_of_keeps_a_channels_last_layout_and_nothing_else():
+    from imls_lightning.core.pull_push import fill_c_image, in_layout_of
+
+    c = torch.rand(1, 6, 6, 3).permute(0, 3, 1, 2)
+    m = (torch.rand(1, 1, 6, 6) > 0.5).float()
+    out = in_layout_of(fill_c_image(c * m, m), c)
+    assert out.is_contiguous(memory_format=torch.channels_last) and not out.is_contiguous()
+    assert torch.equal(out, fill_c_image(c * m, m))                 # the same values, another layout
+    plain = torch.rand(2, 3, 6, 6)
+    assert in_layout_of(plain, plain) is plain                      # a plain contiguous layout stays as it is
+    assert in_layout_of(c.contiguous(), plain).is_contiguous()
