@@ -262,6 +262,15 @@ def test_a_row_evaluates_its_committed_networks_without_training(monkeypatch, ca
         assert f"checkpoints.{key}={folder / (key + '.ckpt')}" in evaluate
 
 
+def test_a_row_packed_before_trained_yaml_evaluates_from_its_conf_row_record(monkeypatch, capsys, tmp_path):
+    """seed_whole's folder has no trained.yaml: its conf/row/seed_whole.yaml names the same networks by SHA-256."""
+    folder = ROOT / "benchmarks" / "rows" / "seed_whole"
+    assert not (folder / "trained.yaml").exists()
+    commands = _row_dry_run("seed_whole_fastest", monkeypatch, capsys, tmp_path, f"trained={folder}")
+    assert [c.split()[2] for c in commands] == ["imls_lightning.estimate", "data_gen", "imls_lightning.evaluate"]
+    assert f"checkpoints.ims={folder / 'ims.ckpt'}" in commands[-1].split()
+
+
 def test_trained_networks_refuse_a_missing_record_or_an_altered_network_in_one_line(tmp_path):
     from imls_lightning.base.config import file_hash
     from imls_lightning.base.errors import InputError

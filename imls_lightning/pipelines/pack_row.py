@@ -97,7 +97,8 @@ def checked_networks(name: str, folder: Path, networks: Mapping[str, Mapping[str
 
 
 def trained_networks(folder: Path) -> dict[str, Path]:
-    """The networks :func:`pack_trained` committed in ``folder`` (its ``trained.yaml``), each checked against its
+    """The networks :func:`pack_trained` committed in ``folder`` (its ``trained.yaml``; for a row packed before that
+    existed, its ``conf/row/<folder name>.yaml``, whose ``dir`` is the folder), each checked against its
     SHA-256: ``{key: file}`` with the keys of a pipeline's training stages (``recnn``, ``recnn_sparser``, ``iml``,
     ``ims``, ``blue_noise``, ``las``), so a pipeline evaluates them instead of training them again.
 
@@ -107,9 +108,11 @@ def trained_networks(folder: Path) -> dict[str, Path]:
     folder = Path(folder)
     folder = folder if folder.is_absolute() else ROOT / folder
     record_path = folder / "trained.yaml"
-    if not record_path.is_file():
-        raise InputError(f"trained={folder}: no trained.yaml there (python -m imls_lightning.pack_row name=<row> "
-                         "checkpoints.<key>=<ckpt> writes one)")
+    if not record_path.is_file():  # an evaluated row packed before trained.yaml existed: its conf/row record
+        record_path = ROOT / "conf" / "row" / f"{folder.name}.yaml"
+        if not record_path.is_file() or (ROOT / str(OmegaConf.load(record_path).get("dir", ""))).resolve() != folder.resolve():
+            raise InputError(f"trained={folder}: no trained.yaml there and no conf/row record of it (python -m "
+                             "imls_lightning.pack_row name=<row> checkpoints.<key>=<ckpt> writes one)")
     record = OmegaConf.to_container(OmegaConf.load(record_path))
     if not isinstance(record, dict) or not isinstance(record.get("networks"), dict) or not record["networks"]:
         raise InputError(f"{record_path}: names no networks (expected networks: {{<key>: {{file, sha256}}}})")

@@ -29,9 +29,14 @@ from omegaconf import DictConfig, OmegaConf
 from imls_lightning.base.errors import InputError
 
 from .callbacks import ChunkTimer, ResumableCSVLogger, TrainingViews, set_aside_metrics
+from data_gen.scenes import register_resolvers as register_scene_resolvers
+
 from ..base.config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
+# the scene presets' resolvers too: Hydra resolves hydra.run.dir (the run's name holds the scene's, which scene=file
+# takes from the file: ${imls_volume_name:...}) before the task runs, so `train scene=file` needs them at import
+register_scene_resolvers()
 
 RESULT_FILE = "result.json"
 _UNSET = object()  # train(): the checkpoint to resume from is not chosen yet
