@@ -110,10 +110,11 @@ def trained_networks(folder: Path) -> dict[str, Path]:
     record_path = folder / "trained.yaml"
     if not record_path.is_file():  # an evaluated row packed before trained.yaml existed: its conf/row record
         record_path = ROOT / "conf" / "row" / f"{folder.name}.yaml"
-        if not record_path.is_file() or (ROOT / str(OmegaConf.load(record_path).get("dir", ""))).resolve() != folder.resolve():
-            raise InputError(f"trained={folder}: no trained.yaml there and no conf/row record of it (python -m "
-                             "imls_lightning.pack_row name=<row> checkpoints.<key>=<ckpt> writes one)")
-    record = OmegaConf.to_container(OmegaConf.load(record_path))
+    record = OmegaConf.to_container(OmegaConf.load(record_path)) if record_path.is_file() else None
+    if record_path.parent != folder and (not isinstance(record, dict)
+                                         or (ROOT / str(record.get("dir", ""))).resolve() != folder.resolve()):
+        raise InputError(f"trained={folder}: no trained.yaml there and no conf/row record of it (python -m "
+                         "imls_lightning.pack_row name=<row> checkpoints.<key>=<ckpt> writes one)")
     if not isinstance(record, dict) or not isinstance(record.get("networks"), dict) or not record["networks"]:
         raise InputError(f"{record_path}: names no networks (expected networks: {{<key>: {{file, sha256}}}})")
     return checked_networks(str(record.get("name", folder.name)), folder, record["networks"])

@@ -241,7 +241,7 @@ def renderer_overrides(cfg: DictConfig) -> list[str]:
         []
     """
     found = cfg.get("renderer_overrides") or []
-    if isinstance(found, str) or not OmegaConf.is_list(found) and not isinstance(found, (list, tuple)):
+    if not (OmegaConf.is_list(found) or isinstance(found, (list, tuple))):
         raise InputError(f"renderer_overrides={found!r}: expected a list of renderer.<key>=<value>")
     out = [str(o) for o in found]
     for o in out:

@@ -26,11 +26,10 @@ import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from data_gen.scenes import register_resolvers as register_scene_resolvers
 from imls_lightning.base.errors import InputError
 
 from .callbacks import ChunkTimer, ResumableCSVLogger, TrainingViews, set_aside_metrics
-from data_gen.scenes import register_resolvers as register_scene_resolvers
-
 from ..base.config import checkpoint_problem, load_checkpoint, register_resolvers, to_plain
 
 register_resolvers()
