@@ -31,8 +31,9 @@ LAS_IPRS = [0.1]
 LAS_SEARCH_IPRS = [0.05, 0.1, 0.25, 0.5]
 FRONT_SHARES = [0.2, 1.0]
 # the methods the module's evaluation measures: all but the ray caster twins with skipping on (its ray caster skips
-# already; the twins march every sample: both_ray_casters)
-METHOD_ORDER = tuple(m for m in ALL_METHODS if m not in ("recnn_skip", "imls_skip"))
+# already; the twins march every sample: both_ray_casters) and imls_trained (only where the search kept the fill as
+# decoder, orp_decoders)
+METHOD_ORDER = tuple(m for m in ALL_METHODS if m not in ("recnn_skip", "imls_skip", "imls_trained"))
 # the stages each method reports (pipeline.py's table); every other stage column stays empty
 METHOD_STAGES = {
     "full": {"render"},
@@ -503,7 +504,7 @@ def test_orp_searched_at_each_mask_sharpness_keeps_the_smallest_share(run, tmp_p
 
     section = "\n".join(_orp_lines(orp, "test"))
     assert f"the point that ray-casts the smallest share of C on the search views was kept: **γ = {res.sharpness:.2f}**" in section
-    assert "| γ | ORP found | u | C-share (search views) | lifted | product (ms, search views) |" in section
+    assert "| γ | decoder | ORP found | u | C-share (search views) | lifted | product (ms, search views) |" in section
     # the record travels with a copy of the checkpoint: its renderers sharpen their masks the same way
     ck = tmp_path / "ims.ckpt"
     shutil.copy(s.ims, ck)
@@ -553,6 +554,80 @@ def test_mask_sharpness_candidates_timed_on_the_search_views_the_fastest_kept(ru
     assert "ims_sharpness_views" not in parse_settings(_compose(*_args(run["ck"]))).hashed()
     with pytest.raises(InputError, match="ims_sharpness_views"):
         parse_settings(_compose(*_args(run["ck"], "ims_sharpness_views=-1")))
+
+
+def test_orp_decoders_searched_as_candidates_the_fastest_kept_and_carried_by_the_point(run, tmp_path):
+    """orp_decoders=[trained, fill]: the ORP is searched with the IMS's own decoder and with the pull-push fill of the
+    same pixels, each found point's product timed on the search views and the fastest kept; the summary, the point,
+    the record beside the checkpoint and a renderer built from it all carry the decoder kept, and where it is the fill
+    the evaluation also runs the trained decoder at its own point (imls_trained). Bad values are one-line errors."""
+    import shutil
+
+    from data_gen.cache import ViewImageCache
+    from data_gen.scenes import build_scene
+    from imls_lightning.evaluation import load_networks, parse_settings
+    from imls_lightning.evaluation.operating_point import (candidate_key, orp_summary, point_of, product_path_orp,
+                                                           record_operating_point, trained_decoder_point)
+    from imls_lightning.inference.pipeline import IMLSRenderer
+    from imls_lightning.models.iml import FillDecoder
+    from imls_lightning.render import make_renderer
+    from imls_lightning.report.document import _orp_lines
+
+    main = next(c for c in (ViewImageCache.open(p) for p in sorted(run["ck"]["cache_dir"].glob("tiny-*")))
+                if c.manifest["data"]["seed"] == 0)
+    cfg = _compose(*_args(run["ck"], "orp_decoders=[trained,fill]", "orp_confidence=0.5", "epsilon_db=30",
+                          "ims_sharpness_views=2"))
+    s = parse_settings(cfg)
+    assert s.orp_decoders == ["trained", "fill"] and s.hashed()["orp_decoders"] == ["trained", "fill"]
+    assert s.hashed()["ims_sharpness_views"] == 2  # two candidates: how they are timed is part of the result
+    assert "orp_decoders" not in parse_settings(_compose(*_args(run["ck"]))).hashed()  # earlier folders kept
+    scene = build_scene(cfg.scene)
+    nets = load_networks(s, int(cfg.data.resolution))
+    res = product_path_orp(s, cfg, main, scene, nets, nets.ims_task.pattern, "cpu", future_views=2,
+                           renderer=make_renderer(scene, {"name": "numba"}))
+    cands = res.sharpness_candidates
+    assert [c["decoder"] for c in cands] == ["trained", "fill"] and all(c["found"] and c["ms"] > 0 for c in cands)
+    fastest = min(cands, key=lambda c: (c["ms"], c["decoder"] != "trained"))
+    assert res.decoder == fastest["decoder"] and candidate_key(res) == (1.0, res.decoder)
+    orp = orp_summary(res, s, lifted=res.lifted)
+    assert orp.get("decoder", "trained") == res.decoder
+    section = "\n".join(_orp_lines(orp, "test"))
+    assert f"**decoder {res.decoder}**" in section and "`orp_decoders`" in section
+
+    # the fill kept (whatever the timing said above): the point, its record and a renderer from the checkpoint carry it
+    fill = {**orp, "decoder": "fill", "sharpness_candidates": cands}
+    point = point_of(fill, res.mean, res.lifted)
+    assert point.decoder == "fill" and point_of({**orp, "decoder": None}, res.mean, res.lifted).decoder == "trained"
+    own = trained_decoder_point(fill)
+    assert own is not None and own.decoder == "trained" and own.share == pytest.approx(cands[0]["mean"])
+    assert trained_decoder_point({**fill, "decoder": "trained"}) is None
+    ims = nets.ims_task
+    r = IMLSRenderer(make_renderer(scene, {"name": "numba"}), ims.pattern, ims.mask_head, ims.decoder, nets.recnn, point=point)
+    assert isinstance(r.decoder, FillDecoder)
+    ck = tmp_path / "ims.ckpt"
+    shutil.copy(s.ims, ck)
+    record_operating_point(dataclasses.replace(s, ims=str(ck)), fill, "tiny", tmp_path / "report.md", 2)
+    from imls_lightning.inference.checkpoints import load_product
+
+    product = load_product(ck)
+    assert product.record.decoder == "fill" and product.point.decoder == "fill"
+    assert "the pull-push fill as decoder" in product.record.describe()
+    # the evaluation's methods: IML/S rebuilds with the fill, and the trained decoder runs beside it at its own point
+    from imls_lightning.evaluation.run import build_methods
+
+    rows_all = main.splits["val"]
+    notes: list[str] = []
+    methods, _ = build_methods(s, nets, make_renderer(scene, {"name": "numba"}), main, rows_all, [0], "cpu",
+                               int(cfg.data.resolution), point, notes, orp=fill)
+    assert isinstance(methods["imls"].decoder, FillDecoder) and methods["imls"].point.decoder == "fill"
+    assert not isinstance(methods["imls_trained"].decoder, FillDecoder) and methods["imls_trained"].point == own
+    assert any("imls_trained is the IMS's own decoder" in n for n in notes)
+    methods, _ = build_methods(s, nets, make_renderer(scene, {"name": "numba"}), main, rows_all, [0], "cpu",
+                               int(cfg.data.resolution), point.replace(decoder="trained"), [], orp={**fill, "decoder": "trained"})
+    assert "imls_trained" not in methods and not isinstance(methods["imls"].decoder, FillDecoder)
+    for bad in ("orp_decoders=[]", "orp_decoders=[refine]", "orp_decoders=[fill,fill]"):
+        with pytest.raises(InputError, match=re.escape(f"{bad}: expected a non-empty list of distinct names")):
+            parse_settings(_compose(*_args(run["ck"], bad)))
 
 
 def test_object_floor_chosen_on_the_validation_views_travels_with_the_point(run, tmp_path):

@@ -251,6 +251,19 @@ def test_the_tricubic_row_is_the_trilinear_row_with_tricubic_in_every_stage(monk
     assert all(c.count("renderer.interpolation=tricubic") == 1 for c in tricubic)
 
 
+def test_the_decoder_choice_row_evaluates_the_committed_networks_with_both_decoders(monkeypatch, capsys, tmp_path):
+    """rayleigh_taylor_decoder_choice: the committed rayleigh_taylor networks, no training, and an evaluation that
+    differs from the row's own only by its fresh trajectory and the decoder candidates."""
+    folder = ROOT / "benchmarks" / "rows" / "rayleigh_taylor"
+    row = _row_dry_run("rayleigh_taylor_fastest", monkeypatch, capsys, tmp_path, f"trained={folder}")
+    choice = _row_dry_run("rayleigh_taylor_decoder_choice", monkeypatch, capsys, tmp_path)
+    assert [c.split()[2] for c in choice] == ["imls_lightning.estimate", "data_gen", "imls_lightning.evaluate"]
+    assert choice[:2] == row[:2]
+    expected = row[2].replace("trajectory_seed=1208", "trajectory_seed=1210")
+    extra = " 'orp_decoders=[trained,fill]'"  # shell-quoted as printed
+    assert extra in choice[2] and choice[2].replace(extra, "") == expected
+
+
 def test_a_row_evaluates_its_committed_networks_without_training(monkeypatch, capsys, tmp_path):
     """``trained=<folder>`` (pack_row's trained.yaml): each network it names, checked by SHA-256, stands in for its
     training stage; the cache and the evaluation run as before, on the committed files."""

@@ -26,7 +26,11 @@ from imls_lightning.base.errors import InputError
 
 from .importance import check_object_floor, check_sharpness
 
-__all__ = ["OperatingPoint", "Bands"]
+__all__ = ["OperatingPoint", "Bands", "POINT_DECODERS"]
+
+#: what rebuilds the C-Image from the ray-cast pixels at a point: the IMS's own trained decoder, or the untrained
+#: pull-push fill of the same pixels (no network: where it is as good, the cheaper product)
+POINT_DECODERS = ("trained", "fill")
 
 
 def _share(value, name: str) -> float:
@@ -79,6 +83,10 @@ class OperatingPoint:
         sharpness: the mask's sharpness ``gamma`` in ``[1, 8]`` (1: the paper's masks).
         object_floor: ``(margin, tau)``: each view's share raised to at least its object's (PIM' > ``tau``) plus
             ``margin``; ``None``: no floor. With :attr:`bands`' ``floor_margins`` each band has its own margin.
+        decoder: what rebuilds the C-Image from the ray-cast pixels (:data:`POINT_DECODERS`): ``"trained"``, the IMS's own
+            decoder (the paper's), or ``"fill"``, the untrained pull-push fill of the same pixels
+            (:class:`~imls_lightning.models.iml.FillDecoder`), which the ORP search keeps where it runs faster
+            within the same bound (``orp_decoders``).
     """
 
     share: float | None = None
@@ -86,6 +94,7 @@ class OperatingPoint:
     bands: Bands | None = None
     sharpness: float = 1.0
     object_floor: tuple[float, float] | None = None
+    decoder: str = "trained"
 
     def __post_init__(self):
         if self.share is not None:
@@ -98,6 +107,9 @@ class OperatingPoint:
             raise InputError(f"bands={self.bands!r}: expected a Bands")
         if self.bands is not None and self.bands.floor_margins is not None and self.object_floor is None:
             raise InputError("bands.floor_margins: margins per band need an object_floor (its tau)")
+        if self.decoder not in POINT_DECODERS:
+            raise InputError(f"decoder={self.decoder!r}: expected 'trained' (the IMS's own decoder) or 'fill' "
+                             "(the untrained pull-push fill of the same pixels)")
 
     @property
     def u(self) -> float | None:

@@ -19,6 +19,7 @@ from data_gen.views import camera_distance as view_distance
 
 from ..core.operating_point import Bands, OperatingPoint
 from ..core.smallest_within import Within, smallest_within
+from ..models.iml import decoder_at
 from ..orp.product import product_orp, product_point
 from .measurement import spaced, view_loader
 from .networks import Networks
@@ -41,7 +42,8 @@ def record_from_orp(orp: dict[str, Any], *, scene: str | None = None, report: st
                      by_distance=None if not bands else {k: bands[k] for k in ("edges", "means", "c_shares", "gaps_db", "views")},
                      sharpness=float(orp.get("sharpness", 1.0)),
                      object_floor=(orp.get("object_floor") or {}).get("chosen") if orp["found"] else None,
-                     points=points or None, tolerance=SEARCH_TOLERANCE)
+                     points=points or None, tolerance=SEARCH_TOLERANCE,
+                     decoder=str(orp.get("decoder") or "trained") if orp["found"] else "trained")
 
 
 def record_operating_point(s: Settings, orp: dict[str, Any], scene: str, report: Path, views: int) -> None:
@@ -164,12 +166,14 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
     """The ORP on the product path, searched on :func:`orp_search_views` (see :func:`~imls_lightning.orp.product.product_orp`);
     its bound is for the mean gap of ``future_views`` new views (the evaluated ones).
 
-    With several ``ims_sharpness`` candidates the whole search (and the bands' own values) runs at each. The point
+    With several candidates, ``ims_sharpness`` (mask sharpnesses) by ``orp_decoders`` (the IMS's own decoder, the
+    pull-push fill of the same pixels), the whole search (and the bands' own values) runs at each. The point
     kept is the one whose product (IMS mask, exactly its pixels ray-cast by ``renderer``, decoder, RecNN) runs
     fastest on ``ims_sharpness_views`` of the search views, the candidates interleaved run by run
     (:func:`candidate_times`): a sharper mask keeps the object's rays, which march further, so its share of C
-    understates its cost. Without a renderer, or with ``ims_sharpness_views=0``, the one that ray-casts the
-    smallest share of C (the smaller sharpness on a tie). ``result.sharpness`` is its sharpness,
+    understates its cost; the fill costs no network, so at a larger share it may still be the faster. Without a
+    renderer, or with ``ims_sharpness_views=0``, the one that ray-casts the smallest share of C (the smaller
+    sharpness, then the trained decoder, on a tie). ``result.sharpness`` and ``result.decoder`` are its own,
     ``result.sharpness_candidates`` what each reached, ``result.object_floor`` the floor chosen; nothing of the IMS
     task changes: every method the evaluation builds gets the point (:func:`point_of`)."""
     v = search_views(s, cfg, cache, scene)
@@ -177,26 +181,32 @@ def product_path_orp(s: Settings, cfg, cache, scene, nets: Networks, pattern, de
           f"{judged(v, future_views)}", file=sys.stderr, flush=True)
     ims = nets.ims_task
     results = []
+    several = len(s.ims_sharpness) * len(s.orp_decoders) > 1
     for gamma in s.ims_sharpness:
-        if len(s.ims_sharpness) > 1:
-            print(f"[evaluate] ORP at mask sharpness {gamma:g}", file=sys.stderr, flush=True)
-        results.append(_orp_at_sharpness(s, v, nets, pattern, device, future_views, gamma))
-        results[-1].sharpness = gamma
+        for decoder in s.orp_decoders:
+            if several:
+                print(f"[evaluate] ORP at mask sharpness {gamma:g}, decoder {decoder}", file=sys.stderr, flush=True)
+            results.append(_orp_at_sharpness(s, v, nets, pattern, device, future_views, gamma, decoder))
+            results[-1].sharpness, results[-1].decoder = gamma, decoder
     found = [r for r in results if r.found]
     times = (candidate_times(found, v, nets, pattern, renderer, s.options, s.ims_sharpness_views)
              if len(found) > 1 and renderer is not None and s.ims_sharpness_views > 0 else {})
+    trained_first = lambda r: r.decoder != "trained"  # noqa: E731  (a tie keeps the paper's decoder)
     if times:
-        best = min(found, key=lambda r: (times[r.sharpness], r.sharpness))
+        best = min(found, key=lambda r: (times[candidate_key(r)], r.sharpness, trained_first(r)))
     else:
-        best = min(found, key=lambda r: (operating_share(r), r.sharpness)) if found else results[0]
-    best.sharpness_candidates = [{"sharpness": r.sharpness, "found": r.found, "mean": r.mean, "c_share": operating_share(r),
-                                  "lift": r.lifted, "ms": times.get(r.sharpness)} for r in results] if len(results) > 1 else None
-    if len(results) > 1:
-        print("[evaluate] ORP by mask sharpness: " + "; ".join(
-            f"{c['sharpness']:g}: " + (f"{c['c_share']:.1%} of C" + (f", {c['ms']:.0f} ms" if c["ms"] is not None else "")
-                                       if c["found"] else "none") for c in best.sharpness_candidates)
-            + f"; kept {best.sharpness:g}" + (f" (the fastest on {s.ims_sharpness_views} search views)" if times else
-                                             " (the smallest share of C)"), file=sys.stderr, flush=True)
+        best = min(found, key=lambda r: (operating_share(r), r.sharpness, trained_first(r))) if found else results[0]
+    best.sharpness_candidates = [{"sharpness": r.sharpness, "decoder": r.decoder, "found": r.found, "mean": r.mean,
+                                  "c_share": operating_share(r), "lift": r.lifted, "ms": times.get(candidate_key(r)),
+                                  # its bands, so the evaluation can run a candidate not kept beside the kept one
+                                  **({"by_distance": r.by_distance} if getattr(r, "by_distance", None) else {})}
+                                 for r in results] if several else None
+    if several:
+        print("[evaluate] ORP candidates: " + "; ".join(
+            f"{c['sharpness']:g}, {c['decoder']}: " + (f"{c['c_share']:.1%} of C" + (f", {c['ms']:.0f} ms" if c["ms"] is not None else "")
+                                                       if c["found"] else "none") for c in best.sharpness_candidates)
+            + f"; kept {best.sharpness:g}, {best.decoder}" + (f" (the fastest on {s.ims_sharpness_views} search views)" if times
+                                                             else " (the smallest share of C)"), file=sys.stderr, flush=True)
     best.object_floor = None
     if s.orp_object_floor and best.found:
         best.object_floor = object_floor_point(s, cache, nets, pattern, device, best, future_views)
@@ -239,8 +249,9 @@ def object_floor_point(s: Settings, cache, nets: Networks, pattern, device, resu
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))
         head = ims.mask_head.with_sharpness(float(getattr(result, "sharpness", 1.0)))  # the masks the point was searched with
+        rebuild = decoder_at(candidate_key(result)[1], ims.decoder, ims.pattern)  # and its decoder
         for margin in [None, *s.orp_object_floor]:
-            rec = product_point(head.with_object_floor(margin, tau), ims.decoder, recnn, batches, u, device=device,
+            rec = product_point(head.with_object_floor(margin, tau), rebuild, recnn, batches, u, device=device,
                                 confidence=s.orp_confidence, lift=result.lifted, future_views=future_views, strata=strata,
                                 per_view=True)
             candidates.append({"margin": margin, "gap_db": rec["gap_db"], "gap_bound_db": rec["gap_bound_db"],
@@ -360,15 +371,16 @@ def object_floor_pick(candidates: Sequence[dict[str, Any]], epsilon_db: float, t
 
 def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, pattern, renderer, opts, views: int,
                     repeats: int = 3) -> dict[float, float]:
-    """Each found candidate's product at its operating point (its sharpness, mean value or bands, lift), timed on
-    ``views`` of the search views spaced along them, the candidates interleaved run by run
-    (:func:`~imls_lightning.evaluation.timing.time_methods`): ``{sharpness: mean over the views of the median total ms}``."""
+    """Each found candidate's product at its operating point (its sharpness, decoder, mean value or bands, lift), timed
+    on ``views`` of the search views spaced along them, the candidates interleaved run by run
+    (:func:`~imls_lightning.evaluation.timing.time_methods`): ``{candidate_key: mean over the views of the median total
+    ms}``."""
     from ..inference.pipeline import IMLSRenderer
     from .timing import time_methods
 
     ims = nets.ims_task
-    products = {r.sharpness: IMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, nets.recnn, opts,
-                                          point=point_of(r, float(r.mean), bool(r.lifted)))
+    products = {candidate_key(r): IMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, nets.recnn, opts,
+                                               point=point_of(r, float(r.mean), bool(r.lifted)))
                 for r in found}
     rows = [int(v.rows[i]) for i in spaced(len(v.rows), views)]
     per_view: dict[float, list[float]] = {g: [] for g in products}
@@ -377,6 +389,11 @@ def candidate_times(found: Sequence[Any], v: "SearchViews", nets: Networks, patt
         for g, (_, med, _) in timed.items():
             per_view[g].append(1e3 * med["total"])
     return {g: float(np.mean(t)) for g, t in per_view.items()}
+
+
+def candidate_key(result) -> tuple[float, str]:
+    """A searched candidate's ``(sharpness, decoder)``: what :func:`candidate_times` keys its time by."""
+    return float(getattr(result, "sharpness", 1.0)), str(getattr(result, "decoder", "trained"))
 
 
 def operating_share(result) -> float | None:
@@ -390,29 +407,32 @@ def operating_share(result) -> float | None:
 
 
 def _orp_at_sharpness(s: Settings, v: "SearchViews", nets: Networks, pattern, device, future_views: int | None,
-                      sharpness: float = 1.0):
-    """One ORP search (and its bands' values) with the IMS's masks at ``sharpness``."""
+                      sharpness: float = 1.0, decoder: str = "trained"):
+    """One ORP search (and its bands' values) with the IMS's masks at ``sharpness`` and the point's ``decoder``
+    (``"trained"``: the IMS's own; ``"fill"``: the pull-push fill of the same pixels)."""
     cache, rows, where, distances, strata, passes, npaths = v.cache, v.rows, v.where, v.distances, v.strata, v.passes, v.paths
     ims = nets.ims_task.to(device)
     head = ims.mask_head.with_sharpness(sharpness)  # a head view at this sharpness: the task is left as it is
+    rebuild = decoder_at(decoder, ims.decoder, pattern)
     with torch.inference_mode():
         batches = list(view_loader(cache, rows, pattern))
         recnn = nets.recnn.to(device).eval()
-        result = orp_with_lift(lambda lift: product_orp(head, ims.decoder, recnn, batches, s.epsilon_db, device=device,
+        result = orp_with_lift(lambda lift: product_orp(head, rebuild, recnn, batches, s.epsilon_db, device=device,
                                                         confidence=s.orp_confidence, lift=lift, future_views=future_views,
                                                         strata=strata, passes=passes, paths=npaths),
                                s.ims_lift)
         result.by_distance = None
         if s.orp_by_distance and result.found:
             result.by_distance = band_means(s, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views,
-                                            passes, npaths, head=head)
+                                            passes, npaths, head=head, decoder=rebuild)
             where += "; then each band's own mean value"
-    result.where = where + ("" if sharpness == 1.0 else f"; masks at sharpness {sharpness:g}")
+    result.where = (where + ("" if sharpness == 1.0 else f"; masks at sharpness {sharpness:g}")
+                    + ("" if decoder == "trained" else "; the pull-push fill as decoder"))
     return result
 
 
 def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern, device, result, future_views: int | None,
-               passes: Sequence[int] | None = None, paths: int = 1, head=None) -> dict[str, Any] | None:
+               passes: Sequence[int] | None = None, paths: int = 1, head=None, decoder=None) -> dict[str, Any] | None:
     """The by-distance operating point (``orp_by_distance``): each band of camera distance searched on its own
     search views, with its share of the bound's new views; a band keeps the value that held in every band
     (``result.mean``) where its own search finds none below it. The bands split at the midpoints between
@@ -423,18 +443,19 @@ def band_means(s: Settings, cache, rows, distances, strata, ims, recnn, pattern,
     ``passes``, path views' pass labels, each band's bound counts its passes); ``None``
     (one line says so) where the views' distances do not separate the bands."""
     head = ims.mask_head if head is None else head  # the IMS's masks (``head``: at the search's sharpness)
+    decoder = ims.decoder if decoder is None else decoder  # the point's decoder (the search's: its own, or the fill)
     bands = split_bands(strata, future_views, passes)
     out: dict[str, list] = {k: [] for k in ("means", "c_shares", "gaps_db", "bounds_db", "views", "lo", "hi")}
     for band in bands:
         k, idx, share, own_passes = band.label, band.idx, band.future_views, band.passes
         batches = list(view_loader(cache, [rows[i] for i in idx], pattern))
-        own = product_orp(head, ims.decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
+        own = product_orp(head, decoder, recnn, batches, s.epsilon_db, device=device, confidence=s.orp_confidence,
                           lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         if own.found and own.mean <= result.mean:
             u, rec = float(own.mean), own.best.record
         else:  # the value that held in every band, this band's numbers at it
             u = float(result.mean)
-            rec = product_point(head, ims.decoder, recnn, batches, u, device=device, confidence=s.orp_confidence,
+            rec = product_point(head, decoder, recnn, batches, u, device=device, confidence=s.orp_confidence,
                                 lift=result.lifted, future_views=share, passes=own_passes, paths=paths)
         d = [distances[i] for i in idx]
         for key, value in (("means", u), ("c_shares", rec["c_share"]), ("gaps_db", rec["gap_db"]),
@@ -496,7 +517,7 @@ def band_edges(lo: Sequence[float], hi: Sequence[float]) -> list[float] | None:
 def point_of(result, share: float | None, lift: bool) -> OperatingPoint:
     """The :class:`~imls_lightning.core.operating_point.OperatingPoint` IML/S runs at after a search (``result``, or its
     summary :func:`orp_summary`, a dict; ``None``: no search): ``share`` (``None``: the trained one) with ``lift``, the
-    search's bands of camera distance, its mask sharpness and the object floor chosen (a point found only)."""
+    search's bands of camera distance, its mask sharpness, decoder and the object floor chosen (a point found only)."""
     if result is None:
         return OperatingPoint(share=share, lift=lift)
     get = result.get if isinstance(result, dict) else lambda key: getattr(result, key, None)
@@ -504,7 +525,30 @@ def point_of(result, share: float | None, lift: bool) -> OperatingPoint:
     bands = get("by_distance")
     return OperatingPoint(share=share, lift=lift, sharpness=float(get("sharpness") or 1.0),
                           bands=Bands(bands["edges"], bands["means"], chosen.get("band_margins")) if bands else None,
-                          object_floor=(chosen["margin"], chosen["tau"]) if chosen else None)
+                          object_floor=(chosen["margin"], chosen["tau"]) if chosen else None,
+                          decoder=str(get("decoder") or "trained") if get("found") else "trained")
+
+
+def trained_decoder_point(orp: dict[str, Any] | None) -> OperatingPoint | None:
+    """Where the search kept the pull-push fill (``orp_decoders``), the point its candidate with the IMS's own decoder
+    found at the same sharpness (its mean value or bands, lift; the object floor was chosen for the kept point only,
+    so none), for the evaluation to run beside the kept one on the same views; ``None`` otherwise (the kept point is
+    the trained decoder's, or that candidate found none).
+
+    Example:
+        >>> orp = {"found": True, "decoder": "fill", "sharpness": 3.0, "sharpness_candidates": [
+        ...     {"sharpness": 3.0, "decoder": "trained", "found": True, "mean": 0.8, "lift": True},
+        ...     {"sharpness": 3.0, "decoder": "fill", "found": True, "mean": 0.85, "lift": True}]}
+        >>> trained_decoder_point(orp)
+        OperatingPoint(share=0.8, lift=True, bands=None, sharpness=3.0, object_floor=None, decoder='trained')
+    """
+    if not orp or not orp.get("found") or orp.get("decoder", "trained") == "trained":
+        return None
+    for c in orp.get("sharpness_candidates") or []:
+        if c.get("decoder", "trained") == "trained" and c.get("found") and c["sharpness"] == orp.get("sharpness", 1.0):
+            return point_of({"found": True, "by_distance": c.get("by_distance"), "sharpness": c["sharpness"]},
+                            float(c["mean"]), bool(c.get("lift")))
+    return None
 
 
 def distance_means(result):
@@ -633,6 +677,8 @@ def orp_summary(result, s: Settings, lifted: bool = False) -> dict[str, Any]:
             "points": _points(result), "rescale_points": getattr(result, "rescale_points", None),
             "strata": s.orp_strata, "strata_gap_db": rec.get("strata_gap_db"), "by_distance": getattr(result, "by_distance", None),
             "sharpness": float(getattr(result, "sharpness", 1.0)),
+            # written only where the search kept the fill: summaries of the paper's decoder stay as they were
+            **({"decoder": result.decoder} if getattr(result, "decoder", "trained") != "trained" else {}),
             "sharpness_candidates": getattr(result, "sharpness_candidates", None),
             "object_floor": getattr(result, "object_floor", None)}
 

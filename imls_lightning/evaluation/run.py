@@ -29,7 +29,7 @@ from .measurement import measure_methods, progress_bar, spaced
 from ..render.camera import view_tensor
 from .networks import Networks, check_trained_on, load_networks, recnn_name
 from .operating_point import (borrowed_point, camera_distance, gap_by_distance, orp_summary, paired_gap, point_of,
-                              product_path_orp, record_operating_point)
+                              product_path_orp, record_operating_point, trained_decoder_point)
 from .resume import EvaluationProgress
 from .settings import Settings, parse_settings
 from .protocol import check_view_seeds, fresh_trajectory_data, training_data_seed, trajectory_note
@@ -209,6 +209,11 @@ def build_methods(s: Settings, nets: Networks, renderer, cache, rows_all, positi
         "imls": imls,
         "imls_fill": IMLSRenderer(renderer, pattern, imls.predict_im, FillDecoder(pattern), nets.recnn, opts),
     }
+    if (own := trained_decoder_point(orp)) is not None:  # the search kept the fill: the IMS's own decoder at its own point
+        methods["imls_trained"] = IMLSRenderer(renderer, pattern, ims.mask_head, ims.decoder, nets.recnn, opts, point=own)
+        notes.append(f"The operating point rebuilds the C-Image with the pull-push fill (orp_decoders: it ran fastest on the "
+                     f"search views within the bound); imls_trained is the IMS's own decoder at the point its candidate "
+                     f"found (u = {own.share:.3f}, no object floor), on the same views.")
     las_ipr_used = None
     if nets.las_task is not None:
         if s.las_ipr is not None:

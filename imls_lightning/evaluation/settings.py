@@ -53,6 +53,25 @@ def _sharpness(cfg) -> list[float]:
     return [1.0] if v is None else check_sharpnesses(v, "ims_sharpness")
 
 
+def _decoders(cfg) -> list[str]:
+    """``orp_decoders``: what may rebuild the C-Image at the operating point, each searched as a candidate
+    (:data:`~imls_lightning.core.operating_point.POINT_DECODERS`: ``trained``, the IMS's own decoder; ``fill``, the
+    pull-push fill of the same pixels); the fastest point within the bound is kept. A name or a list; default
+    ``[trained]`` (the paper's)."""
+    from ..core.operating_point import POINT_DECODERS
+
+    v = to_plain(OmegaConf.select(cfg, "orp_decoders", default=None))
+    if v is None:
+        return ["trained"]
+    names = [v] if isinstance(v, str) else v
+    if not isinstance(names, (list, tuple)) or not names or any(n not in POINT_DECODERS for n in names) \
+            or len(set(names)) != len(names):
+        shown = "[" + ",".join(map(str, v)) + "]" if isinstance(v, (list, tuple)) else v  # as typed on the command line
+        raise InputError(f"orp_decoders={shown}: expected a non-empty list of distinct names among {list(POINT_DECODERS)} "
+                         "(trained: the IMS's own decoder; fill: the pull-push fill of the same pixels)")
+    return [str(n) for n in names]
+
+
 def _floats(cfg, key: str, lo: float, hi: float, lo_open: bool = False) -> list[float]:
     v = to_plain(OmegaConf.select(cfg, key))
     if v is None:
@@ -115,6 +134,7 @@ class Settings:
     two_pass_floor: float = 0.25
     timing: str = "interleaved"          # the methods' runs on a timed view: in rounds, or each method's back to back
     ims_sharpness_views: int = 6         # search views the candidates' operating points are timed on (0: by share of C)
+    orp_decoders: list[str] = field(default_factory=lambda: ["trained"])  # candidates: the ORP searched with each
     orp_object_floor: list[float] = field(default_factory=list)  # the object floor's candidate margins ([]: no floor)
     orp_object_floor_tau: float = 0.2    # PIM' above this counts as the object
     orp_object_floor_by_band: bool = False  # a margin per band of camera distance (needs orp_by_distance)
@@ -145,7 +165,10 @@ class Settings:
             **({"timing": self.timing} if self.timing != "blocked" else {}),
             **({"orp_strata": self.orp_strata} if self.orp_strata != 1 else {}),
             **({"ims_sharpness": self.ims_sharpness} if self.ims_sharpness != [1.0] else {}),
-            **({"ims_sharpness_views": self.ims_sharpness_views} if len(self.ims_sharpness) > 1 else {}),
+            **({"ims_sharpness_views": self.ims_sharpness_views}
+               if len(self.ims_sharpness) * len(self.orp_decoders) > 1 else {}),
+            # only when set: evaluations made before the key existed keep their directories
+            **({"orp_decoders": self.orp_decoders} if self.orp_decoders != ["trained"] else {}),
             **({"orp_by_distance": True} if self.orp_by_distance else {}),
             **({"orp_object_floor": {"margins": self.orp_object_floor, "tau": self.orp_object_floor_tau,
                                      # only when set: evaluations made before the keys existed keep their directories
@@ -206,6 +229,7 @@ def parse_settings(cfg: DictConfig) -> Settings:
         orp_strata=_int(cfg, "orp_strata", 1) if OmegaConf.select(cfg, "orp_strata") is not None else 1,
         orp_by_distance=_by_distance(cfg), orp_paths=_paths(cfg), **_two_pass(cfg), timing=_timing(cfg),
         ims_sharpness_views=_int(cfg, "ims_sharpness_views", 0) if OmegaConf.select(cfg, "ims_sharpness_views") is not None else 6,
+        orp_decoders=_decoders(cfg),
         **_object_floor(cfg), **_orp_from(cfg), **_las_searched(cfg),
         trajectory_seed=_trajectory_seed(cfg, views), both_ray_casters=_bool(cfg, "both_ray_casters", True),
     )

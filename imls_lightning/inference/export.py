@@ -59,6 +59,7 @@ from imls_lightning.base.errors import InputError
 
 from ..core.patterns import SamplingPattern
 from ..core.operating_point import Bands, OperatingPoint
+from ..models.iml import decoder_at
 from ..models.ims import MaskAt
 from .checkpoints import IMSNets, load_product, require_recnn
 from .pipeline import IMLSRenderer, NetOptions
@@ -163,10 +164,11 @@ class _OnnxModule(nn.Module):
 def export_parts(nets: IMSNets, point: OperatingPoint | None = None) -> dict[str, nn.Module]:
     """The three exported modules of the product's networks; ``im`` thresholds at ``point`` (an
     :class:`~imls_lightning.core.operating_point.OperatingPoint`: its share or bands of camera distance, lift,
-    sharpness and floor; ``None``: the trained share)."""
+    sharpness and floor; ``None``: the trained share); ``decoder`` is the point's (the IMS's own, or the pull-push fill)."""
     recnn = require_recnn(nets.recnn, key="ims_checkpoint", path=nets.path)
     im = IMPredictor(nets.head.eval(), point).eval()
-    return {"im": im, "decoder": PackedDecoder(nets.decoder).eval(), "recnn": recnn.eval()}
+    decoder = decoder_at("trained" if point is None else point.decoder, nets.decoder, nets.pattern)
+    return {"im": im, "decoder": PackedDecoder(decoder).eval(), "recnn": recnn.eval()}
 
 
 def _example_inputs(pattern: SamplingPattern) -> dict[str, torch.Tensor]:
@@ -294,6 +296,8 @@ def export_renderer(ims_checkpoint: str | os.PathLike, out: str | os.PathLike, f
             # (its band's margin where the record chose one per band: by_distance's floor_margins)
             "object_floor": None if point is None or point.object_floor is None else dict(zip(("margin", "tau"), point.object_floor)),
             "floor_margins": None if bands is None or bands.floor_margins is None else list(bands.floor_margins),
+            # what the decoder network is: the IMS's own, or the pull-push fill where the record's search kept it
+            "decoder": "trained" if point is None else point.decoder,
             "by_distance": None if bands is None else record.by_distance,
             "operating_point": None if record is None else asdict(record),
             "inputs": {"im": [1, 9], "decoder": [1, 4, pattern.c_size, pattern.c_size], "recnn": [1, 3, pattern.c_size, pattern.c_size]},
@@ -406,4 +410,5 @@ def exported_point(meta: dict) -> OperatingPoint | None:
     return OperatingPoint(share=meta["mean"], lift=bool(meta.get("lift", False)),
                           bands=None if not bands else Bands(bands["edges"], bands["means"], meta.get("floor_margins")),
                           sharpness=float(meta.get("sharpness", 1.0)),
-                          object_floor=None if not floor else (floor["margin"], floor["tau"]))
+                          object_floor=None if not floor else (floor["margin"], floor["tau"]),
+                          decoder=str(meta.get("decoder", "trained")))

@@ -33,7 +33,7 @@ Example:
     >>> r.describe()
     'u = 0.520, 39.3 % of C, IPR 0.098 on the validation views (within 1 dB of the RecNN alone)'
     >>> r.point
-    OperatingPoint(share=0.52, lift=False, bands=None, sharpness=1.0, object_floor=None)
+    OperatingPoint(share=0.52, lift=False, bands=None, sharpness=1.0, object_floor=None, decoder='trained')
     >>> write_operating_point("ims.ckpt", r)              # doctest: +SKIP
     >>> read_operating_point("ims.ckpt", trained_mean=0.2).point.share   # doctest: +SKIP
     0.52
@@ -107,6 +107,10 @@ class ORPRecord:
             says which share its ``mean`` implies; ``None``: not recorded (then that check is skipped).
         tolerance: the search's relative tolerance (``SEARCH_TOLERANCE``): how far ``c_share`` may be from the share
             ``points`` imply at ``mean``.
+        decoder: what rebuilds the C-Image at the point (``"trained"``: the IMS's own decoder; ``"fill"``: the
+            untrained pull-push fill, which the search kept as the faster within the bound; the evaluation's
+            ``orp_decoders``). Records written before it read as ``"trained"``, and a ``"trained"`` record is written
+            without the field, so its bytes are what they were.
     """
 
     mean: float | None
@@ -123,6 +127,7 @@ class ORPRecord:
     object_floor: dict | None = None
     points: list | None = None
     tolerance: float = SEARCH_TOLERANCE
+    decoder: str = "trained"
 
     @property
     def found(self) -> bool:
@@ -137,7 +142,8 @@ class ORPRecord:
         bands = None
         if self.by_distance:
             bands = Bands(self.by_distance["edges"], self.by_distance["means"], (self.object_floor or {}).get("band_margins"))
-        return OperatingPoint(share=self.mean, lift=self.lift, bands=bands, sharpness=self.sharpness, object_floor=self.floor)
+        return OperatingPoint(share=self.mean, lift=self.lift, bands=bands, sharpness=self.sharpness, object_floor=self.floor,
+                              decoder=self.decoder)
 
     def describe(self) -> str:
         """One line: the mean value, the share and IPR it gave, and the bound."""
@@ -153,6 +159,7 @@ class ORPRecord:
                 bands += " (" + " / ".join(f"{100 * c:.0f}" for c in b["c_shares"]) + " % of C)"
             bands += " split at " + ", ".join(f"{e:.2f}" for e in b["edges"])
         sharp = "" if self.sharpness == 1.0 else f", sharpness {self.sharpness:g}"
+        sharp += "" if self.decoder == "trained" else ", the pull-push fill as decoder"
         floor = ""
         if self.object_floor:
             f = self.object_floor
@@ -220,6 +227,8 @@ def write_operating_point(ims_checkpoint: str | Path, point: ORPRecord) -> Path:
     sha = _checkpoint_hash(ims_checkpoint)
     record = {"kind": KIND, "version": VERSION, "ims_checkpoint": str(Path(ims_checkpoint).expanduser().resolve()),
               "ims_checkpoint_sha256": sha, **asdict(point)}
+    if record["decoder"] == "trained":  # the paper's decoder: written as before the field existed
+        del record["decoder"]
     record = json.loads(json.dumps(record, default=str))  # as it reads back (tuples as lists, NumPy numbers as text)
     record[DIGEST] = record_digest(record, sha)
     return atomic_json(sidecar_path(ims_checkpoint), record)
@@ -251,7 +260,8 @@ def _check(record: Any, sha: str) -> tuple[ORPRecord | None, str | None]:
                                sharpness=check_sharpness(record.get("sharpness", 1.0)),
                                object_floor=_object_floor(record.get("object_floor")),
                                points=_points(record.get("points")),
-                               tolerance=float(record.get("tolerance", SEARCH_TOLERANCE)))
+                               tolerance=float(record.get("tolerance", SEARCH_TOLERANCE)),
+                               decoder=str(record.get("decoder", "trained")))
         if (point.object_floor or {}).get("band_margins") is not None and not point.by_distance:
             raise ValueError("object_floor.band_margins without by_distance bands to hold them")
         if not 0.0 <= point.tolerance <= 1.0:
@@ -312,11 +322,11 @@ def _summary_disagreement(point: ORPRecord, sha: str) -> str | None:
         return f"its evaluation's {path} evaluated another IMS checkpoint (SHA-256 {str(theirs)[:12]}...)"
     ours: dict[str, Any] = {"found": point.found, "mean": point.mean, "lift": point.lift, "c_share": point.c_share,
                             "ipr": point.ipr, "epsilon_db": point.epsilon_db, "gap_db": point.gap_db,
-                            "sharpness": point.sharpness}
+                            "sharpness": point.sharpness, "decoder": point.decoder}
     there: dict[str, Any] = {"found": bool(orp.get("found")), "mean": orp.get("mean") if orp.get("found") else None,
                              "lift": bool(orp.get("lift")), "c_share": orp.get("c_share"), "ipr": orp.get("ipr"),
                              "epsilon_db": orp.get("epsilon_db"), "gap_db": orp.get("gap_db"),
-                             "sharpness": orp.get("sharpness", 1.0)}
+                             "sharpness": orp.get("sharpness", 1.0), "decoder": orp.get("decoder", "trained")}
     if point.by_distance:
         bands = orp.get("by_distance") or {}
         for key in ("means", "edges"):
@@ -441,7 +451,7 @@ def point_to_run(ims_checkpoint: str | Path, share: float | str | None = None, *
 
     Example:
         >>> point_to_run("ims.ckpt", 0.4), point_to_run("ims.ckpt", "trained")
-        ((OperatingPoint(share=0.4, lift=False, bands=None, sharpness=1.0, object_floor=None), None), (None, None))
+        ((OperatingPoint(share=0.4, lift=False, bands=None, sharpness=1.0, object_floor=None, decoder='trained'), None), (None, None))
     """
     from imls_lightning.base.errors import finite_number
 

@@ -66,6 +66,7 @@ from .options import NetOptions, compile_available, half_is_faster, pick_device,
 from ..core.importance import check_ipr
 from ..core.operating_point import OperatingPoint
 from ..core.patterns import SamplingPattern, c_pixels_to_fr
+from ..models.iml import decoder_at
 from ..models.ims import DistanceMeans, IMSMaskHead
 
 STAGES = ("low_res_render", "render", "importance", "selective_render", "decoder", "recnn")
@@ -271,8 +272,9 @@ class IMLSRenderer(PatternMethod):
         opts: :class:`NetOptions`.
         point: the :class:`~imls_lightning.core.operating_point.OperatingPoint` the masks are made at (share, lift,
             bands of camera distance, sharpness, object floor; another share than the trained one needs
-            ``target="pim"``). ``None``: an :class:`IMSMaskHead` at its trained share, as it is; for a bound mask,
-            what it is bound to when said (an export's), else unknown.
+            ``target="pim"``), and its decoder (``"fill"``: the pull-push fill in place of ``decoder``).
+            ``None``: an :class:`IMSMaskHead` at its trained share, as it is; for a bound mask, what it is bound to
+            when said (an export's), else unknown.
         record: the evaluation's record the point came from
             (:class:`~imls_lightning.inference.operating_point.ORPRecord`, or an export's dict), or ``None``.
 
@@ -308,7 +310,9 @@ class IMLSRenderer(PatternMethod):
         self.mean = share if share is not None or self.mask_head is None else self.mask_head.trained_mean
         self.lift = point is not None and point.lift
         self.by_distance = getattr(mask, "by_distance", None) if self.mask_head is not None else None
-        self.decoder = prepare_net(decoder, self.device, self.opts)
+        # the point's decoder: the IMS's own, or the untrained fill of the same pixels where the search kept it
+        self.decoder = prepare_net(decoder_at("trained" if point is None else point.decoder, decoder, pattern),
+                                   self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
 
     @classmethod

@@ -39,7 +39,7 @@ from imls_lightning.core.importance import ImportanceNormalization, RejectionSam
 from imls_lightning.core.pull_push import fill_c_image, in_layout_of, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
-__all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "RefineDecoder", "PlainDecoder", "FillDecoder", "build_decoder",
+__all__ = ["IMLOutput", "IMLNet", "IMLRecNN", "RefineDecoder", "PlainDecoder", "FillDecoder", "build_decoder", "decoder_at",
            "ipr", "c_share", "DECODERS", "IMPORTANCE_SOURCES"]
 
 DECODERS = ("refine", "plain")
@@ -145,6 +145,22 @@ def build_decoder(kind: str, depth: int = 5, base_channels: int = 32, max_channe
     if kind == "fill":
         return FillDecoder(fill_pattern)
     raise InputError(f"decoder={kind!r}: expected one of {list(DECODERS) + ['fill']}")
+
+
+def decoder_at(kind: str, trained: nn.Module, pattern=None) -> nn.Module:
+    """The decoder an operating point runs (its ``decoder``,
+    :data:`~imls_lightning.core.operating_point.POINT_DECODERS`): ``"trained"``, the IMS's own ``trained`` decoder;
+    ``"fill"``, the untrained pull-push fill of the same pixels (:class:`FillDecoder`, at ``pattern``'s positions).
+
+    Example:
+        >>> isinstance(decoder_at("fill", nn.Identity()), FillDecoder), type(decoder_at("trained", nn.Identity())).__name__
+        (True, 'Identity')
+    """
+    if kind == "fill":
+        return FillDecoder(pattern)
+    if kind != "trained":
+        raise InputError(f"decoder={kind!r}: expected 'trained' (the IMS's own decoder) or 'fill' (the pull-push fill)")
+    return trained
 
 
 class IMLOutput(NamedTuple):

@@ -274,15 +274,19 @@ def _orp_lines(o: dict[str, Any], views: str) -> list[str]:
         rule = ("whose product ran fastest on the search views (each found point's IMS mask, exactly its pixels "
                 "ray-cast, decoder, RecNN; the candidates interleaved run by run)" if timed else
                 "that ray-casts the smallest share of C on the search views")
-        L.append(f"**Mask sharpness** (`ims_sharpness`): the search above ran at each sharpness γ (the IMS's PIM' raised to "
-                 f"γ per image at the same mean before the rescale), and the point {rule} was kept: "
-                 f"**γ = {fmt(o.get('sharpness', 1.0), 2)}**.")
+        decoders = len({c.get("decoder", "trained") for c in cands}) > 1
+        kept = f"**γ = {fmt(o.get('sharpness', 1.0), 2)}**" + (f", **decoder {o.get('decoder', 'trained')}**" if decoders else "")
+        L.append(f"**Candidates** (`ims_sharpness`" + (", `orp_decoders`" if decoders else "") + "): the search above ran "
+                 "at each sharpness γ (the IMS's PIM' raised to γ per image at the same mean before the rescale)"
+                 + (" with each decoder (trained: the IMS's own; fill: the pull-push fill of the same pixels)" if decoders else "")
+                 + f", and the point {rule} was kept: {kept}.")
         L.append("")
-        L.append(md_table(["γ", "ORP found", "u", "C-share (search views)", "lifted", "product (ms, search views)"],
-                          [[fmt(c["sharpness"], 2), "yes" if c["found"] else "no", fmt(c["mean"], 4) if c["found"] else "–",
+        L.append(md_table(["γ", "decoder", "ORP found", "u", "C-share (search views)", "lifted", "product (ms, search views)"],
+                          [[fmt(c["sharpness"], 2), c.get("decoder", "trained"), "yes" if c["found"] else "no",
+                            fmt(c["mean"], 4) if c["found"] else "–",
                             fmt_pct(c["c_share"]) if c["found"] else "–", "yes" if c.get("lift") else "no",
                             fmt(c["ms"], 1) if c.get("ms") is not None else "–"]
-                           for c in cands], "rrrrrr"))
+                           for c in cands], "rlrrrrr"))
         L.append("")
     if o["found"] and o.get("by_distance"):
         b = o["by_distance"]

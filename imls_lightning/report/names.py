@@ -15,6 +15,7 @@ METHOD_LABELS = {
     "iml": "IML + RecNN",
     "imls": "IML/S + RecNN",
     "imls_fill": "IML/S mask + fill + RecNN",
+    "imls_trained": "IML/S, its own decoder at its own point + RecNN",
     "blue_noise": "blue noise + decoder + RecNN",
     "two_pass": "two passes + fill + RecNN (no IMS)",
     "iml_selective": "IML IM, selectively rendered",
@@ -27,8 +28,8 @@ METHOD_LABELS = {
 #: the other ray caster's twins of the RecNN alone and IML/S: timed only, on the timed views (their images are the
 #: main methods'); :func:`ray_caster_twin` names them
 TWIN_METHODS = ("recnn_skip", "recnn_noskip", "imls_skip", "imls_noskip")
-METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "las_equal", "iml", "imls", "imls_fill", "blue_noise", "two_pass",
-                *TWIN_METHODS)
+METHOD_ORDER = ("full", "recnn", "recnn_sparser", "las", "las_searched", "las_equal", "iml", "imls", "imls_fill", "imls_trained", "blue_noise",
+                "two_pass", *TWIN_METHODS)
 
 
 def ray_caster_twin(method: str, skip_empty: bool) -> str:
@@ -57,7 +58,8 @@ STAGE_COLORS = {
     "recnn": "#d62728",
 }
 METHOD_COLORS = {"full": "#555555", "recnn": "#1f77b4", "recnn_sparser": "#17becf", "las": "#2ca02c", "las_searched": "#98df8a", "las_equal": "#c5e8b0", "iml": "#ff7f0e",
-                 "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "blue_noise": "#7f7f7f",
+                 "imls": "#d62728", "iml_selective": "#9467bd", "imls_fill": "#8c564b", "imls_trained": "#e377c2",
+                 "blue_noise": "#7f7f7f",
                  "two_pass": "#bcbd22", "recnn_skip": "#aec7e8", "recnn_noskip": "#aec7e8", "imls_skip": "#ff9896",
                  "imls_noskip": "#ff9896"}
 

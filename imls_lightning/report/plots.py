@@ -124,7 +124,7 @@ def plot_front(points: Sequence[Mapping[str, Any]], path: str | Path, title: str
     ax = fig.add_subplot(111)
     finite = [p for p in points if math.isfinite(number(p["latency_ms"])) and math.isfinite(number(p["psnr"]))]
     drawn = [p for p in finite if p["psnr"] < EXACT_PSNR_DB]
-    markers = {"imls": "*", "recnn": "s", "recnn_sparser": "D", "las": "^", "las_searched": "<", "iml": "o", "blue_noise": "v", "imls_fill": "P", "two_pass": "X"}
+    markers = {"imls": "*", "recnn": "s", "recnn_sparser": "D", "las": "^", "las_searched": "<", "iml": "o", "blue_noise": "v", "imls_fill": "P", "imls_trained": "p", "two_pass": "X"}
     by_method: dict[str, list[Mapping[str, Any]]] = {}
     for p in drawn:
         by_method.setdefault(str(p["method"]), []).append(p)

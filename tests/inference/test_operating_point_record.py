@@ -132,6 +132,29 @@ def test_a_record_is_cross_checked_with_its_evaluations_summary(ckpt, tmp_path, 
     assert got is not None and got.mean == 0.806
 
 
+def test_a_record_carries_its_decoder_and_the_papers_decoder_is_written_as_before(ckpt, tmp_path, capsys):
+    """A point kept with the pull-push fill as decoder is recorded and read with it (its point, its line, checked against
+    its evaluation's summary); one with the IMS's own decoder is written without the field, byte for byte what records
+    were before it existed, and a record without it reads as the trained decoder. A decoder the product does not know
+    is refused in one line."""
+    write_operating_point(ckpt, _point())
+    assert "decoder" not in json.loads(sidecar_path(ckpt).read_text())
+    got, _ = _read(ckpt, capsys)
+    assert got.decoder == "trained" and got.point.decoder == "trained"
+    report = _evaluation(tmp_path, ckpt, decoder="fill")
+    write_operating_point(ckpt, _point(decoder="fill", report=str(report)))
+    assert json.loads(sidecar_path(ckpt).read_text())["decoder"] == "fill"
+    got, lines = _read(ckpt, capsys)
+    assert got.point.decoder == "fill" and "the pull-push fill as decoder" in lines[0]
+    _evaluation(tmp_path, ckpt)  # its summary kept the trained decoder: the record disagrees
+    got, lines = _read(ckpt, capsys)
+    assert got is None and "(decoder fill here, trained there)" in lines[0]
+    (report.parent / "summary.json").unlink()
+    _edit(ckpt, reseal=True, decoder="refine")
+    got, lines = _read(ckpt, capsys)
+    assert got is None and "malformed (InputError: decoder='refine': expected 'trained'" in lines[0]
+
+
 def test_an_explicit_mean_is_not_read_from_the_record(ckpt, capsys):
     from imls_lightning.core.operating_point import OperatingPoint
     from imls_lightning.inference.operating_point import point_to_run

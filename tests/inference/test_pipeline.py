@@ -7,6 +7,7 @@ fast_dev_run on ``scene=tiny data=tiny``); the renderer is the real numba ray ca
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -345,6 +346,24 @@ def test_imls_renderer_at_another_mean_needs_a_pim_target(env):
         pytest.skip("the tiny IMS regresses PIM'")
     with pytest.raises(InputError, match="target=pim"):
         IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, point=OperatingPoint(share=0.3))
+
+
+def test_a_point_with_the_fill_as_decoder_renders_the_imls_mask_and_fill_pixels(env):
+    """OperatingPoint(decoder="fill"): the renderer rebuilds the C-Image with the pull-push fill of the same pixels, so
+    it renders exactly what IML/S's mask + fill of the evaluation renders (the mask, then FillDecoder), and its IM is
+    the trained decoder's point's; an unknown decoder is refused in one line."""
+    from imls_lightning.models.iml import FillDecoder
+
+    ims, view = env["ims"], env["views"][0]
+    trained = IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU)
+    point = trained.point.replace(decoder="fill") if trained.point is not None else OperatingPoint(decoder="fill")
+    filled = IMLSRenderer(env["renderer"], ims.pattern, ims.mask_head, ims.decoder, ims.recnn, CPU, point=point)
+    by_hand = IMLSRenderer(env["renderer"], ims.pattern, trained.predict_im, FillDecoder(ims.pattern), ims.recnn, CPU)
+    assert isinstance(filled.decoder, FillDecoder) and not isinstance(trained.decoder, FillDecoder)
+    a, b, t = filled.run(view), by_hand.run(view), trained.run(view)
+    assert np.array_equal(a.image, b.image) and torch.equal(a.info["im"], t.info["im"])
+    with pytest.raises(InputError, match=re.escape("decoder='refine': expected 'trained' (the IMS's own decoder) or 'fill'")):
+        OperatingPoint(share=0.3, decoder="refine")
 
 
 class _IndexColours:
