@@ -12,6 +12,7 @@ from ..core.compaction import decompact
 from ..base.config import to_plain
 from ..core.patterns import build_pattern
 from .base import ImlsTask
+from .losses import image_loss
 
 
 def build_recnn(net: Mapping, pattern) -> torch.nn.Module:
@@ -25,19 +26,12 @@ def build_recnn(net: Mapping, pattern) -> torch.nn.Module:
 
 
 def reconstruction_loss(pred: torch.Tensor, target: torch.Tensor, kind: str, ssim_weight: float) -> torch.Tensor:
-    """L1 or MSE, plus ``ssim_weight * (1 - SSIM)`` when asked."""
-    if kind == "l1":
-        loss = (pred - target).abs().mean()
-    elif kind == "mse":
-        loss = (pred - target).pow(2).mean()
-    else:
+    """L1 or MSE, plus ``ssim_weight * (1 - SSIM)`` when asked: the project's image loss
+    (:func:`~imls_lightning.tasks.losses.image_loss`, its differentiable SSIM the metric's to float64 precision), with
+    the RecNN's key in the message."""
+    if kind not in ("l1", "mse"):
         raise InputError(f"model.loss={kind!r}: expected 'l1' or 'mse'")
-    if ssim_weight:
-        from torchmetrics.functional.image import structural_similarity_index_measure as ssim_fn
-
-        k = 11 if min(pred.shape[-2:]) >= 11 else 3
-        loss = loss + ssim_weight * (1.0 - ssim_fn(pred.float(), target.float(), data_range=1.0, kernel_size=k))
-    return loss
+    return image_loss(pred, target, kind, float(ssim_weight))
 
 
 class RecNNTask(ImlsTask):
