@@ -251,15 +251,17 @@ def test_the_tricubic_row_is_the_trilinear_row_with_tricubic_in_every_stage(monk
     assert all(c.count("renderer.interpolation=tricubic") == 1 for c in tricubic)
 
 
-def test_the_decoder_choice_row_evaluates_the_committed_networks_with_both_decoders(monkeypatch, capsys, tmp_path):
-    """rayleigh_taylor_decoder_choice: the committed rayleigh_taylor networks, no training, and an evaluation that
-    differs from the row's own only by its fresh trajectory and the decoder candidates."""
-    folder = ROOT / "benchmarks" / "rows" / "rayleigh_taylor"
-    row = _row_dry_run("rayleigh_taylor_fastest", monkeypatch, capsys, tmp_path, f"trained={folder}")
-    choice = _row_dry_run("rayleigh_taylor_decoder_choice", monkeypatch, capsys, tmp_path)
+@pytest.mark.parametrize("scene, seed, fresh", [("rayleigh_taylor", 1208, 1210), ("seed_whole", 1207, 1211)])
+def test_the_decoder_choice_rows_evaluate_the_committed_networks_with_both_decoders(monkeypatch, capsys, tmp_path,
+                                                                                     scene, seed, fresh):
+    """<scene>_decoder_choice: the row's committed networks, no training, and an evaluation that differs from the
+    row's own only by its fresh trajectory and the decoder candidates."""
+    folder = ROOT / "benchmarks" / "rows" / scene
+    row = _row_dry_run(f"{scene}_fastest", monkeypatch, capsys, tmp_path, f"trained={folder}")
+    choice = _row_dry_run(f"{scene}_decoder_choice", monkeypatch, capsys, tmp_path)
     assert [c.split()[2] for c in choice] == ["imls_lightning.estimate", "data_gen", "imls_lightning.evaluate"]
     assert choice[:2] == row[:2]
-    expected = row[2].replace("trajectory_seed=1208", "trajectory_seed=1210")
+    expected = row[2].replace(f"trajectory_seed={seed}", f"trajectory_seed={fresh}")
     extra = " 'orp_decoders=[trained,fill]'"  # shell-quoted as printed
     assert extra in choice[2] and choice[2].replace(extra, "") == expected
 
