@@ -238,6 +238,31 @@ def test_export_carries_the_recorded_operating_point(renderer, tmp_path, capsys)
         share_setting(parse_args(["ims_checkpoint=a", "out=b", "share=0.4", "mean=0.3"]))
 
 
+def test_export_runs_a_point_recorded_with_the_fill_as_decoder(renderer, tmp_path):
+    """A point whose search kept the pull-push fill (orp_decoders) is exported as it runs: the decoder network is the
+    fill (its traced module gives the fill's output), export.json says so, and the exported renderer renders the same
+    images as IMLSRenderer.from_checkpoints."""
+    from imls_lightning.inference.export import PackedDecoder
+    from imls_lightning.inference.operating_point import ORPRecord, write_operating_point
+    from imls_lightning.models.iml import FillDecoder
+
+    ims = _low_pim_ims("enhancenet", 3.0)
+    ckpt = _save(ims, tmp_path / "ims_pim.ckpt")
+    write_operating_point(ckpt, ORPRecord(mean=0.6, lift=True, c_share=0.6, ipr=0.15, epsilon_db=1.0, decoder="fill"))
+    out = export_renderer(ckpt, tmp_path / "ts")
+    meta = json.loads((out / "export.json").read_text())
+    assert meta["decoder"] == "fill" and meta["operating_point"]["decoder"] == "fill"
+    ref = IMLSRenderer.from_checkpoints(ckpt, renderer=renderer)
+    assert ref.point.decoder == "fill" and isinstance(ref.decoder, FillDecoder)
+    packed = torch.rand(2, 4, ims.pattern.c_size, ims.pattern.c_size)
+    packed[:, 3] = (packed[:, 3] > 0.5).float()
+    traced = torch.jit.load(str(out / meta["files"]["decoder"]))
+    torch.testing.assert_close(traced(packed), PackedDecoder(FillDecoder(ims.pattern))(packed))
+    exp = ExportedIMLSRenderer.load(out, renderer=renderer, device="cpu")
+    assert exp.point.decoder == "fill"
+    _compare(ref, exp, _views(2, 13), tol=1)
+
+
 def test_export_runs_a_point_recorded_by_camera_distance(renderer, tmp_path):
     """A point recorded with orp_by_distance is exported as it runs: the im network picks each view's band's mean
     value (the same IMs as IMLSRenderer.from_checkpoints), and export.json carries the bands."""
