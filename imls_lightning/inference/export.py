@@ -358,6 +358,12 @@ class ExportedIMLSRenderer(IMLSRenderer):
 
     name = "imls_exported"
 
+    @staticmethod
+    def _point_decoder(decoder, pattern, point):
+        """The exported decoder is already the point's (:func:`export_parts` exported the fill where the point keeps
+        it): it runs as exported."""
+        return decoder
+
     @classmethod
     def load(cls, path: str | os.PathLike, *, scene=None, renderer=None, renderer_cfg=None,
              device: str = "auto") -> "ExportedIMLSRenderer":

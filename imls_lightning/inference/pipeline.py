@@ -310,10 +310,14 @@ class IMLSRenderer(PatternMethod):
         self.mean = share if share is not None or self.mask_head is None else self.mask_head.trained_mean
         self.lift = point is not None and point.lift
         self.by_distance = getattr(mask, "by_distance", None) if self.mask_head is not None else None
-        # the point's decoder: the IMS's own, or the untrained fill of the same pixels where the search kept it
-        self.decoder = prepare_net(decoder_at("trained" if point is None else point.decoder, decoder, pattern),
-                                   self.device, self.opts)
+        self.decoder = prepare_net(self._point_decoder(decoder, pattern, point), self.device, self.opts)
         self.recnn = prepare_net(recnn, self.device, self.opts)
+
+    @staticmethod
+    def _point_decoder(decoder: torch.nn.Module, pattern, point: OperatingPoint | None) -> torch.nn.Module:
+        """The decoder the point runs: ``decoder`` (the IMS's own), or the untrained fill of the same pixels where the
+        search kept it (:func:`~imls_lightning.models.iml.decoder_at`)."""
+        return decoder_at("trained" if point is None else point.decoder, decoder, pattern)
 
     @classmethod
     def from_nets(cls, nets: IMSNets, renderer, opts: NetOptions | None = None, *, point: OperatingPoint | None = None,

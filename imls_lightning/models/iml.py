@@ -36,6 +36,7 @@ from torch import nn
 
 from imls_lightning.base.errors import InputError
 from imls_lightning.core.importance import ImportanceNormalization, RejectionSampling, delegated
+from imls_lightning.core.operating_point import POINT_DECODERS
 from imls_lightning.core.pull_push import fill_c_image, in_layout_of, pull_push_inpaint
 from imls_lightning.models.unet import UNet
 
@@ -156,11 +157,9 @@ def decoder_at(kind: str, trained: nn.Module, pattern=None) -> nn.Module:
         >>> isinstance(decoder_at("fill", nn.Identity()), FillDecoder), type(decoder_at("trained", nn.Identity())).__name__
         (True, 'Identity')
     """
-    if kind == "fill":
-        return FillDecoder(pattern)
-    if kind != "trained":
-        raise InputError(f"decoder={kind!r}: expected 'trained' (the IMS's own decoder) or 'fill' (the pull-push fill)")
-    return trained
+    if kind not in POINT_DECODERS:
+        raise InputError(f"decoder={kind!r}: expected one of {list(POINT_DECODERS)}")
+    return FillDecoder(pattern) if kind == "fill" else trained
 
 
 class IMLOutput(NamedTuple):
